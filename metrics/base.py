@@ -1,0 +1,190 @@
+"""The metric interface: update/compute on sufficient statistics (torchmetrics style).
+
+A metric sees a scene's frames in order, a batch at a time, as float RGB arrays in [0, 1]:
+
+    metric.reset()
+    for batch in frames:                      # consecutive frames, in order
+        metric.update(pred[B,H,W,3], source=..., reference=...)
+    values = metric.compute()                 # {output name: MetricValue}
+
+``update`` only accumulates sufficient statistics (sums, confusion matrices, per-frame values,
+the last frame for temporal metrics), so one ``update`` with all frames equals many small ones.
+Whether a metric applies at all (needs a reference the scene lacks, weather where it is
+meaningless, missing model weights) is asked first with :meth:`Metric.skip_reason`; a metric that
+does not apply is recorded as skipped with that reason, never as a number.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+#: Weathers whose visibility loss invalidates content-consistency metrics (paper's rule, DESIGN §5).
+CONTENT_INVALID_WEATHERS = frozenset({"fog"})
+
+
+@dataclass(frozen=True)
+class MetricContext:
+    """What a (scene, weather) offers a metric, known before any frame is read.
+
+    Attributes
+    ----------
+    weather : str
+        ``"clear"``, ``"rain"``, ``"snow"`` or ``"fog"``.
+    n_frames : int
+    has_reference : bool
+        A ground-truth sequence exists for this weather.
+    has_source : bool
+        The raw (unedited) frames exist.
+    method_info : dict or None
+        The method's ``info.json`` (timings, parameters), if any.
+    fps_override : float or None
+        A frame rate given by the user (``--fps``).
+    """
+
+    weather: str
+    n_frames: int
+    has_reference: bool
+    has_source: bool = True
+    method_info: dict[str, Any] | None = None
+    fps_override: float | None = None
+
+
+@dataclass
+class MetricValue:
+    """One number a metric reports, with its raw per-frame values.
+
+    Attributes
+    ----------
+    value : float or None
+        The aggregate; ``None`` when it is not a finite number, with ``reason`` saying why.
+    per_frame : list of float or None
+        Raw per-frame (or per-frame-pair) values, non-finite ones as ``None``.
+    variant : str
+        Which definition produced the number (e.g. ``"mean of per-frame PSNR, data_range=1"``).
+    reason : str or None
+        Why ``value`` is ``None``.
+    extra : dict
+        Counts and side facts (``degenerate`` frames...).
+    """
+
+    value: float | None
+    per_frame: list[float | None] = field(default_factory=list)
+    variant: str = ""
+    reason: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_number(cls, value: float, *, nonfinite_reason: str, **kw: Any) -> MetricValue:
+        """Build from a float; a NaN/Inf becomes ``None`` with ``nonfinite_reason``."""
+        value = float(value)
+        if math.isfinite(value):
+            return cls(value=value, **kw)
+        return cls(value=None, reason=f"{nonfinite_reason} (value was {value})", **kw)
+
+
+def finite_or_none(values: Any) -> list[float | None]:
+    """Per-frame values as a JSON-friendly list (non-finite -> ``None``)."""
+    return [float(v) if math.isfinite(float(v)) else None for v in np.asarray(values, float).ravel()]
+
+
+def as_float_images(x: Any, *, name: str) -> np.ndarray:
+    """Check and return images as a float array [B, H, W, C] in [0, 1].
+
+    Accepts [H, W, C] (one frame) or [B, H, W, C]; float16/32/64 are kept (computation is done in
+    float64 where sums run long), uint8 is divided by 255.
+
+    Raises
+    ------
+    ValueError
+        On a wrong rank, a channel count other than 3, or float values outside [0, 1].
+    """
+    a = np.asarray(x)
+    if a.ndim == 3:
+        a = a[None]
+    if a.ndim != 4 or a.shape[-1] != 3:
+        raise ValueError(f"{name}: expected images [B, H, W, 3] or [H, W, 3], got shape {a.shape}")
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if not np.issubdtype(a.dtype, np.floating):
+        raise ValueError(f"{name}: expected uint8 or float images, got dtype {a.dtype}")
+    if a.size and (not np.all(np.isfinite(a)) or a.min() < 0.0 or a.max() > 1.0):
+        raise ValueError(f"{name}: float images must be finite and in [0, 1]")
+    return a
+
+
+def check_same_shape(a: np.ndarray, b: np.ndarray, *, names: tuple[str, str]) -> None:
+    """Raise ``ValueError`` naming both shapes if they differ."""
+    if a.shape != b.shape:
+        raise ValueError(f"{names[0]} has shape {a.shape} but {names[1]} has shape {b.shape}")
+
+
+class Metric(ABC):
+    """Base class of every wcbench metric.
+
+    Subclasses set the class attributes and implement :meth:`reset`, :meth:`update` and
+    :meth:`compute`; heavy models are passed to ``__init__`` so tests can inject small ones.
+    """
+
+    #: Registry name, e.g. ``"psnr"``.
+    name: ClassVar[str]
+    #: One line for ``wcbench metrics list``.
+    description: ClassVar[str]
+    #: Names of the :class:`MetricValue` outputs :meth:`compute` returns.
+    outputs: ClassVar[tuple[str, ...]]
+    higher_is_better: ClassVar[bool]
+    #: Needs a ground-truth sequence (PSNR, SSIM, LPIPS).
+    needs_reference: ClassVar[bool] = False
+    #: Compares the edit's content with the source frame (CLIP-S, Sem-CS): skipped in fog.
+    compares_content: ClassVar[bool] = False
+    #: Needs at least this many frames (temporal metrics need 2).
+    min_frames: ClassVar[int] = 1
+
+    def skip_reason(self, ctx: MetricContext) -> str | None:
+        """Why this metric cannot run on ``ctx`` (``None``: it can)."""
+        if self.needs_reference and not ctx.has_reference:
+            return f"no ground-truth {ctx.weather} sequence for this scene"
+        if self.compares_content and ctx.weather in CONTENT_INVALID_WEATHERS:
+            return f"{ctx.weather}: visibility loss invalidates content metrics (paper's rule)"
+        if ctx.n_frames < self.min_frames:
+            return f"needs at least {self.min_frames} frames, the sequence has {ctx.n_frames}"
+        return None
+
+    def bind(self, ctx: MetricContext) -> None:  # noqa: B027 - optional hook
+        """Called with the context before :meth:`reset`; metrics that need it keep it."""
+
+    def config(self) -> dict[str, Any]:
+        """Settings that change the numbers (part of the cache key and of results.json)."""
+        return {}
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Forget all accumulated statistics."""
+
+    @abstractmethod
+    def update(
+        self,
+        pred: np.ndarray,
+        *,
+        source: np.ndarray | None = None,
+        reference: np.ndarray | None = None,
+    ) -> None:
+        """Accumulate a batch of consecutive frames.
+
+        Parameters
+        ----------
+        pred : ndarray [B, H, W, 3]
+            The method's frames, float RGB in [0, 1].
+        source : ndarray [B, H, W, 3], optional
+            The raw frames the edit started from.
+        reference : ndarray [B, H, W, 3], optional
+            Ground truth for this weather.
+        """
+
+    @abstractmethod
+    def compute(self) -> dict[str, MetricValue]:
+        """The metric's outputs over everything seen since :meth:`reset`."""

@@ -1,0 +1,87 @@
+"""``wcbench bench metrics``: speed vs error of the metric implementations, measured in one run.
+
+Cases
+-----
+ssim_<WxH>      our SSIM (OpenCV separable float64 filter) vs scikit-image's, same definition:
+                time of both, abs difference.
+flow_<method>   optical flow for the flow warping error (DIS, Farneback, DeepFlow) on the demo
+                scene's frames: ms per frame pair and the relative deviation of the resulting
+                warping error (of the filter2d rain baseline) from the DeepFlow value.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wcbench.benchmark import BenchCase, BenchReport
+
+
+def _best_ms(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:
+    best, out = float("inf"), None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, (time.perf_counter() - t) * 1e3)
+    return best, out
+
+
+def _ssim_cases(quick: bool) -> list[BenchCase]:
+    from skimage.metrics import structural_similarity
+
+    from wcbench.metrics.ssim import ssim_map_mean
+
+    cases = []
+    sizes = [(320, 180)] if quick else [(480, 270), (1920, 1080)]
+    rng = np.random.default_rng(0)
+    for w, h in sizes:
+        a = rng.random((h, w, 3))
+        b = np.clip(a + 0.05 * rng.standard_normal(a.shape), 0, 1)
+        ours_ms, ours = _best_ms(lambda: ssim_map_mean(a, b), 3)
+        ref_ms, ref = _best_ms(lambda: structural_similarity(
+            a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=-1), 3)
+        cases.append(BenchCase(
+            name=f"ssim_{w}x{h}", knob="pixels", value=w * h, time_ms=ours_ms, error=abs(ours - ref),
+            error_unit="abs", extra={"reference": "skimage.metrics.structural_similarity", "ref_ms": ref_ms,
+                                     "speedup": ref_ms / ours_ms},
+        ))
+    return cases
+
+
+def _flow_cases(quick: bool) -> list[BenchCase]:
+    from wcbench.demo_scene import N_FRAMES, render_frame
+    from wcbench.methods.filter2d import Filter2DMethod
+    from wcbench.metrics.flicker import FLOW_METHODS, FlowWarpingError
+    from wcbench.scene_sets import resolve_scenes
+
+    scene = resolve_scenes("demo")[0].load()
+    n = 3 if quick else N_FRAMES
+    src = np.stack([render_frame(t)[0] for t in range(n)]).astype(np.float32) / 255.0
+    rain = Filter2DMethod()
+    edit = np.stack([rain.render_frame(scene, "rain", t, seed=0) for t in range(n)]).astype(np.float32) / 255.0
+    values: dict[str, tuple[float, float]] = {}
+    for name in ("deepflow", "dis", "farneback"):
+        flow = FLOW_METHODS[name]
+        ms, _ = _best_ms(lambda flow=flow: flow(src[0], src[1]), 2)
+        m = FlowWarpingError(flow=name)
+        m.update(edit, source=src)
+        values[name] = (ms, m.compute()["flow_warping_error"].value or float("nan"))
+    ref = values["deepflow"][1]
+    return [
+        BenchCase(name=f"flow_{k}", knob="flow", value=k, time_ms=ms, error=abs(v - ref) / ref,
+                  error_unit="rel", extra={"warp_error": v, "reference": "deepflow"})
+        for k, (ms, v) in values.items()
+    ]
+
+
+def run(*, data_root: Path | None = None, quick: bool = False) -> BenchReport:
+    """Run the suite; ``quick`` shrinks it to a smoke test."""
+    report = BenchReport("metrics")
+    report.cases += _ssim_cases(quick)
+    report.cases += _flow_cases(quick)
+    report.notes.append("flow cases use the built-in demo scene (320x180); ms per frame pair")
+    return report

@@ -1,0 +1,244 @@
+"""Temporal consistency: VBench-style temporal flicker and the flow warping error.
+
+Temporal flicker (cheap)
+    mean over consecutive frame pairs of mean |V_t - V_{t+1}|, RGB in [0, 1]. VBench reports
+    1 - this (x255 scaled); we keep the raw mean absolute difference (lower is better) and the
+    ratio edited / source, so camera motion that is in the source is factored out.
+Flow warping error (DESIGN §5)
+    E_warp = mean_t [ sum_i M_t(i) ||V_t(i) - V_{t+1}(i + F_t(i))||^2 / sum_i M_t(i) ], squared
+    error summed over RGB channels in [0, 1]. The flow F (t -> t+1) and the mask M come from the
+    *source* sequence, so a method is judged on whether its edit moves with the scene. M = 1 where
+    i + F(i) lies inside the frame and the pixel is neither occluded (forward-backward check
+    |F + B~|^2 > 0.01 (|F|^2 + |B~|^2) + 0.5, with B~(i) = B(i + F(i)) the backward flow sampled at
+    the target) nor on a motion boundary (|grad B~|^2 > 0.01 |B~|^2 + 0.002): the tests of Ruder et
+    al. 2016, written in frame t's pixel grid. Reported with the edited / source ratio.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import cv2
+import numpy as np
+
+from wcbench.metrics.base import Metric, MetricValue, as_float_images, finite_or_none
+
+FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+# --------------------------------------------------------------------------- optical flow
+def _gray8(img: np.ndarray) -> np.ndarray:
+    u8 = img if img.dtype == np.uint8 else np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(u8, cv2.COLOR_RGB2GRAY)
+
+
+def dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dense flow a -> b [H, W, 2] (pixels, x then y) with OpenCV DIS, preset MEDIUM."""
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    return dis.calc(_gray8(a), _gray8(b), None)
+
+
+def farneback_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dense flow a -> b [H, W, 2] with OpenCV Farneback (pyramid 0.5, 5 levels, window 15)."""
+    return cv2.calcOpticalFlowFarneback(_gray8(a), _gray8(b), None, 0.5, 5, 15, 3, 5, 1.2, 0)
+
+
+def deepflow_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dense flow a -> b [H, W, 2] with OpenCV contrib DeepFlow (slow, most exact of the three)."""
+    return cv2.optflow.createOptFlow_DeepFlow().calc(_gray8(a), _gray8(b), None)
+
+
+FLOW_METHODS: dict[str, FlowFn] = {"dis": dis_flow, "farneback": farneback_flow, "deepflow": deepflow_flow}
+
+
+def warp(img: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """Sample ``img`` [H, W, C] at i + flow(i) (bilinear; zero outside) -> [H, W, C]."""
+    h, w = flow.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    mx, my = gx + flow[..., 0], gy + flow[..., 1]
+    out = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.reshape(img.shape)
+
+
+def consistency_mask(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
+    """Valid-pixel mask [H, W] bool for warping frame t+1 onto frame t (see module docstring).
+
+    Parameters
+    ----------
+    forward : ndarray [H, W, 2]
+        Flow t -> t+1 in pixels.
+    backward : ndarray [H, W, 2]
+        Flow t+1 -> t in pixels.
+    """
+    h, w = forward.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    tx, ty = gx + forward[..., 0], gy + forward[..., 1]
+    inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)
+    b = warp(backward.astype(np.float32), forward.astype(np.float32))
+    f2 = (forward.astype(np.float64) ** 2).sum(-1)
+    b2 = (b.astype(np.float64) ** 2).sum(-1)
+    occluded = ((forward + b).astype(np.float64) ** 2).sum(-1) > 0.01 * (f2 + b2) + 0.5
+    gy_b, gx_b = np.gradient(b.astype(np.float64), axis=(0, 1))
+    grad2 = (gx_b**2).sum(-1) + (gy_b**2).sum(-1)
+    boundary = grad2 > 0.01 * b2 + 0.002
+    return inside & ~occluded & ~boundary
+
+
+def warp_error_pair(v0: np.ndarray, v1: np.ndarray, forward: np.ndarray, mask: np.ndarray) -> float:
+    """Masked mean over pixels of the squared RGB error between v0 and v1 warped by ``forward``.
+
+    Returns NaN when the mask is empty.
+    """
+    diff = v0.astype(np.float64) - warp(v1.astype(np.float32), forward).astype(np.float64)
+    err = (diff**2).sum(-1)
+    m = mask.astype(np.float64)
+    total = m.sum()
+    return float((err * m).sum() / total) if total > 0 else float("nan")
+
+
+# --------------------------------------------------------------------------- functional API
+def temporal_flicker(frames: np.ndarray) -> float:
+    """Mean absolute difference of consecutive frames (RGB in [0, 1]); lower is steadier.
+
+    Parameters
+    ----------
+    frames : ndarray [T, H, W, 3]
+        T >= 2.
+    """
+    f = as_float_images(frames, name="frames").astype(np.float64)
+    if len(f) < 2:
+        raise ValueError(f"temporal_flicker: needs at least 2 frames, got {len(f)}")
+    return float(np.mean(np.abs(np.diff(f, axis=0)).mean(axis=(1, 2, 3))))
+
+
+def flow_warp_error(edited: np.ndarray, source: np.ndarray | None = None, *, flow: str = "dis") -> float:
+    """Flow warping error of ``edited`` [T, H, W, 3] with flow and mask from ``source``.
+
+    ``source`` defaults to ``edited`` itself (the error of a raw video). RGB in [0, 1].
+    """
+    m = FlowWarpingError(flow=flow)
+    m.update(edited, source=edited if source is None else source)
+    value = m.compute()["flow_warping_error"].value
+    return float("nan") if value is None else value
+
+
+# --------------------------------------------------------------------------- metrics
+class TemporalFlicker(Metric):
+    """VBench-style temporal flicker and its ratio to the source's own flicker."""
+
+    name = "temporal_flicker"
+    description = "mean |frame t - frame t+1| (RGB in [0, 1]) and its edited/source ratio"
+    outputs = ("temporal_flicker", "temporal_flicker_ratio")
+    higher_is_better = False
+    min_frames = 2
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget per-pair values and the last frames seen."""
+        self._pred: list[float] = []
+        self._src: list[float] = []
+        self._last: tuple[np.ndarray, np.ndarray | None] | None = None
+
+    def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
+               reference: np.ndarray | None = None) -> None:
+        """Accumulate the frame differences of a batch of consecutive frames [B, H, W, 3]."""
+        p = as_float_images(pred, name="pred").astype(np.float64)
+        s = None if source is None else as_float_images(source, name="source").astype(np.float64)
+        for k in range(len(p)):
+            cur = (p[k], None if s is None else s[k])
+            if self._last is not None:
+                self._pred.append(float(np.abs(cur[0] - self._last[0]).mean()))
+                if cur[1] is not None and self._last[1] is not None:
+                    self._src.append(float(np.abs(cur[1] - self._last[1]).mean()))
+            self._last = cur
+
+    def compute(self) -> dict[str, MetricValue]:
+        """Mean flicker and edited/source ratio (null with a reason when the source is static)."""
+        p, s = np.asarray(self._pred), np.asarray(self._src)
+        out = {"temporal_flicker": MetricValue.from_number(
+            p.mean() if p.size else float("nan"), nonfinite_reason="fewer than 2 frames",
+            per_frame=finite_or_none(p), variant="mean abs difference of consecutive frames, RGB [0, 1]")}
+        if s.size and s.size == p.size:
+            ratio = p.mean() / s.mean() if s.mean() > 0 else float("nan")
+            out["temporal_flicker_ratio"] = MetricValue.from_number(
+                ratio, nonfinite_reason="the source sequence is static (zero flicker)",
+                variant="edited temporal_flicker / source temporal_flicker")
+        else:
+            out["temporal_flicker_ratio"] = MetricValue(None, reason="no source sequence", variant="ratio")
+        return out
+
+
+class FlowWarpingError(Metric):
+    """Flow warping error with flow and occlusion mask from the source sequence (DESIGN §5).
+
+    Parameters
+    ----------
+    flow : {"dis", "farneback", "deepflow"} or callable
+        Optical flow ``f(a, b) -> [H, W, 2]`` between two RGB frames.
+    """
+
+    name = "flow_warping_error"
+    description = "masked flow warping error (flow + occlusion from the source), and edited/source ratio"
+    outputs = ("flow_warping_error", "flow_warping_error_ratio")
+    higher_is_better = False
+    min_frames = 2
+
+    def __init__(self, *, flow: str | FlowFn = "dis"):
+        if isinstance(flow, str) and flow not in FLOW_METHODS:
+            raise ValueError(f"flow must be one of {sorted(FLOW_METHODS)} or a callable, got {flow!r}")
+        self.flow_name = flow if isinstance(flow, str) else getattr(flow, "__name__", "custom")
+        self._flow: FlowFn = FLOW_METHODS[flow] if isinstance(flow, str) else flow
+        self.reset()
+
+    def config(self) -> dict[str, Any]:
+        """The flow method (changes the numbers)."""
+        return {"flow": self.flow_name}
+
+    def skip_reason(self, ctx: Any) -> str | None:
+        """Also needs the source sequence."""
+        if not ctx.has_source:
+            return "needs the source (raw) sequence for flow and occlusion"
+        return super().skip_reason(ctx)
+
+    def reset(self) -> None:
+        """Forget per-pair errors and the last frames seen."""
+        self._pred: list[float] = []
+        self._src: list[float] = []
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
+
+    def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
+               reference: np.ndarray | None = None) -> None:
+        """Accumulate per-pair warping errors of consecutive frames [B, H, W, 3]."""
+        if source is None:
+            raise ValueError("flow_warping_error: the source batch is required")
+        p = as_float_images(pred, name="pred").astype(np.float32)
+        s = as_float_images(source, name="source").astype(np.float32)
+        if p.shape != s.shape:
+            raise ValueError(f"pred has shape {p.shape} but source has shape {s.shape}")
+        for k in range(len(p)):
+            if self._last is not None:
+                p0, s0 = self._last
+                fwd = self._flow(s0, s[k]).astype(np.float32)
+                bwd = self._flow(s[k], s0).astype(np.float32)
+                mask = consistency_mask(fwd, bwd)
+                self._pred.append(warp_error_pair(p0, p[k], fwd, mask))
+                self._src.append(warp_error_pair(s0, s[k], fwd, mask))
+            self._last = (p[k], s[k])
+
+    def compute(self) -> dict[str, MetricValue]:
+        """Mean over frame pairs, and the edited/source ratio."""
+        p, s = np.asarray(self._pred), np.asarray(self._src)
+        variant = f"E_warp, {self.flow_name} flow + Ruder occlusion mask from source, RGB [0, 1], SSE over channels"
+        pm = float(np.nanmean(p)) if p.size and np.isfinite(p).any() else float("nan")
+        sm = float(np.nanmean(s)) if s.size and np.isfinite(s).any() else float("nan")
+        return {
+            "flow_warping_error": MetricValue.from_number(
+                pm, nonfinite_reason="no frame pair with valid (non-occluded) pixels",
+                per_frame=finite_or_none(p), variant=variant),
+            "flow_warping_error_ratio": MetricValue.from_number(
+                pm / sm if sm > 0 else float("nan"),
+                nonfinite_reason="the source's own warping error is zero", variant="edited E_warp / source E_warp"),
+        }

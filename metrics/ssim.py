@@ -1,0 +1,103 @@
+"""SSIM exactly as DESIGN §5 defines it (and as scikit-image computes it).
+
+Gaussian window 11x11 with sigma 1.5, K1 = 0.01, K2 = 0.03, data range 1, population
+covariances, float64, SSIM map averaged over the valid region (5 px cropped at each border, as
+``skimage.metrics.structural_similarity(..., gaussian_weights=True, sigma=1.5,
+use_sample_covariance=False, data_range=1, channel_axis=-1)``) and over channels. This is not the
+3DGS training SSIM, which zero-pads instead of cropping.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from wcbench.metrics.base import Metric, MetricValue, as_float_images, check_same_shape, finite_or_none
+
+SIGMA = 1.5
+TRUNCATE = 3.5  # scipy.ndimage.gaussian_filter's default: radius int(3.5 * 1.5 + 0.5) = 5
+K1, K2 = 0.01, 0.03
+_RADIUS = int(TRUNCATE * SIGMA + 0.5)
+_VARIANT = "gaussian 11x11 sigma 1.5, valid region (5 px crop), float64, mean over channels (= skimage)"
+
+
+def gaussian_kernel_1d(sigma: float = SIGMA, radius: int = _RADIUS) -> np.ndarray:
+    """Normalised 1D Gaussian taps [2 radius + 1] in float64 (scipy's construction)."""
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    k = np.exp(-0.5 * (x / sigma) ** 2)
+    return k / k.sum()
+
+
+def ssim_map_mean(a: np.ndarray, b: np.ndarray, *, data_range: float = 1.0) -> float:
+    """SSIM of two images [H, W, C] (float64 math), mean over valid pixels and channels."""
+    if min(a.shape[:2]) < 2 * _RADIUS + 1:
+        raise ValueError(f"ssim: images must be at least {2 * _RADIUS + 1} px on each side, got {a.shape[:2]}")
+    k = gaussian_kernel_1d()
+    x, y = a.astype(np.float64), b.astype(np.float64)
+
+    def blur(m: np.ndarray) -> np.ndarray:
+        return cv2.sepFilter2D(m, cv2.CV_64F, k, k, borderType=cv2.BORDER_REFLECT)
+
+    ux, uy = blur(x), blur(y)
+    vx = blur(x * x) - ux * ux
+    vy = blur(y * y) - uy * uy
+    vxy = blur(x * y) - ux * uy
+    c1, c2 = (K1 * data_range) ** 2, (K2 * data_range) ** 2
+    s = ((2 * ux * uy + c1) * (2 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
+    r = _RADIUS
+    valid = s[r:-r, r:-r]
+    return float(valid.reshape(-1, valid.shape[-1] if valid.ndim == 3 else 1).mean(axis=0).mean())
+
+
+def ssim(pred: np.ndarray, reference: np.ndarray) -> float:
+    """Mean SSIM of a frame or sequence against its reference.
+
+    Parameters
+    ----------
+    pred, reference : ndarray [H, W, 3] or [T, H, W, 3]
+        Float RGB in [0, 1] (or uint8, divided by 255).
+
+    Returns
+    -------
+    float
+        In [-1, 1]; 1 for identical images.
+    """
+    p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
+    check_same_shape(p, r, names=("pred", "reference"))
+    return float(np.mean([ssim_map_mean(a, b) for a, b in zip(p, r)]))
+
+
+class SSIM(Metric):
+    """Structural similarity per frame, averaged over the sequence."""
+
+    name = "ssim"
+    description = "SSIM (gaussian 11x11, sigma 1.5, = skimage) against the ground-truth sequence"
+    outputs = ("ssim",)
+    higher_is_better = True
+    needs_reference = True
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget per-frame values."""
+        self._values: list[float] = []
+
+    def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
+               reference: np.ndarray | None = None) -> None:
+        """Accumulate per-frame SSIM of ``pred`` [B, H, W, 3] against ``reference``."""
+        if reference is None:
+            raise ValueError("ssim: a reference batch is required")
+        p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
+        check_same_shape(p, r, names=("pred", "reference"))
+        self._values.extend(ssim_map_mean(a, b) for a, b in zip(p, r))
+
+    def compute(self) -> dict[str, MetricValue]:
+        """Mean per-frame SSIM."""
+        v = np.asarray(self._values, np.float64)
+        return {
+            "ssim": MetricValue.from_number(
+                float(v.mean()) if v.size else float("nan"), nonfinite_reason="no frames",
+                per_frame=finite_or_none(v), variant=_VARIANT,
+            )
+        }

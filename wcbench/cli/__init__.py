@@ -1,0 +1,79 @@
+"""The ``wcbench`` command line. One module per verb, imported lazily by :func:`main`.
+
+Each verb module defines ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``
+and imports nothing heavy at module level, so ``wcbench --help`` stays instant and never imports
+torch or onnxruntime.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+#: verb -> module; the order is the order in ``--help``.
+COMMANDS = {
+    "run": "wcbench.cli.run",
+    "evaluate": "wcbench.cli.evaluate",
+    "render": "wcbench.cli.render",
+    "scenes": "wcbench.cli.scenes",
+    "methods": "wcbench.cli.methods",
+    "metrics": "wcbench.cli.metrics",
+    "models": "wcbench.cli.models",
+    "bench": "wcbench.cli.bench",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser (imports every verb module, none of which imports heavy code)."""
+    from wcbench import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="wcbench",
+        description="Weather editing of driving scenes: render, evaluate and benchmark methods.",
+        epilog="Run `wcbench VERB --help` for the options of each verb.",
+    )
+    parser.add_argument("--version", action="version", version=f"wcbench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="VERB")
+    for name, module_name in COMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name == module_name:  # verb not shipped in this build
+                continue
+            raise
+        p = sub.add_parser(name, help=module.HELP, description=module.__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``wcbench`` console script; returns the exit status.
+
+    Input errors (:class:`~wcbench.errors.WcbenchError`) print one message and exit with 2.
+    """
+    from wcbench.errors import WcbenchError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except WcbenchError as exc:
+        print(f"wcbench {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except BrokenPipeError:  # `wcbench ... | head`: the reader left, nothing to report
+        sys.stderr.close()
+        return 0
+    except KeyboardInterrupt:
+        print("wcbench: interrupted; finished work is kept and a re-run resumes", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,74 @@
+"""Score a method's rendered frames from files alone and write results.json + results.csv.
+
+The predictions folder holds one sub-folder per scene (left out when one scene is scored); each
+method reader knows its tool's file naming (`wcbench methods list -v`), or pass --pattern.
+Re-running with the same inputs does no work; a killed run resumes; finished results of other
+inputs are kept unless --overwrite.
+
+Examples::
+
+    wcbench evaluate --method folder --scenes pandaset_002 --data-root ../shared/data \\
+        --predictions my_frames/ --out results/mine
+    wcbench evaluate --method controlnet --scenes waymo_5 --predictions controlnet_out/ \\
+        --out results/controlnet --weathers rain,snow --metrics temporal_flicker,fps --fps 0.4
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from wcbench.cli.common import add_progress_argument, add_scene_arguments, split_list
+
+HELP = "score a method's frames (results.json, results.csv)"
+
+
+def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``evaluate`` and ``run``."""
+    parser.add_argument("--out", type=Path, required=True, help="output folder for results.json / results.csv")
+    parser.add_argument("--weathers", nargs="+", default=None,
+                        help="weathers to score (default: every weather found / supported)")
+    parser.add_argument("--metrics", nargs="+", default=None, help="metrics (default: see `wcbench metrics list`)")
+    parser.add_argument("--fps", type=float, default=None, help="frame rate to report if info.json has none")
+    parser.add_argument("--overwrite", action="store_true", help="replace finished results of other inputs")
+    add_progress_argument(parser)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``wcbench evaluate``."""
+    parser.add_argument("--method", required=True, help="method adapter (see `wcbench methods list`)")
+    add_scene_arguments(parser)
+    parser.add_argument("--predictions", type=Path, required=True, help="folder with the method's frames")
+    parser.add_argument("--pattern", default=None, help="file pattern, e.g. '{weather}/{frame}.png' or '{weather}.mp4'")
+    parser.add_argument("--resize", action="store_true", help="resize predictions of another size to the scene's")
+    add_evaluate_options(parser)
+
+
+def report(outcome: object) -> None:
+    """Print where results went and a short table."""
+    from wcbench.evaluation import EvaluateOutcome, summarize
+
+    assert isinstance(outcome, EvaluateOutcome)
+    if outcome.status == "up-to-date":
+        print(f"up to date: {outcome.results_path} (inputs unchanged, nothing recomputed)")
+    else:
+        print(f"wrote {outcome.results_path} and results.csv "
+              f"({outcome.units_computed} computed, {outcome.units_reused} reused)")
+    for scene, weather, name, text in summarize(outcome.results):
+        print(f"  {scene:16s} {weather:6s} {name:26s} {text}")
+    sys.stdout.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Evaluate and print a summary."""
+    from wcbench.evaluation import EvaluateConfig, evaluate
+
+    cfg = EvaluateConfig(
+        method=args.method, scenes=args.scenes, predictions=args.predictions, out=args.out,
+        weathers=split_list(args.weathers), metrics=split_list(args.metrics), pattern=args.pattern,
+        resize=args.resize, fps=args.fps, data_root=args.data_root, overwrite=args.overwrite,
+        show_progress=not args.no_progress,
+    )
+    report(evaluate(cfg))
+    return 0

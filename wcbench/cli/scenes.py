@@ -1,0 +1,48 @@
+"""List the built-in scene sets, or show what one scene set (or scene folder) holds.
+
+Examples::
+
+    wcbench scenes list
+    wcbench scenes show pandaset_002 --data-root ../shared/data
+    wcbench scenes show path/to/processed/scene
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "list scene sets or show one"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``list`` and ``show NAME``."""
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    sub.add_parser("list", help="list the built-in scene sets")
+    show = sub.add_parser("show", help="load a scene set or folder and describe its scenes")
+    show.add_argument("name", help="scene set name or scene folder path")
+    show.add_argument("--data-root", type=Path, default=None, help="dataset folder (default: $WCBENCH_DATA)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the listing."""
+    from wcbench.scene_sets import list_scene_sets, resolve_scenes
+
+    if args.action == "list":
+        for name, desc in list_scene_sets():
+            print(f"{name:14s} {desc}")
+        return 0
+    for ref in resolve_scenes(args.name, data_root=args.data_root):
+        scene = ref.load()
+        w, h = scene.image_size
+        with_lidar = sum(f.lidar_path is not None for f in scene.frames)
+        classes: dict[str, int] = {}
+        for t in scene.tracks:
+            classes[t.class_name] = classes.get(t.class_name, 0) + 1
+        print(f"{scene.id}: {len(scene)} frames {w}x{h}, {scene.duration:.1f} s, format {scene.source_format}")
+        print(f"  folder       {scene.root}")
+        print(f"  lidar        {with_lidar}/{len(scene)} frames")
+        print(f"  up vector    {scene.up.tolist()}  (world re-based by {[round(v, 3) for v in scene.world_offset]})")
+        print(f"  tracks       {len(scene.tracks)} " + ", ".join(f"{k}: {v}" for k, v in sorted(classes.items())))
+        print(f"  sky masks    {sum(f.sky_mask_path is not None for f in scene.frames)} frames")
+    return 0

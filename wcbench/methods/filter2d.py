@@ -1,0 +1,103 @@
+"""``filter2d``: a classical image-space weather baseline (no 3D, no learning).
+
+Each frame is edited on its own, as 2D photo filters do:
+
+* fog: Beer-Lambert with a flat-ground distance guess per image row (rows above the horizon are
+  treated as far away), t = exp(-beta d), C = t I + (1 - t) c_fog;
+* rain: darker, bluer, lower-contrast image plus seeded motion-blurred streaks;
+* snow: brighter, lower-contrast image plus seeded soft flakes.
+
+Streaks and flakes are drawn afresh per frame from (seed, frame), so the baseline is deterministic
+but, like any per-frame editor, not temporally coherent: exactly what flicker metrics should see.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+
+from wcbench.image_io import read_rgb8
+from wcbench.methods.protocol import MethodInfo
+from wcbench.methods.runnable import FrameRenderer
+from wcbench.scene import Scene
+
+FOG_COLOR = (0.80, 0.80, 0.85)  # paper's c_fog
+_PARAMS: dict[str, dict[str, Any]] = {
+    "clear": {},
+    "fog": {"visibility_m": 60.0, "fog_color": FOG_COLOR, "camera_height_m": 1.6, "far_m": 1000.0},
+    "rain": {"darken": 0.78, "tint": (0.92, 0.96, 1.05), "streaks_per_megapixel": 1500, "streak_px": 0.06},
+    "snow": {"brighten": 0.12, "flakes_per_megapixel": 2500, "flake_px": 0.004},
+}
+
+
+def _rng(seed: int, index: int) -> np.random.Generator:
+    return np.random.default_rng([seed, index, 0x2D])
+
+
+def fog_filter(img: np.ndarray, K: np.ndarray, *, visibility_m: float, fog_color: tuple[float, float, float],
+               camera_height_m: float, far_m: float) -> np.ndarray:
+    """Flat-ground Beer-Lambert fog on float RGB [H, W, 3]; returns float RGB."""
+    h = img.shape[0]
+    beta = 2.996 / visibility_m
+    rows = np.arange(h, dtype=np.float64) + 0.5 - K[1, 2]
+    with np.errstate(divide="ignore"):
+        dist = np.where(rows > 0, camera_height_m * K[1, 1] / rows, far_m)
+    t = np.exp(-beta * np.minimum(dist, far_m))[:, None, None]
+    return t * img + (1 - t) * np.asarray(fog_color)
+
+
+def _overlay_strokes(img: np.ndarray, rng: np.random.Generator, *, count: int, length: float, angle: float,
+                     thickness: int, intensity: float, blur: int) -> np.ndarray:
+    h, w = img.shape[:2]
+    layer = np.zeros((h, w), np.float32)
+    xs, ys = rng.uniform(0, w, count), rng.uniform(0, h, count)
+    ls = length * rng.uniform(0.5, 1.0, count)
+    dx, dy = np.sin(angle), np.cos(angle)
+    for x, y, ln in zip(xs, ys, ls):
+        cv2.line(layer, (int(x), int(y)), (int(x + dx * ln), int(y + dy * ln)), 1.0, thickness, cv2.LINE_AA)
+    if blur > 1:
+        layer = cv2.GaussianBlur(layer, (blur | 1, blur | 1), 0)
+    a = np.clip(layer * intensity, 0, 1)[..., None]
+    return img * (1 - a) + a * 0.9
+
+
+class Filter2DMethod(FrameRenderer):
+    """Per-frame image filters for rain, snow and fog (see module docstring)."""
+
+    info = MethodInfo(
+        name="filter2d",
+        description="Classical image-space weather filters (per-frame 2D baseline)",
+        kind="runnable",
+        weathers=("clear", "rain", "snow", "fog"),
+        layout="writes <out>/filter2d/<scene>/<weather>/{frame:03d}.png + info.json",
+    )
+
+    def parameters(self, weather: str) -> dict[str, Any]:
+        """The filter settings used for ``weather``."""
+        return dict(_PARAMS[weather])
+
+    def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> np.ndarray:
+        """Edit raw frame ``index``; uint8 RGB out."""
+        raw = read_rgb8(scene.frames[index].image_path).astype(np.float32) / 255.0
+        p = _PARAMS[weather]
+        if weather == "clear":
+            out = raw
+        elif weather == "fog":
+            out = fog_filter(raw, scene.frames[index].camera.K, **p)
+        else:
+            h, w = raw.shape[:2]
+            mpx = h * w / 1e6
+            rng = _rng(seed, index)
+            gray = raw.mean(axis=2, keepdims=True)
+            if weather == "rain":
+                base = (0.7 * raw + 0.3 * gray) * p["darken"] * np.asarray(p["tint"], np.float32)
+                out = _overlay_strokes(base, rng, count=max(1, int(p["streaks_per_megapixel"] * mpx)),
+                                       length=p["streak_px"] * h, angle=0.15, thickness=1, intensity=0.35, blur=3)
+            else:
+                base = raw * (1 - p["brighten"]) + p["brighten"]
+                out = _overlay_strokes(base, rng, count=max(1, int(p["flakes_per_megapixel"] * mpx)),
+                                       length=max(1.0, p["flake_px"] * h), angle=0.3,
+                                       thickness=max(1, int(p["flake_px"] * h)), intensity=0.8, blur=3)
+        return np.clip(np.rint(np.asarray(out) * 255.0), 0, 255).astype(np.uint8)

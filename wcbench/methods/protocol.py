@@ -1,0 +1,84 @@
+"""The method adapter protocol shared by runnable methods and output readers.
+
+Render and evaluate meet only at the on-disk prediction layout (DESIGN §4)::
+
+    <root>/<scene>/<weather>/{frame:03d}.png     # one PNG per frame, uint8 sRGB
+    <root>/<scene>/<weather>/info.json           # method, version, parameters, timings, hashes
+
+A *runnable* method writes that layout (:meth:`RunnableMethod.render`); an *output reader* maps
+another tool's files onto frames (:meth:`Method.open_predictions`). Both return a
+:class:`~wcbench.predictions.PredictionSequence`, so the evaluator never knows which it has.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+if TYPE_CHECKING:
+    from wcbench.predictions import PredictionSequence
+    from wcbench.scene import Scene
+
+#: Every weather wcbench knows; ``clear`` means the raw, unedited scene.
+WEATHERS = ("clear", "rain", "snow", "fog")
+
+
+@dataclass(frozen=True)
+class MethodInfo:
+    """What a method is and what it can produce, known before any work starts.
+
+    Attributes
+    ----------
+    name : str
+        Registry name.
+    description : str
+        One line for ``wcbench methods list``.
+    kind : {"runnable", "reader"}
+        Whether wcbench runs it or only reads its outputs.
+    weathers : tuple of str
+        Weathers it supports (subset of :data:`WEATHERS`).
+    outputs : tuple of str
+        What it produces per frame (``"rgb"``; later ``"depth"``...).
+    layout : str
+        The file layout and naming it reads or writes (shown by ``wcbench methods list -v``).
+    """
+
+    name: str
+    description: str
+    kind: str
+    weathers: tuple[str, ...]
+    outputs: tuple[str, ...] = ("rgb",)
+    layout: str = ""
+    defaults: dict[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Method(Protocol):
+    """Anything that yields a method's frames for a (scene, weather)."""
+
+    info: MethodInfo
+
+    def open_predictions(
+        self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False
+    ) -> PredictionSequence:
+        """Map the files under ``root`` to the scene's frames for ``weather``.
+
+        Raises
+        ------
+        InputError
+            Missing or extra frames (all named), unreadable files, wrong sizes (unless ``resize``).
+        """
+        ...
+
+
+@runtime_checkable
+class RunnableMethod(Method, Protocol):
+    """A method wcbench can run itself."""
+
+    def render(self, scene: Scene, weather: str, out_dir: Path, *, seed: int = 0) -> dict[str, Any]:
+        """Render all frames of ``scene`` under ``weather`` into ``out_dir`` (the prediction layout).
+
+        Returns the ``info.json`` content (method, version, parameters, timings, hashes).
+        """
+        ...
