@@ -1,0 +1,1 @@
+"""HTML reports built from results files alone (arrives with the report issue)."""

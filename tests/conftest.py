@@ -1,0 +1,44 @@
+"""Shared fixtures: the real scene (when present), an isolated cache, small fixture scenes."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+PANDASET = SHARED_DATA / "pandaset_002"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _isolated_environment(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """A private cache (built-in scenes, models) and no progress bars for the whole session."""
+    cache = tmp_path_factory.mktemp("wcbench_cache")
+    os.environ.setdefault("WCBENCH_CACHE", str(cache))
+    os.environ.setdefault("WCBENCH_MODELS", str(cache / "models"))
+    os.environ["WCBENCH_PROGRESS"] = "0"
+    os.environ.pop("WCBENCH_DATA", None)
+
+
+@pytest.fixture(scope="session")
+def pandaset_root() -> Path:
+    """../shared/data/pandaset_002, or skip when it is not beside the project."""
+    if not (PANDASET / "images").is_dir():
+        pytest.skip(f"real scene not present at {PANDASET}")
+    return PANDASET
+
+
+@pytest.fixture(scope="session")
+def demo_scene():
+    """The built-in procedural scene (12 frames, 320x180)."""
+    from wcbench.scene_sets import resolve_scenes
+
+    return resolve_scenes("demo")[0].load()
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(1234)

@@ -1,0 +1,113 @@
+"""The command line stays light, every folder ships in the wheel, and the wheel imports."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from wcbench.benchmark import BenchCase, BenchReport, validate_benchmark
+from wcbench.cli import COMMANDS, main
+
+REPO = Path(__file__).resolve().parents[2]
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+def test_help_imports_neither_torch_nor_onnxruntime():
+    code = ("import sys; from wcbench.cli import build_parser; build_parser().format_help(); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'onnxruntime', 'cv2', 'pandas')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_every_verb_has_help_and_docs(capsys):
+    assert set(COMMANDS) == {"run", "evaluate", "render", "scenes", "methods", "metrics", "models", "bench"}
+    for verb in COMMANDS:
+        with pytest.raises(SystemExit) as exc:
+            main([verb, "--help"])
+        assert exc.value.code == 0
+        assert "usage: wcbench" in capsys.readouterr().out
+
+
+def test_python_dash_m_entry_point():
+    out = subprocess.run([sys.executable, "-m", "wcbench", "--version"], capture_output=True, text=True, check=True)
+    assert out.stdout.startswith("wcbench ")
+
+
+def test_listing_commands(capsys):
+    assert main(["scenes", "list"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in ("waymo_5", "nuscenes_5", "pandaset_002", "demo"))
+    assert main(["methods", "list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("controlnet", "turboedit", "fresco", "qwen-image", "climatenerf", "folder", "identity", "filter2d"):
+        assert name in out
+    assert main(["metrics", "list"]) == 0
+    assert "ssim" in capsys.readouterr().out
+
+
+def test_scenes_show_real_scene(pandaset_root, capsys):
+    assert main(["scenes", "show", str(pandaset_root)]) == 0
+    out = capsys.readouterr().out
+    assert "30 frames 1920x1080" in out and "27/30 frames" in out
+
+
+def test_packages_in_pyproject_cover_every_folder():
+    config = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    mapping = config["package-dir"]
+    listed = set(config["packages"])
+    found = set()
+    for pkg, folder in mapping.items():
+        for init in (REPO / folder).rglob("__init__.py"):
+            rel = init.parent.relative_to(REPO / folder)
+            found.add(".".join([pkg, *rel.parts]))
+    assert found == listed, f"missing from pyproject packages: {found - listed}; stale: {listed - found}"
+
+
+@pytest.mark.slow
+def test_built_wheel_installs_and_imports(tmp_path):
+    """Build the wheel, install it into a clean folder and import from there, not from the tree."""
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w",
+                    str(tmp_path / "dist"), str(REPO)], check=True, capture_output=True)
+    wheel = next((tmp_path / "dist").glob("wcbench-*.whl"))
+    names = zipfile.ZipFile(wheel).namelist()
+    for expected in ("wcbench/metrics/ssim.py", "wcbench/scene_sets/waymo_5.toml",
+                     "wcbench/methods/presets/controlnet.toml", "wcbench/reports/__init__.py"):
+        assert expected in names
+    target = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--target", str(target), str(wheel)],
+                   check=True, capture_output=True)
+    code = ("import wcbench.metrics, wcbench.scene_sets, wcbench.methods; "
+            "print(wcbench.metrics.__file__); print(len(wcbench.scene_sets.list_scene_sets()))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True,
+                         env={"PYTHONPATH": str(target), "PATH": ""}).stdout.split()
+    assert out[0].startswith(str(target)) and int(out[1]) >= 4
+
+
+def test_benchmark_schema_round_trip(tmp_path):
+    report = BenchReport("demo", notes=["a note"])
+    report.cases.append(BenchCase("a", "pixels", 100, 1.5, 1e-7, "abs", extra={"ref_ms": 3.0}))
+    report.write(tmp_path / "b.json")
+    obj = json.loads((tmp_path / "b.json").read_text())
+    validate_benchmark(obj)
+    assert obj["cases"][0] == {"name": "a", "knob": "pixels", "value": 100, "time_ms": 1.5, "error": 1e-7,
+                               "error_unit": "abs", "ref_ms": 3.0}
+    assert obj["machine"]["cores"] >= 1 and "numpy" in obj["versions"]
+    with pytest.raises(ValueError, match="shadow"):
+        BenchCase("b", "k", 1, None, None, "abs", extra={"time_ms": 1}).to_json()
+
+
+def test_bench_metrics_quick_smoke(tmp_path, capsys):
+    assert main(["bench", "metrics", "--quick", "--json", str(tmp_path / "m.json")]) == 0
+    obj = json.loads((tmp_path / "m.json").read_text())
+    validate_benchmark(obj)
+    ssim_case = next(c for c in obj["cases"] if c["name"].startswith("ssim"))
+    assert ssim_case["error"] < 1e-12
+    assert main(["bench", "nope"]) == 2

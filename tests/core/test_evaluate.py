@@ -1,0 +1,147 @@
+"""End to end: evaluate from files alone, idempotent re-runs, resume after SIGKILL, run."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+from scene_fixtures import write_prediction_folder
+
+from wcbench.cli import main
+from wcbench.results import CSV_COLUMNS, SCHEMA_VERSION
+
+
+def _numbers(path: Path) -> dict:
+    doc = json.loads(path.read_text())
+    return {k: doc[k] for k in ("results", "skipped", "inputs", "config", "schema_version")}
+
+
+def _darken(img, k, weather):
+    return (img * 0.8).astype(np.uint8)
+
+
+def test_folder_evaluate_on_real_scene_writes_both_files(pandaset_root, tmp_path, capsys):
+    from wcbench.scene_loaders import load_scene
+
+    scene = load_scene(pandaset_root)
+    preds = write_prediction_folder(scene, tmp_path / "preds", ["clear"], transform=_darken)
+    out = tmp_path / "out"
+    args = ["evaluate", "--method", "folder", "--scenes", "pandaset_002", "--data-root", str(pandaset_root.parent),
+            "--predictions", str(preds), "--out", str(out), "--metrics", "psnr", "temporal_flicker", "fps"]
+    assert main(args) == 0
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["schema_version"] == SCHEMA_VERSION
+    res = doc["results"]["pandaset_002"]["clear"]
+    assert 10 < res["psnr"]["value"] < 30
+    assert len(res["psnr"]["per_frame"]) == 30
+    assert res["temporal_flicker_ratio"]["value"] == pytest.approx(0.8, abs=0.05)
+    assert doc["skipped"] == [{"scene": "pandaset_002", "weather": "clear", "metric": "fps",
+                               "reason": "no timing: the predictions have no info.json with timings and --fps "
+                                         "was not given"}]
+    assert len(doc["inputs"]["scenes"]["pandaset_002"]["clear"]["predictions"]) == 30
+    df = pd.read_csv(out / "results.csv")
+    assert tuple(df.columns) == CSV_COLUMNS
+    assert set(df["status"]) == {"ok", "skipped"}
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "up to date" in capsys.readouterr().out
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+
+
+def test_identical_images_give_null_psnr_with_reason(demo_scene, tmp_path):
+    preds = write_prediction_folder(demo_scene, tmp_path / "preds", ["clear"])
+    out = tmp_path / "out"
+    assert main(["evaluate", "--method", "folder", "--scenes", "demo", "--predictions", str(preds),
+                 "--out", str(out), "--metrics", "psnr,ssim"]) == 0
+    text = (out / "results.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    psnr = json.loads(text)["results"]["demo_street"]["clear"]["psnr"]
+    assert psnr["value"] is None and "identical" in psnr["reason"]
+    assert json.loads(text)["results"]["demo_street"]["clear"]["ssim"]["value"] == 1.0
+
+
+def test_changed_inputs_refuse_to_overwrite_then_overwrite(demo_scene, tmp_path, capsys):
+    preds = write_prediction_folder(demo_scene, tmp_path / "preds", ["rain"], transform=_darken)
+    out = tmp_path / "out"
+    args = ["evaluate", "--method", "folder", "--scenes", "demo", "--predictions", str(preds), "--out", str(out),
+            "--metrics", "temporal_flicker"]
+    assert main(args) == 0
+    first = (out / "results.json").read_bytes()
+    img = cv2.imread(str(preds / "rain" / "005.png"))
+    cv2.imwrite(str(preds / "rain" / "005.png"), 255 - img)
+    assert main(args) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (out / "results.json").read_bytes() == first
+    assert main([*args, "--overwrite"]) == 0
+    assert (out / "results.json").read_bytes() != first
+
+
+def test_killed_run_resumes_with_identical_numbers(demo_scene, tmp_path):
+    preds = write_prediction_folder(demo_scene, tmp_path / "preds", ["clear", "rain", "snow", "fog"],
+                                    transform=lambda img, k, w: np.roll(img, k * (1 + len(w)), axis=1))
+    base = [sys.executable, "-m", "wcbench", "evaluate", "--method", "folder", "--scenes", "demo",
+            "--predictions", str(preds), "--metrics", "ssim,temporal_flicker,flow_warping_error"]
+    env = dict(os.environ, WCBENCH_PROGRESS="0")
+    ref_out, out = tmp_path / "ref", tmp_path / "killed"
+    subprocess.run([*base, "--out", str(ref_out)], check=True, env=env, capture_output=True)
+    proc = subprocess.Popen([*base, "--out", str(out)], env=env, stdout=subprocess.DEVNULL)
+    work = out / ".work" / "demo_street"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (work.is_dir() and any(work.glob("*.json"))):
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "results.json").exists(), "the run finished before it could be killed midway"
+    done = len(list(work.glob("*.json")))
+    assert 1 <= done < 4
+    result = subprocess.run([*base, "--out", str(out)], env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert f"({4 - done} computed, {done} reused)" in result.stdout
+    a, b = _numbers(ref_out / "results.json"), _numbers(out / "results.json")
+    assert a == b
+
+
+def test_run_renders_then_evaluates_and_resumes(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["run", "--method", "filter2d", "--scenes", "demo", "--out", str(out),
+            "--weathers", "rain,fog", "--metrics", "temporal_flicker,fps"]
+    assert main(args) == 0
+    info = json.loads((out / "filter2d" / "demo_street" / "rain" / "info.json").read_text())
+    assert info["method"] == "filter2d" and len(info["frames"]) == 12
+    assert info["timings"]["fps"] > 0 and info["timings"]["resolution"] == [320, 180]
+    doc = json.loads((out / "results.json").read_text())
+    fps = doc["results"]["demo_street"]["rain"]["fps"]
+    assert fps["value"] == pytest.approx(info["timings"]["fps"])
+    frames_before = {p: p.stat().st_mtime_ns for p in (out / "filter2d").rglob("*.png")}
+    assert main(args) == 0
+    assert "up to date" in capsys.readouterr().out
+    assert {p: p.stat().st_mtime_ns for p in (out / "filter2d").rglob("*.png")} == frames_before
+
+
+def test_run_is_deterministic_under_a_seed(tmp_path):
+    for name in ("a", "b"):
+        assert main(["run", "--method", "filter2d", "--scenes", "demo", "--out", str(tmp_path / name),
+                     "--weathers", "snow", "--metrics", "temporal_flicker", "--seed", "3"]) == 0
+    a = sorted((tmp_path / "a" / "filter2d").rglob("*.png"))
+    b = sorted((tmp_path / "b" / "filter2d").rglob("*.png"))
+    assert [p.read_bytes() for p in a] == [p.read_bytes() for p in b]
+    assert _numbers(tmp_path / "a" / "results.json")["results"] == _numbers(tmp_path / "b" / "results.json")["results"]
+
+
+def test_identity_method_is_perfect_on_content(tmp_path):
+    out = tmp_path / "id"
+    assert main(["run", "--method", "identity", "--scenes", "demo", "--out", str(out), "--weathers", "clear,rain",
+                 "--metrics", "ssim,temporal_flicker"]) == 0
+    res = json.loads((out / "results.json").read_text())["results"]["demo_street"]
+    assert res["clear"]["ssim"]["value"] == 1.0
+    assert res["rain"]["temporal_flicker_ratio"]["value"] == 1.0

@@ -1,0 +1,113 @@
+"""Matching another tool's files to scene frames, and strict image reading."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from scene_fixtures import write_prediction_folder
+
+from wcbench.errors import InputError
+from wcbench.image_io import natural_key, read_rgb8, write_mp4
+from wcbench.methods import get_method
+from wcbench.predictions import match_predictions
+
+
+def _rgb(path):
+    return read_rgb8(path)
+
+
+def test_default_pattern_any_padding_and_extension(demo_scene, tmp_path):
+    root = tmp_path / "p"
+    for f in demo_scene.frames:
+        (root / "rain").mkdir(parents=True, exist_ok=True)
+        img = cv2.imread(str(f.image_path))
+        cv2.imwrite(str(root / "rain" / f"{f.index:05d}.jpg"), img)
+    seq = match_predictions(demo_scene, "rain", root)
+    assert [p.name for p in seq.files] == [f"{k:05d}.jpg" for k in range(len(demo_scene))]
+    assert len(list(seq)) == len(demo_scene)
+
+
+def test_stem_pattern_maps_source_names(demo_scene, tmp_path):
+    root = tmp_path / "p"
+    (root / "snow").mkdir(parents=True)
+    for f in demo_scene.frames:
+        cv2.imwrite(str(root / "snow" / f"{f.image_path.stem}.png"), cv2.imread(str(f.image_path)))
+    seq = get_method("controlnet").open_predictions(demo_scene, "snow", root)
+    assert [p.stem for p in seq.files] == [f.image_path.stem for f in demo_scene.frames]
+
+
+def test_wildcard_uses_natural_sort(demo_scene, tmp_path):
+    root = tmp_path / "p"
+    (root / "fog").mkdir(parents=True)
+    for f in demo_scene.frames:
+        cv2.imwrite(str(root / "fog" / f"frame{f.index + 1}.png"), cv2.imread(str(f.image_path)))
+    seq = match_predictions(demo_scene, "fog", root, pattern="{weather}/*")
+    assert [p.name for p in seq.files] == [f"frame{k + 1}.png" for k in range(len(demo_scene))]
+    assert sorted(["frame10", "frame2"], key=natural_key) == ["frame2", "frame10"]
+
+
+def test_frame_start_one(demo_scene, tmp_path):
+    root = tmp_path / "p"
+    (root / "rain").mkdir(parents=True)
+    for f in demo_scene.frames:
+        cv2.imwrite(str(root / "rain" / f"{f.index + 1:04d}.png"), cv2.imread(str(f.image_path)))
+    seq = match_predictions(demo_scene, "rain", root, frame_start=1)
+    assert seq.files[0].name == "0001.png"
+
+
+def test_video_frames_in_order(demo_scene, tmp_path):
+    frames = [_rgb(f.image_path) for f in demo_scene.frames]
+    write_mp4(tmp_path / "rain" / "blend.mp4", frames)
+    seq = get_method("fresco").open_predictions(demo_scene, "rain", tmp_path)
+    decoded = list(seq)
+    assert len(decoded) == len(frames)
+    # mp4v is lossy: frames come back close, in order
+    errs = [np.abs(d.astype(float) - f).mean() for d, f in zip(decoded, frames)]
+    assert max(errs) < 8.0
+    assert np.abs(decoded[0].astype(float) - frames[-1]).mean() > max(errs)
+
+
+def test_missing_and_extra_frames_are_all_named(demo_scene, tmp_path):
+    root = write_prediction_folder(demo_scene, tmp_path / "p", ["rain"])
+    (root / "rain" / "003.png").unlink()
+    (root / "rain" / "007.png").unlink()
+    cv2.imwrite(str(root / "rain" / "012.png"), cv2.imread(str(demo_scene.frames[0].image_path)))
+    cv2.imwrite(str(root / "rain" / "notes.png"), cv2.imread(str(demo_scene.frames[0].image_path)))
+    with pytest.raises(InputError) as exc:
+        match_predictions(demo_scene, "rain", root)
+    msg = str(exc.value)
+    assert "missing frames [3, 7]" in msg and "012.png" in msg and "notes.png" in msg
+
+
+def test_wrong_size_needs_resize(demo_scene, tmp_path):
+    root = write_prediction_folder(demo_scene, tmp_path / "p", ["rain"],
+                                   transform=lambda img, k, w: cv2.resize(img, (160, 90)))
+    seq = match_predictions(demo_scene, "rain", root)
+    with pytest.raises(InputError, match=r"000\.png: image is 160x90, expected 320x180.*--resize"):
+        next(iter(seq))
+    resized = next(iter(match_predictions(demo_scene, "rain", root, resize=True)))
+    assert resized.shape == (180, 320, 3)
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: np.zeros((8, 8), np.uint8), "grayscale"),
+        (lambda: np.zeros((8, 8, 3), np.uint16), "16-bit"),
+        (lambda: np.zeros((8, 8, 4), np.uint8), "alpha channel"),
+    ],
+)
+def test_strict_image_reading(tmp_path, make, message):
+    path = tmp_path / "x.png"
+    cv2.imwrite(str(path), make())
+    with pytest.raises(InputError, match=message) as exc:
+        read_rgb8(path)
+    assert str(path) in str(exc.value)
+
+
+def test_corrupt_image(tmp_path):
+    path = tmp_path / "x.png"
+    path.write_bytes(b"\x89PNG not really")
+    with pytest.raises(InputError, match="cannot decode"):
+        read_rgb8(path)
