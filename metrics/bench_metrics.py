@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -21,18 +22,17 @@ import numpy as np
 from wcbench.benchmark import BenchCase, BenchReport
 
 
-def _best_ms(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:
+def _best_ms(fn: Callable[..., Any], repeats: int, *args: Any) -> tuple[float, Any]:
     best, out = float("inf"), None
     for _ in range(repeats):
         t = time.perf_counter()
-        out = fn()
+        out = fn(*args)
         best = min(best, (time.perf_counter() - t) * 1e3)
     return best, out
 
 
 def _ssim_cases(quick: bool) -> list[BenchCase]:
     from skimage.metrics import structural_similarity
-
     from wcbench.metrics.ssim import ssim_map_mean
 
     cases = []
@@ -41,9 +41,9 @@ def _ssim_cases(quick: bool) -> list[BenchCase]:
     for w, h in sizes:
         a = rng.random((h, w, 3))
         b = np.clip(a + 0.05 * rng.standard_normal(a.shape), 0, 1)
-        ours_ms, ours = _best_ms(lambda: ssim_map_mean(a, b), 3)
-        ref_ms, ref = _best_ms(lambda: structural_similarity(
-            a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=-1), 3)
+        ours_ms, ours = _best_ms(ssim_map_mean, 3, a, b)
+        ref_ms, ref = _best_ms(partial(structural_similarity, gaussian_weights=True, sigma=1.5,
+                                       use_sample_covariance=False, data_range=1, channel_axis=-1), 3, a, b)
         cases.append(BenchCase(
             name=f"ssim_{w}x{h}", knob="pixels", value=w * h, time_ms=ours_ms, error=abs(ours - ref),
             error_unit="abs", extra={"reference": "skimage.metrics.structural_similarity", "ref_ms": ref_ms,
@@ -53,9 +53,10 @@ def _ssim_cases(quick: bool) -> list[BenchCase]:
 
 
 def _flow_cases(quick: bool) -> list[BenchCase]:
+    from wcbench.metrics.flicker import FLOW_METHODS, FlowWarpingError
+
     from wcbench.demo_scene import N_FRAMES, render_frame
     from wcbench.methods.filter2d import Filter2DMethod
-    from wcbench.metrics.flicker import FLOW_METHODS, FlowWarpingError
     from wcbench.scene_sets import resolve_scenes
 
     scene = resolve_scenes("demo")[0].load()
@@ -66,7 +67,7 @@ def _flow_cases(quick: bool) -> list[BenchCase]:
     values: dict[str, tuple[float, float]] = {}
     for name in ("deepflow", "dis", "farneback"):
         flow = FLOW_METHODS[name]
-        ms, _ = _best_ms(lambda flow=flow: flow(src[0], src[1]), 2)
+        ms, _ = _best_ms(flow, 2, src[0], src[1])
         m = FlowWarpingError(flow=name)
         m.update(edit, source=src)
         values[name] = (ms, m.compute()["flow_warping_error"].value or float("nan"))

@@ -21,7 +21,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-
 from wcbench.metrics.base import Metric, MetricValue, as_float_images, finite_or_none
 
 FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -35,7 +34,7 @@ def _gray8(img: np.ndarray) -> np.ndarray:
 
 def dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dense flow a -> b [H, W, 2] (pixels, x then y) with OpenCV DIS, preset MEDIUM."""
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     return dis.calc(_gray8(a), _gray8(b), None)
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-
 from wcbench.metrics.base import Metric, MetricContext, MetricValue
 
 
@@ -32,10 +31,12 @@ class FPS(Metric):
             return float(ctx.fps_override), "--fps given by the user", {}
         timings = (ctx.method_info or {}).get("timings") or {}
         if timings.get("fps"):
-            extra = {k: timings[k] for k in ("resolution", "machine", "median_frame_ms", "warmup_frames") if k in timings}
+            keep = ("resolution", "machine", "median_frame_ms", "warmup_frames")
+            extra = {k: timings[k] for k in keep if k in timings}
             return float(timings["fps"]), "info.json timings: 1000 / median frame ms after warm-up", extra
-        if (ctx.method_info or {}).get("fps"):
-            return float(ctx.method_info["fps"]), "info.json 'fps' field as reported by the tool", {}
+        reported = (ctx.method_info or {}).get("fps")
+        if reported:
+            return float(reported), "info.json 'fps' field as reported by the tool", {}
         return None, "", {}
 
     def skip_reason(self, ctx: MetricContext) -> str | None:

@@ -128,7 +128,7 @@ def write_mp4(path: str | Path, frames: list[np.ndarray], *, fps: float = 10.0) 
         raise ValueError("write_mp4: no frames")
     h, w = frames[0].shape[:2]
     with atomic_path(path, suffix=".mp4") as tmp:
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (w, h))
         if not writer.isOpened():
             raise OSError(f"{path}: OpenCV cannot write mp4 here")
         try:

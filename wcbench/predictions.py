@@ -221,7 +221,8 @@ def match_predictions(
                 [f"{k + frame_start}" for k in missing] if uses_frame
                 else [scene.frames[k].image_path.stem for k in missing]
             )
-            problems.append(f"missing frames {missing} (expected names for {'numbers' if uses_frame else 'stems'} {expect})")
+            kind = "numbers" if uses_frame else "stems"
+            problems.append(f"missing frames {missing} (expected names for {kind} {expect})")
         if extra:
             problems.append(f"extra files {extra}")
         if dupes:
@@ -272,7 +273,9 @@ def scene_prediction_root(root: Path, scene_id: str, *, n_scenes: int) -> Path:
         if not any(root.iterdir()):
             raise InputError(f"{root}: predictions folder is empty")
         return root
-    raise InputError(f"{root}: no folder {scene_id!r}; expected one sub-folder per scene ({root}/<scene>/<weather>/...)")
+    raise InputError(
+        f"{root}: no folder {scene_id!r}; expected one sub-folder per scene ({root}/<scene>/<weather>/...)"
+    )
 
 
 def canonical_frame_path(out_dir: Path, index: int) -> Path:

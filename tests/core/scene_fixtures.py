@@ -36,7 +36,7 @@ def make_waymo_scene(root: Path, *, n_frames: int = 4, size: tuple[int, int] = (
     egos = []
     for t in range(n_frames):
         ego = np.eye(4)
-        ego[:3, 3] = np.array(origin) + [2.0 * t, 0.0, 0.0]
+        ego[:3, 3] = np.array(origin) + np.array([2.0 * t, 0.0, 0.0])
         egos.append(ego)
         write_matrix(root / "ego_pose" / f"{t:03d}.txt", ego)
         write_rgb(root / "images" / f"{t:03d}_0.jpg", rng.integers(0, 255, (h, w, 3), dtype=np.uint8))

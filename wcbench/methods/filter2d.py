@@ -82,6 +82,7 @@ class Filter2DMethod(FrameRenderer):
         """Edit raw frame ``index``; uint8 RGB out."""
         raw = read_rgb8(scene.frames[index].image_path).astype(np.float32) / 255.0
         p = _PARAMS[weather]
+        out: np.ndarray
         if weather == "clear":
             out = raw
         elif weather == "fog":

@@ -57,7 +57,7 @@ class PatternReader:
 
 def load_preset(name: str) -> dict[str, Any]:
     """The naming preset ``presets/<name>.toml`` as a dict."""
-    text = resources.files("wcbench.methods").joinpath("presets", f"{name}.toml").read_text(encoding="utf-8")
+    text = resources.files("wcbench.methods").joinpath("presets").joinpath(f"{name}.toml").read_text(encoding="utf-8")
     return tomllib.loads(text)
 
 
@@ -80,6 +80,6 @@ def __getattr__(attr: str) -> Any:
     """``readers.<preset>`` is a factory for that preset's reader (``qwen_image`` -> ``qwen-image``),
     so the method registry can name readers as plain import strings."""
     name = attr.replace("_", "-")
-    if resources.files("wcbench.methods").joinpath("presets", f"{name}.toml").is_file():
+    if resources.files("wcbench.methods").joinpath("presets").joinpath(f"{name}.toml").is_file():
         return lambda: reader_from_preset(name)
     raise AttributeError(f"module {__name__!r} has no attribute {attr!r}")

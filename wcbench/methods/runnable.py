@@ -105,7 +105,8 @@ class FrameRenderer(ABC):
                 img = self.render_frame(scene, weather, k, seed=seed)
             if img.shape != (height, width, 3) or img.dtype != np.uint8:
                 raise RuntimeError(
-                    f"{self.info.name}.render_frame returned {img.dtype} {img.shape}, expected uint8 {(height, width, 3)}"
+                    f"{self.info.name}.render_frame returned {img.dtype} {img.shape}, "
+                    f"expected uint8 {(height, width, 3)}"
                 )
             write_png(path, img)
             state["frames"][str(k)] = {"sha256": sha256_file(path), "ms": timer.frame_ms[-1]}
