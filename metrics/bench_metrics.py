@@ -33,6 +33,7 @@ def _best_ms(fn: Callable[..., Any], repeats: int, *args: Any) -> tuple[float, A
 
 def _ssim_cases(quick: bool) -> list[BenchCase]:
     from skimage.metrics import structural_similarity
+
     from wcbench.metrics.ssim import ssim_map_mean
 
     cases = []
@@ -53,10 +54,9 @@ def _ssim_cases(quick: bool) -> list[BenchCase]:
 
 
 def _flow_cases(quick: bool) -> list[BenchCase]:
-    from wcbench.metrics.flicker import FLOW_METHODS, FlowWarpingError
-
     from wcbench.demo_scene import N_FRAMES, render_frame
     from wcbench.methods.filter2d import Filter2DMethod
+    from wcbench.metrics.flicker import FLOW_METHODS, FlowWarpingError
     from wcbench.scene_sets import resolve_scenes
 
     scene = resolve_scenes("demo")[0].load()

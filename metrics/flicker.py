@@ -21,6 +21,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from wcbench.metrics.base import Metric, MetricValue, as_float_images, finite_or_none
 
 FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]

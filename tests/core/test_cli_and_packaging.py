@@ -23,7 +23,8 @@ else:  # pragma: no cover
 def test_help_imports_neither_torch_nor_onnxruntime():
     code = ("import sys; from wcbench.cli import build_parser; build_parser().format_help(); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'onnxruntime', 'cv2', 'pandas')))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=REPO.parent).stdout
     assert out.strip() == "[]"
 
 
@@ -37,7 +38,8 @@ def test_every_verb_has_help_and_docs(capsys):
 
 
 def test_python_dash_m_entry_point():
-    out = subprocess.run([sys.executable, "-m", "wcbench", "--version"], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-m", "wcbench", "--version"], capture_output=True, text=True, check=True,
+                         cwd=REPO.parent)
     assert out.stdout.startswith("wcbench ")
 
 

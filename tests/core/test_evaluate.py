@@ -93,8 +93,9 @@ def test_killed_run_resumes_with_identical_numbers(demo_scene, tmp_path):
             "--predictions", str(preds), "--metrics", "ssim,temporal_flicker,flow_warping_error"]
     env = dict(os.environ, WCBENCH_PROGRESS="0")
     ref_out, out = tmp_path / "ref", tmp_path / "killed"
-    subprocess.run([*base, "--out", str(ref_out)], check=True, env=env, capture_output=True)
-    proc = subprocess.Popen([*base, "--out", str(out)], env=env, stdout=subprocess.DEVNULL)
+    # cwd outside the source tree: `python -m` puts the cwd first on sys.path
+    subprocess.run([*base, "--out", str(ref_out)], check=True, env=env, capture_output=True, cwd=tmp_path)
+    proc = subprocess.Popen([*base, "--out", str(out)], env=env, stdout=subprocess.DEVNULL, cwd=tmp_path)
     work = out / ".work" / "demo_street"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not (work.is_dir() and any(work.glob("*.json"))):
@@ -104,7 +105,7 @@ def test_killed_run_resumes_with_identical_numbers(demo_scene, tmp_path):
     assert not (out / "results.json").exists(), "the run finished before it could be killed midway"
     done = len(list(work.glob("*.json")))
     assert 1 <= done < 4
-    result = subprocess.run([*base, "--out", str(out)], env=env, capture_output=True, text=True)
+    result = subprocess.run([*base, "--out", str(out)], env=env, capture_output=True, text=True, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert f"({4 - done} computed, {done} reused)" in result.stdout
     a, b = _numbers(ref_out / "results.json"), _numbers(out / "results.json")
