@@ -16,6 +16,8 @@ Flow warping error (DESIGN §5)
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
@@ -61,6 +63,16 @@ def warp(img: np.ndarray, flow: np.ndarray) -> np.ndarray:
     return out.reshape(img.shape)
 
 
+def _central_gradient(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d/dy and d/dx of [H, W, C] like ``np.gradient`` (central inside, one-sided at the border)."""
+    gy, gx = np.empty_like(a), np.empty_like(a)
+    gy[1:-1] = (a[2:] - a[:-2]) * 0.5
+    gy[0], gy[-1] = a[1] - a[0], a[-1] - a[-2]
+    gx[:, 1:-1] = (a[:, 2:] - a[:, :-2]) * 0.5
+    gx[:, 0], gx[:, -1] = a[:, 1] - a[:, 0], a[:, -1] - a[:, -2]
+    return gy, gx
+
+
 def consistency_mask(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     """Valid-pixel mask [H, W] bool for warping frame t+1 onto frame t (see module docstring).
 
@@ -70,17 +82,24 @@ def consistency_mask(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
         Flow t -> t+1 in pixels.
     backward : ndarray [H, W, 2]
         Flow t+1 -> t in pixels.
+
+    Notes
+    -----
+    Computed in float32: the thresholds (0.01 relative, 0.5 and 0.002 px^2 absolute) are far above
+    float32 rounding of flows of a few hundred pixels.
     """
     h, w = forward.shape[:2]
+    f = forward.astype(np.float32, copy=False)
     gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    tx, ty = gx + forward[..., 0], gy + forward[..., 1]
+    tx, ty = gx + f[..., 0], gy + f[..., 1]
     inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)
-    b = warp(backward.astype(np.float32), forward.astype(np.float32))
-    f2 = (forward.astype(np.float64) ** 2).sum(-1)
-    b2 = (b.astype(np.float64) ** 2).sum(-1)
-    occluded = ((forward + b).astype(np.float64) ** 2).sum(-1) > 0.01 * (f2 + b2) + 0.5
-    gy_b, gx_b = np.gradient(b.astype(np.float64), axis=(0, 1))
-    grad2 = (gx_b**2).sum(-1) + (gy_b**2).sum(-1)
+    b = warp(backward.astype(np.float32), f)
+    f2 = (f * f).sum(-1)
+    b2 = (b * b).sum(-1)
+    fb = f + b
+    occluded = (fb * fb).sum(-1) > 0.01 * (f2 + b2) + 0.5
+    gy_b, gx_b = _central_gradient(b)
+    grad2 = (gx_b * gx_b).sum(-1) + (gy_b * gy_b).sum(-1)
     boundary = grad2 > 0.01 * b2 + 0.002
     return inside & ~occluded & ~boundary
 
@@ -88,13 +107,51 @@ def consistency_mask(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
 def warp_error_pair(v0: np.ndarray, v1: np.ndarray, forward: np.ndarray, mask: np.ndarray) -> float:
     """Masked mean over pixels of the squared RGB error between v0 and v1 warped by ``forward``.
 
-    Returns NaN when the mask is empty.
+    Per-pixel errors in float32, the long sum over pixels in float64. NaN when the mask is empty.
     """
-    diff = v0.astype(np.float64) - warp(v1.astype(np.float32), forward).astype(np.float64)
-    err = (diff**2).sum(-1)
-    m = mask.astype(np.float64)
-    total = m.sum()
-    return float((err * m).sum() / total) if total > 0 else float("nan")
+    diff = v0.astype(np.float32, copy=False) - warp(v1.astype(np.float32, copy=False), forward)
+    err = (diff * diff).sum(-1)
+    total = int(np.count_nonzero(mask))
+    return float(err[mask].sum(dtype=np.float64) / total) if total > 0 else float("nan")
+
+
+class _FlowCache:
+    """Source-sequence flows and masks, shared by every weather and method scored in one process.
+
+    The flow and mask depend only on the source frames, so scoring rain, snow and fog of a scene
+    computes them once. Keyed by the frames' bytes; least recently used entries leave past
+    ``budget_bytes``.
+    """
+
+    def __init__(self, budget_bytes: int = 2 << 30):
+        self.budget = budget_bytes
+        self._entries: OrderedDict[tuple[str, bytes], tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._bytes = 0
+        self.misses = 0
+
+    def get(self, flow_name: str, flow: FlowFn, s0: np.ndarray, s1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h = hashlib.blake2b(digest_size=16)
+        h.update(str(s0.shape).encode())
+        h.update(np.ascontiguousarray(s0).tobytes())
+        h.update(np.ascontiguousarray(s1).tobytes())
+        key = (flow_name, h.digest())
+        if key in self._entries:
+            self._entries.move_to_end(key)
+            return self._entries[key]
+        self.misses += 1
+        fwd = np.asarray(flow(s0, s1), np.float32)
+        bwd = np.asarray(flow(s1, s0), np.float32)
+        value = (fwd, consistency_mask(fwd, bwd))
+        if flow_name != "custom":  # a user callable has no stable name to key on
+            self._entries[key] = value
+            self._bytes += fwd.nbytes + value[1].nbytes
+            while self._bytes > self.budget and self._entries:
+                _, (f_old, m_old) = self._entries.popitem(last=False)
+                self._bytes -= f_old.nbytes + m_old.nbytes
+        return value
+
+
+FLOW_CACHE = _FlowCache()
 
 
 # --------------------------------------------------------------------------- functional API
@@ -124,6 +181,11 @@ def flow_warp_error(edited: np.ndarray, source: np.ndarray | None = None, *, flo
 
 
 # --------------------------------------------------------------------------- metrics
+def _mean_abs_diff(a: np.ndarray, b: np.ndarray) -> float:
+    """mean |a - b|: differences in the inputs' precision, the long sum in float64."""
+    return float(np.abs(a - b).sum(dtype=np.float64) / a.size)
+
+
 class TemporalFlicker(Metric):
     """VBench-style temporal flicker and its ratio to the source's own flicker."""
 
@@ -145,14 +207,14 @@ class TemporalFlicker(Metric):
     def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
                reference: np.ndarray | None = None) -> None:
         """Accumulate the frame differences of a batch of consecutive frames [B, H, W, 3]."""
-        p = as_float_images(pred, name="pred").astype(np.float64)
-        s = None if source is None else as_float_images(source, name="source").astype(np.float64)
+        p = as_float_images(pred, name="pred")
+        s = None if source is None else as_float_images(source, name="source")
         for k in range(len(p)):
             cur = (p[k], None if s is None else s[k])
             if self._last is not None:
-                self._pred.append(float(np.abs(cur[0] - self._last[0]).mean()))
+                self._pred.append(_mean_abs_diff(cur[0], self._last[0]))
                 if cur[1] is not None and self._last[1] is not None:
-                    self._src.append(float(np.abs(cur[1] - self._last[1]).mean()))
+                    self._src.append(_mean_abs_diff(cur[1], self._last[1]))
             self._last = cur
 
     def compute(self) -> dict[str, MetricValue]:
@@ -191,6 +253,7 @@ class FlowWarpingError(Metric):
             raise ValueError(f"flow must be one of {sorted(FLOW_METHODS)} or a callable, got {flow!r}")
         self.flow_name = flow if isinstance(flow, str) else getattr(flow, "__name__", "custom")
         self._flow: FlowFn = FLOW_METHODS[flow] if isinstance(flow, str) else flow
+        self._cacheable = isinstance(flow, str)
         self.reset()
 
     def config(self) -> dict[str, Any]:
@@ -221,9 +284,7 @@ class FlowWarpingError(Metric):
         for k in range(len(p)):
             if self._last is not None:
                 p0, s0 = self._last
-                fwd = self._flow(s0, s[k]).astype(np.float32)
-                bwd = self._flow(s[k], s0).astype(np.float32)
-                mask = consistency_mask(fwd, bwd)
+                fwd, mask = FLOW_CACHE.get(self.flow_name if self._cacheable else "custom", self._flow, s0, s[k])
                 self._pred.append(warp_error_pair(p0, p[k], fwd, mask))
                 self._src.append(warp_error_pair(s0, s[k], fwd, mask))
             self._last = (p[k], s[k])

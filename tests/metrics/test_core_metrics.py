@@ -150,3 +150,49 @@ def test_content_metrics_skip_in_fog_reference_metrics_without_truth():
     fog = MetricContext(weather="fog", n_frames=5, has_reference=False)
     assert "ground-truth" in PSNR().skip_reason(fog)
     assert TemporalFlicker().skip_reason(fog) is None
+
+
+def _reference_mask(forward, backward):
+    """The slow twin of consistency_mask: float64 throughout, numpy's own gradient."""
+    h, w = forward.shape[:2]
+    f = forward.astype(np.float64)
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    tx, ty = gx + f[..., 0], gy + f[..., 1]
+    inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)
+    b = warp(backward.astype(np.float32), forward.astype(np.float32)).astype(np.float64)
+    occluded = ((f + b) ** 2).sum(-1) > 0.01 * ((f**2).sum(-1) + (b**2).sum(-1)) + 0.5
+    dby, dbx = np.gradient(b, axis=(0, 1))
+    boundary = (dbx**2).sum(-1) + (dby**2).sum(-1) > 0.01 * (b**2).sum(-1) + 0.002
+    return inside & ~occluded & ~boundary
+
+
+#: float32 vs float64 flips only pixels sitting on a threshold.
+MASK_MAX_DISAGREEMENT = 1e-3
+
+
+def test_fast_mask_and_error_match_float64_twin(rng):
+    import cv2
+
+    h, w = 90, 120
+    fwd = cv2.GaussianBlur(rng.normal(0, 8, (h, w, 2)).astype(np.float32), (0, 0), 6) * 2
+    bwd = -fwd + cv2.GaussianBlur(rng.normal(0, 1.5, (h, w, 2)).astype(np.float32), (0, 0), 2)
+    fast, slow = consistency_mask(fwd, bwd), _reference_mask(fwd, bwd)
+    assert 0.1 < slow.mean() < 0.98  # a mix of valid and masked pixels
+    assert np.mean(fast != slow) < MASK_MAX_DISAGREEMENT
+    v0, v1 = rng.random((h, w, 3)), rng.random((h, w, 3))
+    from wcbench.metrics.flicker import warp_error_pair
+
+    d = v0 - warp(v1.astype(np.float32), fwd).astype(np.float64)
+    ref = ((d**2).sum(-1) * slow).sum() / slow.sum()
+    assert warp_error_pair(v0, v1, fwd, slow) == pytest.approx(ref, rel=1e-6)
+
+
+def test_source_flow_is_computed_once_across_weathers():
+    from wcbench.metrics.flicker import FLOW_CACHE
+
+    seq = _translated_sequence(n=3, size=(40, 48))
+    before = FLOW_CACHE.misses
+    for edit in (seq * 0.9, seq * 0.8):  # two "weathers" of the same source
+        m = FlowWarpingError()
+        m.update(edit, source=seq)
+    assert FLOW_CACHE.misses - before == 2  # two frame pairs, flowed once each
