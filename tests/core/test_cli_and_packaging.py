@@ -113,3 +113,16 @@ def test_bench_metrics_quick_smoke(tmp_path, capsys):
     ssim_case = next(c for c in obj["cases"] if c["name"].startswith("ssim"))
     assert ssim_case["error"] < 1e-12
     assert main(["bench", "nope"]) == 2
+
+
+def test_evaluation_side_runs_without_torch(tmp_path):
+    """Scoring frames imports neither torch nor onnxruntime unless a model metric asks for it."""
+    code = (
+        "import sys, wcbench.cli as c; "
+        f"c.main(['run', '--method', 'filter2d', '--scenes', 'demo', '--out', r'{tmp_path / 'o'}', "
+        "'--weathers', 'rain', '--no-progress']); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'numba', 'onnxruntime'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=tmp_path).stdout
+    assert out.strip().splitlines()[-1] == "[]"
