@@ -188,3 +188,46 @@ class Metric(ABC):
     @abstractmethod
     def compute(self) -> dict[str, MetricValue]:
         """The metric's outputs over everything seen since :meth:`reset`."""
+
+
+class PerFrameReferenceMetric(Metric):
+    """A metric that scores each frame against its ground truth and reports the mean over frames.
+
+    Subclasses set ``name``, ``description``, ``outputs`` (one name), ``higher_is_better``,
+    ``variant`` and :meth:`frame_values`.
+    """
+
+    needs_reference = True
+    #: Which definition produced the number (recorded in results).
+    variant: ClassVar[str] = ""
+    #: Why the mean may be non-finite (e.g. PSNR of identical frames).
+    nonfinite_reason: ClassVar[str] = "non-finite per-frame value"
+
+    def __init__(self) -> None:
+        self.reset()
+
+    @abstractmethod
+    def frame_values(self, pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """Per-frame values [B] of ``pred`` against ``reference`` (both [B, H, W, 3] in [0, 1])."""
+
+    def reset(self) -> None:
+        """Forget the per-frame values."""
+        self._values: list[float] = []
+
+    def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
+               reference: np.ndarray | None = None) -> None:
+        """Score a batch [B, H, W, 3] against ``reference`` (required)."""
+        if reference is None:
+            raise ValueError(f"{self.name}: a reference batch is required")
+        p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
+        check_same_shape(p, r, names=("pred", "reference"))
+        self._values.extend(np.asarray(self.frame_values(p, r), np.float64).tolist())
+
+    def compute(self) -> dict[str, MetricValue]:
+        """Mean over frames (null with a reason when non-finite or when no frame was seen)."""
+        v = np.asarray(self._values, np.float64)
+        if not v.size:
+            return {self.outputs[0]: MetricValue(None, reason="no frames", variant=self.variant)}
+        return {self.outputs[0]: MetricValue.from_number(
+            float(v.mean()), nonfinite_reason=self.nonfinite_reason, per_frame=finite_or_none(v),
+            variant=self.variant)}

@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from wcbench.metrics.base import Metric, MetricValue, as_float_images, check_same_shape, finite_or_none
+from wcbench.metrics.base import PerFrameReferenceMetric, as_float_images, check_same_shape
 
 SIGMA = 1.5
 TRUNCATE = 3.5  # scipy.ndimage.gaussian_filter's default: radius int(3.5 * 1.5 + 0.5) = 5
@@ -67,37 +67,15 @@ def ssim(pred: np.ndarray, reference: np.ndarray) -> float:
     return float(np.mean([ssim_map_mean(a, b) for a, b in zip(p, r)]))
 
 
-class SSIM(Metric):
+class SSIM(PerFrameReferenceMetric):
     """Structural similarity per frame, averaged over the sequence."""
 
     name = "ssim"
     description = "SSIM (gaussian 11x11, sigma 1.5, = skimage) against the ground-truth sequence"
     outputs = ("ssim",)
     higher_is_better = True
-    needs_reference = True
+    variant = _VARIANT
 
-    def __init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget per-frame values."""
-        self._values: list[float] = []
-
-    def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
-               reference: np.ndarray | None = None) -> None:
-        """Accumulate per-frame SSIM of ``pred`` [B, H, W, 3] against ``reference``."""
-        if reference is None:
-            raise ValueError("ssim: a reference batch is required")
-        p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
-        check_same_shape(p, r, names=("pred", "reference"))
-        self._values.extend(ssim_map_mean(a, b) for a, b in zip(p, r))
-
-    def compute(self) -> dict[str, MetricValue]:
-        """Mean per-frame SSIM."""
-        v = np.asarray(self._values, np.float64)
-        return {
-            "ssim": MetricValue.from_number(
-                float(v.mean()) if v.size else float("nan"), nonfinite_reason="no frames",
-                per_frame=finite_or_none(v), variant=_VARIANT,
-            )
-        }
+    def frame_values(self, pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """Per-frame SSIM [B]."""
+        return np.array([ssim_map_mean(a, b) for a, b in zip(pred, reference)])
