@@ -1,25 +1,73 @@
 """Metrics for weather editing: a functional API on float RGB arrays in [0, 1] and Metric classes.
 
-Functional forms (shapes [H, W, 3] or [T, H, W, 3], float RGB in [0, 1] or uint8):
+Functional forms (images [H, W, 3] or [T, H, W, 3], float RGB in [0, 1] or uint8):
 
-- :func:`psnr`, :func:`ssim` against a reference;
+- :func:`clip_s`, :func:`clip_ds` (CLIP-S and both CLIP-DS forms; need CLIP weights in the model
+  store, see ``wcbench models``);
+- :func:`sem_cs` (frequency-weighted IoU of two label maps or segmentations);
+- :func:`lpips` (``net="alex"`` or ``"vgg"``), :func:`psnr`, :func:`ssim` against a reference;
 - :func:`temporal_flicker` and :func:`flow_warp_error` on sequences [T, H, W, 3].
 
 Metric classes (update/compute) are listed by ``wcbench metrics list`` and resolved through
-:data:`wcbench.metrics.registry.METRICS`. Nothing here imports torch.
+:data:`wcbench.metrics.registry.METRICS`. Names are imported on first use, so importing this
+package imports neither torch nor onnxruntime.
 """
 
-from wcbench.metrics.base import Metric, MetricContext, MetricValue
-from wcbench.metrics.flicker import flow_warp_error, temporal_flicker
-from wcbench.metrics.psnr import psnr
-from wcbench.metrics.ssim import ssim
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from wcbench.metrics.base import Metric, MetricContext, MetricValue
+    from wcbench.metrics.clip_score import clip_ds, clip_s
+    from wcbench.metrics.flicker import flow_warp_error, temporal_flicker
+    from wcbench.metrics.lpips import lpips
+    from wcbench.metrics.model_store import ModelMissingError, ModelStore
+    from wcbench.metrics.psnr import psnr
+    from wcbench.metrics.semantic_consistency import sem_cs
+    from wcbench.metrics.ssim import ssim
+
+_LAZY = {
+    "Metric": "base",
+    "MetricContext": "base",
+    "MetricValue": "base",
+    "clip_s": "clip_score",
+    "clip_ds": "clip_score",
+    "flow_warp_error": "flicker",
+    "temporal_flicker": "flicker",
+    "lpips": "lpips",
+    "ModelStore": "model_store",
+    "ModelMissingError": "model_store",
+    "psnr": "psnr",
+    "sem_cs": "semantic_consistency",
+    "ssim": "ssim",
+}
 
 __all__ = [
     "Metric",
     "MetricContext",
     "MetricValue",
+    "ModelMissingError",
+    "ModelStore",
+    "clip_ds",
+    "clip_s",
     "flow_warp_error",
+    "lpips",
     "psnr",
+    "sem_cs",
     "ssim",
     "temporal_flicker",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

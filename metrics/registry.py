@@ -18,11 +18,14 @@ METRICS: LazyRegistry[type[Metric]] = LazyRegistry(
         "temporal_flicker": "wcbench.metrics.flicker:TemporalFlicker",
         "flow_warping_error": "wcbench.metrics.flicker:FlowWarpingError",
         "fps": "wcbench.metrics.fps:FPS",
+        "clip_s": "wcbench.metrics.clip_score:ClipScore",
+        "clip_ds": "wcbench.metrics.clip_score:ClipDirectionalScore",
     },
 )
 
-#: What ``wcbench evaluate`` computes when ``--metrics`` is not given.
-DEFAULT_METRICS = ("psnr", "ssim", "temporal_flicker", "flow_warping_error", "fps")
+#: What ``wcbench evaluate`` computes when ``--metrics`` is not given. Model-based metrics whose
+#: weights are not installed are reported as skipped with the command that installs them.
+DEFAULT_METRICS = ("clip_s", "clip_ds", "psnr", "ssim", "temporal_flicker", "flow_warping_error", "fps")
 
 
 def create_metric(name: str, **options: Any) -> Metric:

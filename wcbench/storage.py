@@ -17,6 +17,10 @@ from pathlib import Path
 from typing import IO, Any
 
 _CHUNK = 1 << 20
+# mkstemp creates files readable by the owner only; results and frames should get the usual
+# permissions, so read the process umask once (setting it is the only way to read it).
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
 
 
 @contextmanager
@@ -29,6 +33,7 @@ def atomic_path(path: str | os.PathLike[str], *, suffix: str = "") -> Iterator[P
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=(suffix or ".tmp"), dir=path.parent)
+    os.fchmod(fd, 0o666 & ~_UMASK)
     os.close(fd)
     tmp_path = Path(tmp)
     try:

@@ -24,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
 
     for name in METRICS.names():
         cls = METRICS.get(name)
-        needs = [w for w, on in (("reference", cls.needs_reference), ("source", cls.compares_content)) if on]
+        needs = [w for w, on in (("reference", cls.needs_reference), ("no fog", cls.compares_content)) if on]
         arrow = "higher" if cls.higher_is_better else "lower"
         default = "*" if name in DEFAULT_METRICS else " "
         print(f"{default} {name:20s} {arrow:6s} {('needs ' + '+'.join(needs)) if needs else '':16s} {cls.description}")

