@@ -5,8 +5,10 @@ Packages add metrics through the entry-point group ``wcbench.metrics`` (a Metric
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
+from wcbench.errors import InputError
 from wcbench.metrics.base import Metric
 from wcbench.registry import LazyRegistry
 
@@ -20,14 +22,31 @@ METRICS: LazyRegistry[type[Metric]] = LazyRegistry(
         "fps": "wcbench.metrics.fps:FPS",
         "clip_s": "wcbench.metrics.clip_score:ClipScore",
         "clip_ds": "wcbench.metrics.clip_score:ClipDirectionalScore",
+        "sem_cs": "wcbench.metrics.semantic_consistency:SemanticConsistency",
+        "lpips": "wcbench.metrics.lpips:LPIPS",
     },
 )
 
 #: What ``wcbench evaluate`` computes when ``--metrics`` is not given. Model-based metrics whose
 #: weights are not installed are reported as skipped with the command that installs them.
-DEFAULT_METRICS = ("clip_s", "clip_ds", "psnr", "ssim", "temporal_flicker", "flow_warping_error", "fps")
+DEFAULT_METRICS = (
+    "clip_s", "clip_ds", "sem_cs", "psnr", "ssim", "lpips", "temporal_flicker", "flow_warping_error", "fps",
+)
 
 
 def create_metric(name: str, **options: Any) -> Metric:
-    """Instantiate the metric registered as ``name`` with ``options``."""
-    return METRICS.get(name)(**options)
+    """Instantiate the metric registered as ``name`` with ``options``.
+
+    Raises
+    ------
+    InputError
+        If the metric does not take one of ``options`` (the message lists the ones it takes).
+    """
+    cls = METRICS.get(name)
+    params = inspect.signature(cls.__init__).parameters
+    accepted = [p for p in params if p != "self" and params[p].kind is not inspect.Parameter.VAR_KEYWORD]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown and not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        takes = ", ".join(accepted) or "none"
+        raise InputError(f"metric {name!r} has no option {', '.join(unknown)}; it takes: {takes}")
+    return cls(**options)

@@ -246,6 +246,10 @@ def check_out_folder(cfg: EvaluateConfig) -> tuple[Method, list[str], dict[str, 
             raise UnknownNameError("metric", n, METRICS.names())
     if cfg.weathers:
         _check_weathers(method, cfg.weathers)
+    stray = sorted(set(cfg.metric_options) - set(metric_names))
+    if stray:
+        raise InputError(f"options given for metrics that are not computed: {', '.join(stray)} "
+                         f"(computed: {', '.join(metric_names)})")
     results_path = cfg.out / RESULTS_JSON
     previous = read_results(results_path) if results_path.is_file() and not cfg.overwrite else None
     if previous is not None:

@@ -164,3 +164,22 @@ def test_run_refuses_a_reader(capsys, tmp_path):
     code = main(["run", "--method", "controlnet", "--scenes", "demo", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2 and "output reader" in err and "wcbench evaluate --method controlnet" in err
+
+
+def test_metric_options_are_checked(capsys, preds, tmp_path):
+    code, err = _evaluate(capsys, predictions=preds, out=tmp_path / "o",
+                          extra=["--metric-option", "temporal_flicker.colour=1"])
+    _assert_refused(code, err, tmp_path / "o", "metric 'temporal_flicker' has no option colour")
+    code, err = _evaluate(capsys, predictions=preds, out=tmp_path / "o", extra=["--metric-option", "ssim.x=1"])
+    _assert_refused(code, err, tmp_path / "o", "options given for metrics that are not computed: ssim")
+    code, err = _evaluate(capsys, predictions=preds, out=tmp_path / "o", extra=["--metric-option", "oops"])
+    _assert_refused(code, err, tmp_path / "o", "expected METRIC.KEY=VALUE")
+
+
+def test_metric_option_reaches_the_metric(preds, tmp_path):
+    out = tmp_path / "o"
+    assert main(["evaluate", "--method", "folder", "--scenes", "demo", "--predictions", str(preds), "--out", str(out),
+                 "--metrics", "flow_warping_error", "--metric-option", "flow_warping_error.flow=farneback"]) == 0
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["config"]["metric_config"]["flow_warping_error"]["config"] == {"flow": "farneback"}
+    assert "farneback" in doc["results"]["demo_street"]["rain"]["flow_warping_error"]["variant"]

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
+from typing import Any
 
 
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,6 +19,34 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
 def add_progress_argument(parser: argparse.ArgumentParser) -> None:
     """``--no-progress``."""
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def parse_metric_options(items: list[str]) -> dict[str, dict[str, Any]]:
+    """``["sem_cs.segmenter=segformer-b0-ade", "clip_s.batch_size=8"]`` -> ``{metric: {key: value}}``.
+
+    Values are read as JSON when they parse (numbers, booleans), else kept as text.
+
+    Raises
+    ------
+    InputError
+        On an item not of the form ``METRIC.KEY=VALUE``.
+    """
+    from wcbench.errors import InputError
+
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        metric, dot, option = key.partition(".")
+        if not (sep and dot and metric and option):
+            raise InputError(
+                f"--metric-option {item!r}: expected METRIC.KEY=VALUE, e.g. sem_cs.segmenter=segformer-b0-ade"
+            )
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        out.setdefault(metric, {})[option] = value
+    return out
 
 
 def split_list(values: list[str] | None) -> list[str] | None:

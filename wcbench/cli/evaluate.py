@@ -19,7 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from wcbench.cli.common import add_progress_argument, add_scene_arguments, split_list
+from wcbench.cli.common import add_progress_argument, add_scene_arguments, parse_metric_options, split_list
 
 HELP = "score a method's frames (results.json, results.csv)"
 
@@ -31,6 +31,10 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
                         help="weathers to score (default: every weather found / supported)")
     parser.add_argument("--metrics", nargs="+", default=None, help="metrics (default: see `wcbench metrics list`)")
     parser.add_argument("--fps", type=float, default=None, help="frame rate to report if info.json has none")
+    parser.add_argument("--metric-option", action="append", default=[], metavar="METRIC.KEY=VALUE",
+                        help="option of one metric, repeatable, e.g. sem_cs.segmenter=segformer-b0-ade, "
+                             "clip_s.backend=torch, flow_warping_error.flow=deepflow (VALUE is read as JSON "
+                             "when it parses, else as text)")
     parser.add_argument("--overwrite", action="store_true", help="replace finished results of other inputs")
     add_progress_argument(parser)
 
@@ -68,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         method=args.method, scenes=args.scenes, predictions=args.predictions, out=args.out,
         weathers=split_list(args.weathers), metrics=split_list(args.metrics), pattern=args.pattern,
         resize=args.resize, fps=args.fps, data_root=args.data_root, overwrite=args.overwrite,
-        show_progress=not args.no_progress,
+        show_progress=not args.no_progress, metric_options=parse_metric_options(args.metric_option),
     )
     report(evaluate(cfg))
     return 0

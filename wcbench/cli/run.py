@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from wcbench.cli.common import add_scene_arguments, split_list
+from wcbench.cli.common import add_scene_arguments, parse_metric_options, split_list
 from wcbench.cli.evaluate import add_evaluate_options, report
 
 HELP = "render with a runnable method, then evaluate"
@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
         method=args.method, scenes=args.scenes, predictions=args.out / method.info.name, out=args.out,
         weathers=weathers, metrics=split_list(args.metrics), fps=args.fps, data_root=args.data_root,
         overwrite=args.overwrite, show_progress=not args.no_progress,
+        metric_options=parse_metric_options(args.metric_option),
     )
     check_out_folder(cfg)
     scenes = resolve_scenes(args.scenes, data_root=args.data_root)
