@@ -17,6 +17,7 @@ def render_predictions(
     out_root: Path,
     *,
     seed: int = 0,
+    overwrite: bool = False,
     show_progress: bool = True,
 ) -> list[dict[str, Any]]:
     """Render every (scene, weather) into ``out_root/<scene>/<weather>/`` (resumable).
@@ -40,6 +41,6 @@ def render_predictions(
     for ref in scenes:
         scene = ref.load()
         for weather in weathers:
-            infos.append(method.render(scene, weather, out_root / scene.id / weather, seed=seed,  # type: ignore[attr-defined]
-                                       show_progress=show_progress))
+            infos.append(method.render(scene, weather, out_root / scene.id / weather,  # type: ignore[attr-defined]
+                                       seed=seed, overwrite=overwrite, show_progress=show_progress))
     return infos

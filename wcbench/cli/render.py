@@ -24,9 +24,6 @@ from typing import Any
 
 HELP = "render a scene under rain, snow or fog (lidar-initialised Gaussians + weather physics)"
 
-#: Bumped when the rendering of an unchanged input changes.
-RENDER_VERSION = "1"
-_STATE_FILE = ".render_state.json"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -177,185 +174,24 @@ def _resolution(args: argparse.Namespace, width: int, height: int) -> tuple[int,
 
 def run(args: argparse.Namespace) -> int:
     """Render every selected scene; return 0."""
+    from wcbench.reference_model.lidar_init_method import LidarInitMethod
     from wcbench.scene_sets import data_root_from, resolve_scenes
 
     weather = _weather(args)
     refs = resolve_scenes(args.scenes, data_root=data_root_from(args.data_root))
     for ref in refs:
         scene = ref.load()
-        info = render_scene(scene, weather, args)
+        method = LidarInitMethod(
+            weathers={weather.kind: weather}, size=_resolution(args, *scene.image_size), voxel_m=args.voxel,
+            init_frames=parse_frames(args.init_frames, len(scene)) if args.init_frames else None, name=args.method,
+        )
+        out_dir = Path(args.out) / args.method / scene.id / weather.kind
+        info = method.render(
+            scene, weather.kind, out_dir, seed=weather.seed, frames=parse_frames(args.frames, len(scene)),
+            overwrite=args.overwrite, video=not args.no_video, show_progress=not args.no_progress,
+        )
         print(
-            f"{info['status']}: {info['folder']} ({len(info['frames'])} frames, "
+            f"{info['status']}: {out_dir} ({len(info['frames'])} frames, "
             f"{info['timings']['median_frame_ms']:.1f} ms/frame median)"
         )
     return 0
-
-
-def render_scene(scene: Any, weather: Any, args: argparse.Namespace) -> dict[str, Any]:
-    """Render the selected frames of one scene.
-
-    Returns the ``info.json`` content plus ``status`` ("rendered" or "up to date") and ``folder``.
-    """
-    import json
-
-    import numpy as np
-
-    from wcbench import __version__
-    from wcbench.errors import InputError, ResultsExistError
-    from wcbench.image_io import to_uint8, write_mp4, write_png
-    from wcbench.predictions import INFO_FILE, canonical_frame_path
-    from wcbench.progress import progress
-    from wcbench.reference_model.lidar_init import estimate_sky_color, init_scene_from_lidar
-    from wcbench.reference_model.weather import WeatherRenderer, camera_velocity, scale_camera
-    from wcbench.storage import atomic_write_json, sha256_file, sha256_json
-    from wcbench.timing import FrameTimer
-
-    n = len(scene.frames)
-    frames = parse_frames(args.frames, n)
-    init_frames = parse_frames(args.init_frames, n) if args.init_frames else None
-    width, height = _resolution(args, *scene.image_size)
-    out_dir = Path(args.out) / args.method / scene.id / weather.kind
-    video_path = out_dir.parent / f"{weather.kind}.mp4"
-    init_options = {"voxel_m": float(args.voxel), "frames": init_frames, "rigid_nodes": True}
-    parameters = {
-        "weather": weather.to_json(),
-        "resolution": [width, height],
-        "frames": frames,
-        "init": init_options,
-    }
-    key = sha256_json(
-        {
-            "method": args.method,
-            "version": RENDER_VERSION,
-            "scene": scene.id,
-            "parameters": parameters,
-            "sources": [str(f.image_path) for f in scene.frames],
-        }
-    )
-
-    info_path = out_dir / INFO_FILE
-    if info_path.is_file():
-        old = json.loads(info_path.read_text(encoding="utf-8"))
-        if old.get("key") == key and all(
-            (out_dir / f["file"]).is_file() and sha256_file(out_dir / f["file"]) == f["sha256"]
-            for f in old.get("frames", [])
-        ):
-            return {**old, "status": "up to date", "folder": str(out_dir)}
-        if not args.overwrite:
-            raise ResultsExistError(
-                f"{out_dir}: holds a finished render with other settings (method {old.get('method')!r}, "
-                f"parameters {old.get('parameters', {}).get('weather')}); pass --overwrite to replace it "
-                "or choose another --out"
-            )
-    state_path = out_dir / _STATE_FILE
-    state: dict[str, Any] = {"key": key, "frames": {}}
-    if state_path.is_file():
-        try:
-            loaded = json.loads(state_path.read_text(encoding="utf-8"))
-            if loaded.get("key") == key:
-                state = loaded
-        except json.JSONDecodeError:
-            pass  # never torn (atomic writes); an edited file is ignored
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if args.overwrite:
-        for stale in out_dir.glob("*.png"):
-            if stale.name not in {canonical_frame_path(out_dir, k).name for k in frames}:
-                stale.unlink()
-
-    try:
-        gaussians = init_scene_from_lidar(scene, voxel_m=args.voxel, frames=init_frames)
-    except ValueError as exc:
-        raise InputError(f"{scene.root}: cannot initialise Gaussians from lidar: {exc}") from None
-    background = estimate_sky_color(scene)
-    first = scene.frames[0].camera
-    renderer = WeatherRenderer(
-        gaussians.static,
-        weather,
-        up=scene.up,
-        heading=first.camera_to_world[:3, 2],
-        anchor=first.center,
-        background=background,
-    )
-    centers = np.stack([f.camera.center for f in scene.frames])
-    times = np.array([f.timestamp for f in scene.frames], np.float64)
-    timer = FrameTimer(warmup=1)
-    frame_infos: dict[int, dict[str, Any]] = {}
-    images: dict[int, np.ndarray] = {}
-    for k in progress(
-        frames,
-        desc=f"render {scene.id} {weather.kind}",
-        total=len(frames),
-        enabled=not args.no_progress and len(frames) > 1,
-    ):
-        path = canonical_frame_path(out_dir, k)
-        done = state["frames"].get(str(k))
-        if done and path.is_file() and sha256_file(path) == done["sha256"]:
-            timer.frame_ms.append(done["ms"])
-            frame_infos[k] = done["info"]
-            continue
-        cam = scale_camera(scene.frames[k].camera, width, height)
-        with timer.frame():
-            frame = renderer.render(
-                cam,
-                float(times[k] - times[0]),
-                camera_velocity=camera_velocity(centers, times, k),
-                gaussians=gaussians.at_frame(k),
-            )
-            image = to_uint8(frame.image)
-        write_png(path, image)
-        images[k] = image
-        frame_infos[k] = {**frame.info, "timings_ms": frame.timings_ms}
-        state["frames"][str(k)] = {
-            "sha256": sha256_file(path),
-            "ms": timer.frame_ms[-1],
-            "info": frame_infos[k],
-        }
-        atomic_write_json(state_path, state)
-
-    if len(frames) > 1 and not args.no_video:
-        from wcbench.image_io import read_rgb8
-
-        seq = [images[k] if k in images else read_rgb8(canonical_frame_path(out_dir, k)) for k in frames]
-        fps = _frame_rate(times[frames])
-        write_mp4(video_path, seq, fps=fps)
-    info = {
-        "method": args.method,
-        "version": f"{__version__}+render{RENDER_VERSION}",
-        "scene": scene.id,
-        "weather": weather.kind,
-        "seed": int(weather.seed),
-        "key": key,
-        "parameters": {
-            **parameters,
-            "renderer": renderer.info(),
-            "scene_gaussians": {
-                "static": len(gaussians.static),
-                "rigid_nodes": len(gaussians.nodes),
-                "total": len(gaussians),
-            },
-        },
-        "timings": timer.summary(width=width, height=height),
-        "frames": [
-            {
-                "file": canonical_frame_path(out_dir, k).name,
-                "index": k,
-                "sha256": state["frames"][str(k)]["sha256"],
-                "info": frame_infos[k],
-            }
-            for k in frames
-        ],
-        "video": video_path.name if video_path.is_file() and len(frames) > 1 and not args.no_video else None,
-    }
-    atomic_write_json(info_path, info)
-    state_path.unlink(missing_ok=True)
-    return {**info, "status": "rendered", "folder": str(out_dir)}
-
-
-def _frame_rate(times: Any) -> float:
-    """Frames per second of a sequence from its timestamps (10 when they are not increasing)."""
-    import numpy as np
-
-    dt = np.diff(np.asarray(times, np.float64))
-    if len(dt) == 0 or not np.all(dt > 0):
-        return 10.0
-    return float(min(max(1.0 / np.median(dt), 1.0), 120.0))

@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     )
     check_out_folder(cfg)
     scenes = resolve_scenes(args.scenes, data_root=args.data_root)
-    render_predictions(method, scenes, weathers, cfg.predictions, seed=args.seed, show_progress=not args.no_progress)
+    render_predictions(method, scenes, weathers, cfg.predictions, seed=args.seed, overwrite=args.overwrite,
+                       show_progress=not args.no_progress)
     report(evaluate(cfg))
     return 0

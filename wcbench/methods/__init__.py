@@ -16,6 +16,7 @@ METHODS: LazyRegistry = LazyRegistry(
     {
         "identity": "wcbench.methods.identity:IdentityMethod",
         "filter2d": "wcbench.methods.filter2d:Filter2DMethod",
+        "lidar_init": "wcbench.reference_model.lidar_init_method:LidarInitMethod",
         **{name: f"wcbench.methods.readers:{name.replace('-', '_')}" for name in _READERS},
     },
 )

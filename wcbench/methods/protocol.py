@@ -76,9 +76,11 @@ class Method(Protocol):
 class RunnableMethod(Method, Protocol):
     """A method wcbench can run itself."""
 
-    def render(self, scene: Scene, weather: str, out_dir: Path, *, seed: int = 0) -> dict[str, Any]:
+    def render(self, scene: Scene, weather: str, out_dir: Path, *, seed: int = 0, overwrite: bool = False,
+               show_progress: bool = True) -> dict[str, Any]:
         """Render all frames of ``scene`` under ``weather`` into ``out_dir`` (the prediction layout).
 
-        Returns the ``info.json`` content (method, version, parameters, timings, hashes).
+        Returns the ``info.json`` content (method, version, parameters, timings, hashes). A folder
+        finished with other settings is kept unless ``overwrite``.
         """
         ...

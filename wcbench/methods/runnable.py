@@ -1,21 +1,24 @@
 """Shared machinery of runnable methods: render into the canonical layout, resumably.
 
-A subclass implements :meth:`FrameRenderer.render_frame`; :meth:`FrameRenderer.render` writes
+A subclass implements :meth:`FrameRenderer.render_frame` (and optionally :meth:`prepare`,
+:meth:`output_size`, :meth:`describe`); :meth:`FrameRenderer.render` writes
 ``<out>/{frame:03d}.png`` atomically, keeps a small state file so a killed render resumes where it
 stopped, times every frame (FPS) and finally writes ``info.json`` with the parameters and the
-sha256 of every frame.
+sha256 of every frame. A folder finished with other settings is never replaced unless asked.
 """
 
 from __future__ import annotations
 
 import json
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from wcbench.image_io import write_png
+from wcbench.errors import InputError, ResultsExistError
+from wcbench.image_io import read_rgb8, write_mp4, write_png
 from wcbench.methods.protocol import MethodInfo
 from wcbench.predictions import (
     CANONICAL_PATTERN,
@@ -30,6 +33,15 @@ from wcbench.storage import atomic_write_json, sha256_file, sha256_json
 from wcbench.timing import FrameTimer
 
 _STATE_FILE = ".render_state.json"
+FrameOutput = np.ndarray | tuple[np.ndarray, dict[str, Any]]
+
+
+def sequence_frame_rate(timestamps: Sequence[float]) -> float:
+    """Frames per second of a sequence from its timestamps (s); 10 when they do not increase."""
+    dt = np.diff(np.asarray(timestamps, np.float64))
+    if len(dt) == 0 or not np.all(dt > 0):
+        return 10.0
+    return float(min(max(1.0 / np.median(dt), 1.0), 120.0))
 
 
 class FrameRenderer(ABC):
@@ -42,12 +54,21 @@ class FrameRenderer(ABC):
         """Settings that change the frames (recorded in ``info.json`` and part of the resume key)."""
         return {}
 
+    def output_size(self, scene: Scene) -> tuple[int, int]:
+        """(width, height) of the rendered frames; the scene's own size unless a method says otherwise."""
+        return scene.image_size
+
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:  # noqa: B027 - optional hook
         """Per-(scene, weather) set-up before the first frame (not part of frame timings)."""
 
+    def describe(self) -> dict[str, Any]:
+        """Facts known after :meth:`prepare` (model sizes...), added to ``info.json`` parameters."""
+        return {}
+
     @abstractmethod
-    def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> np.ndarray:
-        """Frame ``index`` as uint8 RGB [H, W, 3] at the scene's resolution."""
+    def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> FrameOutput:
+        """Frame ``index`` as uint8 RGB [H, W, 3] at :meth:`output_size`, optionally with a dict of
+        per-frame facts for ``info.json``."""
 
     def open_predictions(
         self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False
@@ -55,34 +76,75 @@ class FrameRenderer(ABC):
         """Read frames this method wrote (the canonical layout)."""
         return match_predictions(scene, weather, root, pattern=pattern or CANONICAL_PATTERN, resize=resize)
 
-    def _key(self, scene: Scene, weather: str, seed: int) -> str:
+    def _key(self, scene: Scene, weather: str, seed: int, frames: list[int]) -> str:
         return sha256_json({
             "method": self.info.name, "version": self.version, "weather": weather, "seed": seed,
-            "parameters": self.parameters(weather), "scene": scene.id,
-            "sources": [sha256_file(f.image_path) for f in scene.frames],
+            "parameters": self.parameters(weather), "size": list(self.output_size(scene)), "frames": frames,
+            "scene": scene.id, "sources": [sha256_file(f.image_path) for f in scene.frames],
         })
 
+    def _check_existing(self, out_dir: Path, key: str, overwrite: bool) -> dict[str, Any] | None:
+        """The finished info.json if it is up to date; clears a stale one when ``overwrite``."""
+        info_path = out_dir / INFO_FILE
+        if not info_path.is_file():
+            return None
+        try:
+            old = json.loads(info_path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as exc:
+            if not overwrite:
+                raise InputError(f"{info_path}: not valid JSON ({exc}); pass --overwrite to re-render") from None
+            old = {}
+        if old.get("key") == key:
+            if all((out_dir / f["file"]).is_file() and sha256_file(out_dir / f["file"]) == f["sha256"]
+                   for f in old.get("frames", [])):
+                return old
+            return None  # same settings, damaged frames: re-render those (frames are deterministic)
+        if not overwrite:
+            raise ResultsExistError(
+                f"{out_dir}: holds a finished render of {old.get('method')!r} with other settings; "
+                "pass --overwrite to replace it or choose another --out"
+            )
+        info_path.unlink()  # without it a killed re-render resumes from the state file
+        for stale in out_dir.glob("*.png"):
+            stale.unlink()
+        return None
+
     def render(
-        self, scene: Scene, weather: str, out_dir: Path, *, seed: int = 0, show_progress: bool = True
+        self,
+        scene: Scene,
+        weather: str,
+        out_dir: Path,
+        *,
+        seed: int = 0,
+        frames: Sequence[int] | None = None,
+        overwrite: bool = False,
+        video: bool = False,
+        show_progress: bool = True,
     ) -> dict[str, Any]:
-        """Render every frame of ``scene`` into ``out_dir``; skip work that is already done.
+        """Render frames of ``scene`` into ``out_dir``; skip work that is already done.
+
+        Parameters
+        ----------
+        frames : sequence of int, optional
+            Frame indices (default: all). Each frame is a pure function of (seed, frame).
+        overwrite : bool
+            Replace a folder finished with other settings (otherwise :class:`ResultsExistError`).
+        video : bool
+            Also write ``out_dir.parent / "<weather>.mp4"``.
 
         Returns
         -------
         dict
-            The ``info.json`` content: method, version, weather, seed, parameters, timings, and
-            ``frames`` (file name and sha256 per frame).
+            The ``info.json`` content (method, version, weather, seed, parameters, timings,
+            ``frames`` with file name, index, sha256 and per-frame facts), plus ``status``:
+            ``"rendered"`` or ``"up to date"`` (not stored).
         """
+        indices = list(range(len(scene))) if frames is None else sorted(set(frames))
+        key = self._key(scene, weather, seed, indices)
         out_dir.mkdir(parents=True, exist_ok=True)
-        key = self._key(scene, weather, seed)
-        info_path = out_dir / INFO_FILE
-        if info_path.is_file():
-            old = json.loads(info_path.read_text(encoding="utf-8"))
-            if old.get("key") == key and all(
-                (out_dir / f["file"]).is_file() and sha256_file(out_dir / f["file"]) == f["sha256"]
-                for f in old.get("frames", [])
-            ):
-                return old
+        done_info = self._check_existing(out_dir, key, overwrite)
+        if done_info is not None:
+            return {**done_info, "status": "up to date"}
         state_path = out_dir / _STATE_FILE
         state: dict[str, Any] = {"key": key, "frames": {}}
         if state_path.is_file():
@@ -94,32 +156,43 @@ class FrameRenderer(ABC):
                 pass  # a torn state file cannot happen (atomic writes); an edited one is ignored
         self.prepare(scene, weather, seed=seed)
         timer = FrameTimer()
-        width, height = scene.image_size
-        for k in progress(range(len(scene)), desc=f"{self.info.name} {scene.id} {weather}", enabled=show_progress):
+        width, height = self.output_size(scene)
+        images: dict[int, np.ndarray] = {}
+        bar = progress(indices, desc=f"{self.info.name} {scene.id} {weather}", total=len(indices),
+                       enabled=show_progress and len(indices) > 1)
+        for k in bar:
             path = canonical_frame_path(out_dir, k)
             done = state["frames"].get(str(k))
             if done and path.is_file() and sha256_file(path) == done["sha256"]:
                 timer.frame_ms.append(done["ms"])
                 continue
             with timer.frame():
-                img = self.render_frame(scene, weather, k, seed=seed)
+                out = self.render_frame(scene, weather, k, seed=seed)
+            img, facts = out if isinstance(out, tuple) else (out, {})
             if img.shape != (height, width, 3) or img.dtype != np.uint8:
                 raise RuntimeError(
                     f"{self.info.name}.render_frame returned {img.dtype} {img.shape}, "
                     f"expected uint8 {(height, width, 3)}"
                 )
             write_png(path, img)
-            state["frames"][str(k)] = {"sha256": sha256_file(path), "ms": timer.frame_ms[-1]}
+            images[k] = img
+            state["frames"][str(k)] = {"sha256": sha256_file(path), "ms": timer.frame_ms[-1], "info": facts}
             atomic_write_json(state_path, state)
+        video_path = out_dir.parent / f"{weather}.mp4"
+        if video and len(indices) > 1:
+            seq = [images[k] if k in images else read_rgb8(canonical_frame_path(out_dir, k)) for k in indices]
+            write_mp4(video_path, seq, fps=sequence_frame_rate([scene.frames[k].timestamp for k in indices]))
         info = {
             "method": self.info.name, "version": self.version, "scene": scene.id, "weather": weather,
-            "seed": seed, "parameters": self.parameters(weather), "key": key,
+            "seed": seed, "key": key, "parameters": {**self.parameters(weather), **self.describe()},
             "timings": timer.summary(width=width, height=height),
             "frames": [
-                {"file": canonical_frame_path(out_dir, k).name, "sha256": state["frames"][str(k)]["sha256"]}
-                for k in range(len(scene))
+                {"file": canonical_frame_path(out_dir, k).name, "index": k,
+                 "sha256": state["frames"][str(k)]["sha256"], "info": state["frames"][str(k)].get("info", {})}
+                for k in indices
             ],
+            "video": video_path.name if video and len(indices) > 1 else None,
         }
-        atomic_write_json(info_path, info)
+        atomic_write_json(out_dir / INFO_FILE, info)
         state_path.unlink(missing_ok=True)
-        return info
+        return {**info, "status": "rendered"}

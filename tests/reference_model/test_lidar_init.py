@@ -1,0 +1,174 @@
+"""Gaussians initialised from lidar: coloring, voxels, scales, moving objects, sky color."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from wcbench.reference_model.lidar_init import (
+    GaussianCloud,
+    estimate_sky_color,
+    init_from_lidar,
+    init_scene_from_lidar,
+    sample_image,
+    voxel_downsample,
+)
+from wcbench.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene
+
+PANDASET = Path(__file__).resolve().parents[2].parent / "shared/data/pandaset_002"
+RED, BLUE, SKY = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.6, 0.7, 0.9)
+W, H, F = 80, 60, 50.0
+
+
+def _grid(x0: float, x1: float, y0: float, y1: float, z: float, step: float) -> np.ndarray:
+    x, y = np.meshgrid(np.arange(x0, x1, step), np.arange(y0, y1, step))
+    return np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], 1)
+
+
+def make_scene(tmp_path: Path, *, noise_point: bool = False) -> Scene:
+    """Three frames of a camera driving along +z towards a wall (left red, right blue) at z = 8,
+    with a 1 m cube moving 1 m/frame along +x, and optional lone noise point near the camera."""
+    img = np.zeros((H, W, 3), np.uint8)
+    img[:, : W // 2] = (0, 0, 255)  # BGR red on the left
+    img[:, W // 2 :] = (255, 0, 0)  # blue on the right
+    img[: H // 4] = (np.array(SKY[::-1]) * 255).astype(np.uint8)  # sky band at the top
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1.0]])
+    frames, poses = [], []
+    for k in range(3):
+        path = tmp_path / f"{k:03d}.png"
+        cv2.imwrite(str(path), img)
+        c2w = np.eye(4)
+        c2w[2, 3] = 0.5 * k
+        frames.append(
+            Frame(
+                index=k,
+                timestamp=0.1 * k,
+                camera=Camera(K=K, width=W, height=H, camera_to_world=c2w),
+                image_path=path,
+                lidar_path=tmp_path / f"{k:03d}.bin",
+            )
+        )
+        T = np.eye(4)
+        T[:3, 3] = [-2.0 + 1.0 * k, 0.5, 5.0]
+        poses.append(T)
+    wall = _grid(-4, 4, -0.9, 2, 8.0, 0.05)  # below the sky band (y down: the band is y < -1.2 at z=8)
+
+    def loader(frame: Frame) -> LidarSweep:
+        cube = _grid(-0.45, 0.45, -0.45, 0.45, -0.45, 0.1) + poses[frame.index][:3, 3]
+        pts = [wall, cube]
+        if noise_point and frame.index == 0:
+            pts.append(np.array([[0.3, 0.2, 2.0]]))
+        return LidarSweep(points=np.concatenate(pts).astype(np.float32))
+
+    track = ObjectTrack(
+        id="car",
+        class_name="Car",
+        frames=np.arange(3),
+        object_to_world=np.stack(poses),
+        box_size=np.tile([1.0, 1.0, 1.0], (3, 1)),
+    )
+    return Scene(
+        id="synthetic",
+        frames=frames,
+        tracks=[track],
+        up=np.array([0.0, -1.0, 0.0]),
+        world_offset=np.zeros(3),
+        source_format="test",
+        root=tmp_path,
+        lidar_loader=loader,
+    )
+
+
+def test_voxel_downsample_averages_per_voxel() -> None:
+    pts = np.array([[0.01, 0.01, 0.01], [0.09, 0.05, 0.02], [0.5, 0.5, 0.5]])
+    vals = np.array([[1.0], [3.0], [7.0]])
+    centers, means, counts = voxel_downsample(pts, vals, 0.1)
+    order = np.argsort(counts)[::-1]
+    np.testing.assert_array_equal(counts[order], [2, 1])
+    np.testing.assert_allclose(centers[order[0]], [0.05, 0.03, 0.015], rtol=1e-6)
+    np.testing.assert_allclose(means[order].ravel(), [2.0, 7.0])
+    with pytest.raises(ValueError, match="voxel_m"):
+        voxel_downsample(pts, vals, 0.0)
+
+
+def test_sample_image_is_exact_at_pixel_centers_and_bilinear_between() -> None:
+    img = np.random.default_rng(0).random((5, 6, 3)).astype(np.float32)
+    uv = np.array([[2.5, 3.5], [0.5, 0.5]])
+    np.testing.assert_allclose(sample_image(img, uv), img[[3, 0], [2, 0]], rtol=1e-6)
+    mid = sample_image(img, np.array([[3.0, 1.5]]))
+    np.testing.assert_allclose(mid[0], (img[1, 2] + img[1, 3]) / 2, rtol=1e-6)
+
+
+def test_gaussian_cloud_checks_shapes_and_round_trips(tmp_path: Path) -> None:
+    n = 4
+    cloud = GaussianCloud(
+        np.zeros((n, 3)), np.tile([1.0, 0, 0, 0], (n, 1)), np.ones((n, 3)), np.ones(n), np.zeros((n, 3))
+    )
+    assert cloud.means.dtype == np.float32 and len(cloud) == n
+    cloud.save_npz(tmp_path / "c.npz")
+    back = GaussianCloud.load_npz(tmp_path / "c.npz")
+    np.testing.assert_array_equal(back.quats, cloud.quats)
+    with pytest.raises(ValueError, match="colors"):
+        GaussianCloud(np.zeros((n, 3)), np.zeros((n, 4)), np.ones((n, 3)), np.ones(n), np.zeros((n, 4)))
+
+
+def test_static_gaussians_take_the_image_colors_and_drop_moving_objects(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path)
+    cloud = init_from_lidar(scene, voxel_m=0.1)
+    assert len(cloud) > 100
+    on_wall = np.abs(cloud.means[:, 2] - 8.0) < 0.05
+    assert on_wall.all()  # the moving cube is cut out
+    left, right = cloud.means[:, 0] < -0.2, cloud.means[:, 0] > 0.2
+    np.testing.assert_allclose(cloud.colors[left], np.tile(RED, (left.sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(cloud.colors[right], np.tile(BLUE, (right.sum(), 1)), atol=1e-6)
+    np.testing.assert_array_equal(cloud.quats, np.tile([1.0, 0, 0, 0], (len(cloud), 1)))
+    # 3DGS scale: half the spacing (0.1 m voxels), clipped by 0.02 rad times the range (>= 8 m here).
+    assert np.median(cloud.scales) == pytest.approx(0.5 * 0.1, rel=0.25)
+    kept = init_from_lidar(scene, voxel_m=0.1, moving_objects="keep")
+    assert len(kept) > len(cloud)  # the cube's three positions smear in as a trail
+
+
+def test_moving_objects_become_rigid_nodes_posed_per_frame(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path)
+    sg = init_scene_from_lidar(scene, voxel_m=0.1, node_voxel_m=0.1)
+    assert len(sg.nodes) == 1 and sg.nodes[0].track_id == "car"
+    local = sg.nodes[0].cloud.means
+    assert np.abs(local).max() < 0.55  # in the box frame, around its center
+    for k in range(3):
+        node = sg.nodes[0].at_frame(k)
+        assert node is not None
+        # The lidar saw the cube's front face (z = -0.45 in the box frame) wherever the box was.
+        face = _grid(-0.45, 0.45, -0.45, 0.45, -0.45, 0.1).mean(0)
+        np.testing.assert_allclose(
+            node.means.mean(0), scene.tracks[0].object_to_world[k][:3, 3] + face, atol=0.02
+        )
+        assert len(sg.at_frame(k)) == len(sg.static) + len(node)
+    assert sg.nodes[0].at_frame(7) is None
+
+
+def test_isolated_noise_returns_are_dropped(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path, noise_point=True)
+    cloud = init_from_lidar(scene, voxel_m=0.1)
+    assert np.linalg.norm(cloud.means - [0.3, 0.2, 2.0], axis=1).min() > 1.0
+
+
+def test_sky_color_comes_from_pixels_without_lidar(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path)
+    np.testing.assert_allclose(estimate_sky_color(scene, radius_px=1), SKY, atol=1 / 255)
+
+
+def test_real_scene_initialisation(tmp_path: Path) -> None:
+    if not (PANDASET / "images").is_dir():
+        pytest.skip(f"real scene not present at {PANDASET}")
+    from wcbench.scene_loaders import load_scene
+
+    scene = load_scene(PANDASET)
+    cloud = init_from_lidar(scene, frames=[15, 16], voxel_m=0.3)  # 16 has no sweep: skipped
+    assert len(cloud) > 10_000
+    for name in ("means", "scales", "colors", "opacities"):
+        assert np.all(np.isfinite(getattr(cloud, name)))
+    assert cloud.colors.min() >= 0 and cloud.colors.max() <= 1
+    assert np.all((cloud.scales > 0) & (cloud.scales <= 0.5))

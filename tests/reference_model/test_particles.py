@@ -1,0 +1,316 @@
+"""Rain and snow particles: physics, kinematics, wrap, shapes, presets, extremes (numpy only)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from wcbench.reference_model.particles import (
+    ParticleField,
+    ParticleSpec,
+    Wind,
+    extinction_coefficient,
+    horizontal_basis,
+    number_density,
+    quat_to_matrix,
+    rain_fall_speed,
+    sample_diameters,
+    size_distribution,
+    snow_fall_speed,
+)
+from wcbench.reference_model.weather import Weather, load_presets, preset_names
+
+Z_UP = np.array([0.0, 0.0, 1.0])
+# Positions are float64 closed forms; the only error is rounding of O(100 m) coordinates.
+POS_TOL = 1e-9
+
+
+def field(
+    kind: str = "rain",
+    preset: str = "heavy",
+    *,
+    wind: Wind | None = None,
+    up: np.ndarray = Z_UP,
+    seed: int = 3,
+    **overrides: object,
+) -> ParticleField:
+    weather = Weather(kind=kind, preset=preset, **overrides)  # type: ignore[arg-type]
+    spec = weather.particle_spec()
+    assert spec is not None
+    return ParticleField(spec, wind=wind or Wind(), up=up, seed=seed)
+
+
+def box_coords(f: ParticleField, pos: np.ndarray, center: np.ndarray) -> np.ndarray:
+    return (pos - center) @ f.basis.T
+
+
+# ---- physics -----------------------------------------------------------------------------------
+
+
+def test_marshall_palmer_and_fall_speed_match_published_values() -> None:
+    n0, lam = size_distribution("rain", 25.0)
+    assert n0 == 8000.0
+    assert lam == pytest.approx(4.1 * 25.0**-0.21, rel=1e-12)
+    # DESIGN §7: a 1 mm drop falls at ~4 m/s, a 3 mm drop at ~8 m/s.
+    assert rain_fall_speed(1.0) == pytest.approx(4.0, abs=0.05)
+    assert rain_fall_speed(3.0) == pytest.approx(8.0, abs=0.1)
+    v_snow = snow_fall_speed(np.array([0.01, 2.0, 50.0]))
+    assert np.all((v_snow >= 0.5) & (v_snow <= 1.5))
+    # Heavy rain (25 mm/h) leaves about 1 km of visibility (geometric optics, Q_ext = 2).
+    beta = extinction_coefficient(n0, lam)
+    assert 2.996 / beta == pytest.approx(1080.0, rel=0.05)
+
+
+def test_number_density_and_sampling_follow_the_truncated_exponential() -> None:
+    n0, lam = size_distribution("rain", 7.6)
+    d = np.linspace(0.5, 6.0, 200001)
+    numeric = np.trapezoid(n0 * np.exp(-lam * d), d)
+    assert number_density(n0, lam, 0.5, 6.0) == pytest.approx(numeric, rel=1e-8)
+    u = np.random.default_rng(0).random(200_000)
+    sample = sample_diameters(u, lam, 0.5, 6.0)
+    assert sample.min() >= 0.5 and sample.max() <= 6.0
+    mean = np.trapezoid(d * np.exp(-lam * d), d) / np.trapezoid(np.exp(-lam * d), d)
+    assert sample.mean() == pytest.approx(mean, rel=0.01)  # 200k samples: ~0.2 % standard error
+
+
+def test_presets_are_data_and_the_paper_preset_matches_the_paper() -> None:
+    presets = load_presets()
+    assert set(preset_names("rain")) >= {"light", "moderate", "heavy", "paper"}
+    assert set(preset_names("snow")) >= {"light", "heavy", "paper"}
+    assert presets["rain"]["presets"]["light"]["rate_mm_h"] == 2.5
+    assert presets["rain"]["presets"]["moderate"]["rate_mm_h"] == 7.6
+    assert presets["rain"]["presets"]["heavy"]["rate_mm_h"] == 25.0
+    rain = Weather(kind="rain", preset="paper").particle_spec()
+    snow = Weather(kind="snow", preset="paper").particle_spec()
+    assert rain is not None and snow is not None
+    assert (rain.count, rain.color, rain.scale_m, rain.opacity) == (
+        40000,
+        (0.7, 0.7, 0.8),
+        (0.0025, 0.0025, 0.075),
+        0.13,
+    )
+    assert (snow.count, snow.color, snow.scale_m, snow.opacity) == (
+        16000,
+        (0.9, 0.9, 0.95),
+        (0.0064, 0.004, 0.004),
+        0.2,
+    )
+    for kind in ("rain", "snow"):
+        for name in preset_names(kind):
+            assert Weather(kind=kind, preset=name).particle_spec() is not None
+
+
+def test_physical_count_above_the_cap_scales_opacity_and_is_recorded() -> None:
+    f = field("rain", "heavy")
+    info = f.info()
+    assert f.count == 40000 and info["capped"]
+    assert info["represented_per_particle"] == pytest.approx(f.physical_count / 40000)
+    assert f.physical_count == pytest.approx(f.density_per_m3 * np.prod(f.spec.box_size))
+    g = f.gaussians(0.5, np.zeros(3), exposure_s=0.01)
+    # One drop's streak has opacity a = o_drop sigma_cross / sigma_long; k of them 1 - (1 - a)^k,
+    # times the fade near the radius and the lens.
+    a = f.spec.opacity * g.scales[:, 0].astype(np.float64) / g.scales[:, 2]
+    d = np.linalg.norm(g.means.astype(np.float64), axis=1)
+    fade = np.clip((f.spec.radius_m - d) / f.spec.fade_m, 0, 1) * np.clip(d / f.spec.min_distance_m - 1, 0, 1)
+    expected = (1 - (1 - a) ** f.represented) * fade
+    np.testing.assert_allclose(g.opacities, expected, atol=2e-5)  # float32 means and scales
+    assert g.opacities.max() <= 1.0 and np.median(g.opacities / fade.clip(1e-3)) > 5 * np.median(a)
+
+
+# ---- kinematics and wrap ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind,preset", [("rain", "heavy"), ("snow", "light")])
+def test_position_follows_the_closed_form_until_it_wraps(kind: str, preset: str) -> None:
+    f = field(kind, preset, wind=Wind(6.0, 15.0, 40.0))
+    t = 0.1
+    pos, wraps = f.positions(t, np.zeros(3))
+    closed = f.initial_positions() + f.displacement(t)
+    rel = box_coords(f, closed, np.zeros(3))
+    inside = np.all((rel >= f.spec.box_low) & (rel < f.spec.box_low + f.spec.box_size), axis=1)
+    assert inside.mean() > 0.8  # most have not wrapped yet
+    assert np.all(wraps[inside] == 0)
+    np.testing.assert_allclose(pos[inside], closed[inside], atol=POS_TOL)
+    # Velocity is gravity along -up plus wind (plus flutter for snow): check the finite difference.
+    v_fd = (f.displacement(t + 1e-6) - f.displacement(t - 1e-6)) / 2e-6
+    np.testing.assert_allclose(v_fd, f.velocity(t), atol=1e-5)
+    if kind == "rain":
+        expected = -f.fall_speed[:, None] * Z_UP + Wind(6.0, 15.0, 40.0).vector(f.basis)
+        np.testing.assert_allclose(f.velocity(t), expected, atol=1e-12)
+
+
+def test_wrap_keeps_count_and_uniform_density() -> None:
+    from scipy.stats import chi2
+
+    f = field("rain", "moderate", wind=Wind(8.0, 0.0, 70.0))
+    center = np.array([37.2, -14.9, 0.8])  # the camera drove away from the anchor
+    pos, wraps = f.positions(23.7, center)
+    assert pos.shape == (40000, 3) and np.all(np.isfinite(pos))
+    assert (wraps != 0).mean() > 0.9  # after 23.7 s nearly every drop has wrapped
+    rel = box_coords(f, pos, center)
+    low, size = f.spec.box_low, f.spec.box_size
+    assert np.all(rel >= low - 1e-9) and np.all(rel <= low + size + 1e-9)
+    bins = (10, 10, 8)
+    hist, _ = np.histogramdd(rel, bins=bins, range=list(zip(low, low + size)))
+    expected = len(pos) / hist.size
+    stat = float(((hist - expected) ** 2 / expected).sum())
+    assert chi2.sf(stat, hist.size - 1) > 1e-3, f"chi-square {stat} on {hist.size - 1} dof"
+
+
+def test_vertical_wrap_redraws_the_horizontal_position() -> None:
+    f = field("rain", "paper")
+    i = 0
+    samples = []
+    fall = f.fall_speed[i]
+    period = f.spec.box_size[2] / fall
+    for k in range(1, 400):
+        pos, wraps = f.positions(k * period + 0.01, np.zeros(3))
+        assert wraps[i] == -k
+        samples.append(box_coords(f, pos[i : i + 1], np.zeros(3))[0, :2])
+    xy = np.array(samples)
+    # Without a re-draw every wrap would land on the same horizontal spot; with it they are uniform.
+    assert np.unique(np.round(xy, 6), axis=0).shape[0] == len(xy)
+    assert abs(xy[:, 0].mean()) < 2.0 and abs(xy[:, 1].mean()) < 2.0
+    assert xy[:, 0].std() == pytest.approx(20.0 / math.sqrt(12), rel=0.15)
+
+
+def test_frame_is_a_pure_function_of_seed_and_time() -> None:
+    center17 = np.array([5.0, 2.0, 0.1])
+    seq = field("snow", "heavy", wind=Wind(4.0, 20.0, 30.0))
+    for k in range(17):  # a sequence renders the earlier frames first
+        seq.gaussians(k * 0.1, center17 * k / 17)
+    alone = field("snow", "heavy", wind=Wind(4.0, 20.0, 30.0))
+    a, b = seq.gaussians(1.7, center17), alone.gaussians(1.7, center17)
+    for name in ("means", "quats", "scales", "opacities", "colors", "particle"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    other = field("snow", "heavy", wind=Wind(4.0, 20.0, 30.0), seed=4).gaussians(1.7, center17)
+    assert not np.array_equal(other.means[:10], a.means[:10])
+
+
+def test_fast_kernel_matches_numpy_reference() -> None:
+    pytest.importorskip("numba")
+    from wcbench.reference_model.particles import _numba_kernel
+
+    if _numba_kernel() is None:
+        pytest.skip("numba kernel unavailable")
+    K = np.array([[250.0, 0, 160], [0, 250.0, 90], [0, 0, 1]])
+    w2c = np.eye(4)
+    w2c[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]  # looks along +x with z up
+    view = (w2c, K, 320, 180)
+    for kind, preset in (("rain", "heavy"), ("snow", "heavy"), ("rain", "paper")):
+        f = field(kind, preset, wind=Wind(7.0, 10.0, 100.0))
+        for t in (0.0, 0.7, 31.3):
+            c = np.array([3.0 * t, 0.5, 0.2])
+            p_fast, i_fast = f.visible(t, c, view=view, fast=True)
+            p_ref, i_ref = f.visible(t, c, view=view, fast=False)
+            np.testing.assert_array_equal(i_fast, i_ref)
+            # Only sin may differ (an ulp between numpy's SIMD and libm).
+            np.testing.assert_allclose(p_fast, p_ref, atol=1e-9)
+
+
+# ---- shapes --------------------------------------------------------------------------------------
+
+
+def test_raindrop_long_axis_is_parallel_to_its_velocity() -> None:
+    f = field("rain", "heavy", wind=Wind(9.0, -10.0, 75.0))
+    g = f.gaussians(2.0, np.zeros(3), exposure_s=0.02)
+    assert len(g) > 100
+    R = quat_to_matrix(g.quats)
+    long_axis = R[:, :, 2]  # local z carries the largest scale
+    assert np.all(g.scales[:, 2] >= g.scales[:, 0]) and np.all(g.scales[:, 0] == g.scales[:, 1])
+    v = g.velocity / np.linalg.norm(g.velocity, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", long_axis, v)), 1.0, atol=1e-5)
+    # Streak length from the exposure: sigma^2 = (D/4)^2 + (|v| t_exp)^2 / 12.
+    speed = np.linalg.norm(g.velocity, axis=1)
+    np.testing.assert_allclose(g.scales[:, 2] ** 2, g.scales[:, 0] ** 2 + (speed * 0.02) ** 2 / 12, rtol=1e-4)
+
+
+def test_snowflake_is_three_gaussians_at_60_degrees_sharing_a_center() -> None:
+    f = field("snow", "paper", wind=Wind(3.0, 0.0, 0.0))
+    g = f.gaussians(1.3, np.zeros(3))
+    assert len(g) % 3 == 0 and len(g) > 0
+    means = g.means.reshape(-1, 3, 3)
+    np.testing.assert_array_equal(means[:, 0], means[:, 1])
+    np.testing.assert_array_equal(means[:, 0], means[:, 2])
+    assert np.all(g.particle.reshape(-1, 3) == g.particle.reshape(-1, 3)[:, :1])
+    np.testing.assert_allclose(g.scales, np.tile([0.0064, 0.004, 0.004], (len(g), 1)), rtol=1e-6)
+    R = quat_to_matrix(g.quats).reshape(-1, 3, 3, 3)
+    arms, normals = R[..., :, 0], R[..., :, 2]  # local x = long axis, local z = flake normal
+    for a, b in ((0, 1), (1, 2), (0, 2)):
+        np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", arms[:, a], arms[:, b])), 0.5, atol=1e-5)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", normals[:, 0], normals[:, 1])), 1.0, atol=1e-5)
+
+
+# ---- up vector and extremes --------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "up", [np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0]), np.array([0.3, -0.9, 0.2])]
+)
+def test_gravity_and_the_box_follow_the_up_vector(up: np.ndarray) -> None:
+    up = up / np.linalg.norm(up)
+    f = field("rain", "light", up=up)
+    v = f.velocity(0.0)
+    np.testing.assert_allclose(
+        v / np.linalg.norm(v, axis=1, keepdims=True), np.tile(-up, (len(v), 1)), atol=1e-12
+    )
+    center = np.array([1.0, 2.0, 3.0])
+    pos, _ = f.positions(4.2, center)
+    height = (pos - center) @ up
+    assert height.min() >= -f.spec.below_m - 1e-9 and height.max() <= f.spec.above_m + 1e-9
+    basis = horizontal_basis(up)
+    np.testing.assert_allclose(basis @ basis.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(basis) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("speed", [0.0, 60.0])
+def test_wind_extremes_stay_finite(speed: float) -> None:
+    f = field("rain", "heavy", wind=Wind(speed, 30.0, 200.0))
+    g = f.gaussians(12.5, np.array([4.0, 1.0, 0.0]), exposure_s=0.01)
+    assert len(g) > 0
+    for name in ("means", "quats", "scales", "opacities"):
+        assert np.all(np.isfinite(getattr(g, name)))
+    assert np.all((g.opacities >= 0) & (g.opacities <= 1))
+
+
+@pytest.mark.parametrize("rate", [0.0, 500.0])
+def test_rain_rate_extremes(rate: float) -> None:
+    f = field("rain", "heavy", rate_mm_h=rate)
+    g = f.gaussians(1.0, np.zeros(3))
+    if rate == 0:
+        assert f.count == 0 and len(g) == 0 and f.haze_density() == 0.0
+    else:
+        assert f.count == f.spec.max_particles and f.represented > 100
+        assert np.all(np.isfinite(g.opacities)) and g.opacities.max() <= 1.0
+        assert 100 < 2.996 / f.haze_density() < 300  # a cloudburst: visibility of about 160 m
+
+
+def test_camera_on_the_wrap_boundary() -> None:
+    f = field("snow", "light")
+    size = f.spec.box_size
+    # Camera offsets of exactly a half and a whole box period: every floor() sits on an edge.
+    for offset in (size / 2, size, -size, np.zeros(3)):
+        center = offset @ f.basis
+        pos, _ = f.positions(0.0, center)
+        rel = box_coords(f, pos, center)
+        assert np.all(np.isfinite(pos))
+        assert np.all(rel >= f.spec.box_low - 1e-9) and np.all(rel <= f.spec.box_low + size + 1e-9)
+
+
+def test_bad_parameters_raise_value_errors_naming_them() -> None:
+    with pytest.raises(ValueError, match="rate_mm_h"):
+        size_distribution("rain", -1.0)
+    with pytest.raises(ValueError, match="tilt_deg"):
+        Wind(3.0, 120.0, 0.0)
+    with pytest.raises(ValueError, match="speed_m_s"):
+        Wind(-1.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="up"):
+        horizontal_basis(np.zeros(3))
+    with pytest.raises(ValueError, match="preset"):
+        Weather(kind="rain", preset="drizzle")
+    with pytest.raises(ValueError, match="unknown rain particle settings"):
+        ParticleSpec.from_mapping("rain", {"rate_mm_h": 1.0, "colour": [1, 1, 1]})
+    with pytest.raises(ValueError, match="t must be finite"):
+        field().positions(math.nan, np.zeros(3))
