@@ -27,7 +27,7 @@ _LAZY = {
     "project_torch": "._raster_torch",
 }
 
-__all__ = sorted(_LAZY)
+__all__ = ["RenderOutput", "numba_available", "project_torch", "rasterize", "rasterize_torch"]
 
 
 def __getattr__(name: str) -> Any:

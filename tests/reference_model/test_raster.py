@@ -1,0 +1,260 @@
+"""The rasterizer: fast numba path against the pure-torch twin, gradcheck, closed-form renders."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from raster_scenes import args, look_from, pinhole, random_scene  # noqa: E402
+
+from wcbench.reference_model import RenderOutput, rasterize, rasterize_torch  # noqa: E402
+from wcbench.reference_model._raster_common import ALPHA_MIN, CULL_KEYS, EPS2D  # noqa: E402
+
+# Fast vs twin, forward. Both evaluate the same float32 alpha per pair; they differ in exp (a
+# Cephes polynomial vs torch's, ~1 ulp) and in how transmittance is formed (a float32 running
+# product vs exp of a float64 sum of log(1 - alpha)), a few 1e-7 after tens of layers.
+FWD_ATOL = 2e-6
+# Expected depth is a weighted mean of camera z (~5 m here): the same relative error times z.
+DEPTH_RTOL = 2e-6
+# Gradients: float32 lane sums in a different order than autograd's, and conic / covariance
+# chains evaluated in float32 by both: 1e-4 of the largest gradient of that parameter.
+GRAD_RTOL = 1e-4
+
+W, H = 64, 48
+K = pinhole(W, H, 60.0)
+V = look_from()
+
+
+def _loss(out: RenderOutput, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    wc = torch.rand(out.color.shape, generator=g)
+    wa = torch.rand(out.alpha.shape, generator=g)
+    loss = (out.color * wc).sum() + (out.alpha * wa).sum()
+    if out.depth is not None:
+        loss = loss + 0.1 * (out.depth * torch.rand(out.depth.shape, generator=g)).sum()
+    return loss
+
+
+def _grads(out: RenderOutput, params: list[torch.Tensor]) -> list[torch.Tensor]:
+    extra = [out.means2d] + ([out.means2d_abs] if out.means2d_abs is not None else [])
+    return list(torch.autograd.grad(_loss(out), params + extra))
+
+
+def _assert_grads_close(fast: list[torch.Tensor], ref: list[torch.Tensor], names: list[str]) -> None:
+    for name, a, b in zip(names, fast, ref):
+        scale = max(float(b.abs().max()), 1e-6)
+        err = float((a - b).abs().max())
+        assert err <= GRAD_RTOL * scale, f"{name}: max |fast - twin| = {err:.3g}, largest gradient {scale:.3g}"
+
+
+@pytest.mark.parametrize(
+    ("seed", "n", "channels", "render_depth", "background"),
+    [(0, 300, 3, True, False), (1, 500, 3, False, True), (2, 200, 5, True, True), (3, 400, 1, False, False)],
+)
+def test_fast_path_matches_twin_forward_and_gradients(
+    seed: int, n: int, channels: int, render_depth: bool, background: bool
+) -> None:
+    params = random_scene(n, seed=seed, channels=channels)
+    bg = torch.linspace(0.1, 0.9, channels) if background else None
+    outs = {}
+    for backend in ("numba", "torch"):
+        outs[backend] = rasterize(*args(params), V, K, W, H, background=bg, render_depth=render_depth,
+                                  backend=backend)
+    fast, ref = outs["numba"], outs["torch"]
+    assert fast.meta["backend"] == "numba" and ref.meta["backend"] == "torch"
+    torch.testing.assert_close(fast.color, ref.color, atol=FWD_ATOL, rtol=0)
+    torch.testing.assert_close(fast.alpha, ref.alpha, atol=FWD_ATOL, rtol=0)
+    if render_depth:
+        torch.testing.assert_close(fast.depth, ref.depth, rtol=DEPTH_RTOL, atol=1e-6)
+    else:
+        assert fast.depth is None and ref.depth is None
+    torch.testing.assert_close(fast.means2d, ref.means2d, atol=1e-4, rtol=1e-6)
+    assert torch.equal(fast.radii, ref.radii)
+    for key in ("n_visible", "n_tile_entries", "n_pairs", *CULL_KEYS.values()):
+        assert fast.meta[key] == ref.meta[key], key
+    names = ["means", "quats", "scales", "opacities", "colors", "means2d", "means2d_abs"]
+    _assert_grads_close(_grads(fast, args(params)), _grads(ref, args(params)), names)
+
+
+def test_fast_path_is_deterministic_and_thread_count_independent() -> None:
+    numba = pytest.importorskip("numba")
+    params = random_scene(400, seed=7)
+    results = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        try:
+            out = rasterize(*args(params), V, K, W, H, backend="numba")
+            results.append([out.color, *_grads(out, args(params))])
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    for a, b in zip(*results):
+        assert torch.equal(a, b)
+
+
+def test_gradcheck_twin_float64() -> None:
+    torch.manual_seed(0)
+    params = random_scene(4, seed=11, depth=3.0, spread=0.3, scale=(0.1, 0.3), dtype=torch.float64)
+    with torch.no_grad():
+        params["opacities"].clamp_(0.2, 0.8)  # far from the 0.99 clamp, where alpha has a kink
+
+    def render(*p: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        out = rasterize_torch(*p, V.double(), pinhole(10, 8, 12.0).double(), 10, 8,
+                              background=torch.tensor([0.2, 0.4, 0.6], dtype=torch.float64))
+        assert out.depth is not None
+        return out.color, out.alpha, out.depth
+
+    # A perturbation of 1e-6 must not cross a skip (alpha = 1/255) or stop decision; the scene is
+    # checked for that margin implicitly: gradcheck would fail on a jump.
+    assert torch.autograd.gradcheck(render, tuple(args(params)), eps=1e-6, atol=1e-5, rtol=1e-4)
+
+
+def test_auto_backend_sends_float64_to_the_twin() -> None:
+    params = random_scene(20, seed=3, dtype=torch.float64)
+    out = rasterize(*args(params), V, K, W, H)
+    assert out.meta["backend"] == "torch" and out.color.dtype == torch.float64
+    with pytest.raises(ValueError, match="float32"):
+        rasterize(*args(params), V, K, W, H, backend="numba")
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_isotropic_gaussian_renders_the_closed_form(backend: str) -> None:
+    """A sphere of std s at distance d on the optical axis projects to N(c, (f s / d)^2 + 0.3)."""
+    f, s, d, o = 50.0, 0.1, 2.0, 0.9
+    w, h = 40, 30
+    Kc = torch.tensor([[f, 0.0, 20.3], [0.0, f, 14.6], [0.0, 0.0, 1.0]])
+    params = {"means": torch.tensor([[0.0, 0.0, d]]), "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+              "scales": torch.full((1, 3), s), "opacities": torch.tensor([o]),
+              "colors": torch.tensor([[1.0, 0.5, 0.25]])}
+    out = rasterize(*args(params), V, Kc, w, h, backend=backend)
+    var = (f * s / d) ** 2 + EPS2D
+    ext = 3.0 * math.sqrt(var)  # 3 sigma (the opacity-aware bound is wider at o = 0.9)
+    jj, ii = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
+                            indexing="ij")
+    dx, dy = ii + 0.5 - 20.3, jj + 0.5 - 14.6
+    alpha = o * torch.exp(-0.5 * (dx**2 + dy**2) / var)
+    inside = (dx.abs() <= ext) & (dy.abs() <= ext) & (alpha >= ALPHA_MIN)
+    expected = torch.where(inside, alpha.clamp(max=0.99), 0.0).float()
+    torch.testing.assert_close(out.alpha, expected, atol=1e-6, rtol=0)
+    torch.testing.assert_close(out.color[..., 1], 0.5 * expected, atol=1e-6, rtol=0)
+    assert out.depth is not None
+    torch.testing.assert_close(out.depth[inside], torch.full_like(out.depth[inside], d), rtol=1e-6, atol=0)
+    assert out.radii.tolist() == [[math.ceil(ext), math.ceil(ext)]]
+    assert out.means2d[0].tolist() == pytest.approx([20.3, 14.6], abs=1e-5)
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_two_opaque_layers_composite_in_depth_order(backend: str) -> None:
+    red, blue = [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]
+    flat = [[2.0, 2.0, 0.01]]
+    near = {"means": [[0.0, 0.0, 2.0]], "colors": [red]}
+    far = {"means": [[0.0, 0.0, 4.0]], "colors": [blue]}
+    results = []
+    for first, second in ((near, far), (far, near)):  # input order must not matter
+        params = {"means": torch.tensor(first["means"] + second["means"]),
+                  "quats": torch.tensor([[1.0, 0, 0, 0]] * 2), "scales": torch.tensor(flat * 2),
+                  "opacities": torch.tensor([0.98, 0.9]) if first is near else torch.tensor([0.9, 0.98]),
+                  "colors": torch.tensor(first["colors"] + second["colors"])}
+        results.append(rasterize(*args(params), V, K, W, H, backend=backend))
+    for out in results:
+        c = out.color[H // 2, W // 2]
+        # At the center both Gaussians have G = exp(-q/2) with q tiny; alphas ~0.98 (front), 0.9.
+        a1, a2 = float(out.alpha[H // 2, W // 2]), None
+        assert c[0] > 0.97 and c[2] < 0.03 and c[1] == 0.0
+        a2 = (a1 - float(c[0])) / (1 - float(c[0]))  # alpha = a_front + (1 - a_front) a_back
+        assert 0.85 < a2 <= 0.9
+        assert float(c[2]) == pytest.approx((1 - float(c[0])) * a2, abs=1e-6)
+        assert out.depth is not None
+        expected_depth = (float(c[0]) * 2.0 + float(c[2]) * 4.0) / a1
+        assert float(out.depth[H // 2, W // 2]) == pytest.approx(expected_depth, rel=1e-6)
+    torch.testing.assert_close(results[0].color, results[1].color, atol=1e-7, rtol=0)
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_depth_of_a_fronto_parallel_plane_is_its_distance(backend: str) -> None:
+    d = 7.5
+    xs = torch.linspace(-4.0, 4.0, 41)
+    gx, gy = torch.meshgrid(xs, xs * 0.75, indexing="xy")
+    n = gx.numel()
+    params = {"means": torch.stack([gx.flatten(), gy.flatten(), torch.full((n,), d)], -1),
+              "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), "scales": torch.full((n, 3), 0.12),
+              "opacities": torch.full((n,), 0.7), "colors": torch.rand(n, 3)}
+    out = rasterize(*args(params), V, K, W, H, backend=backend)
+    assert out.depth is not None
+    assert bool((out.alpha > 0.9).all())
+    torch.testing.assert_close(out.depth, torch.full_like(out.depth, d), rtol=1e-6, atol=0)
+
+
+def test_camera_pose_moves_the_image() -> None:
+    """Moving the camera right by dx shifts the image left by f dx / z (world-to-camera convention)."""
+    params = random_scene(200, seed=5, spread=0.8)
+    base = rasterize(*args(params), V, K, W, H)
+    shifted = rasterize(*args(params), look_from(tx=5.0 * 4 / 60.0), K, W, H)  # 4 px at z = 5
+    # Only Gaussians near z = 5 shift by exactly 4 px: compare image centroids of alpha.
+    xs = torch.arange(W, dtype=torch.float32)
+    a0, a1 = base.alpha.detach(), shifted.alpha.detach()
+    cx0 = float((a0.sum(0) * xs).sum() / a0.sum())
+    cx1 = float((a1.sum(0) * xs).sum() / a1.sum())
+    assert cx0 - cx1 == pytest.approx(4.0, abs=1.0)
+
+
+def test_culled_gaussians_get_zero_gradient_and_are_counted() -> None:
+    params = random_scene(50, seed=9)
+    with torch.no_grad():
+        params["means"][0, 0] = float("nan")
+        params["scales"][1, 2] = float("inf")
+        params["means"][2, 2] = -1.0  # behind the camera
+        params["means"][3] = torch.tensor([100.0, 0.0, 5.0])  # far off screen
+        params["opacities"][4] = 0.0
+        params["colors"][5, 0] = float("nan")
+    for backend in ("numba", "torch"):
+        out = rasterize(*args(params), V, K, W, H, backend=backend)
+        assert out.meta["culled_nonfinite"] == 3
+        assert out.meta["culled_near_far"] == 1
+        assert out.meta["culled_offscreen"] >= 1
+        assert out.meta["culled_transparent"] == 1
+        assert bool(torch.isfinite(out.color).all())
+        grads = _grads(out, args(params))
+        for g in grads:
+            assert bool(torch.isfinite(g).all())
+        for i in range(5):
+            assert float(grads[0][i].abs().sum()) == 0.0
+            assert out.radii[i].tolist() == [0, 0]
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_bad_inputs_raise_value_errors_naming_the_argument(backend: str) -> None:
+    p = args(random_scene(5, seed=0))
+    with pytest.raises(ValueError, match="quats"):
+        rasterize(p[0], p[1][:, :3], *p[2:], V, K, W, H, backend=backend)
+    with pytest.raises(ValueError, match="viewmat"):
+        rasterize(*p, V[:3], K, W, H, backend=backend)
+    with pytest.raises(ValueError, match="background"):
+        rasterize(*p, V, K, W, H, background=torch.zeros(4), backend=backend)
+    with pytest.raises(ValueError, match="near"):
+        rasterize(*p, V, K, W, H, near=2.0, far=1.0, backend=backend)
+    with pytest.raises(ValueError, match="backend"):
+        rasterize(*p, V, K, W, H, backend="cuda")
+
+
+def test_float64_reference_on_the_fast_path_decisions() -> None:
+    """The benchmark's reference: the twin in float64 on the pairs the float32 fast path composited."""
+    from wcbench.reference_model._raster_numba import RenderJob
+
+    params = random_scene(300, seed=4)
+    out = rasterize(*args(params), V, K, W, H, backend="numba")
+    job = RenderJob(*[p.detach() for p in args(params)], V, K, W, H, near=0.01, far=1e10, render_depth=True)
+    job.forward()
+    gid, pix = job.composited_pairs()
+    assert 0 < len(gid) <= out.meta["n_pairs"]
+    ref = rasterize_torch(*[p.detach().double() for p in args(params)], V.double(), K.double(), W, H,
+                          pairs=(torch.from_numpy(gid), torch.from_numpy(pix)))
+    # float32 per-pair math against float64: a few float32 ulps of values in [0, 1].
+    torch.testing.assert_close(out.color.double(), ref.color, atol=2e-6, rtol=0)
+    torch.testing.assert_close(out.alpha.double(), ref.alpha, atol=2e-6, rtol=0)
+    assert out.depth is not None and ref.depth is not None
+    # Depth is a weighted mean of z: float32 weight errors (~1e-7 relative per layer) move it by
+    # up to ~1e-6 of z when the layers of a pixel span 2-8 m, as in this random cloud.
+    torch.testing.assert_close(out.depth.double(), ref.depth, rtol=DEPTH_RTOL, atol=0)
