@@ -190,9 +190,11 @@ def _score_unit(unit: Unit, metrics: dict[str, Metric], ctx_extra: dict[str, Any
     def flush() -> None:
         if not batch["pred"]:
             return
-        arrays = {k: np.stack(v) if v else None for k, v in batch.items()}
+        pred = np.stack(batch["pred"])
+        source = np.stack(batch["source"])
+        reference = np.stack(batch["reference"]) if batch["reference"] else None
         for m in active.values():
-            m.update(arrays["pred"], source=arrays["source"], reference=arrays["reference"])
+            m.update(pred, source=source, reference=reference)
         for v in batch.values():
             v.clear()
 
