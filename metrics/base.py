@@ -175,6 +175,8 @@ class Metric(ABC):
     ) -> None:
         """Accumulate a batch of consecutive frames.
 
+        The caller may reuse the arrays after the call: keep copies of anything retained.
+
         Parameters
         ----------
         pred : ndarray [B, H, W, 3]

@@ -7,6 +7,12 @@ ssim_<WxH>      our SSIM (OpenCV separable float64 filter) vs scikit-image's, sa
 flow_<method>   optical flow for the flow warping error (DIS, Farneback, DeepFlow) on the demo
                 scene's frames: ms per frame pair and the relative deviation of the resulting
                 warping error (of the filter2d rain baseline) from the DeepFlow value.
+clip_<backend>, segformer_b0_<backend>, evaluate_scene, evaluate_scene_warm
+                CLIP and SegFormer backends (torch, ONNX, ONNX int8) and scoring one method on a
+                whole scene; see :mod:`wcbench.metrics.bench_models`. Need the ``[model]`` extra.
+
+The suite runs with ``WCBENCH_CACHE`` and ``WCBENCH_MODELS`` pointed into a temporary folder, so
+it leaves nothing in the user's cache or model store.
 """
 
 from __future__ import annotations
@@ -79,10 +85,43 @@ def _flow_cases(quick: bool) -> list[BenchCase]:
     ]
 
 
+def _user_vocab() -> Path | None:
+    """CLIP's vocabulary from the user's model store if installed there (read, never written)."""
+    from wcbench.metrics.clip_tokenizer import VOCAB_ENTRY
+    from wcbench.metrics.model_store import ModelStore
+
+    store = ModelStore()
+    return store.path(VOCAB_ENTRY) if store.available(VOCAB_ENTRY) else None
+
+
 def run(*, data_root: Path | None = None, quick: bool = False) -> BenchReport:
-    """Run the suite; ``quick`` shrinks it to a smoke test."""
+    """Run the suite; ``quick`` shrinks it to a smoke test.
+
+    Parameters
+    ----------
+    data_root : Path, optional
+        Folder holding ``pandaset_002`` for the model cases (else they use the demo scene).
+    quick : bool
+        Small sizes, tiny models and the demo scene: a smoke test, not a measurement.
+    """
+    from wcbench.metrics.bench_models import private_caches, run_model_cases
+
     report = BenchReport("metrics")
-    report.cases += _ssim_cases(quick)
-    report.cases += _flow_cases(quick)
+    vocab = _user_vocab()  # looked up before the cache and store are redirected
+    with private_caches() as work:
+        report.cases += _ssim_cases(quick)
+        try:
+            import onnx  # noqa: F401  (the int8 quantiser needs it)
+            import onnxruntime  # noqa: F401
+            import torch  # noqa: F401
+        except ImportError as exc:
+            report.notes.append(f"model cases skipped: they need the [model] extra (torch, onnx): {exc}")
+        else:
+            # Before the flow cases: their flows of the demo scene would warm evaluate_scene's cache.
+            cases, notes = run_model_cases(data_root=data_root, quick=quick, work=work / "models_bench",
+                                           user_vocab=vocab)
+            report.cases += cases
+            report.notes += notes
+        report.cases += _flow_cases(quick)
     report.notes.append("flow cases use the built-in demo scene (320x180); ms per frame pair")
     return report

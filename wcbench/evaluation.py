@@ -185,30 +185,33 @@ def _score_unit(unit: Unit, metrics: dict[str, Metric], ctx_extra: dict[str, Any
     needs_ref = unit.reference_paths is not None and any(m.needs_reference for m in active.values())
     frames = progress(enumerate(unit.predictions), desc=f"{scene.id} {unit.weather}", total=len(scene),
                       enabled=show_progress)
-    batch: dict[str, list[np.ndarray]] = {"pred": [], "source": [], "reference": []}
+    # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
+    w, h = scene.image_size
+    streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
+    buffers = {name: np.empty((FRAME_BATCH, h, w, 3), np.float32) for name in streams}
+    filled = 0
 
-    def flush() -> None:
-        if not batch["pred"]:
+    def flush(n: int) -> None:
+        if n == 0:
             return
-        pred = np.stack(batch["pred"])
-        source = np.stack(batch["source"])
-        reference = np.stack(batch["reference"]) if batch["reference"] else None
+        reference = buffers["reference"][:n] if needs_ref else None
         for m in active.values():
-            m.update(pred, source=source, reference=reference)
-        for v in batch.values():
-            v.clear()
+            m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
 
     for k, pred8 in frames:
-        source = to_float(read_rgb8(scene.frames[k].image_path))
-        batch["pred"].append(to_float(pred8))
-        batch["source"].append(source)
+        to_float(pred8, out=buffers["pred"][filled])
+        to_float(read_rgb8(scene.frames[k].image_path), out=buffers["source"][filled])
         if needs_ref:
             assert unit.reference_paths is not None
-            ref = source if unit.weather == "clear" else to_float(read_rgb8(unit.reference_paths[k]))
-            batch["reference"].append(ref)
-        if len(batch["pred"]) == FRAME_BATCH:
-            flush()
-    flush()
+            if unit.weather == "clear":
+                buffers["reference"][filled] = buffers["source"][filled]
+            else:
+                to_float(read_rgb8(unit.reference_paths[k]), out=buffers["reference"][filled])
+        filled += 1
+        if filled == FRAME_BATCH:
+            flush(filled)
+            filled = 0
+    flush(filled)
     outputs: dict[str, Any] = {}
     for name, m in active.items():
         for out_name, value in m.compute().items():

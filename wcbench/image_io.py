@@ -59,9 +59,9 @@ def read_rgb8(path: str | Path) -> np.ndarray:
     return cv2.cvtColor(_check_rgb8(img, path), cv2.COLOR_BGR2RGB)
 
 
-def to_float(img: np.ndarray) -> np.ndarray:
-    """uint8 RGB -> float32 RGB in [0, 1]."""
-    return img.astype(np.float32) * np.float32(1.0 / 255.0)
+def to_float(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """uint8 RGB -> float32 RGB in [0, 1] (into ``out`` when given: same values to the bit)."""
+    return np.multiply(img, np.float32(1.0 / 255.0), out=out, dtype=np.float32)
 
 
 def to_uint8(img: np.ndarray) -> np.ndarray:
