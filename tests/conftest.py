@@ -15,8 +15,11 @@ PANDASET = SHARED_DATA / "pandaset_002"
 
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_environment(tmp_path_factory: pytest.TempPathFactory) -> None:
-    """A private cache (built-in scenes, models) and no progress bars for the whole session."""
+    """A private cache (built-in scenes, models), no progress bars, and a working directory outside
+    the source tree for the whole session: subprocesses (`python -c`, `python -m`) put the cwd first
+    on sys.path, where the repository's `wcbench/` folder would shadow the installed package."""
     cache = tmp_path_factory.mktemp("wcbench_cache")
+    os.chdir(tmp_path_factory.mktemp("cwd"))
     os.environ.setdefault("WCBENCH_CACHE", str(cache))
     os.environ.setdefault("WCBENCH_MODELS", str(cache / "models"))
     os.environ["WCBENCH_PROGRESS"] = "0"
