@@ -1,8 +1,11 @@
 """Pure-PyTorch twin of the rasterizer: slow, obviously correct, differentiable by autograd.
 
 Mirrors :func:`wcbench.reference_model.rasterize` (the numba path of :mod:`._raster_numba`:
-``project_forward`` + ``bin_and_sort`` + ``render_forward``, and their hand-written backward) with
-the same guards and constants from :mod:`._raster_common`. Instead of tiles it lists every
+``_project_kernel`` + binning + ``_render_forward``, and their hand-written backward) with the
+same guards and constants from :mod:`._raster_common` and the same precision plan: projection in
+float64 (2D means, covariances, culling, boxes), conics rounded to the input dtype, per-pair math
+in the input dtype with dx = (px - floor(mx)) + (0.5 - (mx - floor(mx))), compositing sums in
+float64. Instead of tiles it lists every
 Gaussian-pixel pair explicitly, sorts the pairs by (pixel, depth, index) and composites each pixel's
 segment with a float64 cumulative sum of ``log(1 - alpha)``. Gradients come from autograd.
 
@@ -98,7 +101,7 @@ def _boxes(
     """Pixel boxes [N, 4] int64 (x0, x1, y0, y1 inclusive, clipped) and half-extents [N, 2] (px)."""
     op = opacities.to(torch.float64).clamp_min(ALPHA_MIN)
     # Beyond sqrt(2 ln(255 o)) sigmas every pair would be skipped (alpha < 1/255): see box_extent_sigmas.
-    k = torch.sqrt(2.0 * torch.log(255.0 * op)).clamp_max(SIGMA_EXTENT).to(cov.dtype)
+    k = torch.sqrt(2.0 * torch.log(255.0 * op)).clamp_max(SIGMA_EXTENT)
     ext = torch.stack([k * torch.sqrt(cov[:, 0]), k * torch.sqrt(cov[:, 2])], -1).clamp_max(MAX_EXTENT)
     # Pixel i (center i + 0.5) is in the box when |i + 0.5 - mx| <= ext_x.
     lo = torch.ceil(means2d - ext - 0.5)
@@ -131,7 +134,8 @@ def _cull(
               & torch.isfinite(opacities) & torch.isfinite(colors).all(-1))
     reason[~finite] = CULL_NONFINITE
     safe = _sanitize(means, quats, scales, opacities, colors, finite)
-    m2, cov, z = _project(safe[0], safe[1], safe[2], viewmat, K, width, height)
+    m2, cov, z = _project(safe[0].double(), safe[1].double(), safe[2].double(), viewmat.double(), K.double(),
+                          width, height)
     near_far = ~((z > near) & (z < far))
     reason[(reason == 0) & near_far] = CULL_NEAR_FAR
     det = cov[:, 0] * cov[:, 2] - cov[:, 1] * cov[:, 1]
@@ -193,22 +197,24 @@ def project_torch(
     -------
     dict
         ``reason`` [N] int64 (0 visible, else a ``CULL_*`` code), and for all Gaussians (culled ones
-        hold harmless placeholder values): ``means2d`` [N, 2] px, ``conics`` [N, 3] (inverse 2D
+        hold harmless placeholder values): ``means2d`` [N, 2] px (float64), ``conics`` [N, 3] (inverse 2D
         covariance a, b, c with ``q = a dx^2 + 2 b dx dy + c dy^2``), ``depths`` [N] camera z,
         ``opacities`` [N], ``colors`` [N, C], ``boxes`` [N, 4] int64 (x0, x1, y0, y1 inclusive),
-        ``extents`` [N, 2] px.
+        ``extents`` [N, 2] px (float64). The rest has the input dtype.
     """
     reason = _cull(means, quats, scales, opacities, colors, viewmat, K, width, height, near, far)
     ok = reason == 0
     m, q, s, o, c = _sanitize(means, quats, scales, opacities, colors, ok)
-    m2, cov, z = _project(m, q, s, viewmat, K, width, height)
+    dtype = means.dtype
+    # float64 per Gaussian (cheap): no float32 rounding of pixel coordinates in the 2D means.
+    m2, cov, z = _project(m.double(), q.double(), s.double(), viewmat.double(), K.double(), width, height)
     # Culled Gaussians keep a unit covariance so that the inverse below stays finite.
     cov = torch.where(ok[:, None], cov, torch.tensor([1.0, 0.0, 1.0], dtype=cov.dtype))
     det = cov[:, 0] * cov[:, 2] - cov[:, 1] * cov[:, 1]
-    conics = torch.stack([cov[:, 2] / det, -cov[:, 1] / det, cov[:, 0] / det], -1)
+    conics = torch.stack([cov[:, 2] / det, -cov[:, 1] / det, cov[:, 0] / det], -1).to(dtype)
     box, ext = _boxes(m2.detach(), cov.detach(), o.detach(), width, height)
     return {"reason": reason, "means2d": torch.where(ok[:, None], m2, 0.0), "conics": conics,
-            "depths": torch.where(ok, z, 0.0), "opacities": o, "colors": c, "boxes": box,
+            "depths": torch.where(ok, z, 0.0).to(dtype), "opacities": o, "colors": c, "boxes": box,
             "extents": torch.where(ok[:, None], ext, 0.0)}
 
 
@@ -218,14 +224,14 @@ class _AbsTap(torch.autograd.Function):
     @staticmethod
     def forward(ctx: Any, m_pairs: torch.Tensor, gid: torch.Tensor, holder: torch.Tensor) -> torch.Tensor:
         ctx.save_for_backward(gid)
-        ctx.n = holder.shape[0]
+        ctx.n, ctx.dtype = holder.shape[0], holder.dtype
         return m_pairs.view_as(m_pairs)
 
     @staticmethod
     def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None, torch.Tensor]:
         (gid,) = ctx.saved_tensors
         absgrad = torch.zeros(ctx.n, 2, dtype=grad.dtype).index_add_(0, gid, grad.abs())
-        return grad, None, absgrad
+        return grad, None, absgrad.to(ctx.dtype)
 
 
 def _candidate_pairs(box: torch.Tensor, idx: torch.Tensor, width: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -303,15 +309,15 @@ def rasterize_torch(
 
     grads_on = torch.is_grad_enabled() and any(
         t.requires_grad for t in (means, quats, scales, opacities, colors))
-    m2 = proj["means2d"]
-    means2d = m2.detach().clone()
+    m2 = proj["means2d"]  # float64
+    means2d = m2.detach().to(dtype)
     means2d_abs = None
     if grads_on:
         means2d.requires_grad_(True)
         # Value unchanged, but dL/dm2 now also lands in means2d.grad.
-        m2 = m2 + (means2d - means2d.detach())
+        m2 = m2 + (means2d - means2d.detach()).to(m2.dtype)
         if absgrad:
-            means2d_abs = m2.detach().clone().requires_grad_(True)
+            means2d_abs = means2d.detach().clone().requires_grad_(True)
 
     visible = torch.nonzero(reason == 0).flatten()
     box = proj["boxes"]
@@ -385,11 +391,16 @@ def rasterize_torch(
 def _alpha_from_pairs(
     proj: dict[str, torch.Tensor], mp: torch.Tensor, gid: torch.Tensor, pix: torch.Tensor, width: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Clamped alpha [P] and sigma = q / 2 [P] of pairs whose 2D means ``mp`` [P, 2] are gathered."""
-    pxc = (pix % width).to(mp.dtype) + 0.5
-    pyc = torch.div(pix, width, rounding_mode="floor").to(mp.dtype) + 0.5
-    dx = pxc - mp[:, 0]
-    dy = pyc - mp[:, 1]
+    """Clamped alpha [P] and sigma = q / 2 [P] of pairs whose float64 2D means ``mp`` [P, 2] are gathered.
+
+    dx = (px - a) + (0.5 - (mx - a)) with the integer anchor a = floor(mx): the same value as
+    px + 0.5 - mx, without the rounding of a large pixel coordinate to the conic's dtype.
+    """
     con = proj["conics"][gid]
+    dtype = con.dtype
+    anchor = torch.floor(mp.detach())
+    offset = (0.5 - (mp - anchor)).to(dtype)
+    dx = ((pix % width) - anchor[:, 0]).to(dtype) + offset[:, 0]
+    dy = (torch.div(pix, width, rounding_mode="floor") - anchor[:, 1]).to(dtype) + offset[:, 1]
     sigma = 0.5 * (con[:, 0] * dx * dx + con[:, 2] * dy * dy) + con[:, 1] * dx * dy
     return torch.clamp(proj["opacities"][gid] * torch.exp(-sigma), max=ALPHA_MAX), sigma

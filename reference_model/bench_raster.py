@@ -184,14 +184,14 @@ def _forward_backward(render: Callable[[], Any], weights: tuple[torch.Tensor, ..
 def _reference_error(spec: dict[str, Any], out: Any) -> dict[str, float]:
     """Max errors of a fast-path render against the float64 twin on the same composited pairs."""
     width, height = spec["size"]
-    params = [p.detach() for p in spec["params"]]
+    m, q, s, o, c = (p.detach() for p in spec["params"])
     vm = torch.as_tensor(spec["viewmat"], dtype=torch.float32)
     K = torch.as_tensor(spec["K"], dtype=torch.float32)
-    job = RenderJob(*params, vm, K, width, height, near=0.01, far=1e10, render_depth=True)
+    job = RenderJob(m, q, s, o, c, vm, K, width, height, near=0.01, far=1e10, render_depth=True)
     job.forward()
     gid, pix = job.composited_pairs()
-    ref = rasterize_torch(*[p.double() for p in params], vm.double(), K.double(), width, height,
-                          pairs=(torch.from_numpy(gid), torch.from_numpy(pix)))
+    ref = rasterize_torch(m.double(), q.double(), s.double(), o.double(), c.double(), vm.double(), K.double(),
+                          width, height, pairs=(torch.from_numpy(gid), torch.from_numpy(pix)))
     color_err = float((out.color.detach().double() - ref.color).abs().max())
     alpha_err = float((out.alpha.detach().double() - ref.alpha).abs().max())
     assert ref.depth is not None
@@ -207,8 +207,10 @@ def _case(name: str, spec: dict[str, Any], *, repeats: int, with_twin: bool,
     params = spec["params"]
     weights = _loss_weights(width, height, params[4].shape[1])
 
+    m, q, s, o, c = params
+
     def render(backend: str) -> Callable[[], Any]:
-        return lambda: rasterize(*params, spec["viewmat"], spec["K"], width, height, backend=backend)
+        return lambda: rasterize(m, q, s, o, c, spec["viewmat"], spec["K"], width, height, backend=backend)
 
     for p in params:
         p.grad = None
@@ -248,18 +250,18 @@ def _case(name: str, spec: dict[str, Any], *, repeats: int, with_twin: bool,
 def _case_memory(name: str, spec: dict[str, Any], *, repeats: int) -> BenchCase:
     """Forward only, fast path only; peak memory as the growth of the process's max RSS."""
     width, height = spec["size"]
-    params = [p.detach() for p in spec["params"]]
+    m, q, s, o, c = (p.detach() for p in spec["params"])
     vm, K = spec["viewmat"], spec["K"]
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
     tracemalloc.start()
-    times, out = _timed(lambda: rasterize(*params, vm, K, width, height, backend="numba"), repeats)
+    times, out = _timed(lambda: rasterize(m, q, s, o, c, vm, K, width, height, backend="numba"), repeats)
     _, traced_peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     fwd_ms = statistics.median(times)
     pairs = int(out.meta["n_pairs"])
     extra = {
-        "gaussians": len(params[0]), "width": width, "height": height, "pairs": pairs,
+        "gaussians": len(m), "width": width, "height": height, "pairs": pairs,
         "visible": int(out.meta["n_visible"]), "tile_entries": int(out.meta["n_tile_entries"]),
         "fwd_ms": round(fwd_ms, 3), "fwd_ms_min": round(min(times), 3), "bwd_ms": None,
         "ref_fwd_ms": None, "ref_bwd_ms": None,
@@ -269,7 +271,7 @@ def _case_memory(name: str, spec: dict[str, Any], *, repeats: int) -> BenchCase:
         "peak_mb": round(rss1 - rss0, 1), "peak_rss_mb": round(rss1, 1),
         "peak_mb_tracemalloc": round(traced_peak / 2**20, 1),
     }
-    return BenchCase(name=name, knob="gaussians", value=len(params[0]), time_ms=round(fwd_ms, 3), error=None,
+    return BenchCase(name=name, knob="gaussians", value=len(m), time_ms=round(fwd_ms, 3), error=None,
                      error_unit="abs", extra=extra)
 
 
@@ -303,7 +305,7 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
         "floor_fraction: DESIGN 8 floor (4 ms fwd / 10 ms bwd per 6M pairs) divided by the measured time")
 
     # (d) first, so that the growth of the process's max RSS is the case's own peak.
-    n_d, size_d = (100_000, (480, 270)) if quick else (1_000_000, (1920, 1080))
+    n_d, size_d = (30_000, (320, 180)) if quick else (1_000_000, (1920, 1080))
     report.cases.append(_case_memory(f"d_random_{n_d // 1000}k_{size_d[0]}x{size_d[1]}",
                                      _random_cloud(n_d, *size_d, seed=3), repeats=repeats))
     report.notes.append("case d: peak_mb = growth of the process's max RSS (resource.ru_maxrss) over the forward "

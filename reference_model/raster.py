@@ -186,7 +186,7 @@ def rasterize(
 
     job = mod.RenderJob(means, quats, scales, opacities, colors, viewmat_t, K_t, int(width), int(height),
                         near=float(near), far=float(far), render_depth=render_depth)
-    means2d = torch.from_numpy(job.means2d.copy())
+    means2d = torch.from_numpy(job.means2d.astype(np.float32))
     radii = torch.from_numpy(job.radii.copy())
     depths = torch.from_numpy(job.depths.copy())
     params = (means, quats, scales, opacities, colors)

@@ -23,10 +23,18 @@ from wcbench.metrics.model_store import ModelStore, ModelStoreError
 from wcbench.storage import sha256_file
 
 
+def _cache_dir(request: pytest.FixtureRequest, name: str) -> Path:
+    """pytest's cache folder ``name`` (kept between runs), or a session temp folder without it."""
+    cache = getattr(request.config, "cache", None)
+    if cache is not None:
+        return Path(cache.mkdir(name))
+    return Path(request.getfixturevalue("tmp_path_factory").mktemp(name))
+
+
 @pytest.fixture(scope="session")
 def vocab_path(request: pytest.FixtureRequest) -> Path:
     """CLIP's vocabulary file, pulled once into pytest's cache (skip when no registry is reachable)."""
-    store = ModelStore(request.config.cache.mkdir("wcbench-clip-vocab"))
+    store = ModelStore(_cache_dir(request, "wcbench-clip-vocab"))
     if not store.available(VOCAB_ENTRY):
         try:
             store.pull(VOCAB_ENTRY)
@@ -127,7 +135,7 @@ def test_matches_transformers_tokenizer(tok: ClipTokenizer, tmp_path: Path, voca
 
 
 def test_archs_match_open_clip_model_configs(request: pytest.FixtureRequest) -> None:
-    folder = request.config.cache.mkdir("wcbench-open-clip-wheel")
+    folder = _cache_dir(request, "wcbench-open-clip-wheel")
     source = ModelStore(folder / "unused").entry(VOCAB_ENTRY).source
     wheels = sorted(folder.glob("open_clip_torch-3.3.0-*.whl"))
     if not wheels:

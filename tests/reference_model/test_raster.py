@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from torch import Tensor
 
 torch = pytest.importorskip("torch")
 
@@ -28,7 +32,7 @@ K = pinhole(W, H, 60.0)
 V = look_from()
 
 
-def _loss(out: RenderOutput, seed: int = 0) -> torch.Tensor:
+def _loss(out: RenderOutput, seed: int = 0) -> Tensor:
     g = torch.Generator().manual_seed(seed)
     wc = torch.rand(out.color.shape, generator=g)
     wa = torch.rand(out.alpha.shape, generator=g)
@@ -38,12 +42,12 @@ def _loss(out: RenderOutput, seed: int = 0) -> torch.Tensor:
     return loss
 
 
-def _grads(out: RenderOutput, params: list[torch.Tensor]) -> list[torch.Tensor]:
+def _grads(out: RenderOutput, params: list[Tensor]) -> list[Tensor]:
     extra = [out.means2d] + ([out.means2d_abs] if out.means2d_abs is not None else [])
     return list(torch.autograd.grad(_loss(out), params + extra))
 
 
-def _assert_grads_close(fast: list[torch.Tensor], ref: list[torch.Tensor], names: list[str]) -> None:
+def _assert_grads_close(fast: list[Tensor], ref: list[Tensor], names: list[str]) -> None:
     for name, a, b in zip(names, fast, ref):
         scale = max(float(b.abs().max()), 1e-6)
         err = float((a - b).abs().max())
@@ -100,7 +104,7 @@ def test_gradcheck_twin_float64() -> None:
     with torch.no_grad():
         params["opacities"].clamp_(0.2, 0.8)  # far from the 0.99 clamp, where alpha has a kink
 
-    def render(*p: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def render(*p: Tensor) -> tuple[Tensor, ...]:
         out = rasterize_torch(*p, V.double(), pinhole(10, 8, 12.0).double(), 10, 8,
                               background=torch.tensor([0.2, 0.4, 0.6], dtype=torch.float64))
         assert out.depth is not None
@@ -258,3 +262,24 @@ def test_float64_reference_on_the_fast_path_decisions() -> None:
     # Depth is a weighted mean of z: float32 weight errors (~1e-7 relative per layer) move it by
     # up to ~1e-6 of z when the layers of a pixel span 2-8 m, as in this random cloud.
     torch.testing.assert_close(out.depth.double(), ref.depth, rtol=DEPTH_RTOL, atol=0)
+
+
+def test_missing_numba_falls_back_to_the_twin_with_one_warning(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+    import warnings
+
+    import wcbench.reference_model as package
+    from wcbench.reference_model import raster
+
+    monkeypatch.setattr(raster, "_numba_module", None)
+    monkeypatch.setattr(raster, "_numba_error", None)
+    monkeypatch.delattr(package, "_raster_numba", raising=False)
+    monkeypatch.setitem(sys.modules, "wcbench.reference_model._raster_numba", None)  # import fails
+    params = random_scene(30, seed=1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outs = [rasterize(*args(params), V, K, W, H) for _ in range(2)]
+    assert [o.meta["backend"] for o in outs] == ["torch", "torch"]
+    assert len([w for w in caught if "numba backend unavailable" in str(w.message)]) == 1
+    with pytest.raises(ValueError, match="numba is unavailable"):
+        rasterize(*args(params), V, K, W, H, backend="numba")

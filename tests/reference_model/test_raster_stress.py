@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from torch import Tensor
 
 torch = pytest.importorskip("torch")
 hypothesis = pytest.importorskip("hypothesis")
@@ -24,18 +28,18 @@ XY = st.sampled_from([0.0, 0.3, -0.4, 0.66, -0.67, 2.0, -100.0, 1e6, NAN, INF, -
 Z = st.sampled_from([-5.0, -1e-3, 0.0, NEAR, NEAR * (1 + 1e-6), 0.05, 1.0, 3.0, 1e5, 1e12, NAN, INF])
 Q = st.sampled_from([0.0, 1.0, -1.0, 0.5, 1e-20, 1e-6, 1e20, NAN])
 S = st.sampled_from([0.0, 1e-30, 1e-6, 0.01, 0.3, 10.0, 1e6, 1e19, 1e30, -0.1, INF, NAN])
-O = st.sampled_from([0.0, 1e-3, 1 / 255, 0.5, 0.99, 1.0, 1.5, -0.2, NAN])
+OP = st.sampled_from([0.0, 1e-3, 1 / 255, 0.5, 0.99, 1.0, 1.5, -0.2, NAN])
 C = st.sampled_from([0.0, 0.5, 1.0, -1.0, 10.0, NAN])
 
-gaussian = st.tuples(st.tuples(XY, XY, Z), st.tuples(Q, Q, Q, Q), st.tuples(S, S, S), O, st.tuples(C, C, C))
+gaussian = st.tuples(st.tuples(XY, XY, Z), st.tuples(Q, Q, Q, Q), st.tuples(S, S, S), OP, st.tuples(C, C, C))
 
 
-def _tensors(gs: list) -> list[torch.Tensor]:
+def _tensors(gs: list) -> list[Tensor]:
     cols = list(zip(*gs))
     return [torch.tensor(c, dtype=torch.float32).requires_grad_(True) for c in cols]
 
 
-def _check(params: list[torch.Tensor], backend: str, *, bg: bool = True) -> None:
+def _check(params: list[Tensor], backend: str, *, bg: bool = True) -> None:
     out = rasterize(*params, V, K, W, H, backend=backend, near=NEAR,
                     background=torch.tensor([0.1, 0.2, 0.3]) if bg else None)
     n = params[0].shape[0]

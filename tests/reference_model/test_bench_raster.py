@@ -1,0 +1,48 @@
+"""Smoke test of ``wcbench bench raster`` in quick mode: schema, fields and accuracy, not speed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("numba")
+
+from wcbench.benchmark import validate_benchmark
+
+FIELDS = ("name", "gaussians", "width", "height", "pairs", "fwd_ms", "bwd_ms", "ref_fwd_ms", "ref_bwd_ms",
+          "max_abs_err", "peak_mb")
+# float32 per-pair math against the float64 twin on the same pairs: a few float32 ulps (the target
+# on the real workload is 1e-5; these small cases sit near 1e-7).
+MAX_ABS_ERR = 1e-5
+DEPTH_REL_ERR = 1e-5
+
+
+def test_quick_run_without_data_root(tmp_path: Path) -> None:
+    from wcbench.reference_model.bench_raster import run
+
+    report = run(data_root=None, quick=True)
+    obj = report.to_json()
+    validate_benchmark(obj)
+    assert obj["suite"] == "raster"
+    names = [c["name"] for c in obj["cases"]]
+    assert [n[:2] for n in names] == ["d_", "a_", "b_", "c_"]
+    assert "synthetic" in names[2] and any("pandaset_002 unavailable" in n for n in obj["notes"])
+    for case in obj["cases"]:
+        for key in FIELDS:
+            assert key in case, f"{case['name']} lacks {key}"
+        assert case["knob"] == "gaussians" and case["value"] == case["gaussians"]
+        assert case["time_ms"] == case["fwd_ms"] and case["fwd_ms"] > 0 and case["pairs"] > 0
+    d, *timed = obj["cases"]
+    assert d["bwd_ms"] is None and d["peak_mb"] is not None and d["peak_mb"] >= 0
+    for case in timed:
+        assert case["bwd_ms"] > 0 and case["ref_fwd_ms"] > 0 and case["ref_bwd_ms"] > 0
+        assert case["error"] == case["max_abs_err"] and case["error_unit"] == "abs"
+        assert case["max_abs_err"] < MAX_ABS_ERR, case
+        assert case["depth_max_rel_err"] < DEPTH_REL_ERR, case
+    path = tmp_path / "raster.json"
+    report.write(path)
+    validate_benchmark(json.loads(path.read_text()))
+    assert "note:" in report.format_table()
