@@ -97,11 +97,9 @@ def _real_scene(root: Path, n: int) -> tuple[Any, Any, np.ndarray, Any]:
 
 
 def _find_data(data_root: Path | None) -> Path | None:
-    candidates = []
-    if data_root is not None:
-        candidates.append(Path(data_root) / _SCENE_ID)
-    candidates.append(Path(__file__).resolve().parents[2] / "shared" / "data" / _SCENE_ID)
-    return next((c for c in candidates if (c / "images").is_dir()), None)
+    if data_root is None or not (Path(data_root) / _SCENE_ID / "images").is_dir():
+        return None
+    return Path(data_root) / _SCENE_ID
 
 
 def _abs_error(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
@@ -115,7 +113,7 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
     Parameters
     ----------
     data_root : Path or None
-        Folder holding ``pandaset_002``; without it (or the default shared location) a
+        Folder holding ``pandaset_002``; without it a
         procedural scene of the same size is used, and a note says so.
     quick : bool
         A smoke run: 20k Gaussians at 240x135, 3 rounds.
