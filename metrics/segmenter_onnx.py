@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import os
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -282,7 +283,25 @@ def upsample_argmax(logits: np.ndarray, size: tuple[int, int], *, chunk: int = 1
     return out
 
 
-class OnnxSegmenter:
+class LogitsSegmenter(ABC):
+    """Labels from a backend's logits, one frame at a time (shared by the ONNX and torch backends)."""
+
+    @abstractmethod
+    def logits(self, images: np.ndarray) -> np.ndarray:
+        """Network logits [B, C, h', w'] (float32) of images [B, H, W, 3] in [0, 1]."""
+
+    def __call__(self, images: np.ndarray) -> np.ndarray:
+        """Per-pixel ADE20K labels [B, H, W] int64 of images [B, H, W, 3] in [0, 1]."""
+        imgs = np.asarray(images)
+        if imgs.ndim != 4 or imgs.shape[-1] != 3:
+            raise ValueError(f"images: expected [B, H, W, 3], got shape {imgs.shape}")
+        out = np.empty(imgs.shape[:3], np.int64)
+        for b in range(imgs.shape[0]):  # one frame at a time bounds the logits' memory
+            out[b] = upsample_argmax(self.logits(imgs[b : b + 1]), imgs.shape[1:3])[0]
+        return out
+
+
+class OnnxSegmenter(LogitsSegmenter):
     """``segment(images [B, H, W, 3] in [0, 1]) -> labels [B, H, W] int64`` with onnxruntime.
 
     Parameters
@@ -323,15 +342,6 @@ class OnnxSegmenter:
         """Network logits [B, C, h', w'] (float32) of images [B, H, W, 3] in [0, 1]."""
         x = preprocess(images, size=self.spec.input_size, mean=self.spec.mean, std=self.spec.std)
         return self.session.run(["logits"], {"pixel_values": x})[0]
-
-    def __call__(self, images: np.ndarray) -> np.ndarray:
-        imgs = np.asarray(images)
-        if imgs.ndim != 4 or imgs.shape[-1] != 3:
-            raise ValueError(f"images: expected [B, H, W, 3], got shape {imgs.shape}")
-        out = np.empty(imgs.shape[:3], np.int64)
-        for b in range(imgs.shape[0]):  # one frame at a time bounds the logits' memory
-            out[b] = upsample_argmax(self.logits(imgs[b : b + 1]), imgs.shape[1:3])[0]
-        return out
 
     def config(self) -> dict[str, Any]:
         """What produced the labels (recorded with every Sem-CS number)."""

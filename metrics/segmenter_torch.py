@@ -28,7 +28,7 @@ from torch import nn
 from wcbench.storage import atomic_path, atomic_write_json, sha256_file
 
 from .segformer import SegFormer
-from .segmenter_onnx import SPEC_FILE, SegmenterSpec, preprocess, upsample_argmax
+from .segmenter_onnx import SPEC_FILE, LogitsSegmenter, SegmenterSpec, preprocess
 from .upernet_convnext import UperNetConvNext
 
 __all__ = [
@@ -194,7 +194,7 @@ def write_segmenter_dir(
     return out
 
 
-class TorchSegmenter:
+class TorchSegmenter(LogitsSegmenter):
     """``segment(images [B, H, W, 3] float in [0, 1]) -> labels [B, H, W] int64`` with a torch network.
 
     Same preprocessing and post-processing as
@@ -219,15 +219,6 @@ class TorchSegmenter:
         x = preprocess(images, size=self.spec.input_size, mean=self.spec.mean, std=self.spec.std)
         with torch.no_grad():
             return self.model(torch.from_numpy(x)).numpy()
-
-    def __call__(self, images: np.ndarray) -> np.ndarray:
-        imgs = np.asarray(images)
-        if imgs.ndim != 4 or imgs.shape[-1] != 3:
-            raise ValueError(f"images: expected [B, H, W, 3], got shape {imgs.shape}")
-        out = np.empty(imgs.shape[:3], np.int64)
-        for b in range(imgs.shape[0]):  # one frame at a time bounds the logits' memory
-            out[b] = upsample_argmax(self.logits(imgs[b : b + 1]), imgs.shape[1:3])[0]
-        return out
 
     def config(self) -> dict[str, Any]:
         """What produced the labels (recorded with every Sem-CS number)."""
