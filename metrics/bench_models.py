@@ -289,8 +289,10 @@ def clip_cases(store: ModelStore, work: Path, src: np.ndarray, edit: np.ndarray,
         int8 = quantize_int8(visual, work / "visual_int8.onnx")
     finally:
         logging.disable(previous)
+    # ONNX first: torch's OpenMP workers keep spinning for a while after a torch call and would take
+    # the cores from onnxruntime's threads measured right after it (real scoring never mixes them)
     backends: dict[str, ClipBackend] = {
-        "torch": torch_backend, "onnx": OnnxClipBackend(visual), "onnx_int8": OnnxClipBackend(int8),
+        "onnx": OnnxClipBackend(visual), "onnx_int8": OnnxClipBackend(int8), "torch": torch_backend,
     }
     n = len(src)
     pixels = ClipPreprocess(size=torch_backend.image_size)(np.concatenate([src, edit]))  # [2n, 3, S, S]
