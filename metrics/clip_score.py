@@ -30,7 +30,7 @@ from wcbench.metrics.base import Metric, MetricContext, MetricValue, check_same_
 from wcbench.metrics.clip_encoder import BACKENDS, DEFAULT_MODEL, ClipEmbedder, shared_clip_encoder
 from wcbench.metrics.clip_preprocess import ClipPreprocess
 from wcbench.metrics.clip_tokenizer import VOCAB_ENTRY
-from wcbench.metrics.model_store import ModelStore
+from wcbench.metrics.model_store import ModelStore, StoreBacked
 from wcbench.storage import sha256_file
 
 if sys.version_info >= (3, 11):
@@ -147,7 +147,7 @@ def _frames(x: np.ndarray | None, name: str) -> np.ndarray:
     return a[None] if a.ndim == 3 else a
 
 
-class _ClipMetric(Metric):
+class _ClipMetric(StoreBacked, Metric):
     """Shared set-up of the CLIP metrics: which model, which embedder, which preprocessing."""
 
     higher_is_better: ClassVar[bool] = True
@@ -173,13 +173,6 @@ class _ClipMetric(Metric):
         self._store = store
         self._embedder = embedder
         self.reset()
-
-    @property
-    def store(self) -> ModelStore:
-        """The model store weights come from (default ``ModelStore()``)."""
-        if self._store is None:
-            self._store = ModelStore()
-        return self._store
 
     @property
     def embedder(self) -> ClipEmbedder:

@@ -34,6 +34,7 @@ from wcbench.metrics.base import (
     check_same_shape,
     finite_or_none,
 )
+from wcbench.metrics.model_store import StoreBacked
 
 __all__ = ["LPIPS", "lpips", "lpips_distances"]
 
@@ -284,7 +285,7 @@ def lpips(
     return float(np.mean(lpips_distances(img0, img1, net=net, backend=backend, store=store)))
 
 
-class LPIPS(Metric):
+class LPIPS(StoreBacked, Metric):
     """LPIPS v0.1 of each frame against the ground truth, averaged over frames (lower is better).
 
     Parameters
@@ -315,24 +316,17 @@ class LPIPS(Metric):
         self.net, self.backend, self._store, self._distance = net, backend, store, distance
         self.reset()
 
-    def _get_store(self) -> Any:
-        if self._store is None:
-            from wcbench.metrics.model_store import ModelStore
-
-            self._store = ModelStore()
-        return self._store
-
     def skip_reason(self, ctx: MetricContext) -> str | None:
         """The base rules (needs a reference), then: ``lpips-<net>`` weights are missing."""
         reason = super().skip_reason(ctx)
         if reason is not None or self._distance is not None:
             return reason
-        return self._get_store().missing_reason(f"lpips-{self.net}")
+        return self.store.missing_reason(f"lpips-{self.net}")
 
     def _fn(self) -> tuple[DistanceFn, str]:
         if self._distance is not None:
             return self._distance, "injected"
-        d = _model_dir(self.net, self._get_store())
+        d = _model_dir(self.net, self.store)
         backend = _resolve_backend(d, self.backend)
         return _runner(str(d), self.net, backend), backend
 
@@ -340,7 +334,7 @@ class LPIPS(Metric):
         """Backbone, backend and the installed weights' sha256 (when known)."""
         cfg: dict[str, Any] = {"net": self.net, "version": "0.1", "backend": self.backend}
         if self._distance is None:
-            store = self._get_store()
+            store = self.store
             if store.available(f"lpips-{self.net}"):
                 cfg["weights_sha256"] = store.sha256(f"lpips-{self.net}")
                 try:

@@ -675,3 +675,19 @@ class ModelStore:
             status = "corrupt" if problems else "ok"
             results.append(VerifyResult(name, status, "; ".join(problems) or f"{len(man['files'])} file(s)"))
         return results
+
+
+class StoreBacked:
+    """Mixin for metrics that read weights from a model store, created on first use.
+
+    Subclasses set ``self._store`` (a :class:`ModelStore` or ``None``) in ``__init__``.
+    """
+
+    _store: ModelStore | None
+
+    @property
+    def store(self) -> ModelStore:
+        """The model store weights come from (default ``ModelStore()``: ``$WCBENCH_MODELS``)."""
+        if self._store is None:
+            self._store = ModelStore()
+        return self._store

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from wcbench.metrics.base import Metric, MetricContext, MetricValue, as_float_images, finite_or_none
+from wcbench.metrics.model_store import StoreBacked
 
 __all__ = [
     "DEFAULT_SEGMENTER",
@@ -196,7 +197,7 @@ def sem_cs(
     return float(finite.mean()) if finite.size else float("nan")
 
 
-class SemanticConsistency(Metric):
+class SemanticConsistency(StoreBacked, Metric):
     """Sem-CS between the source frames and the edit: per-frame mean and pooled fwIoU.
 
     Parameters
@@ -259,19 +260,12 @@ class SemanticConsistency(Metric):
         """True when :meth:`update` takes label maps instead of images."""
         return self._model_name is None and self._segment is None
 
-    def _get_store(self) -> Any:
-        if self._store is None:
-            from wcbench.metrics.model_store import ModelStore
-
-            self._store = ModelStore()
-        return self._store
-
     def skip_reason(self, ctx: MetricContext) -> str | None:
         """The base rules (fog, frame count), then: the named segmenter's weights are missing."""
         reason = super().skip_reason(ctx)
         if reason is not None or self._model_name is None or self._segment is not None:
             return reason
-        store = self._get_store()
+        store = self.store
         missing = store.missing_reason(self._model_name)
         if missing is None:
             return None
@@ -283,7 +277,7 @@ class SemanticConsistency(Metric):
             from wcbench.metrics.segmenter_onnx import load_segmenter
 
             assert self._model_name is not None  # labels mode never segments
-            self._segment = load_segmenter(self._model_name, backend=self.backend, store=self._get_store())
+            self._segment = load_segmenter(self._model_name, backend=self.backend, store=self.store)
         return self._segment
 
     def _named_model_record(self) -> dict[str, Any]:
@@ -291,7 +285,7 @@ class SemanticConsistency(Metric):
         from wcbench.metrics.segmenter_onnx import SPEC_FILE
 
         try:
-            store = self._get_store()
+            store = self.store
             if not store.available(self._model_name):
                 return {}
             with open(store.dir(self._model_name) / SPEC_FILE, encoding="utf-8") as fh:

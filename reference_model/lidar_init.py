@@ -27,7 +27,7 @@ import numpy as np
 
 from wcbench.errors import InputError
 
-from .particles import apply_linear
+from .particles import apply_linear, quat_multiply
 
 __all__ = [
     "GaussianCloud",
@@ -502,7 +502,7 @@ class RigidNode:
         T = np.asarray(self.object_to_world[hit[0]], np.float64)
         means = apply_linear(self.cloud.means.astype(np.float64), T[:3, :3].T) + T[:3, 3]
         q_pose = _matrix_to_quat(T[:3, :3])
-        quats = _quat_mul(
+        quats = quat_multiply(
             np.broadcast_to(q_pose, self.cloud.quats.shape), self.cloud.quats.astype(np.float64)
         )
         return GaussianCloud(
@@ -635,20 +635,6 @@ def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
         q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
     out = np.array(q)
     return out / np.linalg.norm(out)
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
 
 
 def _knn_scale(points: np.ndarray, k: int) -> np.ndarray:
