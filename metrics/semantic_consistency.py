@@ -284,6 +284,8 @@ class SemanticConsistency(StoreBacked, Metric):
         """The converted model's spec and file hashes, read without loading the network."""
         from wcbench.metrics.segmenter_onnx import SPEC_FILE
 
+        if self._model_name is None:
+            return {}
         try:
             store = self.store
             if not store.available(self._model_name):
