@@ -579,12 +579,13 @@ _FT, _FW, _FD, _FB, _FC = 0, 1, 2, 3, 4
 @njit(cache=True, inline="always", error_model="numpy")
 def _fwd_entry(
     nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, prm: np.ndarray, s: int,
-    rowbits: np.ndarray, buf: np.ndarray, pcol: np.ndarray, rgb: bool, with_depth: bool,
+    rowbits: np.ndarray, buf: np.ndarray, pcol: np.ndarray, rgb: bool, with_depth: bool, rgb4: bool,
 ) -> tuple:
     """Composite Gaussian ``s`` into rows gy0..gy1, lanes j0..j0+nl of a tile at (ox, oy).
 
-    ``buf`` is the tile's float64 state (channels ``_FT`` ...). With ``rgb`` (C == 3) the color sums
-    are fused into the lane loop; otherwise they run as separate loops over the weight scratch
+    ``buf`` is the tile's float64 state (channels ``_FT`` ...). With ``rgb`` (C == 3, or C == 4 with
+    ``rgb4``: color plus one extra channel, e.g. the fog transmittance) the color sums are fused into
+    the lane loop; otherwise they run as separate loops over the weight scratch
     row. ``rowbits[r]`` has bit j set for pixels that have stopped. Returns (pixels that stopped,
     pairs evaluated). Per-pair math is float32, transmittance and sums float64.
 
@@ -601,6 +602,7 @@ def _fwd_entry(
     c0 = np.float64(prm[s, _COL])
     c1 = np.float64(prm[s, _COL + 1])
     c2 = np.float64(prm[s, _COL + 2])
+    c3 = np.float64(pcol[s, 3]) if rgb4 else 0.0
     n_done = 0
     pairs = 0
     for r in range(gy0, gy1 + 1):
@@ -633,6 +635,8 @@ def _fwd_entry(
                 buf[np.uint64(_FC * npx) + u] += w * c0
                 buf[np.uint64((_FC + 1) * npx) + u] += w * c1
                 buf[np.uint64((_FC + 2) * npx) + u] += w * c2
+                if rgb4:
+                    buf[np.uint64((_FC + 3) * npx) + u] += w * c3
             else:
                 buf[np.uint64(_FB * npx) + u] = w
             stopbits |= np.int32(stop) << np.int32(j)
@@ -649,10 +653,11 @@ def _fwd_entry(
     return n_done, pairs
 
 
-def _make_render_forward(rgb: bool, render_depth: bool) -> Any:
+def _make_render_forward(rgb: bool, render_depth: bool, rgb4: bool = False) -> Any:
     """Compile-on-demand variant of the kernel for fixed flags.
 
-    ``rgb``: C == 3, the color sums fused into the lane loop; ``render_depth``: accumulate sum w z.
+    ``rgb``: C == 3 (or C == 4 with ``rgb4``), the color sums fused into the lane loop;
+    ``render_depth``: accumulate sum w z.
 
     The flags are closure constants: numba freezes them, LLVM drops the dead variants, and
     each variant is compiled (and cached) only when first used.
@@ -701,7 +706,7 @@ def _make_render_forward(rgb: bool, render_depth: bool) -> Any:
                     break
                 if k + _PREFETCH < end:
                     _prefetch(prm, tile_ids[k + _PREFETCH])
-                    if not rgb:
+                    if rgb4 or not rgb:
                         _prefetch(pcol, tile_ids[k + _PREFETCH])
                 s = tile_ids[k]
                 gx0 = max(np.int64(prm[s, _BX]) - ox, 0)
@@ -711,10 +716,11 @@ def _make_render_forward(rgb: bool, render_depth: bool) -> Any:
                 colmask = np.int32(((1 << (gx1 + 1)) - 1) ^ ((1 << gx0) - 1))
                 j0, nl = _window(gx0, gx1)
                 if nl == TS:
-                    nd, pc = _fwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, rgb, render_depth)
+                    nd, pc = _fwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, rgb, render_depth,
+                                        rgb4)
                 else:
                     nd, pc = _fwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, rgb,
-                                        render_depth)
+                                        render_depth, rgb4)
                 n_done += nd
                 pairs += pc
             tile_end[t] = k_end
@@ -1032,17 +1038,23 @@ def _replay_pairs(
                     counts[(oy + r) * width + ox + j] = cur[r * TS + j]
 
 
-_KERNELS: dict[tuple[str, bool, bool], Any] = {}
+_KERNELS: dict[tuple[str, bool, bool, bool], Any] = {}
 #: Tiles per work item of the compositing loops (dynamic scheduling absorbs uneven tiles and busy cores).
 _TILE_CHUNK = 4
 
 
-def _kernel(which: str, rgb: bool, render_depth: bool) -> Any:
-    """The compositing kernel ``which`` ("forward" or "backward") for these flags (made once)."""
-    key = (which, bool(rgb), bool(render_depth))
+def _kernel(which: str, n_channels: int, render_depth: bool) -> Any:
+    """The compositing kernel ``which`` ("forward" or "backward") for these flags (made once).
+
+    The forward fuses the color sums for C == 3 and C == 4 (RGB plus the exact-fog transmittance
+    channel); the backward for C == 3.
+    """
+    rgb4 = which == "forward" and n_channels == 4
+    rgb = n_channels == 3 or rgb4
+    key = (which, rgb, bool(render_depth), rgb4)
     if key not in _KERNELS:
-        make = _make_render_forward if which == "forward" else _make_render_backward
-        _KERNELS[key] = make(key[1], key[2])
+        _KERNELS[key] = (_make_render_forward(rgb, bool(render_depth), rgb4) if which == "forward"
+                         else _make_render_backward(rgb, bool(render_depth)))
     return _KERNELS[key]
 
 
@@ -1165,7 +1177,7 @@ class RenderJob:
         self.tile_end = np.empty(n_tiles, np.int64)
         tile_pairs = np.zeros(n_tiles, np.int64)
         with numba.parallel_chunksize(_TILE_CHUNK):
-            _kernel("forward", self.n_channels == 3, self.render_depth)(
+            _kernel("forward", self.n_channels, self.render_depth)(
                 self.tile_start, self.tile_ids, self.tile_order, self.prm, self.pcol, w, h, self.tiles_x,
                 self.acc_img, color, alpha, dnum, self.tile_end, tile_pairs)
         self.meta["n_pairs"] = int(tile_pairs.sum())
@@ -1180,7 +1192,7 @@ class RenderJob:
         if not self.render_depth:
             g_dnum = np.zeros((1, 1), np.float32)
         with numba.parallel_chunksize(_TILE_CHUNK):
-            _kernel("backward", self.n_channels == 3, self.render_depth)(
+            _kernel("backward", self.n_channels, self.render_depth)(
                 self.tile_start, self.tile_ids, self.tile_order, self.tile_end, self.prm, self.pcol, self.width,
                 self.height, self.tiles_x, self.acc_img, g_color, g_alpha, g_dnum, entry_grads)
         per = np.zeros((n, _NQ + c), np.float32)

@@ -56,7 +56,13 @@ def _assert_grads_close(fast: list[Tensor], ref: list[Tensor], names: list[str])
 
 @pytest.mark.parametrize(
     ("seed", "n", "channels", "render_depth", "background"),
-    [(0, 300, 3, True, False), (1, 500, 3, False, True), (2, 200, 5, True, True), (3, 400, 1, False, False)],
+    [
+        (0, 300, 3, True, False),
+        (1, 500, 3, False, True),
+        (2, 200, 5, True, True),
+        (3, 400, 1, False, False),
+        (4, 300, 4, True, True),  # RGB + exact-fog transmittance: its own fused forward
+    ],
 )
 def test_fast_path_matches_twin_forward_and_gradients(
     seed: int, n: int, channels: int, render_depth: bool, background: bool
