@@ -24,6 +24,8 @@ import math
 
 import numpy as np
 
+from ._numba_backend import load_numba_kernels
+
 __all__ = [
     "VISIBILITY_CONTRAST",
     "background_transmittance",
@@ -32,6 +34,7 @@ __all__ = [
     "fog_postprocess",
     "gaussian_transmittance",
     "ray_distance",
+    "transmitted_channels",
     "visibility_from_density",
 ]
 
@@ -118,6 +121,70 @@ def gaussian_transmittance(
     return np.exp(d, out=d)
 
 
+def transmitted_channels(
+    means: np.ndarray,
+    colors: np.ndarray,
+    camera_center: np.ndarray,
+    beta: float,
+    *,
+    offset_m: float = 0.0,
+    out: np.ndarray | None = None,
+    fast: bool = True,
+) -> np.ndarray:
+    """The channels the exact fog rasterizes: (c_i t_i, t_i) with t_i of :func:`gaussian_transmittance`.
+
+    Parameters
+    ----------
+    means : ndarray [N, 3]
+        Gaussian centers, world (m).
+    colors : ndarray [N, C]
+        Colors (RGB in [0, 1] for C = 3).
+    camera_center : ndarray [3]
+        Camera center o, world (m).
+    beta : float
+        Extinction coefficient (m^-1), >= 0.
+    offset_m : float
+        Distance before which there is no attenuation (m), >= 0.
+    out : ndarray [N, C + 1] float32, optional
+        Written in place and returned.
+    fast : bool
+        The numba kernel when available (one pass, both cores); else the numpy reference.
+
+    Returns
+    -------
+    ndarray [N, C + 1] float32
+        Colors times t_i, then t_i.
+
+    Raises
+    ------
+    ValueError
+        As :func:`gaussian_transmittance`; or if ``colors`` or ``out`` do not match ``means``.
+    """
+    _check_beta(beta)
+    if not (offset_m >= 0) or math.isinf(offset_m):
+        raise ValueError(f"offset_m must be finite and >= 0 metres, got {offset_m}")
+    m = np.asarray(means, np.float32)
+    c = np.asarray(colors, np.float32)
+    if m.ndim != 2 or m.shape[1] != 3 or c.ndim != 2 or c.shape[0] != m.shape[0]:
+        raise ValueError(f"means must be [N, 3] and colors [N, C], got {m.shape} and {c.shape}")
+    shape = (m.shape[0], c.shape[1] + 1)
+    if out is None:
+        out = np.empty(shape, np.float32)
+    elif out.shape != shape or out.dtype != np.float32:
+        raise ValueError(f"out must be a float32 array of shape {shape}, got {out.dtype} {out.shape}")
+    kernels = load_numba_kernels("_fog_numba") if fast else None
+    if kernels is None:
+        t = gaussian_transmittance(m, camera_center, beta, offset_m=offset_m)
+        np.multiply(c, t[:, None], out=out[:, :-1])
+        out[:, -1] = t
+        return out
+    center = np.asarray(camera_center, np.float32).reshape(3)
+    kernels.transmitted_channels_kernel(
+        np.ascontiguousarray(m), np.ascontiguousarray(c), center, np.float32(-beta), np.float32(offset_m), out
+    )
+    return out
+
+
 def background_transmittance(beta: float) -> float:
     """Transmittance of the background (sky) at infinite distance: 1 for beta = 0, else 0."""
     _check_beta(beta)
@@ -132,6 +199,7 @@ def compose_exact(
     beta: float,
     fog_color: np.ndarray,
     background: np.ndarray | None = None,
+    fast: bool = True,
 ) -> np.ndarray:
     """The exact per-layer fog from the rasterized sums (see the module docstring).
 
@@ -149,6 +217,8 @@ def compose_exact(
         RGB in [0, 1].
     background : ndarray [3] or [H, W, 3], optional
         Background (sky) color behind everything; black when omitted.
+    fast : bool
+        The numba kernel when available (one pass; a [3] background only); else numpy.
 
     Returns
     -------
@@ -164,6 +234,13 @@ def compose_exact(
     t_bg = background_transmittance(beta)
     bg = np.zeros(3, np.float32) if background is None else _check_color(background, "background")
     sky = bg * t_bg + c_fog * (1.0 - t_bg)
+    kernels = load_numba_kernels("_fog_numba") if fast and sky.shape == (3,) else None
+    if kernels is not None:
+        out = np.empty(sum_color_t.shape, np.float32)
+        kernels.compose_exact_kernel(
+            np.asarray(sum_color_t, np.float32), st[..., 0], a[..., 0], c_fog, sky.astype(np.float32), out
+        )
+        return out
     # The fog term A - sum w t is >= 0 in exact arithmetic; clamp float32 round-off. In place:
     # this runs on every frame.
     fog_weight = np.subtract(a, st)
@@ -244,9 +321,7 @@ def fog_postprocess(
     c_fog = _check_color(fog_color, "fog_color")
     a = np.asarray(alpha, np.float32)[..., None]
     if color.shape[:-1] != alpha.shape or depth.shape != alpha.shape:
-        raise ValueError(
-            f"color {color.shape}, depth {depth.shape} and alpha {alpha.shape} must share [H, W]"
-        )
+        raise ValueError(f"color {color.shape}, depth {depth.shape} and alpha {alpha.shape} must share [H, W]")
     bg = np.zeros(3, np.float32) if background is None else _check_color(background, "background")
     # Non-finite depth only occurs where nothing was drawn; its weight A is 0 there.
     l_ray = np.nan_to_num(ray_distance(depth, K), nan=0.0, posinf=0.0, neginf=0.0)

@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from ._numba_backend import load_numba_kernels
+
 __all__ = [
     "ParticleField",
     "ParticleGaussians",
@@ -42,6 +44,7 @@ __all__ = [
     "extinction_coefficient",
     "horizontal_basis",
     "number_density",
+    "particle_dilation_compensation",
     "quat_from_axis_to",
     "quat_multiply",
     "quat_to_matrix",
@@ -96,9 +99,7 @@ def size_distribution(kind: str, rate_mm_h: float, spec: ParticleSpec | None = N
     if not math.isfinite(rate_mm_h) or rate_mm_h < 0:
         raise ValueError(f"rate_mm_h must be a finite rate >= 0 mm/h, got {rate_mm_h}")
     a0, b0, a1, b1 = (
-        _DSD_DEFAULTS[kind]
-        if spec is None
-        else (spec.dsd_n0, spec.dsd_n0_b, spec.dsd_lambda_a, spec.dsd_lambda_b)
+        _DSD_DEFAULTS[kind] if spec is None else (spec.dsd_n0, spec.dsd_n0_b, spec.dsd_lambda_a, spec.dsd_lambda_b)
     )
     if rate_mm_h == 0:
         return 0.0, math.inf
@@ -340,6 +341,59 @@ def _splitmix64(x: np.ndarray) -> np.ndarray:
         return x ^ (x >> np.uint64(31))
 
 
+def particle_dilation_compensation(
+    means: np.ndarray,
+    quats: np.ndarray,
+    scales: np.ndarray,
+    viewmat: np.ndarray,
+    K: np.ndarray,
+    *,
+    eps2d: float,
+) -> np.ndarray:
+    """Opacity factor sqrt(det Sigma / det(Sigma + eps I)) per Gaussian (gsplat "antialiased").
+
+    The rasterizer dilates every 2D covariance by ``eps2d`` px^2; a raindrop a tenth of a pixel
+    wide would grow several-fold in coverage, and by a resolution-dependent amount. Scaling its
+    opacity by this factor keeps its integrated coverage.
+
+    Parameters
+    ----------
+    means : ndarray [M, 3]
+        World (m).
+    quats : ndarray [M, 4]
+        wxyz.
+    scales : ndarray [M, 3]
+        Standard deviations (m).
+    viewmat : ndarray [4, 4]
+        World-to-camera (OpenCV axes).
+    K : ndarray [3, 3]
+        Intrinsics.
+    eps2d : float
+        The rasterizer's dilation (px^2).
+
+    Returns
+    -------
+    ndarray [M] float32
+        In (0, 1]; 1 where the projection is degenerate (such Gaussians are culled anyway).
+    """
+    if len(means) == 0:
+        return np.zeros(0, np.float32)
+    W = np.asarray(viewmat, np.float64)
+    cam = apply_linear(np.asarray(means, np.float64), W[:3, :3].T) + W[:3, 3]
+    x, y, z = cam[:, 0], cam[:, 1], np.maximum(cam[:, 2], 1e-6)
+    fx, fy = K[0, 0], K[1, 1]
+    J = np.zeros((len(cam), 2, 3))
+    J[:, 0, 0], J[:, 0, 2] = fx / z, -fx * x / z**2
+    J[:, 1, 1], J[:, 1, 2] = fy / z, -fy * y / z**2
+    M = quat_to_matrix(quats) * np.asarray(scales, np.float64)[:, None, :]
+    T = J @ W[:3, :3] @ M
+    cov = T @ T.transpose(0, 2, 1)
+    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
+    det_d = (cov[:, 0, 0] + eps2d) * (cov[:, 1, 1] + eps2d) - cov[:, 0, 1] ** 2
+    factor = np.sqrt(np.clip(det, 0.0, None) / np.maximum(det_d, 1e-30))
+    return np.where(np.isfinite(factor), np.clip(factor, 0.0, 1.0), 1.0).astype(np.float32)
+
+
 # --------------------------------------------------------------------------------------------
 # Parameters
 
@@ -436,8 +490,7 @@ class ParticleSpec:
             raise ValueError(f"opacity must be in [0, 1], got {self.opacity}")
         if not 0 < self.min_diameter_mm < self.max_diameter_mm:
             raise ValueError(
-                "need 0 < min_diameter_mm < max_diameter_mm, "
-                f"got {self.min_diameter_mm}, {self.max_diameter_mm}"
+                f"need 0 < min_diameter_mm < max_diameter_mm, got {self.min_diameter_mm}, {self.max_diameter_mm}"
             )
         if self.scale_m is not None and (len(self.scale_m) != 3 or min(self.scale_m) <= 0):
             raise ValueError(f"scale_m must be three positive lengths (m), got {self.scale_m}")
@@ -527,6 +580,26 @@ class ParticleGaussians:
             **{f.name: getattr(self, f.name)[keep] for f in fields(self)}  # type: ignore[arg-type]
         )
 
+    def head(self, k: int) -> ParticleGaussians:
+        """Views of the first ``k`` Gaussians (no copy)."""
+        return ParticleGaussians(
+            **{f.name: getattr(self, f.name)[:k] for f in fields(self)}  # type: ignore[arg-type]
+        )
+
+    @staticmethod
+    def allocate(n: int) -> ParticleGaussians:
+        """Uninitialised buffers for ``n`` Gaussians (see :meth:`ParticleField.gaussians`)."""
+        e = np.empty
+        return ParticleGaussians(
+            e((n, 3), np.float32),
+            e((n, 4), np.float32),
+            e((n, 3), np.float32),
+            e(n, np.float32),
+            e((n, 3), np.float32),
+            e(n, np.int64),
+            e((n, 3), np.float32),
+        )
+
     @staticmethod
     def empty() -> ParticleGaussians:
         """No Gaussians (clear weather, zero rate)."""
@@ -582,9 +655,7 @@ class ParticleField:
         if spec.physical:
             assert spec.rate_mm_h is not None
             self.n0, self.lam = size_distribution(spec.kind, spec.rate_mm_h, spec)
-            self.density_per_m3 = number_density(
-                self.n0, self.lam, spec.min_diameter_mm, spec.max_diameter_mm
-            )
+            self.density_per_m3 = number_density(self.n0, self.lam, spec.min_diameter_mm, spec.max_diameter_mm)
             self.physical_count = self.density_per_m3 * volume
             n = int(min(round(self.physical_count), spec.max_particles))
         else:
@@ -596,14 +667,10 @@ class ParticleField:
         # Each simulated particle stands for `represented` physical ones (1 below the cap).
         self.represented = self.physical_count / n if n > 0 else 1.0
 
-        rng = np.random.Generator(
-            np.random.PCG64(np.random.SeedSequence([int(self.seed), _KIND_CODE[spec.kind]]))
-        )
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(self.seed), _KIND_CODE[spec.kind]])))
         self.initial = spec.box_low + rng.random((n, 3)) * spec.box_size  # box coords at t = 0
         if spec.physical:
-            self.diameter_mm = sample_diameters(
-                rng.random(n), self.lam, spec.min_diameter_mm, spec.max_diameter_mm
-            )
+            self.diameter_mm = sample_diameters(rng.random(n), self.lam, spec.min_diameter_mm, spec.max_diameter_mm)
         else:
             rng.random(n)  # keep the stream aligned between the two modes
             self.diameter_mm = np.zeros(n)
@@ -619,11 +686,7 @@ class ParticleField:
         self.velocity_box = np.zeros((n, 3)) + self.wind_vector @ self.basis.T
         self.velocity_box[:, 2] -= fall
         # Flutter: per axis a sum of sinusoids with RMS velocity turbulence_m_s (half vertically).
-        freq = (
-            2
-            * np.pi
-            * (_TURB_FREQ_HZ[0] + (_TURB_FREQ_HZ[1] - _TURB_FREQ_HZ[0]) * rng.random((n, 3, _TURB_MODES)))
-        )
+        freq = 2 * np.pi * (_TURB_FREQ_HZ[0] + (_TURB_FREQ_HZ[1] - _TURB_FREQ_HZ[0]) * rng.random((n, 3, _TURB_MODES)))
         self.turb_omega = freq
         self.turb_phase = 2 * np.pi * rng.random((n, 3, _TURB_MODES))
         amp_v = spec.turbulence_m_s * math.sqrt(2.0 / _TURB_MODES) * np.array([1.0, 1.0, 0.5])
@@ -737,7 +800,7 @@ class ParticleField:
         camera_speed : float
             |camera velocity| (m/s), for the bound on streak lengths.
         fast : bool
-            Fused numba kernel when available; else (or ``False``) the numpy reference.
+            The numba kernel when available; else (or ``False``) the numpy reference.
 
         Returns
         -------
@@ -748,8 +811,8 @@ class ParticleField:
         """
         spec = self.spec
         c = np.asarray(camera_center, np.float64).reshape(3)
-        kernel = _numba_kernel() if fast else None
-        if kernel is None:
+        kernels = _numba_kernels() if fast else None
+        if kernels is None:
             pos, _ = self.positions(t, c)
             d2 = np.einsum("ij,ij->i", pos - c, pos - c)
             ok = (d2 < spec.radius_m**2) & (d2 > spec.min_distance_m**2)
@@ -757,10 +820,26 @@ class ParticleField:
                 ok &= self._in_view(pos, view, near, exposure_s, camera_speed)
             keep = np.nonzero(ok)[0]
             return pos[keep], keep
+        pos, keep = self._cull_fast(kernels, t, c, exposure_s, camera_speed, view, near)
+        return pos[keep], keep
+
+    def _cull_fast(
+        self,
+        kernels: Any,
+        t: float,
+        c: np.ndarray,
+        exposure_s: float,
+        camera_speed: float,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None,
+        near: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The numba twin of the reference branch of :meth:`visible`: ([N, 3] positions of all
+        particles, kept indices)."""
+        spec = self.spec
         if not math.isfinite(t):
             raise ValueError(f"t must be finite seconds, got {t}")
         if not np.all(np.isfinite(c)):
-            raise ValueError(f"camera_center must be a finite [3] position, got {camera_center!r}")
+            raise ValueError(f"camera_center must be a finite [3] position, got {c!r}")
         shift = (c - self.anchor_) @ self.basis.T + spec.box_low
         if view is None:
             W, kparams, size_px, near_, reach = np.eye(4), np.ones(4), np.zeros(2), -np.inf, 0.0
@@ -773,7 +852,7 @@ class ParticleField:
             reach = 3.0 * self.max_extent(exposure_s=exposure_s, camera_speed=camera_speed)
         pos = np.empty((self.count, 3))
         ok = np.empty(self.count, np.bool_)
-        kernel(
+        kernels.field_kernel(
             self.initial,
             self.velocity_box,
             self.turb_amp,
@@ -799,8 +878,7 @@ class ParticleField:
             pos,
             ok,
         )
-        keep = np.nonzero(ok)[0]
-        return pos[keep], keep
+        return pos, np.nonzero(ok)[0]
 
     def max_extent(self, *, exposure_s: float, camera_speed: float = 0.0) -> float:
         """Upper bound of any particle's longest standard deviation (m), for view culling."""
@@ -853,6 +931,8 @@ class ParticleField:
         camera_velocity: np.ndarray | None = None,
         view: tuple[np.ndarray, np.ndarray, int, int] | None = None,
         near: float = 0.01,
+        dilation_eps2d: float | None = None,
+        out: ParticleGaussians | None = None,
         fast: bool = True,
     ) -> ParticleGaussians:
         """The particles of time ``t`` as Gaussians, dropped where they would be invisible.
@@ -876,9 +956,15 @@ class ParticleField:
             World-to-camera matrix (OpenCV axes), intrinsics, width and height of the image.
         near : float
             With ``view``: particles with camera z <= near are dropped (m).
+        dilation_eps2d : float, optional
+            With ``view``: scale opacities by :func:`particle_dilation_compensation` for a
+            rasterizer that dilates 2D covariances by this many px^2.
+        out : ParticleGaussians, optional
+            Buffers of at least :attr:`max_gaussians` rows to write into (float32 arrays, int64
+            ``particle``); the result is then made of views of their first rows. Lets a renderer
+            put the particles straight behind its scene Gaussians without a copy.
         fast : bool
-            Use the fused numba kernel for positions and culling when numba is available (the
-            numpy path is its reference).
+            Use the numba kernels when numba is available (the numpy path is their reference).
 
         Returns
         -------
@@ -888,17 +974,125 @@ class ParticleField:
         Raises
         ------
         ValueError
-            If ``exposure_s`` is negative or not finite.
+            If ``exposure_s`` is negative or not finite, ``dilation_eps2d`` is given without
+            ``view``, or ``out`` is too small.
         """
         if not math.isfinite(exposure_s) or exposure_s < 0:
             raise ValueError(f"exposure_s must be finite and >= 0 seconds, got {exposure_s}")
+        if dilation_eps2d is not None and view is None:
+            raise ValueError("dilation_eps2d needs the view it compensates for")
+        if out is not None and len(out) < self.max_gaussians:
+            raise ValueError(f"out holds {len(out)} Gaussians, this field needs up to {self.max_gaussians}")
         if self.count == 0:
             return ParticleGaussians.empty()
-        spec = self.spec
         c = np.asarray(camera_center, np.float64).reshape(3)
-        cam_vel = (
-            np.zeros(3) if camera_velocity is None else np.asarray(camera_velocity, np.float64).reshape(3)
+        cam_vel = np.zeros(3) if camera_velocity is None else np.asarray(camera_velocity, np.float64).reshape(3)
+        kernels = _numba_kernels() if fast else None
+        if kernels is not None:
+            return self._gaussians_fast(kernels, t, c, exposure_s, cam_vel, view, near, dilation_eps2d, out)
+        g = self._gaussians_reference(t, c, exposure_s, cam_vel, view, near)
+        if dilation_eps2d is not None and len(g):
+            assert view is not None
+            g.opacities = g.opacities * particle_dilation_compensation(
+                g.means, g.quats, g.scales, view[0], view[1], eps2d=dilation_eps2d
+            )
+        if out is None:
+            return g
+        k = len(g)
+        for f in fields(ParticleGaussians):
+            getattr(out, f.name)[:k] = getattr(g, f.name)
+        return out.head(k)
+
+    @property
+    def max_gaussians(self) -> int:
+        """Most Gaussians one frame can have: the particle count (rain) or three times it (snow)."""
+        return self.count * (1 if self.spec.kind == "rain" else 3)
+
+    def _gaussians_fast(
+        self,
+        kernels: Any,
+        t: float,
+        c: np.ndarray,
+        exposure_s: float,
+        cam_vel: np.ndarray,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None,
+        near: float,
+        dilation_eps2d: float | None,
+        out: ParticleGaussians | None,
+    ) -> ParticleGaussians:
+        """The numba twin of :meth:`_gaussians_reference` plus the dilation compensation."""
+        spec = self.spec
+        pos, keep = self._cull_fast(kernels, t, c, exposure_s, float(np.linalg.norm(cam_vel)), view, near)
+        rows = keep.size * (1 if spec.kind == "rain" else 3)
+        if out is None:
+            out = ParticleGaussians.allocate(rows)
+        if view is None:
+            W, fx, fy = np.zeros((3, 4)), 1.0, 1.0
+        else:
+            W = np.ascontiguousarray(np.asarray(view[0], np.float64)[:3, :4])
+            fx, fy = float(view[1][0][0]), float(view[1][1][1])
+        if spec.physical:
+            size_ratio = spec.flake_ratio if spec.kind == "snow" else 1.0
+            short_ratio = _SHORT_OVER_LONG if spec.kind == "snow" else 1.0
+            scale_m = np.ones(3)
+        else:
+            assert spec.scale_m is not None
+            size_ratio = short_ratio = 1.0
+            scale_m = np.asarray(spec.scale_m, np.float64)
+        kernels.shape_kernel(
+            keep,
+            pos,
+            c,
+            float(t),
+            self.velocity_box,
+            self.turb_amp,
+            self.turb_omega,
+            self.turb_phase,
+            spec.turbulence_m_s > 0,
+            self.basis,
+            cam_vel,
+            float(exposure_s),
+            spec.kind == "rain",
+            spec.physical,
+            spec.stretch_with_exposure,
+            self.diameter_mm,
+            float(size_ratio),
+            float(short_ratio),
+            scale_m,
+            float(min(spec.opacity, _MAX_SINGLE_OPACITY)),
+            float(spec.fade_m),
+            float(spec.radius_m),
+            float(spec.min_distance_m),
+            float(self.represented),
+            self.orientation,
+            self.spin_rate,
+            dilation_eps2d is not None,
+            W,
+            fx,
+            fy,
+            0.0 if dilation_eps2d is None else float(dilation_eps2d),
+            np.asarray(spec.color, np.float32),
+            out.means,
+            out.quats,
+            out.scales,
+            out.opacities,
+            out.colors,
+            out.particle,
+            out.velocity,
         )
+        return out.head(rows)
+
+    def _gaussians_reference(
+        self,
+        t: float,
+        c: np.ndarray,
+        exposure_s: float,
+        cam_vel: np.ndarray,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None,
+        near: float,
+    ) -> ParticleGaussians:
+        """The numpy reference of :meth:`gaussians` (no dilation compensation, no buffers)."""
+        spec = self.spec
         pos, keep = self.visible(
             t,
             c,
@@ -906,7 +1100,7 @@ class ParticleField:
             camera_speed=float(np.linalg.norm(cam_vel)),
             view=view,
             near=near,
-            fast=fast,
+            fast=False,
         )
         dist = np.sqrt(np.einsum("ij,ij->i", pos - c, pos - c))
         fade = np.ones(keep.size)
@@ -1003,20 +1197,9 @@ class ParticleField:
 
 
 # --------------------------------------------------------------------------------------------
-# Fused numba kernel: positions + range and view culling in one pass (numpy path = reference)
-
-_KERNEL: Any = None
-_KERNEL_FAILED = False
+# numba kernels (the numpy code above is their reference)
 
 
-def _numba_kernel() -> Any:
-    """The compiled kernel, or ``None`` when numba is unavailable (the numpy path is used)."""
-    global _KERNEL, _KERNEL_FAILED
-    if _KERNEL is None and not _KERNEL_FAILED:
-        try:
-            from ._particles_numba import field_kernel
-
-            _KERNEL = field_kernel
-        except Exception:  # numba missing or broken: fall back to numpy
-            _KERNEL_FAILED = True
-    return _KERNEL
+def _numba_kernels() -> Any:
+    """The compiled kernels' module, or ``None`` when numba is unavailable (numpy is used)."""
+    return load_numba_kernels("_particles_numba")

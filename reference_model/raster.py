@@ -21,29 +21,25 @@ from typing import Any
 import numpy as np
 import torch
 
+from ._numba_backend import load_numba_kernels, numba_error
 from ._raster_common import DEPTH_EPS, RenderOutput, check_inputs
 from ._raster_torch import rasterize_torch
 
 __all__ = ["RenderOutput", "numba_available", "rasterize"]
 
 _BACKENDS = ("auto", "numba", "torch")
-_numba_module: ModuleType | None = None
-_numba_error: str | None = None
+_warned = False
 
 
 def _load_numba() -> ModuleType | None:
-    """Import the numba backend once; on failure warn once and remember why."""
-    global _numba_module, _numba_error
-    if _numba_module is None and _numba_error is None:
-        try:
-            from . import _raster_numba
-
-            _numba_module = _raster_numba
-        except Exception as exc:  # any import-time failure (numba missing, LLVM error) means "fall back"
-            _numba_error = f"{type(exc).__name__}: {exc}"
-            warnings.warn(f"wcbench rasterizer: numba backend unavailable ({_numba_error}); using the "
-                          "slow pure-torch twin", RuntimeWarning, stacklevel=3)
-    return _numba_module
+    """The numba backend; when it cannot be imported, warn once and use the twin."""
+    global _warned
+    module = load_numba_kernels("_raster_numba")
+    if module is None and not _warned:
+        _warned = True
+        warnings.warn(f"wcbench rasterizer: numba backend unavailable ({numba_error('_raster_numba')}); "
+                      "using the slow pure-torch twin", RuntimeWarning, stacklevel=3)
+    return module
 
 
 def numba_available() -> bool:
@@ -180,7 +176,7 @@ def rasterize(
     mod = None if use_torch else _load_numba()
     if mod is None:
         if backend == "numba":
-            raise ValueError(f"backend='numba' requested but numba is unavailable ({_numba_error})")
+            raise ValueError(f"backend='numba' requested but numba is unavailable ({numba_error('_raster_numba')})")
         return rasterize_torch(means, quats, scales, opacities, colors, viewmat_t, K_t, width, height,
                                near=near, far=far, background=bg, render_depth=render_depth, absgrad=absgrad)
 

@@ -30,10 +30,16 @@ from .fog import (
     compose_exact,
     density_from_visibility,
     fog_postprocess,
-    gaussian_transmittance,
+    transmitted_channels,
     visibility_from_density,
 )
-from .particles import ParticleField, ParticleGaussians, ParticleSpec, Wind, apply_linear
+from .particles import (
+    ParticleField,
+    ParticleGaussians,
+    ParticleSpec,
+    Wind,
+    particle_dilation_compensation,
+)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -313,61 +319,6 @@ def camera_velocity(centers: np.ndarray, times: np.ndarray, index: int) -> np.nd
     return (centers[i1] - centers[i0]) / dt
 
 
-def particle_dilation_compensation(
-    means: np.ndarray,
-    quats: np.ndarray,
-    scales: np.ndarray,
-    viewmat: np.ndarray,
-    K: np.ndarray,
-    *,
-    eps2d: float,
-) -> np.ndarray:
-    """Opacity factor sqrt(det Sigma / det(Sigma + eps I)) per Gaussian (gsplat "antialiased").
-
-    The rasterizer dilates every 2D covariance by ``eps2d`` px^2; a raindrop a tenth of a pixel
-    wide would grow several-fold in coverage, and by a resolution-dependent amount. Scaling its
-    opacity by this factor keeps its integrated coverage.
-
-    Parameters
-    ----------
-    means : ndarray [M, 3]
-        World (m).
-    quats : ndarray [M, 4]
-        wxyz.
-    scales : ndarray [M, 3]
-        Standard deviations (m).
-    viewmat : ndarray [4, 4]
-        World-to-camera (OpenCV axes).
-    K : ndarray [3, 3]
-        Intrinsics.
-    eps2d : float
-        The rasterizer's dilation (px^2).
-
-    Returns
-    -------
-    ndarray [M] float32
-        In (0, 1]; 1 where the projection is degenerate (such Gaussians are culled anyway).
-    """
-    from .particles import quat_to_matrix
-
-    if len(means) == 0:
-        return np.zeros(0, np.float32)
-    W = np.asarray(viewmat, np.float64)
-    cam = apply_linear(np.asarray(means, np.float64), W[:3, :3].T) + W[:3, 3]
-    x, y, z = cam[:, 0], cam[:, 1], np.maximum(cam[:, 2], 1e-6)
-    fx, fy = K[0, 0], K[1, 1]
-    J = np.zeros((len(cam), 2, 3))
-    J[:, 0, 0], J[:, 0, 2] = fx / z, -fx * x / z**2
-    J[:, 1, 1], J[:, 1, 2] = fy / z, -fy * y / z**2
-    M = quat_to_matrix(quats) * np.asarray(scales, np.float64)[:, None, :]
-    T = J @ W[:3, :3] @ M
-    cov = T @ T.transpose(0, 2, 1)
-    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
-    det_d = (cov[:, 0, 0] + eps2d) * (cov[:, 1, 1] + eps2d) - cov[:, 0, 1] ** 2
-    factor = np.sqrt(np.clip(det, 0.0, None) / np.maximum(det_d, 1e-30))
-    return np.where(np.isfinite(factor), np.clip(factor, 0.0, 1.0), 1.0).astype(np.float32)
-
-
 # --------------------------------------------------------------------------------------------
 # Rendering
 
@@ -387,6 +338,29 @@ def _as_tensors(gaussians: GaussianSet) -> dict[str, Any]:
         if tuple(arrays[name].shape) != shape:
             raise ValueError(f"gaussians.{name} must have shape {shape}, got {tuple(arrays[name].shape)}")
     return arrays
+
+
+_GAUSSIAN_ARRAYS = ("means", "quats", "scales", "opacities", "colors")
+
+
+@dataclass
+class _CombinedBuffers:
+    """Scene Gaussians (first ``n_scene`` rows) followed by room for a frame's particles."""
+
+    n_scene: int
+    arrays: dict[str, np.ndarray]  # the five Gaussian arrays, [n_scene + max particles, ...]
+    tail: ParticleGaussians  # views of the particle rows (+ their own index/velocity arrays)
+
+    @staticmethod
+    def allocate(n_scene: int, n_particles: int) -> _CombinedBuffers:
+        tail = ParticleGaussians.allocate(n_particles)
+        arrays = {
+            name: np.empty((n_scene + n_particles, *getattr(tail, name).shape[1:]), np.float32)
+            for name in _GAUSSIAN_ARRAYS
+        }
+        for name in _GAUSSIAN_ARRAYS:
+            setattr(tail, name, arrays[name][n_scene:])
+        return _CombinedBuffers(n_scene=n_scene, arrays=arrays, tail=tail)
 
 
 @dataclass
@@ -465,9 +439,7 @@ class WeatherRenderer:
 
             rasterizer = rasterize
         self.rasterizer: Callable[..., Any] = rasterizer
-        self.background = (
-            np.zeros(3, np.float32) if background is None else np.asarray(background, np.float32)
-        )
+        self.background = np.zeros(3, np.float32) if background is None else np.asarray(background, np.float32)
         if self.background.shape != (3,) or not np.all(np.isfinite(self.background)):
             raise ValueError(f"background must be 3 finite numbers, got {background!r}")
         self.scene = _as_tensors(gaussians)
@@ -485,6 +457,8 @@ class WeatherRenderer:
             else None
         )
         self.beta, self.fog_color, self.fog_offset = weather.fog_parameters(self.field)
+        self._buffers: _CombinedBuffers | None = None
+        self._channels: np.ndarray | None = None
 
     def info(self) -> dict[str, Any]:
         """The resolved parameters of this renderer (JSON-ready), for ``info.json``."""
@@ -512,33 +486,56 @@ class WeatherRenderer:
         return out
 
     def particles(
-        self, camera: Any, t: float, *, camera_velocity: np.ndarray | None = None
+        self,
+        camera: Any,
+        t: float,
+        *,
+        camera_velocity: np.ndarray | None = None,
+        out: ParticleGaussians | None = None,
     ) -> tuple[ParticleGaussians, dict[str, int]]:
         """The particle Gaussians of time ``t`` inside the view frustum of ``camera``.
 
-        Returns the Gaussians (opacities already compensated for the dilation when enabled) and
+        Returns the Gaussians (opacities already compensated for the dilation when enabled),
+        written into ``out`` when given (see :meth:`.particles.ParticleField.gaussians`), and
         their count ``particles_in_view``.
         """
         if self.field is None:
             return ParticleGaussians.empty(), {"particles_in_view": 0}
-        center = np.asarray(camera.center, np.float64)
-        W = np.asarray(camera.world_to_camera, np.float64)
-        K = np.asarray(camera.K, np.float64)
+        from ._raster_common import EPS2D
+
         g = self.field.gaussians(
             t,
-            center,
+            np.asarray(camera.center, np.float64),
             exposure_s=self.weather.exposure(),
             camera_velocity=camera_velocity,
-            view=(W, K, int(camera.width), int(camera.height)),
+            view=(
+                np.asarray(camera.world_to_camera, np.float64),
+                np.asarray(camera.K, np.float64),
+                int(camera.width),
+                int(camera.height),
+            ),
             near=self.near,
+            dilation_eps2d=EPS2D if self.compensate_dilation else None,
+            out=out,
         )
-        if self.compensate_dilation and len(g):
-            from ._raster_common import EPS2D
-
-            g.opacities = g.opacities * particle_dilation_compensation(
-                g.means, g.quats, g.scales, W, K, eps2d=EPS2D
-            )
         return g, {"particles_in_view": len(g)}
+
+    def _combined_buffers(self, scene: dict[str, Any], refill: bool) -> _CombinedBuffers:
+        """Buffers holding the scene Gaussians followed by room for this weather's particles.
+
+        The scene part is copied once per renderer (or per frame for per-frame ``gaussians``), so
+        a rain frame rasterizes scene + particles without concatenating 100k-row arrays.
+        """
+        n = int(scene["means"].shape[0])
+        assert self.field is not None
+        buffers = self._buffers
+        if buffers is None or buffers.n_scene != n:
+            buffers = self._buffers = _CombinedBuffers.allocate(n, self.field.max_gaussians)
+            refill = True
+        if refill:
+            for name in _GAUSSIAN_ARRAYS:
+                buffers.arrays[name][:n] = scene[name].numpy()
+        return buffers
 
     def render(
         self,
@@ -551,6 +548,8 @@ class WeatherRenderer:
         particles: ParticleGaussians | None = None,
     ) -> WeatherFrame:
         """Render one frame.
+
+        A renderer reuses its buffers from frame to frame: render from one thread at a time.
 
         Parameters
         ----------
@@ -579,35 +578,42 @@ class WeatherRenderer:
         if mode not in FOG_MODES:
             raise ValueError(f"fog_mode must be one of {FOG_MODES}, got {mode!r}")
         t_start = time.perf_counter()
-        if particles is None:
-            parts, counts = self.particles(camera, t, camera_velocity=camera_velocity)
+        scene = self.scene if gaussians is None else _as_tensors(gaussians)
+        n_scene = int(scene["means"].shape[0])
+        arrays = {name: scene[name].numpy() for name in _GAUSSIAN_ARRAYS}
+        if particles is not None:
+            counts = {"particles_in_view": len(particles)}
+            if len(particles):
+                # One Gaussian set: scene and particles are sorted and blended together (occlusion).
+                arrays = {
+                    name: np.concatenate([arrays[name], np.asarray(getattr(particles, name), np.float32)])
+                    for name in _GAUSSIAN_ARRAYS
+                }
+        elif self.field is not None:
+            buffers = self._combined_buffers(scene, refill=gaussians is not None)
+            # The particles are written straight behind the scene Gaussians.
+            parts, counts = self.particles(camera, t, camera_velocity=camera_velocity, out=buffers.tail)
+            arrays = {name: buffers.arrays[name][: n_scene + len(parts)] for name in _GAUSSIAN_ARRAYS}
         else:
-            parts, counts = particles, {"particles_in_view": len(particles)}
+            counts = {"particles_in_view": 0}
         t_particles = time.perf_counter()
 
-        scene = self.scene if gaussians is None else _as_tensors(gaussians)
-        means, quats, scales, opac, colors = (
-            scene[k] for k in ("means", "quats", "scales", "opacities", "colors")
-        )
-        if len(parts):
-            # One Gaussian set: scene and particles are sorted and blended together (occlusion).
-            means, quats, scales, opac, colors = (
-                torch.from_numpy(np.concatenate([a.numpy(), b]))
-                for a, b in zip(
-                    (means, quats, scales, opac, colors),
-                    (parts.means, parts.quats, parts.scales, parts.opacities, parts.colors),
-                )
-            )
+        means, quats, scales, opac, colors = (torch.from_numpy(arrays[name]) for name in _GAUSSIAN_ARRAYS)
         fog = self.beta > 0
         exact = fog and mode == "exact"
-        center = np.asarray(camera.center, np.float64)
         if exact:
-            t_i = gaussian_transmittance(means.numpy(), center, self.beta, offset_m=self.fog_offset)
-            # Channels: c_i t_i (3) and t_i (1); the fog composes from these sums. numpy, single
-            # threaded: torch's thread pool stalls on a loaded machine for such small ops.
-            channels = np.empty((len(t_i), 4), np.float32)
-            np.multiply(colors.numpy(), t_i[:, None], out=channels[:, :3])
-            channels[:, 3] = t_i
+            # Channels: c_i t_i (3) and t_i (1); the fog composes from their rasterized sums.
+            n = means.shape[0]
+            if self._channels is None or self._channels.shape[0] < n:
+                self._channels = np.empty((n, 4), np.float32)
+            channels = transmitted_channels(
+                arrays["means"],
+                arrays["colors"],
+                np.asarray(camera.center, np.float64),
+                self.beta,
+                offset_m=self.fog_offset,
+                out=self._channels[:n],
+            )
             colors = torch.from_numpy(channels)
             background = None
         else:
@@ -660,7 +666,7 @@ class WeatherRenderer:
         t_end = time.perf_counter()
         info = {
             "time_s": float(t),
-            "scene_gaussians": int(scene["means"].shape[0]),
+            "scene_gaussians": n_scene,
             **counts,
             "rasterized": int(means.shape[0]),
             "fog_mode": mode if fog else "none",

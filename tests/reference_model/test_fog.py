@@ -13,6 +13,7 @@ from wcbench.reference_model.fog import (
     fog_postprocess,
     gaussian_transmittance,
     ray_distance,
+    transmitted_channels,
     visibility_from_density,
 )
 from wcbench.scene import Camera
@@ -111,6 +112,50 @@ def test_gaussian_transmittance_extremes_and_offset() -> None:
         gaussian_transmittance(np.zeros((3, 2)), np.zeros(3), 0.1)
 
 
+def _fog_kernels_or_skip() -> None:
+    pytest.importorskip("numba")
+    from wcbench.reference_model._numba_backend import load_numba_kernels
+
+    if load_numba_kernels("_fog_numba") is None:
+        pytest.skip("numba fog kernels unavailable")
+
+
+@pytest.mark.parametrize(("beta", "offset"), [(0.0, 0.0), (0.05, 0.0), (0.2, 10.0), (1e3, 0.0)])
+def test_transmitted_channels_fast_path_matches_the_numpy_reference(beta: float, offset: float) -> None:
+    _fog_kernels_or_skip()
+    rng = np.random.default_rng(4)
+    means = rng.uniform(-300, 300, (10_001, 3)).astype(np.float32)  # not a multiple of the chunk
+    colors = rng.uniform(0, 1, (10_001, 3)).astype(np.float32)
+    center = np.array([3.0, -2.0, 1.5])
+    ref = transmitted_channels(means, colors, center, beta, offset_m=offset, fast=False)
+    out = np.full((10_001, 4), np.nan, np.float32)
+    fast = transmitted_channels(means, colors, center, beta, offset_m=offset, out=out)
+    assert fast is out and ref.dtype == np.float32
+    # numpy's float32 exp is within 1 ulp, the kernel's (float64 exp, rounded) within 0.5.
+    np.testing.assert_allclose(fast, ref, rtol=3e-7, atol=1e-37)
+    np.testing.assert_allclose(ref[:, 3], gaussian_transmittance(means, center, beta, offset_m=offset))
+    np.testing.assert_array_equal(ref[:, :3], colors * ref[:, 3:])
+    with pytest.raises(ValueError, match="out must be"):
+        transmitted_channels(means, colors, center, beta, out=np.empty((10_001, 3), np.float32))
+
+
+def test_compose_exact_fast_path_matches_the_numpy_reference() -> None:
+    _fog_kernels_or_skip()
+    rng = np.random.default_rng(5)
+    h, w = 37, 53
+    alpha = rng.uniform(0, 1, (h, w)).astype(np.float32)
+    alpha[0, :5] = [0.0, 1.0, 1.0, 0.0, 0.5]
+    sum_t = (alpha * rng.uniform(0, 1.001, (h, w))).astype(np.float32)  # a few A < sum t: clamped
+    rendered = rng.uniform(0, 1, (h, w, 4)).astype(np.float32)  # a non-contiguous [H, W, 3] view
+    rendered[..., 3] = sum_t
+    for beta, bg in ((0.05, np.array([0.2, 0.4, 0.9])), (0.0, np.array([0.2, 0.4, 0.9])), (0.1, None)):
+        args = (rendered[..., :3], rendered[..., 3], alpha)
+        ref = compose_exact(*args, beta=beta, fog_color=FOG, background=bg, fast=False)
+        fast = compose_exact(*args, beta=beta, fog_color=FOG, background=bg)
+        assert fast.dtype == np.float32 and fast.shape == (h, w, 3)
+        np.testing.assert_allclose(fast, ref, atol=F32_TOL, rtol=0)
+
+
 # ---- rendered -----------------------------------------------------------------------------------
 
 
@@ -141,9 +186,7 @@ def test_rendered_plane_matches_beer_lambert_per_pixel(mode: str) -> None:
     d, beta, c = 6.0, 0.15, (0.2, 0.5, 0.3)
     cam = _camera()
     plane = _plane(d, half=12.0, spacing=0.05, color=c)
-    r = WeatherRenderer(
-        plane, Weather(kind="fog", fog_density=beta, fog_mode=mode), up=np.array([0, -1.0, 0])
-    )
+    r = WeatherRenderer(plane, Weather(kind="fog", fog_density=beta, fog_mode=mode), up=np.array([0, -1.0, 0]))
     frame = r.render(cam, 0.0)
     assert frame.alpha.min() > 0.9998  # the plane covers the view (T stops at 1e-4): no sky
     assert (frame.depth is None) == (mode == "exact")  # the exact form needs no depth channel
@@ -181,12 +224,8 @@ def test_zero_density_fog_equals_clear_and_huge_density_is_finite() -> None:
     bg = np.array([0.3, 0.5, 1.0], np.float32)
     up = np.array([0, -1.0, 0])
     clear = WeatherRenderer(plane, Weather(), up=up, background=bg).render(_camera(), 0.0).image
-    zero = WeatherRenderer(plane, Weather(kind="fog", fog_density=0.0), up=up, background=bg).render(
-        _camera(), 0.0
-    )
+    zero = WeatherRenderer(plane, Weather(kind="fog", fog_density=0.0), up=up, background=bg).render(_camera(), 0.0)
     np.testing.assert_array_equal(zero.image, clear)
-    dense = WeatherRenderer(plane, Weather(kind="fog", fog_density=1e3), up=up, background=bg).render(
-        _camera(), 0.0
-    )
+    dense = WeatherRenderer(plane, Weather(kind="fog", fog_density=1e3), up=up, background=bg).render(_camera(), 0.0)
     assert np.all(np.isfinite(dense.image))
     np.testing.assert_allclose(dense.image, np.broadcast_to(FOG, dense.image.shape), atol=1e-5)

@@ -189,25 +189,118 @@ def test_frame_is_a_pure_function_of_seed_and_time() -> None:
     assert not np.array_equal(other.means[:10], a.means[:10])
 
 
-def test_fast_kernel_matches_numpy_reference() -> None:
+def _numba_kernels_or_skip():  # type: ignore[no-untyped-def]
     pytest.importorskip("numba")
-    from wcbench.reference_model.particles import _numba_kernel
+    from wcbench.reference_model.particles import _numba_kernels
 
-    if _numba_kernel() is None:
-        pytest.skip("numba kernel unavailable")
+    kernels = _numba_kernels()
+    if kernels is None:
+        pytest.skip("numba kernels unavailable")
+    return kernels
+
+
+def test_fast_sin_and_cos_match_libm() -> None:
+    """The kernels' branch-free sin/cos against numpy's, over the arguments a sequence can reach."""
+    import numba
+
+    kernels = _numba_kernels_or_skip()
+    fast_sin, fast_cos = kernels.fast_sin, kernels.fast_cos
+
+    @numba.njit
+    def both(x, s, c):  # type: ignore[no-untyped-def]
+        for i in range(x.size):
+            s[i] = fast_sin(x[i])
+            c[i] = fast_cos(x[i])
+
+    rng = np.random.default_rng(0)
+    x = np.concatenate(
+        [
+            np.linspace(-4000.0, 4000.0, 400_001),
+            rng.normal(0.0, 30.0, 100_000),
+            np.arange(-2000, 2001) * (np.pi / 2),  # the reduction's boundaries
+            [0.0, -0.0, 1e-300, np.pi, -np.pi, 9.9e3],
+        ]
+    )
+    s, c = np.empty_like(x), np.empty_like(x)
+    both(x, s, c)
+    # libm itself is within 0.5 ulp; the reduction of |x| < 1e4 loses at most a few ulp of 1.
+    assert np.abs(s - np.sin(x)).max() < 1e-15
+    assert np.abs(c - np.cos(x)).max() < 1e-15
+
+
+@pytest.mark.parametrize(
+    ("kind", "preset", "overrides"),
+    [
+        ("rain", "heavy", {}),
+        ("rain", "paper", {}),
+        ("rain", "light", {"max_particles": 500}),  # represented = 1 and no cap
+        ("snow", "heavy", {}),
+        ("snow", "paper", {}),
+    ],
+)
+def test_fast_gaussians_match_the_numpy_reference(kind: str, preset: str, overrides: dict) -> None:
+    """Positions, culling, shapes, opacities (with the dilation compensation) and buffers."""
+    from wcbench.reference_model.particles import ParticleGaussians
+
+    _numba_kernels_or_skip()
     K = np.array([[250.0, 0, 160], [0, 250.0, 90], [0, 0, 1]])
-    w2c = np.eye(4)
-    w2c[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]  # looks along +x with z up
-    view = (w2c, K, 320, 180)
-    for kind, preset in (("rain", "heavy"), ("snow", "heavy"), ("rain", "paper")):
-        f = field(kind, preset, wind=Wind(7.0, 10.0, 100.0))
-        for t in (0.0, 0.7, 31.3):
-            c = np.array([3.0 * t, 0.5, 0.2])
-            p_fast, i_fast = f.visible(t, c, view=view, fast=True)
-            p_ref, i_ref = f.visible(t, c, view=view, fast=False)
-            np.testing.assert_array_equal(i_fast, i_ref)
-            # Only sin may differ (an ulp between numpy's SIMD and libm).
-            np.testing.assert_allclose(p_fast, p_ref, atol=1e-9)
+    for t in (0.0, 0.7, 31.3):
+        c = np.array([3.0 * t, 0.5, 0.2])
+        w2c = np.eye(4)
+        w2c[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]  # looks along +x with z up
+        w2c[:3, 3] = -w2c[:3, :3] @ c
+        view = (w2c, K, 320, 180)
+        f = field(kind, preset, wind=Wind(7.0, 10.0, 100.0), **overrides)  # type: ignore[arg-type]
+        cam_vel = np.array([3.0, 0.2, 0.0])
+        kw = dict(exposure_s=0.02, camera_velocity=cam_vel, view=view, near=0.05, dilation_eps2d=0.3)
+        fast = f.gaussians(t, c, fast=True, **kw)  # type: ignore[arg-type]
+        ref = f.gaussians(t, c, fast=False, **kw)  # type: ignore[arg-type]
+        assert len(ref) > 20
+        np.testing.assert_array_equal(fast.particle, ref.particle)
+        np.testing.assert_array_equal(fast.colors, ref.colors)
+        # float32 outputs of float64 math; only sin/cos differ (4e-16) and the matrix products'
+        # summation order in the dilation factor.
+        for name in ("means", "quats", "scales", "velocity"):
+            np.testing.assert_allclose(getattr(fast, name), getattr(ref, name), rtol=1e-6, atol=1e-6, err_msg=name)
+        np.testing.assert_allclose(fast.opacities, ref.opacities, rtol=1e-5, atol=1e-7)
+        # Positions and culling of all particles, without a view.
+        p_fast, i_fast = f.visible(t, c, fast=True)
+        p_ref, i_ref = f.visible(t, c, fast=False)
+        np.testing.assert_array_equal(i_fast, i_ref)
+        np.testing.assert_allclose(p_fast, p_ref, atol=POS_TOL)
+        # Into caller buffers (both paths): views of the first rows, the rest untouched.
+        for fast_path in (True, False):
+            out = ParticleGaussians.allocate(f.max_gaussians + 5)
+            out.opacities[:] = -1.0
+            g = f.gaussians(t, c, fast=fast_path, out=out, **kw)  # type: ignore[arg-type]
+            assert np.shares_memory(g.means, out.means) and len(g) == len(ref)
+            np.testing.assert_allclose(g.opacities, ref.opacities, rtol=1e-5, atol=1e-7)
+            assert np.all(out.opacities[len(g) :] == -1.0)
+
+
+def test_gaussians_reject_a_small_buffer_and_compensation_without_view() -> None:
+    from wcbench.reference_model.particles import ParticleGaussians
+
+    f = field("snow", "paper")
+    with pytest.raises(ValueError, match="needs up to 48000"):
+        f.gaussians(0.0, np.zeros(3), out=ParticleGaussians.allocate(16000))
+    with pytest.raises(ValueError, match="needs the view"):
+        f.gaussians(0.0, np.zeros(3), dilation_eps2d=0.3)
+
+
+def test_numpy_path_runs_when_the_kernels_cannot_be_imported(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    from wcbench.reference_model import _numba_backend
+
+    f = field("snow", "heavy")
+    expected = f.gaussians(1.0, np.zeros(3), fast=False)
+    monkeypatch.setattr(_numba_backend, "_loaded", {})
+    monkeypatch.setattr(_numba_backend, "_failed", {})
+    monkeypatch.setitem(sys.modules, "wcbench.reference_model._particles_numba", None)  # import fails
+    got = f.gaussians(1.0, np.zeros(3))
+    np.testing.assert_array_equal(got.means, expected.means)
+    assert "halted" in str(_numba_backend.numba_error("_particles_numba"))
 
 
 # ---- shapes --------------------------------------------------------------------------------------
@@ -246,16 +339,12 @@ def test_snowflake_is_three_gaussians_at_60_degrees_sharing_a_center() -> None:
 # ---- up vector and extremes --------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    "up", [np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0]), np.array([0.3, -0.9, 0.2])]
-)
+@pytest.mark.parametrize("up", [np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0]), np.array([0.3, -0.9, 0.2])])
 def test_gravity_and_the_box_follow_the_up_vector(up: np.ndarray) -> None:
     up = up / np.linalg.norm(up)
     f = field("rain", "light", up=up)
     v = f.velocity(0.0)
-    np.testing.assert_allclose(
-        v / np.linalg.norm(v, axis=1, keepdims=True), np.tile(-up, (len(v), 1)), atol=1e-12
-    )
+    np.testing.assert_allclose(v / np.linalg.norm(v, axis=1, keepdims=True), np.tile(-up, (len(v), 1)), atol=1e-12)
     center = np.array([1.0, 2.0, 3.0])
     pos, _ = f.positions(4.2, center)
     height = (pos - center) @ up

@@ -275,10 +275,11 @@ def test_missing_numba_falls_back_to_the_twin_with_one_warning(monkeypatch: pyte
     import warnings
 
     import wcbench.reference_model as package
-    from wcbench.reference_model import raster
+    from wcbench.reference_model import _numba_backend, raster
 
-    monkeypatch.setattr(raster, "_numba_module", None)
-    monkeypatch.setattr(raster, "_numba_error", None)
+    monkeypatch.setattr(_numba_backend, "_loaded", {})
+    monkeypatch.setattr(_numba_backend, "_failed", {})
+    monkeypatch.setattr(raster, "_warned", False)
     monkeypatch.delattr(package, "_raster_numba", raising=False)
     monkeypatch.setitem(sys.modules, "wcbench.reference_model._raster_numba", None)  # import fails
     params = random_scene(30, seed=1)
