@@ -350,6 +350,7 @@ class _CombinedBuffers:
     n_scene: int
     arrays: dict[str, np.ndarray]  # the five Gaussian arrays, [n_scene + max particles, ...]
     tail: ParticleGaussians  # views of the particle rows (+ their own index/velocity arrays)
+    holds_own_scene: bool = False  # the scene rows hold the renderer's own scene (not yet filled)
 
     @staticmethod
     def allocate(n_scene: int, n_particles: int) -> _CombinedBuffers:
@@ -520,21 +521,21 @@ class WeatherRenderer:
         )
         return g, {"particles_in_view": len(g)}
 
-    def _combined_buffers(self, scene: dict[str, Any], refill: bool) -> _CombinedBuffers:
+    def _combined_buffers(self, scene: dict[str, Any], *, own_scene: bool) -> _CombinedBuffers:
         """Buffers holding the scene Gaussians followed by room for this weather's particles.
 
-        The scene part is copied once per renderer (or per frame for per-frame ``gaussians``), so
-        a rain frame rasterizes scene + particles without concatenating 100k-row arrays.
+        The renderer's own scene is copied in once; a per-frame scene (``gaussians=``) every frame
+        it is given. A rain frame then rasterizes scene + particles without concatenating arrays.
         """
         n = int(scene["means"].shape[0])
         assert self.field is not None
         buffers = self._buffers
         if buffers is None or buffers.n_scene != n:
             buffers = self._buffers = _CombinedBuffers.allocate(n, self.field.max_gaussians)
-            refill = True
-        if refill:
+        if not (own_scene and buffers.holds_own_scene):
             for name in _GAUSSIAN_ARRAYS:
                 buffers.arrays[name][:n] = scene[name].numpy()
+            buffers.holds_own_scene = own_scene
         return buffers
 
     def render(
@@ -590,7 +591,7 @@ class WeatherRenderer:
                     for name in _GAUSSIAN_ARRAYS
                 }
         elif self.field is not None:
-            buffers = self._combined_buffers(scene, refill=gaussians is not None)
+            buffers = self._combined_buffers(scene, own_scene=gaussians is None)
             # The particles are written straight behind the scene Gaussians.
             parts, counts = self.particles(camera, t, camera_velocity=camera_velocity, out=buffers.tail)
             arrays = {name: buffers.arrays[name][: n_scene + len(parts)] for name in _GAUSSIAN_ARRAYS}
