@@ -10,10 +10,15 @@ of the machine's load cancel; ``ratio_vs_clear`` is the median of the pair ratio
 the median time. Targets (DESIGN, issue 4): rain and snow ``paper`` add at most 30 % to the clear
 render, exact fog at most 15 %. The fog error is the mean and 99th percentile of
 |post-process - exact| over pixels and channels (RGB in [0, 1]).
+
+The ``stage_*`` cases time each fast stage against its reference in the same run: the particles
+of one frame (numba kernels vs the numpy reference, dilation compensation included) and the exact
+fog's transmittance channels and composition (numba vs numpy), with the largest difference.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import statistics
 import time
@@ -105,6 +110,80 @@ def _find_data(data_root: Path | None) -> Path | None:
 def _abs_error(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
     d = np.abs(a.astype(np.float64) - b.astype(np.float64)).ravel()
     return float(d.mean()), float(np.percentile(d, 99)), float(d.max())
+
+
+def _best_ms(fn: Any, rounds: int) -> float:
+    """Fastest of ``rounds`` calls after one warm-up (ms): the stage's work with the least noise."""
+    fn()
+    best = math.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best * 1e3
+
+
+def _stage_cases(renderers: dict[str, Any], cam: Any, t: float, *, rounds: int) -> list[BenchCase]:
+    """Fast vs reference of the per-frame stages: particles (rain, snow ``paper``) and exact fog."""
+    from ._raster_common import EPS2D
+    from .fog import compose_exact, transmitted_channels
+
+    cases = []
+    view = (np.asarray(cam.world_to_camera), np.asarray(cam.K), int(cam.width), int(cam.height))
+    for name in ("rain_paper", "snow_paper"):
+        field = renderers[name].field
+        kw = dict(exposure_s=renderers[name].weather.exposure(), view=view, dilation_eps2d=EPS2D)
+        outs = {fast: field.gaussians(t, cam.center, fast=fast, **kw) for fast in (True, False)}
+        error = max(
+            float(np.abs(getattr(outs[True], a).astype(np.float64) - getattr(outs[False], a)).max())
+            for a in ("means", "quats", "scales", "opacities")
+        )
+        times = {
+            fast: _best_ms(functools.partial(field.gaussians, t, cam.center, fast=fast, **kw), rounds)
+            for fast in (True, False)
+        }
+        cases.append(_stage_case(f"stage_particles_{name}", times, error, len(outs[True])))
+
+    r = renderers["fog_exact"]
+    frame = renderers["clear"].render(cam, t)  # any [H, W] buffers of the right size
+    means, colors = r.scene["means"].numpy(), r.scene["colors"].numpy()
+    sums = np.concatenate([frame.image * frame.alpha[..., None], frame.alpha[..., None] * 0.7], -1)
+
+    def fog(fast: bool) -> np.ndarray:
+        transmitted_channels(means, colors, cam.center, r.beta, offset_m=r.fog_offset, fast=fast)
+        return compose_exact(
+            sums[..., :3],
+            sums[..., 3],
+            frame.alpha,
+            beta=r.beta,
+            fog_color=r.fog_color,
+            background=r.background,
+            fast=fast,
+        )
+
+    error = float(np.abs(fog(True).astype(np.float64) - fog(False)).max())
+    times = {fast: _best_ms(functools.partial(fog, fast), rounds) for fast in (True, False)}
+    cases.append(_stage_case("stage_fog_exact", times, error, len(means)))
+    return cases
+
+
+def _stage_case(name: str, times: dict[bool, float], error: float, count: int) -> BenchCase:
+    """A case of the fast stage (``times[True]``) against its reference (``times[False]``)."""
+    return BenchCase(
+        name=name,
+        knob="implementation",
+        value="numba kernels",
+        time_ms=times[True],
+        error=error,
+        error_unit="abs",
+        extra={
+            "reference": "numpy",
+            "reference_ms": times[False],
+            "speedup_vs_reference": times[False] / max(times[True], 1e-9),
+            "items": count,
+            "timing": "fastest of the rounds",
+        },
+    )
 
 
 def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
@@ -230,6 +309,8 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
                 extra=extra,
             )
         )
+
+    report.cases.extend(_stage_cases(renderers, cam, t_frame, rounds=rounds))
 
     # Post-process vs exact fog at several densities (no timing: one render each).
     for label, weather in (

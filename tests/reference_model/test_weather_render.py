@@ -328,3 +328,7 @@ def test_bench_weather_quick_runs_and_reports_every_case() -> None:
     assert errors
     for c in errors:
         assert 0 <= c["error"] <= c["max_abs"] <= 1 and c["p99_abs"] <= c["max_abs"]
+    stages = {c["name"]: c for c in obj["cases"] if c["name"].startswith("stage_")}
+    assert set(stages) == {"stage_particles_rain_paper", "stage_particles_snow_paper", "stage_fog_exact"}
+    for c in stages.values():
+        assert c["error"] < 1e-4 and c["reference_ms"] > 0 and c["items"] > 0
