@@ -22,6 +22,9 @@ independent drops; equal to k a for faint drops). Rain beyond the box is haze: s
 All lengths are metres, times seconds, diameters millimetres; colors float RGB in [0, 1]
 (the images' values, as everywhere in wcbench).
 Quaternions are (w, x, y, z).
+
+The numpy code here is the reference; :mod:`._particles_numba` computes the same frame in two
+numba passes (``fast=True``, the default when numba imports) and the tests compare the two.
 """
 
 from __future__ import annotations
