@@ -225,37 +225,11 @@ def _dilation_factor(mx, my, mz, qw, qx, qy, qz, sx, sy, sz, W, fx, fy, eps2d): 
     return min(max(factor, 0.0), 1.0)
 
 
+# fmt: off
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _write_row(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    row,
-    i,
-    p0,
-    p1,
-    p2,
-    qw,
-    qx,
-    qy,
-    qz,
-    s0,
-    s1,
-    s2,
-    opacity,
-    v0,
-    v1,
-    v2,
-    color,
-    compensate,
-    W,
-    fx,
-    fy,
-    eps2d,
-    means,
-    quats,
-    scales,
-    opacities,
-    colors,
-    particle,
-    velocity,
+    row, i, p0, p1, p2, qw, qx, qy, qz, s0, s1, s2, opacity, v0, v1, v2,
+    color, compensate, W, fx, fy, eps2d, means, quats, scales, opacities, colors, particle, velocity,
 ):
     """One output Gaussian, cast to float32 as the reference does (dilation on the float32 values)."""
     mx, my, mz = np.float32(p0), np.float32(p1), np.float32(p2)
@@ -264,20 +238,8 @@ def _write_row(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     op = np.float32(opacity)
     if compensate:
         factor = _dilation_factor(
-            float(mx),
-            float(my),
-            float(mz),
-            float(qw32),
-            float(qx32),
-            float(qy32),
-            float(qz32),
-            float(s0_),
-            float(s1_),
-            float(s2_),
-            W,
-            fx,
-            fy,
-            eps2d,
+            float(mx), float(my), float(mz), float(qw32), float(qx32), float(qy32), float(qz32),
+            float(s0_), float(s1_), float(s2_), W, fx, fy, eps2d,
         )
         op = np.float32(op * np.float32(factor))
     means[row, 0], means[row, 1], means[row, 2] = mx, my, mz
@@ -287,6 +249,7 @@ def _write_row(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     colors[row, 0], colors[row, 1], colors[row, 2] = color[0], color[1], color[2]
     particle[row] = i
     velocity[row, 0], velocity[row, 1], velocity[row, 2] = np.float32(v0), np.float32(v1), np.float32(v2)
+# fmt: on
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -382,6 +345,7 @@ def shape_kernel(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
             # Optical depth of k independent drops: 1 - (1 - a)^k.
             opacity = -math.expm1(represented * math.log1p(-min(opacity, 0.99)))
         opacity = min(max(opacity * fade, 0.0), 1.0)
+        rw = rx = ry = 0.0
         if is_rain:
             # quat_from_axis_to: local z onto the line of the relative velocity, the shorter turn.
             r0, r1, r2 = v0 - cam_vel[0], v1 - cam_vel[1], v2 - cam_vel[2]
@@ -391,74 +355,22 @@ def shape_kernel(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
                 d0, d1, d2 = r0 / max(nv, 1e-300), r1 / max(nv, 1e-300), r2 / max(nv, 1e-300)
             if d2 < 0:
                 d0, d1, d2 = -d0, -d1, -d2
-            qw, qx, qy = 1.0 + d2, -d1, d0
-            qn = math.sqrt(qw * qw + qx * qx + qy * qy + 0.0)
-            _write_row(
-                j,
-                i,
-                p0,
-                p1,
-                p2,
-                qw / qn,
-                qx / qn,
-                qy / qn,
-                0.0,
-                base0,
-                base1,
-                base2,
-                opacity,
-                v0,
-                v1,
-                v2,
-                color,
-                compensate,
-                W,
-                fx,
-                fy,
-                eps2d,
-                means,
-                quats,
-                scales,
-                opacities,
-                colors,
-                particle,
-                velocity,
-            )
-        else:
-            angle = spin_rate[i] * t
-            ow, ox, oy, oz = orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
-            for m in range(3):
+            qn = math.sqrt((1.0 + d2) * (1.0 + d2) + d1 * d1 + d0 * d0 + 0.0)
+            rw, rx, ry = (1.0 + d2) / qn, -d1 / qn, d0 / qn
+        angle = spin_rate[i] * t
+        ow, ox, oy, oz = orientation[i, 0], orientation[i, 1], orientation[i, 2], orientation[i, 3]
+        rows = 1 if is_rain else 3
+        for m in range(rows):
+            if is_rain:
+                qw, qx, qy, qz = rw, rx, ry, 0.0
+            else:
                 half = 0.5 * (angle + m * _ARM)
                 bw, bz = fast_cos(half), fast_sin(half)
                 # orientation * (cos h, 0, 0, sin h): the arm's spin about the flake's normal.
-                _write_row(
-                    3 * j + m,
-                    i,
-                    p0,
-                    p1,
-                    p2,
-                    ow * bw - oz * bz,
-                    ox * bw + oy * bz,
-                    oy * bw - ox * bz,
-                    ow * bz + oz * bw,
-                    base0,
-                    base1,
-                    base2,
-                    opacity,
-                    v0,
-                    v1,
-                    v2,
-                    color,
-                    compensate,
-                    W,
-                    fx,
-                    fy,
-                    eps2d,
-                    means,
-                    quats,
-                    scales,
-                    opacities,
-                    colors,
-                    particle,
-                    velocity,
-                )
+                qw, qx, qy, qz = ow * bw - oz * bz, ox * bw + oy * bz, oy * bw - ox * bz, ow * bz + oz * bw
+            # fmt: off
+            _write_row(
+                rows * j + m, i, p0, p1, p2, qw, qx, qy, qz, base0, base1, base2, opacity, v0, v1, v2,
+                color, compensate, W, fx, fy, eps2d, means, quats, scales, opacities, colors, particle, velocity,
+            )
+            # fmt: on
