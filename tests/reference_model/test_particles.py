@@ -201,9 +201,9 @@ def _numba_kernels_or_skip():  # type: ignore[no-untyped-def]
 
 def test_fast_sin_and_cos_match_libm() -> None:
     """The kernels' branch-free sin/cos against numpy's, over the arguments a sequence can reach."""
+    kernels = _numba_kernels_or_skip()
     import numba
 
-    kernels = _numba_kernels_or_skip()
     fast_sin, fast_cos = kernels.fast_sin, kernels.fast_cos
 
     @numba.njit
