@@ -350,26 +350,14 @@ def load_segformer(
     ValueError
         On a checkpoint of another architecture or variant, or missing/unexpected tensors.
     """
-    from .segmenter_torch import read_state_dict
+    from .segmenter_torch import check_variant, load_checked_state, read_state_dict
 
     state = read_state_dict(path)
     cfg = config or dataclasses.replace(segformer_config_from_state_dict(state), **_hf_config_overrides(path))
     if variant is not None:
-        want = SEGFORMER_CONFIGS[variant]
-        if (want.hidden_sizes, want.depths) != (cfg.hidden_sizes, cfg.depths):
-            raise ValueError(
-                f"{path}: checkpoint has hidden sizes {cfg.hidden_sizes} and depths {cfg.depths}, "
-                f"but SegFormer-{variant} has {want.hidden_sizes} and {want.depths}"
-            )
+        check_variant(path, cfg, SEGFORMER_CONFIGS, variant, "SegFormer")
     model = SegFormer(cfg)
-    hub = {_hub_key(k): v.float() for k, v in state.items() if not k.endswith("num_batches_tracked")}
-    ours = {k for k in model.state_dict() if not k.endswith("num_batches_tracked")}
-    missing, unexpected = sorted(ours - hub.keys()), sorted(hub.keys() - ours)
-    if missing or unexpected:
-        raise ValueError(
-            f"{path}: SegFormer checkpoint mismatch: missing {missing[:5]}, unexpected {unexpected[:5]}"
-        )
-    model.load_state_dict(hub, strict=False)
+    load_checked_state(model, {_hub_key(k): v for k, v in state.items()}, path, "SegFormer")
     return model.eval()
 
 
@@ -400,25 +388,9 @@ def convert_hf_segformer(
     Path
         ``out_dir``.
     """
-    from .segmenter_torch import single_source, write_segmenter_dir
+    from .segmenter_torch import convert_checkpoint
 
-    src = single_source(sources)
-    size = input_size or tuple(getattr(entry, "options", {}).get("input_size", (512, 512)))
-    model = load_segformer(src)
-    variant = next(
-        (
-            n
-            for n, c in SEGFORMER_CONFIGS.items()
-            if (c.hidden_sizes, c.depths) == (model.cfg.hidden_sizes, model.cfg.depths)
-        ),
-        "custom",
-    )
-    return write_segmenter_dir(
-        model,
-        out_dir,
-        arch="segformer",
-        variant=variant,
-        input_size=(int(size[0]), int(size[1])),
+    return convert_checkpoint(
+        sources, out_dir, entry, input_size, load=load_segformer, configs=SEGFORMER_CONFIGS, arch="segformer",
         logits_stride=4,
-        source=src,
     )

@@ -17,7 +17,7 @@ import dataclasses
 import json
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +33,14 @@ from .upernet_convnext import UperNetConvNext
 
 __all__ = [
     "TorchSegmenter",
+    "check_variant",
+    "convert_checkpoint",
     "export_segmenter_onnx",
+    "load_checked_state",
     "load_torch_segmenter",
     "read_state_dict",
     "single_source",
+    "variant_of",
     "write_segmenter_dir",
 ]
 
@@ -101,6 +105,89 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     if not isinstance(state, dict):
         raise ValueError(f"{path}: expected a state dict, got {type(state).__name__}")
     return state
+
+
+def check_variant(path: str | Path, cfg: Any, configs: Mapping[str, Any], variant: str, family: str) -> None:
+    """Raise unless ``cfg`` has the hidden sizes and depths of ``configs[variant]``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The checkpoint (named in the error).
+    cfg
+        The architecture read from the checkpoint (``hidden_sizes``, ``depths``).
+    configs : mapping
+        The released variants, e.g. ``SEGFORMER_CONFIGS``.
+    variant : str
+        The variant the caller expects.
+    family : str
+        Model name for the message, e.g. ``"SegFormer"``.
+
+    Raises
+    ------
+    ValueError
+        On a checkpoint of another variant.
+    """
+    want = configs[variant]
+    if (want.hidden_sizes, want.depths) != (cfg.hidden_sizes, cfg.depths):
+        raise ValueError(
+            f"{path}: checkpoint has hidden sizes {cfg.hidden_sizes} and depths {cfg.depths}, "
+            f"but {family}-{variant} has {want.hidden_sizes} and {want.depths}"
+        )
+
+
+def variant_of(cfg: Any, configs: Mapping[str, Any]) -> str:
+    """Name of the released variant with ``cfg``'s hidden sizes and depths, else ``"custom"``."""
+    key = (cfg.hidden_sizes, cfg.depths)
+    return next((name for name, c in configs.items() if (c.hidden_sizes, c.depths) == key), "custom")
+
+
+def load_checked_state(model: nn.Module, state: Mapping[str, torch.Tensor], path: str | Path, family: str) -> None:
+    """Load ``state`` (as float32) into ``model``; every tensor must match by name, both ways.
+
+    Raises
+    ------
+    ValueError
+        Naming the first missing and unexpected tensors (batch-norm counters are ignored).
+    """
+    state = {k: v.float() for k, v in state.items() if not k.endswith("num_batches_tracked")}
+    ours = {k for k in model.state_dict() if not k.endswith("num_batches_tracked")}
+    missing, unexpected = sorted(ours - state.keys()), sorted(state.keys() - ours)
+    if missing or unexpected:
+        raise ValueError(
+            f"{path}: {family} checkpoint mismatch: missing {missing[:5]}, unexpected {unexpected[:5]}"
+        )
+    model.load_state_dict(state, strict=False)
+
+
+def convert_checkpoint(
+    sources: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    out_dir: str | Path,
+    entry: Any,
+    input_size: tuple[int, int] | None,
+    *,
+    load: Callable[[Path], SegFormer | UperNetConvNext],
+    configs: Mapping[str, Any],
+    arch: str,
+    logits_stride: int,
+) -> Path:
+    """The model-store converters' common body: load one checkpoint, write the segmenter folder.
+
+    ``input_size`` wins over ``entry.options["input_size"]``, which wins over 512x512; the
+    variant recorded is :func:`variant_of` the loaded architecture in ``configs``.
+    """
+    src = single_source(sources)
+    size = input_size or tuple(getattr(entry, "options", {}).get("input_size", (512, 512)))
+    model = load(src)
+    return write_segmenter_dir(
+        model,
+        out_dir,
+        arch=arch,
+        variant=variant_of(model.cfg, configs),
+        input_size=(int(size[0]), int(size[1])),
+        logits_stride=logits_stride,
+        source=src,
+    )
 
 
 def export_segmenter_onnx(

@@ -314,27 +314,14 @@ def load_upernet_convnext(
     ValueError
         On a checkpoint of another architecture or variant, or missing/unexpected tensors.
     """
-    from .segmenter_torch import read_state_dict
+    from .segmenter_torch import check_variant, load_checked_state, read_state_dict
 
     state = {k: v for k, v in read_state_dict(path).items() if not k.startswith("auxiliary_head.")}
     cfg = config or upernet_config_from_state_dict(state)
     if variant is not None:
-        want = CONVNEXT_CONFIGS[variant]
-        if (want.hidden_sizes, want.depths) != (cfg.hidden_sizes, cfg.depths):
-            raise ValueError(
-                f"{path}: checkpoint has hidden sizes {cfg.hidden_sizes} and depths {cfg.depths}, "
-                f"but ConvNeXt-{variant} has {want.hidden_sizes} and {want.depths}"
-            )
+        check_variant(path, cfg, CONVNEXT_CONFIGS, variant, "ConvNeXt")
     model = UperNetConvNext(cfg)
-    state = {k: v.float() for k, v in state.items() if not k.endswith("num_batches_tracked")}
-    ours = {k for k in model.state_dict() if not k.endswith("num_batches_tracked")}
-    missing, unexpected = sorted(ours - state.keys()), sorted(state.keys() - ours)
-    if missing or unexpected:
-        raise ValueError(
-            f"{path}: UperNet-ConvNeXt checkpoint mismatch: "
-            f"missing {missing[:5]}, unexpected {unexpected[:5]}"
-        )
-    model.load_state_dict(state, strict=False)
+    load_checked_state(model, state, path, "UperNet-ConvNeXt")
     return model.eval()
 
 
@@ -365,25 +352,9 @@ def convert_hf_upernet_convnext(
     Path
         ``out_dir``.
     """
-    from .segmenter_torch import single_source, write_segmenter_dir
+    from .segmenter_torch import convert_checkpoint
 
-    src = single_source(sources)
-    size = input_size or tuple(getattr(entry, "options", {}).get("input_size", (512, 512)))
-    model = load_upernet_convnext(src)
-    variant = next(
-        (
-            n
-            for n, c in CONVNEXT_CONFIGS.items()
-            if (c.hidden_sizes, c.depths) == (model.cfg.hidden_sizes, model.cfg.depths)
-        ),
-        "custom",
-    )
-    return write_segmenter_dir(
-        model,
-        out_dir,
-        arch="upernet-convnext",
-        variant=variant,
-        input_size=(int(size[0]), int(size[1])),
-        logits_stride=1,
-        source=src,
+    return convert_checkpoint(
+        sources, out_dir, entry, input_size, load=load_upernet_convnext, configs=CONVNEXT_CONFIGS,
+        arch="upernet-convnext", logits_stride=1,
     )

@@ -294,6 +294,10 @@ def test_checkpoint_formats_load_identically(hf_segformer_b0, tmp_path):
         load_segformer(folder, variant="b2")
     with pytest.raises(ValueError, match="not a SegformerForSemanticSegmentation"):
         load_segformer(_write_other(tmp_path))
+    extra = dict(hub_names, **{"decode_head.extra.weight": torch.zeros(2)})
+    save_file(extra, str(tmp_path / "extra.safetensors"))
+    with pytest.raises(ValueError, match=r"mismatch: missing \[\], unexpected \[.decode_head.extra"):
+        load_segformer(tmp_path / "extra.safetensors")
 
 
 def _write_other(tmp_path: Path) -> Path:
