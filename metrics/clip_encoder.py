@@ -17,9 +17,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from wcbench.metrics.base import as_float_images
 from wcbench.metrics.clip_cache import EmbeddingCache, array_key
-from wcbench.metrics.clip_preprocess import ClipPreprocess, to_uint8
+from wcbench.metrics.clip_preprocess import ClipPreprocess, uint8_batch
 from wcbench.metrics.model_store import ModelStore, ModelStoreError
 
 #: The model CLIP-S / CLIP-DS use unless told otherwise: ViT-B/32, the model of CLIPScore
@@ -148,16 +147,10 @@ class ClipEncoder:
         ndarray [B, E] float64
             L2-normalised embeddings.
         """
-        arr = np.asarray(images)
-        frames = arr if arr.dtype == np.uint8 else as_float_images(arr, name="images")
-        if frames.ndim == 3:
-            frames = frames[None]
-        if frames.ndim != 4 or frames.shape[-1] != 3:
-            raise ValueError(f"images: expected [B, H, W, 3] or [H, W, 3], got shape {arr.shape}")
-        if len(frames) == 0:
-            return np.zeros((0, 0))
         # Key on the uint8 frame the model actually sees, so a PNG and its float form share entries.
-        u8 = [to_uint8(f) for f in frames]
+        u8 = uint8_batch(images)
+        if len(u8) == 0:
+            return np.zeros((0, 0))
         keys = [array_key(f) for f in u8]
         found: dict[str, np.ndarray] = {}
         todo: list[int] = []

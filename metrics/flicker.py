@@ -25,6 +25,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from wcbench.image_io import to_uint8
 from wcbench.metrics.base import Metric, MetricValue, as_float_images, finite_or_none
 
 FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -32,8 +33,7 @@ FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 # --------------------------------------------------------------------------- optical flow
 def _gray8(img: np.ndarray) -> np.ndarray:
-    u8 = img if img.dtype == np.uint8 else np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
-    return cv2.cvtColor(u8, cv2.COLOR_RGB2GRAY)
+    return cv2.cvtColor(to_uint8(img), cv2.COLOR_RGB2GRAY)
 
 
 def dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:

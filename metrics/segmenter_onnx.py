@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from wcbench.image_io import to_uint8
+
 __all__ = [
     "IMAGENET_MEAN",
     "IMAGENET_STD",
@@ -163,9 +165,8 @@ def preprocess(
         a = a[None]
     if a.ndim != 4 or a.shape[-1] != 3:
         raise ValueError(f"images: expected [B, H, W, 3] or [H, W, 3], got shape {a.shape}")
-    if a.dtype != np.uint8:
-        # the processor resizes 8-bit PIL images; our frames were 8-bit PNGs, so this is lossless for them
-        a = np.clip(np.rint(a.astype(np.float32) * 255.0), 0, 255).astype(np.uint8)
+    # the processor resizes 8-bit PIL images; our frames were 8-bit PNGs, so this is lossless for them
+    a = to_uint8(a)
     h, w = int(size[0]), int(size[1])
     out = np.empty((a.shape[0], h, w, 3), np.float32)
     for b in range(a.shape[0]):

@@ -18,7 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from wcbench.image_io import read_rgb8
+from wcbench.image_io import read_rgb8, to_uint8
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
 from wcbench.scene import Scene
@@ -101,4 +101,4 @@ class Filter2DMethod(FrameRenderer):
                 out = _overlay_strokes(base, rng, count=max(1, int(p["flakes_per_megapixel"] * mpx)),
                                        length=max(1.0, p["flake_px"] * h), angle=0.3,
                                        thickness=max(1, int(p["flake_px"] * h)), intensity=0.8, blur=3)
-        return np.clip(np.rint(np.asarray(out) * 255.0), 0, 255).astype(np.uint8)
+        return to_uint8(np.asarray(out))
