@@ -9,8 +9,9 @@ reference), the same operations in the same order:
   straight into caller-owned buffers, e.g. the tail of the renderer's scene + particle arrays.
 
 Sines and cosines use :func:`fast_sin` / :func:`fast_cos` (Cody-Waite reduction and a Taylor
-polynomial: within 4e-16 of libm for |x| < 1e4, and vectorisable by LLVM, 20x faster than libm
-calls on the snow flutter's 9 sinusoids per flake). Compiled on first use and cached on disk.
+polynomial, branch-free so LLVM vectorises it): 3.3e-16 from libm at most over 2M random
+arguments in each of |x| < 1e2, 1e4, 1e7, and 15x faster than libm calls in a numba loop on this
+machine (tests assert < 1e-15 for |x| <= 4000). Compiled on first use and cached on disk.
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def _sin_reduced(x, k):  # type: ignore[no-untyped-def]  # pragma: no cover - co
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def fast_sin(x):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    """sin(x) for float64 ``x`` (|x| < 1e7), within 4e-16 of libm; branch-free, so it vectorises."""
+    """sin(x) for float64 ``x`` (|x| < 1e7; see the module docstring for its accuracy)."""
     k = np.floor(x * _INV_PI + 0.5)
     sign = 1.0 - 2.0 * (k - 2.0 * np.floor(0.5 * k))  # (-1)^k
     return sign * _sin_reduced(x, k)
