@@ -195,7 +195,7 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
         Folder holding ``pandaset_002``; without it a
         procedural scene of the same size is used, and a note says so.
     quick : bool
-        A smoke run: 20k Gaussians at 240x135, 3 rounds.
+        A smoke run: 20k Gaussians at 240x135, 3 rounds; the targets are not judged.
 
     Returns
     -------
@@ -294,7 +294,7 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
         if field is not None:
             extra["simulated_particles"] = field.count
             extra["gaussians_per_particle"] = 1 if w.kind == "rain" else 3
-        if name in _TARGETS:
+        if name in _TARGETS and not quick:  # the targets are for 100k Gaussians at 480x270
             extra["target_ratio"] = _TARGETS[name]
             extra["target_met"] = bool(extra["ratio_vs_clear"] <= _TARGETS[name])
             extra["target_met_cpu"] = bool(extra["cpu_ratio_vs_clear"] <= _TARGETS[name])
@@ -339,6 +339,9 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
                 },
             )
         )
+    if quick:
+        report.notes.append("quick run: smaller scene and image, so the targets are not judged")
+        return report
     met = [c.name for c in report.cases if c.extra.get("target_met") is True]
     missed = [c.name for c in report.cases if c.extra.get("target_met") is False]
     report.notes.append(f"targets met: {met or 'none'}; missed: {missed or 'none'}")
