@@ -19,29 +19,29 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from wcbench.core.models.store import ModelMissingError, ModelStore
     from wcbench.metrics.base import Metric, MetricContext, MetricValue
-    from wcbench.metrics.clip_score import clip_ds, clip_s
-    from wcbench.metrics.flicker import flow_warp_error, temporal_flicker
-    from wcbench.metrics.lpips import lpips
-    from wcbench.metrics.model_store import ModelMissingError, ModelStore
-    from wcbench.metrics.psnr import psnr
-    from wcbench.metrics.semantic_consistency import sem_cs
-    from wcbench.metrics.ssim import ssim
+    from wcbench.metrics.clip.score import clip_ds, clip_s
+    from wcbench.metrics.perceptual.lpips import lpips
+    from wcbench.metrics.pixel.psnr import psnr
+    from wcbench.metrics.pixel.ssim import ssim
+    from wcbench.metrics.semantic.consistency import sem_cs
+    from wcbench.metrics.temporal.flicker import flow_warp_error, temporal_flicker
 
 _LAZY = {
-    "Metric": "base",
-    "MetricContext": "base",
-    "MetricValue": "base",
-    "clip_s": "clip_score",
-    "clip_ds": "clip_score",
-    "flow_warp_error": "flicker",
-    "temporal_flicker": "flicker",
-    "lpips": "lpips",
-    "ModelStore": "model_store",
-    "ModelMissingError": "model_store",
-    "psnr": "psnr",
-    "sem_cs": "semantic_consistency",
-    "ssim": "ssim",
+    "Metric": "wcbench.metrics.base",
+    "MetricContext": "wcbench.metrics.base",
+    "MetricValue": "wcbench.metrics.base",
+    "clip_s": "wcbench.metrics.clip.score",
+    "clip_ds": "wcbench.metrics.clip.score",
+    "flow_warp_error": "wcbench.metrics.temporal.flicker",
+    "temporal_flicker": "wcbench.metrics.temporal.flicker",
+    "lpips": "wcbench.metrics.perceptual.lpips",
+    "ModelStore": "wcbench.core.models.store",
+    "ModelMissingError": "wcbench.core.models.store",
+    "psnr": "wcbench.metrics.pixel.psnr",
+    "sem_cs": "wcbench.metrics.semantic.consistency",
+    "ssim": "wcbench.metrics.pixel.ssim",
 }
 
 __all__ = [
@@ -63,7 +63,7 @@ __all__ = [
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-#: Weathers whose visibility loss invalidates content-consistency metrics (paper's rule, DESIGN §5).
+#: Weathers whose visibility loss invalidates content-consistency metrics (paper's rule, docs/design.md §5).
 CONTENT_INVALID_WEATHERS = frozenset({"fog"})
 
 

@@ -8,22 +8,22 @@ from __future__ import annotations
 import inspect
 from typing import Any
 
-from wcbench.errors import InputError
+from wcbench.core.errors import InputError
+from wcbench.core.registry import LazyRegistry
 from wcbench.metrics.base import Metric
-from wcbench.registry import LazyRegistry
 
 METRICS: LazyRegistry[type[Metric]] = LazyRegistry(
     "metric",
     {
-        "psnr": "wcbench.metrics.psnr:PSNR",
-        "ssim": "wcbench.metrics.ssim:SSIM",
-        "temporal_flicker": "wcbench.metrics.flicker:TemporalFlicker",
-        "flow_warping_error": "wcbench.metrics.flicker:FlowWarpingError",
+        "psnr": "wcbench.metrics.pixel.psnr:PSNR",
+        "ssim": "wcbench.metrics.pixel.ssim:SSIM",
+        "temporal_flicker": "wcbench.metrics.temporal.flicker:TemporalFlicker",
+        "flow_warping_error": "wcbench.metrics.temporal.flicker:FlowWarpingError",
         "fps": "wcbench.metrics.fps:FPS",
-        "clip_s": "wcbench.metrics.clip_score:ClipScore",
-        "clip_ds": "wcbench.metrics.clip_score:ClipDirectionalScore",
-        "sem_cs": "wcbench.metrics.semantic_consistency:SemanticConsistency",
-        "lpips": "wcbench.metrics.lpips:LPIPS",
+        "clip_s": "wcbench.metrics.clip.score:ClipScore",
+        "clip_ds": "wcbench.metrics.clip.score:ClipDirectionalScore",
+        "sem_cs": "wcbench.metrics.semantic.consistency:SemanticConsistency",
+        "lpips": "wcbench.metrics.perceptual.lpips:LPIPS",
     },
 )
 

@@ -3,13 +3,17 @@
 Public API (imported lazily, so ``import wcbench.reference_model`` needs neither torch nor numba and
 compiles nothing):
 
-* :func:`rasterize` and its output :class:`RenderOutput` (module :mod:`.raster`);
-* :func:`rasterize_torch` and :func:`project_torch`, the pure-torch twin (module :mod:`._raster_torch`);
+* :func:`rasterize` and its output :class:`RenderOutput` (package :mod:`.raster`);
+* :func:`rasterize_torch` and :func:`project_torch`, the pure-torch twin (:mod:`.raster.torch_twin`);
 * :data:`EPS2D`, the 0.3 px^2 screen-space dilation every rendered Gaussian gets;
-* weather: :class:`Weather`, :class:`WeatherRenderer`, :func:`render_weather` (module :mod:`.weather`),
-  particles (:class:`Wind`, :class:`ParticleField`, :mod:`.particles`), fog (:mod:`.fog`);
-* the untrained scene: :class:`GaussianCloud`, :func:`init_scene_from_lidar` (module :mod:`.lidar_init`)
-  and the runnable method :class:`LidarInitMethod`.
+* weather (package :mod:`.weather`): :class:`Weather`, :class:`WeatherRenderer`,
+  :func:`render_weather`, particles (:class:`Wind`, :class:`ParticleField`), fog;
+* the scene graph (package :mod:`.scene_graph`): :class:`GaussianCloud`, :class:`SceneGaussians`
+  and the lidar initialisation :func:`init_scene_from_lidar`.
+
+The library imports only the core layer (``wcbench.core``); scenes reach it as duck-typed objects
+(see :mod:`.scene_graph.lidar_init`), and the runnable methods built on it live in
+``wcbench.methods``.
 """
 
 from __future__ import annotations
@@ -18,48 +22,53 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from ._raster_common import EPS2D, RenderOutput
-    from ._raster_torch import project_torch, rasterize_torch
-    from .fog import compose_exact, density_from_visibility, fog_postprocess, gaussian_transmittance
-    from .lidar_init import GaussianCloud, SceneGaussians, init_from_lidar, init_scene_from_lidar
-    from .lidar_init_method import LidarInitMethod
-    from .particles import ParticleField, ParticleGaussians, ParticleSpec, Wind
-    from .raster import numba_available, rasterize
-    from .weather import Weather, WeatherFrame, WeatherRenderer, load_presets, render_weather
+    from wcbench.reference_model.raster.common import EPS2D, RenderOutput
+    from wcbench.reference_model.raster.rasterizer import numba_available, rasterize
+    from wcbench.reference_model.raster.torch_twin import project_torch, rasterize_torch
+    from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+    from wcbench.reference_model.scene_graph.lidar_init import init_from_lidar, init_scene_from_lidar
+    from wcbench.reference_model.scene_graph.nodes import SceneGaussians
+    from wcbench.reference_model.weather.conditions import Weather, load_presets
+    from wcbench.reference_model.weather.fog import (
+        compose_exact,
+        density_from_visibility,
+        fog_postprocess,
+        gaussian_transmittance,
+    )
+    from wcbench.reference_model.weather.particles import ParticleField, ParticleGaussians, ParticleSpec, Wind
+    from wcbench.reference_model.weather.renderer import WeatherFrame, WeatherRenderer, render_weather
 
-# Public name -> module holding it. The API module is ``raster`` (not ``rasterize``) so that the
-# submodule can never shadow the function as an attribute of this package.
+# Public name -> module holding it. Package and module names differ from the public names
+# (``raster`` vs ``rasterize``), so importing a submodule never shadows a function here.
 _LAZY = {
-    "rasterize": ".raster",
-    "numba_available": ".raster",
-    "RenderOutput": "._raster_common",
-    "EPS2D": "._raster_common",
-    "rasterize_torch": "._raster_torch",
-    "project_torch": "._raster_torch",
-    "compose_exact": ".fog",
-    "density_from_visibility": ".fog",
-    "fog_postprocess": ".fog",
-    "gaussian_transmittance": ".fog",
-    "GaussianCloud": ".lidar_init",
-    "SceneGaussians": ".lidar_init",
-    "init_from_lidar": ".lidar_init",
-    "init_scene_from_lidar": ".lidar_init",
-    "LidarInitMethod": ".lidar_init_method",
-    "ParticleField": ".particles",
-    "ParticleGaussians": ".particles",
-    "ParticleSpec": ".particles",
-    "Wind": ".particles",
-    "Weather": ".weather",
-    "WeatherFrame": ".weather",
-    "WeatherRenderer": ".weather",
-    "load_presets": ".weather",
-    "render_weather": ".weather",
+    "rasterize": "raster.rasterizer",
+    "numba_available": "raster.rasterizer",
+    "RenderOutput": "raster.common",
+    "EPS2D": "raster.common",
+    "rasterize_torch": "raster.torch_twin",
+    "project_torch": "raster.torch_twin",
+    "compose_exact": "weather.fog",
+    "density_from_visibility": "weather.fog",
+    "fog_postprocess": "weather.fog",
+    "gaussian_transmittance": "weather.fog",
+    "GaussianCloud": "scene_graph.gaussians",
+    "SceneGaussians": "scene_graph.nodes",
+    "init_from_lidar": "scene_graph.lidar_init",
+    "init_scene_from_lidar": "scene_graph.lidar_init",
+    "ParticleField": "weather.particles",
+    "ParticleGaussians": "weather.particles",
+    "ParticleSpec": "weather.particles",
+    "Wind": "weather.particles",
+    "Weather": "weather.conditions",
+    "WeatherFrame": "weather.renderer",
+    "WeatherRenderer": "weather.renderer",
+    "load_presets": "weather.conditions",
+    "render_weather": "weather.renderer",
 }
 
 __all__ = [
     "EPS2D",
     "GaussianCloud",
-    "LidarInitMethod",
     "ParticleField",
     "ParticleGaussians",
     "ParticleSpec",
@@ -86,7 +95,7 @@ __all__ = [
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

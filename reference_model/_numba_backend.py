@@ -1,8 +1,8 @@
 """Optional numba kernels: import a kernel module once, or remember why it could not be.
 
-The rasterizer, the particle field and the fog each keep their compiled kernels in a private
-module (``_raster_numba``, ``_particles_numba``, ``_fog_numba``) beside a pure numpy/torch
-reference. Without numba (or with a broken LLVM) the reference runs instead.
+The rasterizer, the particle field and the fog each keep their compiled kernels in a module of
+their own (``raster.kernels``, ``weather.particle_kernels``, ``weather.fog_kernels``) beside a pure
+numpy/torch reference. Without numba (or with a broken LLVM) the reference runs instead.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ def load_numba_kernels(name: str) -> ModuleType | None:
     Parameters
     ----------
     name : str
-        Module name inside this package, e.g. ``"_particles_numba"``.
+        Module path inside this package, e.g. ``"weather.particle_kernels"``.
 
     Returns
     -------

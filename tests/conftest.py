@@ -37,7 +37,7 @@ def pandaset_root() -> Path:
 @pytest.fixture(scope="session")
 def demo_scene():
     """The built-in procedural scene (12 frames, 320x180)."""
-    from wcbench.scene_sets import resolve_scenes
+    from wcbench.scenes.sets import resolve_scenes
 
     return resolve_scenes("demo")[0].load()
 

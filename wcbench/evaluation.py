@@ -1,40 +1,34 @@
-"""``wcbench evaluate``: score a method's frames from files alone.
+"""Scoring a method's frames from files alone (``wcbench evaluate``), after rendering them (``wcbench run``).
 
-Work is split into units, one per (scene, weather). Each unit's result is stored in
-``OUT/.work/<scene>/<weather>.json`` under a key made of the sha256 of every input file and the
-metric settings, so a killed run resumes where it stopped and gives the same numbers, and a
-re-run with unchanged inputs does no work. ``results.csv`` then ``results.json`` are written last,
-atomically; an existing ``results.json`` for other inputs is never replaced without
+:func:`evaluate` checks names and the output folder, plans one :class:`~wcbench.units.WorkUnit`
+per (scene, weather), renders the units of a runnable method when asked (``run``), opens and
+checks every prediction before any result is written, scores each unit or reuses its kept result
+(:func:`~wcbench.units.execute_unit`), then writes ``results.csv`` and ``results.json`` last,
+atomically. An existing ``results.json`` for other inputs is never replaced without
 ``overwrite=True``.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from wcbench.environment import machine_info, package_versions
-from wcbench.errors import InputError, ResultsExistError, UnknownNameError
-from wcbench.image_io import read_rgb8, to_float
-from wcbench.methods import WEATHERS, Method, get_method
-from wcbench.metrics.base import Metric, MetricContext
+from wcbench.core.environment import machine_info, package_versions
+from wcbench.core.errors import InputError, ResultsExistError, UnknownNameError
+from wcbench.core.image_io import to_float
+from wcbench.core.storage import atomic_write_json, atomic_write_text, json_safe, sha256_file, sha256_json
+from wcbench.core.weathers import WEATHERS
+from wcbench.methods import Method, get_method
+from wcbench.metrics.base import Metric
 from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric
 from wcbench.predictions import PredictionSequence, PredictionsMissingError, scene_prediction_root
-from wcbench.progress import progress
 from wcbench.results import RESULTS_CSV, RESULTS_JSON, SCHEMA_VERSION, read_results, to_csv
-from wcbench.scene import Scene
-from wcbench.scene_sets import resolve_scenes
-from wcbench.storage import atomic_write_json, atomic_write_text, json_safe, sha256_file, sha256_json
-
-WORK_DIR = ".work"
-#: Frames handed to metrics per update: model metrics batch their inference; 8 frames of 1080p
-#: in three float32 streams stay under 0.6 GB.
-FRAME_BATCH = 8
+from wcbench.scenes.sets import resolve_scenes
+from wcbench.units import RenderSettings, Scoring, UnitResult, WorkUnit, execute_unit, render_units
 
 
 @dataclass
@@ -59,6 +53,9 @@ class EvaluateConfig:
         Resize predictions of another size to the scene's size.
     fps : float or None
         Frame rate to report when the predictions carry no timings.
+    render : RenderSettings or None
+        Render the units first with the (runnable) method into ``predictions/<scene>/<weather>/``
+        (``wcbench run``); ``None`` reads existing files (``wcbench evaluate``).
     """
 
     method: str
@@ -74,27 +71,7 @@ class EvaluateConfig:
     overwrite: bool = False
     show_progress: bool = True
     metric_options: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-
-@dataclass
-class Unit:
-    """One (scene, weather) to score, with the hashes of every input."""
-
-    scene: Scene
-    weather: str
-    predictions: PredictionSequence
-    pred_hashes: list[str]
-    source_hashes: list[str]
-    reference_paths: list[Path] | None
-    reference_hashes: list[str] | None
-
-    def key(self, metric_config: dict[str, Any]) -> str:
-        """Cache key of this unit's result."""
-        return sha256_json({
-            "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
-            "predictions": self.pred_hashes, "source": self.source_hashes, "reference": self.reference_hashes,
-            "metrics": metric_config, "resize": self.predictions.resize,
-        })
+    render: RenderSettings | None = None
 
 
 @dataclass
@@ -122,107 +99,60 @@ def _metric_config(names: list[str], options: dict[str, dict[str, Any]]) -> tupl
     return metrics, {n: {"class": type(m).__qualname__, "config": m.config()} for n, m in metrics.items()}
 
 
-def _open_units(cfg: EvaluateConfig, method: Method) -> list[Unit]:
+def _plan_units(cfg: EvaluateConfig, method: Method) -> list[list[WorkUnit]]:
+    """The units of every scene (scenes loaded, predictions not yet opened), grouped by scene."""
     refs = resolve_scenes(cfg.scenes, data_root=cfg.data_root)
-    units: list[Unit] = []
+    weathers = cfg.weathers or list(method.info.weathers)
+    plan = []
     for ref in refs:
         scene = ref.load()
-        root = scene_prediction_root(cfg.predictions, scene.id, n_scenes=len(refs))
-        weathers = cfg.weathers or list(method.info.weathers)
+        if cfg.render is not None:  # rendered here: the canonical layout, one folder per scene
+            root = cfg.predictions / scene.id
+        else:
+            root = scene_prediction_root(cfg.predictions, scene.id, n_scenes=len(refs))
+        source_hashes = [sha256_file(f.image_path) for f in scene.frames]
+        plan.append([WorkUnit(method, scene, w, root, source_hashes) for w in weathers])
+    return plan
+
+
+def _open_units(cfg: EvaluateConfig, plan: list[list[WorkUnit]]) -> list[WorkUnit]:
+    """Open every unit's predictions; weathers without any predictions are dropped unless asked for.
+
+    Raises
+    ------
+    InputError
+        Naming, per scene, every weather whose predictions do not match the scene.
+    """
+    units: list[WorkUnit] = []
+    for scene_units in plan:
+        scene = scene_units[0].scene
         opened: dict[str, PredictionSequence] = {}
         errors: dict[str, InputError] = {}
-        for w in weathers:
+        for u in scene_units:
             try:
-                opened[w] = method.open_predictions(scene, w, root, pattern=cfg.pattern, resize=cfg.resize)
+                opened[u.weather] = u.open(pattern=cfg.pattern, resize=cfg.resize)
             except PredictionsMissingError as exc:
                 if cfg.weathers:  # asked for explicitly: its absence is an error
-                    errors[w] = exc
+                    errors[u.weather] = exc
             except InputError as exc:
-                errors[w] = exc
+                errors[u.weather] = exc
         if errors:
             lines = [f"  {w}: {len(p)} frames found" for w, p in opened.items()]
             lines += [f"  {w}: {e}" for w, e in errors.items()]
             what = "frame counts differ across weathers" if opened else "predictions do not match the scene"
             raise InputError(f"scene {scene.id!r} ({len(scene)} frames): {what}:\n" + "\n".join(lines))
         if not opened:
+            root, weathers = scene_units[0].root, [u.weather for u in scene_units]
             raise InputError(
                 f"{root}: predictions folder holds no frames for any of the weathers {weathers} of method "
-                f"{method.info.name!r} (expected e.g. {root}/{weathers[0]}/000.png; see `wcbench methods list -v`)"
+                f"{scene_units[0].method.info.name!r} (expected e.g. {root}/{weathers[0]}/000.png; "
+                "see `wcbench methods list -v`)"
             )
-        source_hashes = [sha256_file(f.image_path) for f in scene.frames]
-        for w, preds in opened.items():
-            ref_paths = scene.reference_paths(w)
-            ref_hashes = None if ref_paths is None else (
-                source_hashes if w == "clear" else [sha256_file(p) for p in ref_paths])
-            units.append(Unit(scene, w, preds, preds.sha256s(), source_hashes, ref_paths, ref_hashes))
+        units += [u for u in scene_units if u.weather in opened]
     return units
 
 
-def _validate_frames(units: list[Unit], show_progress: bool) -> None:
-    """Decode every prediction once before any result is written (size, bit depth, video length),
-    so bad input fails before work starts and nothing is half-done."""
-    for u in units:
-        for _ in progress(u.predictions, desc=f"checking {u.scene.id} {u.weather}", total=len(u.predictions),
-                          enabled=show_progress):
-            pass
-
-
-def _score_unit(unit: Unit, metrics: dict[str, Metric], ctx_extra: dict[str, Any], show_progress: bool) -> dict:
-    scene = unit.scene
-    ctx = MetricContext(
-        weather=unit.weather, n_frames=len(scene), has_reference=unit.reference_paths is not None,
-        has_source=True, method_info=unit.predictions.info, fps_override=ctx_extra.get("fps"),
-    )
-    active, skipped = {}, []
-    for name, m in metrics.items():
-        m.bind(ctx)
-        reason = m.skip_reason(ctx)
-        if reason:
-            skipped.append({"scene": scene.id, "weather": unit.weather, "metric": name, "reason": reason})
-        else:
-            m.reset()
-            active[name] = m
-    needs_ref = unit.reference_paths is not None and any(m.needs_reference for m in active.values())
-    frames = progress(enumerate(unit.predictions), desc=f"{scene.id} {unit.weather}", total=len(scene),
-                      enabled=show_progress)
-    # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
-    w, h = scene.image_size
-    streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
-    buffers = {name: np.empty((FRAME_BATCH, h, w, 3), np.float32) for name in streams}
-    filled = 0
-
-    def flush(n: int) -> None:
-        if n == 0:
-            return
-        reference = buffers["reference"][:n] if needs_ref else None
-        for m in active.values():
-            m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
-
-    for k, pred8 in frames:
-        to_float(pred8, out=buffers["pred"][filled])
-        to_float(read_rgb8(scene.frames[k].image_path), out=buffers["source"][filled])
-        if needs_ref:
-            assert unit.reference_paths is not None
-            if unit.weather == "clear":
-                buffers["reference"][filled] = buffers["source"][filled]
-            else:
-                to_float(read_rgb8(unit.reference_paths[k]), out=buffers["reference"][filled])
-        filled += 1
-        if filled == FRAME_BATCH:
-            flush(filled)
-            filled = 0
-    flush(filled)
-    outputs: dict[str, Any] = {}
-    for name, m in active.items():
-        for out_name, value in m.compute().items():
-            outputs[out_name] = {
-                "metric": name, "value": value.value, "variant": value.variant, "reason": value.reason,
-                "higher_is_better": m.higher_is_better, "per_frame": value.per_frame, "extra": value.extra,
-            }
-    return {"outputs": outputs, "skipped": skipped}
-
-
-def _config_record(cfg: EvaluateConfig, method: Method, units: list[Unit], metric_cfg: dict) -> dict[str, Any]:
+def _config_record(cfg: EvaluateConfig, method: Method, units: list[WorkUnit], metric_cfg: dict) -> dict[str, Any]:
     return {
         "method": method.info.name, "method_kind": method.info.kind, "scenes": cfg.scenes,
         "scene_ids": sorted({u.scene.id for u in units}), "weathers": sorted({u.weather for u in units}),
@@ -231,7 +161,9 @@ def _config_record(cfg: EvaluateConfig, method: Method, units: list[Unit], metri
     }
 
 
-def check_out_folder(cfg: EvaluateConfig) -> tuple[Method, list[str], dict[str, Any] | None]:
+def check_out_folder(
+    cfg: EvaluateConfig, *, method: Method | None = None
+) -> tuple[Method, list[str], dict[str, Any] | None]:
     """Check names and the output folder before any work.
 
     Returns the method, the metric names and the finished results already in ``cfg.out`` (if
@@ -244,7 +176,7 @@ def check_out_folder(cfg: EvaluateConfig) -> tuple[Method, list[str], dict[str, 
     ResultsExistError
         ``cfg.out`` holds finished results for another method, scene set, weathers or metrics.
     """
-    method = get_method(cfg.method)
+    method = method if method is not None else get_method(cfg.method)
     metric_names = list(dict.fromkeys(cfg.metrics or DEFAULT_METRICS))
     for n in metric_names:
         if n not in METRICS:
@@ -270,25 +202,35 @@ def check_out_folder(cfg: EvaluateConfig) -> tuple[Method, list[str], dict[str, 
     return method, metric_names, previous
 
 
-def evaluate(cfg: EvaluateConfig) -> EvaluateOutcome:
-    """Score ``cfg.method``'s predictions and write ``results.json`` and ``results.csv``.
+def evaluate(cfg: EvaluateConfig, *, method: Method | None = None) -> EvaluateOutcome:
+    """Score ``cfg.method``'s predictions (rendering them first when ``cfg.render`` is set) and write
+    ``results.json`` and ``results.csv``.
+
+    Parameters
+    ----------
+    cfg : EvaluateConfig
+    method : Method, optional
+        The method object to use (e.g. a runnable method configured with options); default
+        ``get_method(cfg.method)``.
 
     Raises
     ------
     WcbenchError
         Any bad input (unknown names, missing or extra frames, corrupt images, wrong sizes...),
-        before anything is written; :class:`ResultsExistError` when ``cfg.out`` holds finished
+        before any result is written; :class:`ResultsExistError` when ``cfg.out`` holds finished
         results of other inputs and ``cfg.overwrite`` is false.
     """
-    method, metric_names, previous = check_out_folder(cfg)
+    method, metric_names, previous = check_out_folder(cfg, method=method)
     results_path = cfg.out / RESULTS_JSON
     metrics, metric_cfg = _metric_config(metric_names, cfg.metric_options)
-    units = _open_units(cfg, method)
+    plan = _plan_units(cfg, method)
+    if cfg.render is not None:
+        render_units([u for scene_units in plan for u in scene_units], cfg.render)
+    units = _open_units(cfg, plan)
     config = _config_record(cfg, method, units, metric_cfg)
     inputs: dict[str, Any] = {"scenes": {}}
     for u in units:
-        inputs["scenes"].setdefault(u.scene.id, {})[u.weather] = {
-            "predictions": u.pred_hashes, "source": u.source_hashes, "reference": u.reference_hashes}
+        inputs["scenes"].setdefault(u.scene.id, {})[u.weather] = u.inputs()
     inputs["sha256"] = sha256_json({"inputs": inputs["scenes"], "config": config})
     if previous is not None:
         if previous.get("inputs", {}).get("sha256") == inputs["sha256"]:
@@ -297,42 +239,33 @@ def evaluate(cfg: EvaluateConfig) -> EvaluateOutcome:
             f"{results_path}: finished results of other inputs or settings are there; "
             "pass --overwrite to replace them or choose another --out"
         )
-    keys = {(u.scene.id, u.weather): u.key(metric_cfg) for u in units}
-    cached: dict[tuple[str, str], dict] = {}
-    for u in units:
-        path = cfg.out / WORK_DIR / u.scene.id / f"{u.weather}.json"
-        if path.is_file():
-            try:
-                rec = json.loads(path.read_text(encoding="utf-8"))
-            except json.JSONDecodeError:
-                continue  # never torn (atomic writes); a hand-edited file is simply recomputed
-            if rec.get("key") == keys[(u.scene.id, u.weather)]:
-                cached[(u.scene.id, u.weather)] = rec["result"]
-    todo = [u for u in units if (u.scene.id, u.weather) not in cached]
-    _validate_frames(todo, cfg.show_progress)
-    computed = 0
-    for u in todo:
-        result = json_safe(_score_unit(u, metrics, {"fps": cfg.fps}, cfg.show_progress))
-        atomic_write_json(cfg.out / WORK_DIR / u.scene.id / f"{u.weather}.json",
-                          {"key": keys[(u.scene.id, u.weather)], "result": result})
-        cached[(u.scene.id, u.weather)] = result
-        computed += 1
+    scoring = Scoring(cfg.out, metrics, metric_cfg, fps=cfg.fps, show_progress=cfg.show_progress)
+    keys = {id(u): u.key(metric_cfg) for u in units}
+    todo = [u for u in units if u.cached_result(cfg.out, keys[id(u)]) is None]
+    for u in todo:  # every frame decoded before any result is written: bad input fails first
+        u.validate(show_progress=cfg.show_progress)
+    outcomes = [execute_unit(u, scoring, key=keys[id(u)]) for u in units]
+    computed = sum(o.computed for o in outcomes)
+    doc = assemble_results(config, inputs, outcomes)
+    atomic_write_text(cfg.out / RESULTS_CSV, to_csv(doc))
+    atomic_write_json(results_path, doc)
+    return EvaluateOutcome("computed", results_path, doc, computed, len(units) - computed)
+
+
+def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: list[UnitResult]) -> dict[str, Any]:
+    """The ``results.json`` document from finished units (see :mod:`wcbench.results` for the schema)."""
     results: dict[str, Any] = {}
     skipped: list[dict[str, Any]] = []
-    for u in units:
-        rec = cached[(u.scene.id, u.weather)]
-        results.setdefault(u.scene.id, {})[u.weather] = rec["outputs"]
-        skipped += rec["skipped"]
-    doc = {
+    for o in outcomes:
+        results.setdefault(o.unit.scene.id, {})[o.unit.weather] = o.result["outputs"]
+        skipped += o.result["skipped"]
+    doc: dict[str, Any] = json_safe({
         "kind": "wcbench-results", "schema_version": SCHEMA_VERSION,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "machine": machine_info(), "config": config,
         "inputs": inputs, "results": results, "skipped": skipped,
-    }
-    doc = json_safe(doc)
-    atomic_write_text(cfg.out / RESULTS_CSV, to_csv(doc))
-    atomic_write_json(results_path, doc)
-    return EvaluateOutcome("computed", results_path, doc, computed, len(units) - computed)
+    })
+    return doc
 
 
 def summarize(results: dict[str, Any]) -> list[tuple[str, str, str, str]]:

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from wcbench.errors import InputError
-from wcbench.image_io import (
+from wcbench.core.errors import InputError
+from wcbench.core.image_io import (
     IMAGE_EXTENSIONS,
     VIDEO_EXTENSIONS,
     iter_video_rgb8,
@@ -33,8 +33,8 @@ from wcbench.image_io import (
     read_rgb8,
     resize_rgb8,
 )
-from wcbench.scene import Scene
-from wcbench.storage import sha256_file
+from wcbench.core.storage import sha256_file
+from wcbench.scenes.scene import Scene
 
 DEFAULT_PATTERN = "{weather}/{frame}"
 CANONICAL_PATTERN = "{weather}/{frame:03d}.png"

@@ -28,7 +28,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from wcbench.errors import InputError
+from wcbench.core.errors import InputError
 
 SCHEMA_VERSION = 1
 KIND = "wcbench-results"

@@ -12,7 +12,7 @@ import pytest
 from scene_fixtures import write_matrix, write_prediction_folder
 
 from wcbench.cli import main
-from wcbench.image_io import read_rgb8, write_mp4
+from wcbench.core.image_io import read_rgb8, write_mp4
 
 
 @pytest.fixture

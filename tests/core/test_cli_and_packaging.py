@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from wcbench.benchmark import BenchCase, BenchReport, validate_benchmark
+from wcbench.bench.schema import BenchCase, BenchReport, validate_benchmark
 from wcbench.cli import COMMANDS, main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -86,8 +86,8 @@ def test_built_wheel_installs_and_imports(tmp_path):
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--target", str(target), str(wheel)],
                    check=True, capture_output=True)
-    code = ("import wcbench.metrics, wcbench.scene_sets, wcbench.methods; "
-            "print(wcbench.metrics.__file__); print(len(wcbench.scene_sets.list_scene_sets()))")
+    code = ("import wcbench.metrics, wcbench.scenes.sets, wcbench.methods; "
+            "print(wcbench.metrics.__file__); print(len(wcbench.scenes.sets.list_scene_sets()))")
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True,
                          env={"PYTHONPATH": str(target), "PATH": ""}).stdout.split()
     assert out[0].startswith(str(target)) and int(out[1]) >= 4

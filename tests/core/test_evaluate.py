@@ -30,7 +30,7 @@ def _darken(img, k, weather):
 
 
 def test_folder_evaluate_on_real_scene_writes_both_files(pandaset_root, tmp_path, capsys):
-    from wcbench.scene_loaders import load_scene
+    from wcbench.scenes.loaders import load_scene
 
     scene = load_scene(pandaset_root)
     preds = write_prediction_folder(scene, tmp_path / "preds", ["clear"], transform=_darken)

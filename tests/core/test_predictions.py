@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scene_fixtures import write_prediction_folder
 
-from wcbench.errors import InputError
-from wcbench.image_io import natural_key, read_rgb8, write_mp4
+from wcbench.core.errors import InputError
+from wcbench.core.image_io import natural_key, read_rgb8, write_mp4
 from wcbench.methods import get_method
 from wcbench.predictions import match_predictions
 

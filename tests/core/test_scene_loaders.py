@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scene_fixtures import OPENCV_TO_WAYMO, make_waymo_scene, write_matrix
 
-from wcbench.errors import InputError
-from wcbench.scene_loaders import detect_format, load_scene
+from wcbench.core.errors import InputError
+from wcbench.scenes.loaders import detect_format, load_scene
 
 VEHICLE_CLASSES = ("Car", "Pickup Truck", "Medium-sized Truck", "Other Vehicle - Construction Vehicle",
                    "Towed Object")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from wcbench.errors import InputError, UnknownNameError
-from wcbench.scene_sets import get_scene_set, list_scene_sets, resolve_scenes
+from wcbench.core.errors import InputError, UnknownNameError
+from wcbench.scenes.sets import get_scene_set, list_scene_sets, resolve_scenes
 
 
 def test_specs_are_listed():

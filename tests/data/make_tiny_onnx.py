@@ -4,7 +4,7 @@
 
 Writes ``clip_tiny_visual.onnx`` (pixels [B, 3, 32, 32] -> [B, 8]) and ``clip_tiny_text.onnx``
 (tokens [B, 77] int64, ids < 512, the largest id of a row marks its end -> [B, 8]) beside this
-script. The model is the real CLIP architecture (``wcbench.metrics.clip_model.ClipModel``) at toy
+script. The model is the real CLIP architecture (``wcbench.metrics.clip.pytorch.model.ClipModel``) at toy
 sizes with seeded random weights, so the files carry no trained weights and regenerate the same
 numbers; ``tests/metrics/test_clip_onnx.py`` checks them against torch.
 """
@@ -23,7 +23,7 @@ STD = 0.1
 
 def tiny_arch():  # type: ignore[no-untyped-def]
     """The toy architecture: 4x4 patches of 8 px, width 16, one block per tower, E = 8."""
-    from wcbench.metrics.clip_config import ClipArch
+    from wcbench.metrics.clip.config import ClipArch
 
     return ClipArch(
         name="tiny",
@@ -44,14 +44,14 @@ def tiny_arch():  # type: ignore[no-untyped-def]
 
 def tiny_model():  # type: ignore[no-untyped-def]
     """The seeded random-weight toy ClipModel the ONNX files hold (needs torch)."""
-    from wcbench.metrics.clip_model import ClipModel, randomize_
+    from wcbench.metrics.clip.pytorch.model import ClipModel, randomize_
 
     return randomize_(ClipModel(tiny_arch()), seed=SEED, std=STD).eval()
 
 
 def main() -> None:
     """Export both towers next to this script."""
-    from wcbench.metrics.clip_onnx import export_onnx
+    from wcbench.metrics.clip.pytorch.export import export_onnx
 
     paths = export_onnx(tiny_model(), HERE)
     paths["visual"].replace(VISUAL)

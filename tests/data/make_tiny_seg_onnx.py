@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wcbench.metrics.segformer import SegFormer, SegFormerConfig
-from wcbench.metrics.segmenter_onnx import SegmenterSpec
-from wcbench.metrics.segmenter_torch import TorchSegmenter, write_segmenter_dir
-from wcbench.metrics.upernet_convnext import UperNetConvNext, UperNetConvNextConfig
+from wcbench.metrics.semantic.pytorch.backend import TorchSegmenter
+from wcbench.metrics.semantic.pytorch.convert import write_segmenter_dir
+from wcbench.metrics.semantic.pytorch.segformer import SegFormer, SegFormerConfig
+from wcbench.metrics.semantic.pytorch.upernet_convnext import UperNetConvNext, UperNetConvNextConfig
+from wcbench.metrics.semantic.segmenter import SegmenterSpec
 
 HERE = Path(__file__).resolve().parent
 INPUT_SIZE = (64, 64)

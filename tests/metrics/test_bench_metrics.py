@@ -12,8 +12,8 @@ pytest.importorskip("torch")
 pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
 
-from wcbench.benchmark import BenchReport, validate_benchmark
-from wcbench.metrics.bench_models import timed_methods
+from wcbench.bench.models import timed_methods
+from wcbench.bench.schema import BenchReport, validate_benchmark
 
 EXPECTED = {
     "ssim_320x180", "flow_deepflow", "flow_dis", "flow_farneback",
@@ -38,7 +38,7 @@ def _files(root: str | None) -> set[str]:
 
 @pytest.fixture(scope="module")
 def quick_run() -> tuple[BenchReport, dict[str, set[str]], dict[str, set[str]]]:
-    from wcbench.metrics.bench_metrics import run
+    from wcbench.bench.metrics import run
 
     roots = {k: os.environ.get(k) for k in ("WCBENCH_CACHE", "WCBENCH_MODELS")}
     before = {k: _files(v) for k, v in roots.items()}

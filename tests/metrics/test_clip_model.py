@@ -12,21 +12,21 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from wcbench.metrics.clip_checkpoints import (  # noqa: E402
+from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore, ModelStoreError  # noqa: E402
+from wcbench.metrics.clip.config import CLIP_ARCHS, ClipArch, get_arch  # noqa: E402
+from wcbench.metrics.clip.encoder import ClipEncoder  # noqa: E402
+from wcbench.metrics.clip.pytorch.backend import TorchClipBackend  # noqa: E402
+from wcbench.metrics.clip.pytorch.checkpoints import (  # noqa: E402
     CheckpointError,
-    build_model,
     check_state_dict,
     expected_shapes,
     infer_arch,
-    load_clip_model,
     load_clip_safetensors,
     read_state_dict,
     save_clip_safetensors,
 )
-from wcbench.metrics.clip_config import CLIP_ARCHS, ClipArch, get_arch  # noqa: E402
-from wcbench.metrics.clip_encoder import ClipEncoder  # noqa: E402
-from wcbench.metrics.clip_model import ClipModel, TorchClipBackend  # noqa: E402
-from wcbench.metrics.model_store import ModelEntry, ModelSource, ModelStore, ModelStoreError  # noqa: E402
+from wcbench.metrics.clip.pytorch.convert import build_model, load_clip_model  # noqa: E402
+from wcbench.metrics.clip.pytorch.model import ClipModel  # noqa: E402
 
 #: (pixels [B, 3, S, S] float32, tokens [B, 77] int64) torch tensors.
 Inputs = tuple[Any, Any]
@@ -238,7 +238,7 @@ def tiny_entry(**options: object) -> ModelEntry:
         description="toy",
         file="model.safetensors",
         source=ModelSource(kind="import"),
-        converter="wcbench.metrics.clip_checkpoints:convert_clip",
+        converter="wcbench.metrics.clip.pytorch.convert:convert_clip",
         options=options,
     )
 
@@ -253,7 +253,7 @@ def test_import_converts_and_exports_onnx(tiny: ClipModel, inputs: Inputs, tmp_p
     man = store.manifest("clip-tiny")
     assert man is not None and set(man["files"]) == {"model.safetensors", "visual.onnx", "text.onnx"}
     assert store.verify()[0].status == "ok"
-    from wcbench.metrics.clip_encoder import load_clip_encoder
+    from wcbench.metrics.clip.encoder import load_clip_encoder
 
     x = np.random.default_rng(0).random((2, 40, 60, 3))
     onnx_emb = load_clip_encoder("clip-tiny", store=store, disk_cache=False).image_embeddings(x)

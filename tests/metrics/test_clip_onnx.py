@@ -11,9 +11,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from wcbench.metrics.clip_config import CLIP_ARCHS  # noqa: E402
-from wcbench.metrics.clip_model import ClipModel, TorchClipBackend, randomize_  # noqa: E402
-from wcbench.metrics.clip_onnx import OnnxClipBackend, export_onnx  # noqa: E402
+from wcbench.metrics.clip.config import CLIP_ARCHS  # noqa: E402
+from wcbench.metrics.clip.onnx_backend import OnnxClipBackend  # noqa: E402
+from wcbench.metrics.clip.pytorch.backend import TorchClipBackend  # noqa: E402
+from wcbench.metrics.clip.pytorch.export import export_onnx  # noqa: E402
+from wcbench.metrics.clip.pytorch.model import ClipModel, randomize_  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 #: Required agreement of embeddings (|x| ~ 1) between onnxruntime and torch: both float32,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wcbench.metrics.clip_config import CLIP_MEAN, CLIP_STD
-from wcbench.metrics.clip_preprocess import ClipPreprocess, preprocess_images, resized_size, to_uint8
+from wcbench.metrics.clip.config import CLIP_MEAN, CLIP_STD
+from wcbench.metrics.clip.preprocess import ClipPreprocess, preprocess_images, resized_size, to_uint8
 
 #: Same uint8 pixels and float64 arithmetic on both sides: only float32 rounding of the output.
 HF_TOL = 1e-6

@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore
 from wcbench.metrics.base import MetricContext
-from wcbench.metrics.clip_encoder import ClipEncoder
-from wcbench.metrics.clip_onnx import OnnxClipBackend
-from wcbench.metrics.clip_score import (
+from wcbench.metrics.clip.encoder import ClipEncoder
+from wcbench.metrics.clip.onnx_backend import OnnxClipBackend
+from wcbench.metrics.clip.score import (
     DEGENERATE_NORM,
     ClipDirectionalScore,
     ClipScore,
@@ -27,7 +28,6 @@ from wcbench.metrics.clip_score import (
     clip_s,
     load_weather_prompts,
 )
-from wcbench.metrics.model_store import ModelEntry, ModelSource, ModelStore
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 VISUAL, TEXT = DATA / "clip_tiny_visual.onnx", DATA / "clip_tiny_text.onnx"
@@ -342,7 +342,7 @@ def tiny_store(root: Path) -> ModelStore:
 
 
 def test_store_encoder_end_to_end(tmp_path: Path, rng: np.random.Generator) -> None:
-    from wcbench.metrics.clip_encoder import clear_shared_encoders, load_clip_encoder
+    from wcbench.metrics.clip.encoder import clear_shared_encoders, load_clip_encoder
 
     store = tiny_store(tmp_path / "store")
     dummy = tmp_path / "weights.bin"
@@ -365,10 +365,10 @@ def test_scoring_side_imports_and_runs_without_torch(tmp_path: Path) -> None:
 import sys
 sys.modules["torch"] = None  # any `import torch` now raises ImportError
 import numpy as np
-from wcbench.metrics.clip_onnx import OnnxClipBackend
-from wcbench.metrics.clip_encoder import ClipEncoder
-from wcbench.metrics.clip_score import ClipScore, ClipDirectionalScore, clip_s
-import wcbench.metrics.clip_checkpoints, wcbench.metrics.clip_tokenizer, wcbench.metrics.model_store
+from wcbench.metrics.clip.onnx_backend import OnnxClipBackend
+from wcbench.metrics.clip.encoder import ClipEncoder
+from wcbench.metrics.clip.score import ClipScore, ClipDirectionalScore, clip_s
+import wcbench.metrics.clip.pytorch.checkpoints, wcbench.metrics.clip.tokenizer, wcbench.core.models.store
 enc = ClipEncoder(OnnxClipBackend({str(VISUAL)!r}, {str(TEXT)!r}), name="tiny")
 x = np.random.default_rng(0).random((2, 40, 60, 3))
 print(clip_s(x, x, model=enc))

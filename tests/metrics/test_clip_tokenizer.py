@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wcbench.metrics.clip_config import CLIP_ARCHS
-from wcbench.metrics.clip_score import DEFAULT_PROMPTS, load_weather_prompts
-from wcbench.metrics.clip_tokenizer import VOCAB_ENTRY, ClipTokenizer, clean_text, split_words
-from wcbench.metrics.model_store import ModelStore, ModelStoreError
-from wcbench.storage import sha256_file
+from wcbench.core.models.store import ModelStore, ModelStoreError
+from wcbench.core.storage import sha256_file
+from wcbench.metrics.clip.config import CLIP_ARCHS
+from wcbench.metrics.clip.score import DEFAULT_PROMPTS, load_weather_prompts
+from wcbench.metrics.clip.tokenizer import VOCAB_ENTRY, ClipTokenizer, clean_text, split_words
 
 
 def _cache_dir(request: pytest.FixtureRequest, name: str) -> Path:

@@ -12,9 +12,10 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from wcbench.metrics.clip_checkpoints import build_model, hf_to_openai, read_state_dict  # noqa: E402
-from wcbench.metrics.clip_config import CLIP_ARCHS, ClipArch  # noqa: E402
-from wcbench.metrics.clip_model import randomize_  # noqa: E402
+from wcbench.metrics.clip.config import CLIP_ARCHS, ClipArch  # noqa: E402
+from wcbench.metrics.clip.pytorch.checkpoints import hf_to_openai, read_state_dict  # noqa: E402
+from wcbench.metrics.clip.pytorch.convert import build_model  # noqa: E402
+from wcbench.metrics.clip.pytorch.model import randomize_  # noqa: E402
 
 #: (pixels [B, 3, S, S] float32, tokens [B, 77] int64) torch tensors.
 Inputs = tuple[Any, Any]
@@ -125,7 +126,7 @@ def test_hf_pytorch_bin_and_gelu(tmp_path: Path) -> None:
 
 
 def test_unknown_hf_keys_are_named() -> None:
-    from wcbench.metrics.clip_checkpoints import CheckpointError
+    from wcbench.metrics.clip.pytorch.checkpoints import CheckpointError
 
     with pytest.raises(CheckpointError, match=r"vision_model\.head\.weight"):
         hf_to_openai(

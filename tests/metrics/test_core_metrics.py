@@ -7,13 +7,13 @@ import pytest
 from metric_tester import check_metric
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from wcbench.image_io import read_rgb8, to_float
+from wcbench.core.image_io import read_rgb8, to_float
 from wcbench.metrics import flow_warp_error, psnr, ssim, temporal_flicker
 from wcbench.metrics.base import MetricContext
-from wcbench.metrics.flicker import FlowWarpingError, TemporalFlicker, consistency_mask, dis_flow, warp
 from wcbench.metrics.fps import FPS
-from wcbench.metrics.psnr import PSNR
-from wcbench.metrics.ssim import SSIM
+from wcbench.metrics.pixel.psnr import PSNR
+from wcbench.metrics.pixel.ssim import SSIM
+from wcbench.metrics.temporal.flicker import FlowWarpingError, TemporalFlicker, consistency_mask, dis_flow, warp
 
 #: DESIGN §5: our SSIM equals skimage's with these settings to 1e-12.
 SSIM_SKIMAGE_ATOL = 1e-12
@@ -180,7 +180,7 @@ def test_fast_mask_and_error_match_float64_twin(rng):
     assert 0.1 < slow.mean() < 0.98  # a mix of valid and masked pixels
     assert np.mean(fast != slow) < MASK_MAX_DISAGREEMENT
     v0, v1 = rng.random((h, w, 3)), rng.random((h, w, 3))
-    from wcbench.metrics.flicker import warp_error_pair
+    from wcbench.metrics.temporal.flicker import warp_error_pair
 
     d = v0 - warp(v1.astype(np.float32), fwd).astype(np.float64)
     ref = ((d**2).sum(-1) * slow).sum() / slow.sum()
@@ -188,7 +188,7 @@ def test_fast_mask_and_error_match_float64_twin(rng):
 
 
 def test_source_flow_is_computed_once_across_weathers():
-    from wcbench.metrics.flicker import FLOW_CACHE
+    from wcbench.metrics.temporal.flicker import FLOW_CACHE
 
     seq = _translated_sequence(n=3, size=(40, 48))
     before = FLOW_CACHE.misses

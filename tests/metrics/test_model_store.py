@@ -17,20 +17,20 @@ from pathlib import Path
 
 import pytest
 
-from wcbench.errors import UnknownNameError, WcbenchError
-from wcbench.metrics.model_store import (
-    DEFAULT_REGISTRY,
+from wcbench.core.errors import UnknownNameError, WcbenchError
+from wcbench.core.models.store import (
     MANIFEST,
     ModelEntry,
     ModelMissingError,
     ModelSource,
     ModelStore,
     ModelStoreError,
+    builtin_catalogues,
     default_root,
     extract_members,
     load_registry,
 )
-from wcbench.registry import import_string
+from wcbench.core.registry import import_string
 
 
 def sha(data: bytes) -> str:
@@ -382,7 +382,7 @@ def test_cli_list_import_verify(tmp_path: Path, capsys: pytest.CaptureFixture[st
 def test_cli_verify_exit_status(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from wcbench.metrics import model_store
+    from wcbench.core.models import store as model_store
 
     store = store_with(tmp_path / "s", entry())
     src = tmp_path / "w.bin"
@@ -408,8 +408,17 @@ def test_cli_list_does_not_import_torch(tmp_path: Path) -> None:
     assert "clip-vit-l14-openai" in proc.stdout
 
 
+def test_catalogues_come_from_every_library() -> None:
+    # each library ships the catalogue of its own weights; the store finds them by entry point
+    names = [p.parent.name for p in builtin_catalogues()]
+    assert names == ["metrics", "reference_model"]
+    reg = load_registry()
+    assert reg["vgg16"].registry.endswith("reference_model/models.toml")
+    assert reg["lpips-alex"].registry.endswith("metrics/models.toml")
+
+
 def test_registry_file_documents_its_format() -> None:
-    head = DEFAULT_REGISTRY.read_text().split("\n[models.", 1)[0]
+    head = builtin_catalogues()[0].read_text().split("\n[models.", 1)[0]
     for word in (
         "converter(sources, out_dir, entry)",
         'kind   = "url"',

@@ -9,7 +9,7 @@ import pytest
 from metric_tester import check_metric
 
 from wcbench.metrics.base import MetricContext
-from wcbench.metrics.semantic_consistency import (
+from wcbench.metrics.semantic.consistency import (
     SemanticConsistency,
     confusion_matrices,
     confusion_matrix,
@@ -191,7 +191,7 @@ def test_metric_rejects_wrong_segmenter_output_and_missing_source():
 
 
 def test_skip_reasons_fog_and_missing_weights(tmp_path):
-    from wcbench.metrics.model_store import ModelStore
+    from wcbench.core.models.store import ModelStore
 
     ctx = MetricContext(weather="rain", n_frames=3, has_reference=False)
     m = SemanticConsistency("segformer-b0-ade", store=ModelStore(root=tmp_path))

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("numba")
 
-from wcbench.benchmark import validate_benchmark
+from wcbench.bench.schema import validate_benchmark
 
 FIELDS = ("name", "gaussians", "width", "height", "pairs", "fwd_ms", "bwd_ms", "ref_fwd_ms", "ref_bwd_ms",
           "max_abs_err", "peak_mb")
@@ -21,7 +21,7 @@ DEPTH_REL_ERR = 1e-5
 
 
 def test_quick_run_without_data_root(tmp_path: Path) -> None:
-    from wcbench.reference_model.bench_raster import run
+    from wcbench.bench.raster import run
 
     report = run(data_root=None, quick=True)
     obj = report.to_json()

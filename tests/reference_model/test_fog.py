@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from wcbench.reference_model.fog import (
+from wcbench.reference_model.weather.fog import (
     compose_exact,
     density_from_visibility,
     fog_postprocess,
@@ -16,7 +16,7 @@ from wcbench.reference_model.fog import (
     transmitted_channels,
     visibility_from_density,
 )
-from wcbench.scene import Camera
+from wcbench.scenes.scene import Camera
 
 FOG = np.array([0.8, 0.8, 0.85], np.float32)
 # float32 image arithmetic: a few ulps of values in [0, 1].
@@ -116,7 +116,7 @@ def _fog_kernels_or_skip() -> None:
     pytest.importorskip("numba")
     from wcbench.reference_model._numba_backend import load_numba_kernels
 
-    if load_numba_kernels("_fog_numba") is None:
+    if load_numba_kernels("weather.fog_kernels") is None:
         pytest.skip("numba fog kernels unavailable")
 
 
@@ -161,7 +161,7 @@ def test_compose_exact_fast_path_matches_the_numpy_reference() -> None:
 
 def _plane(distance: float, half: float, spacing: float, color: tuple[float, float, float]):
     """A fronto-parallel opaque plane of small Gaussians at camera z = ``distance`` (camera at origin)."""
-    from wcbench.reference_model.lidar_init import GaussianCloud
+    from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 
     g = np.arange(-half, half + 1e-9, spacing)
     x, y = np.meshgrid(g, g)
@@ -181,7 +181,8 @@ def _camera(width: int = 64, height: int = 48, f: float = 40.0) -> Camera:
 @pytest.mark.parametrize("mode", ["exact", "postprocess"])
 def test_rendered_plane_matches_beer_lambert_per_pixel(mode: str) -> None:
     pytest.importorskip("torch")
-    from wcbench.reference_model.weather import Weather, WeatherRenderer
+    from wcbench.reference_model.weather.conditions import Weather
+    from wcbench.reference_model.weather.renderer import WeatherRenderer
 
     d, beta, c = 6.0, 0.15, (0.2, 0.5, 0.3)
     cam = _camera()
@@ -203,7 +204,8 @@ def test_rendered_plane_matches_beer_lambert_per_pixel(mode: str) -> None:
 @pytest.mark.parametrize("mode", ["exact", "postprocess"])
 def test_sky_pixels_are_fog_colored_in_dense_fog(mode: str) -> None:
     pytest.importorskip("torch")
-    from wcbench.reference_model.weather import Weather, WeatherRenderer
+    from wcbench.reference_model.weather.conditions import Weather
+    from wcbench.reference_model.weather.renderer import WeatherRenderer
 
     plane = _plane(5.0, half=2.0, spacing=0.05, color=(0.1, 0.1, 0.1))  # covers the image center only
     bg = np.array([0.3, 0.5, 1.0], np.float32)
@@ -218,7 +220,8 @@ def test_sky_pixels_are_fog_colored_in_dense_fog(mode: str) -> None:
 
 def test_zero_density_fog_equals_clear_and_huge_density_is_finite() -> None:
     pytest.importorskip("torch")
-    from wcbench.reference_model.weather import Weather, WeatherRenderer
+    from wcbench.reference_model.weather.conditions import Weather
+    from wcbench.reference_model.weather.renderer import WeatherRenderer
 
     plane = _plane(5.0, half=2.0, spacing=0.05, color=(0.1, 0.7, 0.2))
     bg = np.array([0.3, 0.5, 1.0], np.float32)

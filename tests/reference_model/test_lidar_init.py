@@ -8,15 +8,15 @@ import cv2
 import numpy as np
 import pytest
 
-from wcbench.reference_model.lidar_init import (
-    GaussianCloud,
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.scene_graph.lidar_init import (
     estimate_sky_color,
     init_from_lidar,
     init_scene_from_lidar,
     sample_image,
     voxel_downsample,
 )
-from wcbench.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene
+from wcbench.scenes.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene
 
 PANDASET = Path(__file__).resolve().parents[2].parent / "shared/data/pandaset_002"
 RED, BLUE, SKY = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.6, 0.7, 0.9)
@@ -163,7 +163,7 @@ def test_sky_color_comes_from_pixels_without_lidar(tmp_path: Path) -> None:
 def test_real_scene_initialisation(tmp_path: Path) -> None:
     if not (PANDASET / "images").is_dir():
         pytest.skip(f"real scene not present at {PANDASET}")
-    from wcbench.scene_loaders import load_scene
+    from wcbench.scenes.loaders import load_scene
 
     scene = load_scene(PANDASET)
     cloud = init_from_lidar(scene, frames=[15, 16], voxel_m=0.3)  # 16 has no sweep: skipped

@@ -7,20 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from wcbench.reference_model.particles import (
+from wcbench.reference_model.transforms import quat_to_matrix
+from wcbench.reference_model.weather.conditions import Weather, load_presets, preset_names
+from wcbench.reference_model.weather.particles import (
     ParticleField,
     ParticleSpec,
     Wind,
     extinction_coefficient,
     horizontal_basis,
     number_density,
-    quat_to_matrix,
     rain_fall_speed,
     sample_diameters,
     size_distribution,
     snow_fall_speed,
 )
-from wcbench.reference_model.weather import Weather, load_presets, preset_names
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 # Positions are float64 closed forms; the only error is rounding of O(100 m) coordinates.
@@ -191,7 +191,7 @@ def test_frame_is_a_pure_function_of_seed_and_time() -> None:
 
 def _numba_kernels_or_skip():  # type: ignore[no-untyped-def]
     pytest.importorskip("numba")
-    from wcbench.reference_model.particles import _numba_kernels
+    from wcbench.reference_model.weather.particles import _numba_kernels
 
     kernels = _numba_kernels()
     if kernels is None:
@@ -240,7 +240,7 @@ def test_fast_sin_and_cos_match_libm() -> None:
 )
 def test_fast_gaussians_match_the_numpy_reference(kind: str, preset: str, overrides: dict) -> None:
     """Positions, culling, shapes, opacities (with the dilation compensation) and buffers."""
-    from wcbench.reference_model.particles import ParticleGaussians
+    from wcbench.reference_model.weather.particles import ParticleGaussians
 
     _numba_kernels_or_skip()
     K = np.array([[250.0, 0, 160], [0, 250.0, 90], [0, 0, 1]])
@@ -279,7 +279,7 @@ def test_fast_gaussians_match_the_numpy_reference(kind: str, preset: str, overri
 
 
 def test_gaussians_reject_a_small_buffer_and_compensation_without_view() -> None:
-    from wcbench.reference_model.particles import ParticleGaussians
+    from wcbench.reference_model.weather.particles import ParticleGaussians
 
     f = field("snow", "paper")
     with pytest.raises(ValueError, match="needs up to 48000"):
@@ -297,10 +297,10 @@ def test_numpy_path_runs_when_the_kernels_cannot_be_imported(monkeypatch: pytest
     expected = f.gaussians(1.0, np.zeros(3), fast=False)
     monkeypatch.setattr(_numba_backend, "_loaded", {})
     monkeypatch.setattr(_numba_backend, "_failed", {})
-    monkeypatch.setitem(sys.modules, "wcbench.reference_model._particles_numba", None)  # import fails
+    monkeypatch.setitem(sys.modules, "wcbench.reference_model.weather.particle_kernels", None)  # import fails
     got = f.gaussians(1.0, np.zeros(3))
     np.testing.assert_array_equal(got.means, expected.means)
-    assert "halted" in str(_numba_backend.numba_error("_particles_numba"))
+    assert "halted" in str(_numba_backend.numba_error("weather.particle_kernels"))
 
 
 # ---- shapes --------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ torch = pytest.importorskip("torch")
 from raster_scenes import args, look_from, pinhole, random_scene  # noqa: E402
 
 from wcbench.reference_model import RenderOutput, rasterize, rasterize_torch  # noqa: E402
-from wcbench.reference_model._raster_common import ALPHA_MIN, CULL_KEYS, EPS2D  # noqa: E402
+from wcbench.reference_model.raster.common import ALPHA_MIN, CULL_KEYS, EPS2D  # noqa: E402
 
 # Fast vs twin, forward. Both evaluate the same float32 alpha per pair; they differ in exp (a
 # Cephes polynomial vs torch's, ~1 ulp) and in how transmittance is formed (a float32 running
@@ -251,7 +251,7 @@ def test_bad_inputs_raise_value_errors_naming_the_argument(backend: str) -> None
 
 def test_float64_reference_on_the_fast_path_decisions() -> None:
     """The benchmark's reference: the twin in float64 on the pairs the float32 fast path composited."""
-    from wcbench.reference_model._raster_numba import RenderJob
+    from wcbench.reference_model.raster.kernels import RenderJob
 
     params = random_scene(300, seed=4)
     out = rasterize(*args(params), V, K, W, H, backend="numba")
@@ -274,14 +274,15 @@ def test_missing_numba_falls_back_to_the_twin_with_one_warning(monkeypatch: pyte
     import sys
     import warnings
 
-    import wcbench.reference_model as package
-    from wcbench.reference_model import _numba_backend, raster
+    import wcbench.reference_model.raster as package
+    from wcbench.reference_model import _numba_backend
+    from wcbench.reference_model.raster import rasterizer as raster
 
     monkeypatch.setattr(_numba_backend, "_loaded", {})
     monkeypatch.setattr(_numba_backend, "_failed", {})
     monkeypatch.setattr(raster, "_warned", False)
-    monkeypatch.delattr(package, "_raster_numba", raising=False)
-    monkeypatch.setitem(sys.modules, "wcbench.reference_model._raster_numba", None)  # import fails
+    monkeypatch.delattr(package, "kernels", raising=False)
+    monkeypatch.setitem(sys.modules, "wcbench.reference_model.raster.kernels", None)  # import fails
     params = random_scene(30, seed=1)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

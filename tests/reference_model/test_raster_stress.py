@@ -16,7 +16,7 @@ from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from wcbench.reference_model import rasterize  # noqa: E402
-from wcbench.reference_model._raster_common import CULL_KEYS  # noqa: E402
+from wcbench.reference_model.raster.common import CULL_KEYS  # noqa: E402
 
 NAN, INF = math.nan, math.inf
 W, H = 8, 6  # tiny images: thousands of cases in seconds; the 16x16 tile is partly outside

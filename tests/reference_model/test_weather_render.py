@@ -11,15 +11,11 @@ import pytest
 
 pytest.importorskip("torch")
 
-from wcbench.reference_model.lidar_init import GaussianCloud
-from wcbench.reference_model.particles import ParticleGaussians, Wind
-from wcbench.reference_model.weather import (
-    Weather,
-    WeatherRenderer,
-    camera_velocity,
-    scale_camera,
-)
-from wcbench.scene import Camera
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.weather.conditions import Weather
+from wcbench.reference_model.weather.particles import ParticleGaussians, Wind
+from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
+from wcbench.scenes.scene import Camera
 
 PANDASET = Path(__file__).resolve().parents[2].parent / "shared/data/pandaset_002"
 UP = np.array([0.0, -1.0, 0.0])  # camera at the origin with OpenCV axes: world up is -y
@@ -140,7 +136,7 @@ def test_buffered_fast_render_matches_a_render_of_the_reference_particles(kind: 
     """The renderer writes particles behind the scene in reused buffers (numba); rasterizing the
     numpy reference's particles, concatenated, gives the same image. Per-frame scenes (of the
     same size, then of another) refill the scene rows, and the renderer's own scene comes back."""
-    from wcbench.reference_model._raster_common import EPS2D
+    from wcbench.reference_model.raster.common import EPS2D
 
     cam = camera(96, 64, 60.0)
     weather = Weather(kind=kind, preset="heavy", wind=Wind(3.0, 10.0, 45.0))
@@ -178,8 +174,8 @@ def test_dilation_compensation_keeps_a_thin_streaks_coverage_resolution_independ
     # Tilt the streak into the image plane (local z -> camera y).
     streak.quats[:] = [np.cos(np.pi / 4), np.sin(np.pi / 4), 0, 0]
     empty = GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
-    from wcbench.reference_model._raster_common import EPS2D
-    from wcbench.reference_model.weather import particle_dilation_compensation
+    from wcbench.reference_model.raster.common import EPS2D
+    from wcbench.reference_model.weather.renderer import particle_dilation_compensation
 
     coverage = {}
     for compensate in (True, False):
@@ -249,8 +245,8 @@ def test_cli_render_smoke_on_pandaset(tmp_path: Path) -> None:
     if not (PANDASET / "images").is_dir():
         pytest.skip(f"real scene not present at {PANDASET}")
     from wcbench.cli import render
-    from wcbench.errors import ResultsExistError
-    from wcbench.storage import sha256_file
+    from wcbench.core.errors import ResultsExistError
+    from wcbench.core.storage import sha256_file
 
     # Frames 16 and 17 have no lidar sweep: the scene comes from the sweeps of 15 and 19.
     common = {
@@ -292,7 +288,7 @@ def test_cli_render_smoke_on_pandaset(tmp_path: Path) -> None:
 
 def test_cli_parses_frames_and_rejects_bad_input() -> None:
     from wcbench.cli.render import _weather, parse_frames
-    from wcbench.errors import InputError
+    from wcbench.core.errors import InputError
 
     assert parse_frames("0-2,7", 10) == [0, 1, 2, 7]
     assert parse_frames(None, 3) == [0, 1, 2]
@@ -316,8 +312,8 @@ def test_cli_parses_frames_and_rejects_bad_input() -> None:
 
 @pytest.mark.slow
 def test_bench_weather_quick_runs_and_reports_every_case() -> None:
-    from wcbench.benchmark import validate_benchmark
-    from wcbench.reference_model.bench_weather import run
+    from wcbench.bench.schema import validate_benchmark
+    from wcbench.bench.weather import run
 
     report = run(data_root=None, quick=True)
     obj = report.to_json()

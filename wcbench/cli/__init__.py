@@ -53,9 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``wcbench`` console script; returns the exit status.
 
-    Input errors (:class:`~wcbench.errors.WcbenchError`) print one message and exit with 2.
+    Input errors (:class:`~wcbench.core.errors.WcbenchError`) print one message and exit with 2.
     """
-    from wcbench.errors import WcbenchError
+    from wcbench.core.errors import WcbenchError
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -1,4 +1,4 @@
-"""Run a benchmark suite and write its JSON (one schema for all suites: wcbench.benchmark).
+"""Run a benchmark suite and write its JSON (one schema for all suites: wcbench.bench.schema).
 
 Suites measure speed against error in one run (fast path vs its slow reference, ours vs the
 yardsticks in DESIGN §8); they never assert times.
@@ -17,11 +17,11 @@ from pathlib import Path
 
 HELP = "run a benchmark suite (speed vs error)"
 
-#: suite -> "module:function" returning a wcbench.benchmark.BenchReport
+#: suite -> "module:function" returning a wcbench.bench.schema.BenchReport
 SUITES = {
-    "metrics": "wcbench.metrics.bench_metrics:run",
-    "raster": "wcbench.reference_model.bench_raster:run",
-    "weather": "wcbench.reference_model.bench_weather:run",
+    "metrics": "wcbench.bench.metrics:run",
+    "raster": "wcbench.bench.raster:run",
+    "weather": "wcbench.bench.weather:run",
 }
 
 
@@ -36,9 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the suite, print its table, write the JSON."""
-    from wcbench.errors import UnknownNameError
-    from wcbench.registry import LazyRegistry
-    from wcbench.scene_sets import data_root_from
+    from wcbench.core.errors import UnknownNameError
+    from wcbench.core.registry import LazyRegistry
+    from wcbench.scenes.sets import data_root_from
 
     suites: LazyRegistry = LazyRegistry("benchmark", SUITES)
     if args.suite == "list":

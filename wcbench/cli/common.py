@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from wcbench.core.errors import InputError
+
 
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     """``--scenes`` and ``--data-root``."""
@@ -31,8 +33,6 @@ def parse_metric_options(items: list[str]) -> dict[str, dict[str, Any]]:
     InputError
         On an item not of the form ``METRIC.KEY=VALUE``.
     """
-    from wcbench.errors import InputError
-
     out: dict[str, dict[str, Any]] = {}
     for item in items:
         key, sep, raw = item.partition("=")

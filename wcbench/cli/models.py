@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Carry out the action; 0 on success, 1 when ``verify`` finds a corrupt file."""
     # Only the store (stdlib + TOML) is imported here: converters import torch when they run.
-    from wcbench.metrics.model_store import ModelStore
+    from wcbench.core.models.store import ModelStore
 
     store = ModelStore(args.root)
     if args.action == "list":

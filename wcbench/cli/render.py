@@ -2,7 +2,7 @@
 
 The scene is the lidar initialisation of the reference model (static Gaussians plus one rigid
 node per moving object, colored from the images); rain and snow particles are rasterized with it
-and fog is composed on top (DESIGN §7). Frames go to the prediction layout
+and fog is composed on top (docs/design.md §7). Frames go to the prediction layout
 ``OUT/<method>/<scene>/<weather>/{frame:03d}.png`` with an ``info.json`` (method, version,
 parameters, timings, per-frame sha256), plus ``OUT/<method>/<scene>/<weather>.mp4`` for a sequence.
 
@@ -14,6 +14,10 @@ Examples::
 
 A finished folder rendered with the same settings is left alone; one rendered with other settings
 is kept unless ``--overwrite``. A killed render resumes (frames are pure functions of the seed).
+
+``render`` is a front of the units of work ``wcbench run`` renders through: the same method, seed,
+weather and size give the same frames either way (``run`` renders at the scene's size, ``render``
+at ``--scale`` 0.25 unless told otherwise; both record the size and settings in info.json).
 """
 
 from __future__ import annotations
@@ -22,17 +26,18 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-HELP = "render a scene under rain, snow or fog (lidar-initialised Gaussians + weather physics)"
+from wcbench.cli.common import add_progress_argument, add_scene_arguments
+from wcbench.core.errors import InputError
+from wcbench.core.weathers import WEATHERS
 
+HELP = "render a scene under rain, snow or fog (lidar-initialised Gaussians + weather physics)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``wcbench render``."""
-    from wcbench.cli.common import add_progress_argument, add_scene_arguments
-
     add_scene_arguments(parser)
     parser.add_argument("--out", type=Path, required=True, help="output root of the prediction layout")
-    parser.add_argument("--weather", required=True, choices=("clear", "rain", "snow", "fog"))
+    parser.add_argument("--weather", required=True, choices=WEATHERS)
     parser.add_argument(
         "--preset",
         default=None,
@@ -70,12 +75,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     size.add_argument("--width", type=int, default=None, help="output width in px (with --height)")
     parser.add_argument("--height", type=int, default=None, help="output height in px (with --width)")
-    parser.add_argument("--voxel", type=float, default=0.2, help="voxel size of the lidar initialisation (m)")
+    parser.add_argument("--voxel", type=float, default=None,
+                        help="voxel size of the lidar initialisation (m; default: the method's, 0.2)")
     parser.add_argument(
         "--init-frames", default=None, help="frames whose lidar sweeps build the scene (default: all)"
     )
     parser.add_argument(
-        "--method", default="lidar_init", help="method name in the output layout (default: lidar_init)"
+        "--method", default="lidar_init",
+        help="runnable method drawing physics weather on a reconstructed scene (default: lidar_init)",
     )
     parser.add_argument("--no-video", action="store_true", help="do not write the mp4")
     parser.add_argument(
@@ -92,8 +99,6 @@ def parse_frames(spec: str | None, n: int) -> list[int]:
     InputError
         On a malformed spec or an index outside [0, n).
     """
-    from wcbench.errors import InputError
-
     if spec is None:
         return list(range(n))
     out: set[int] = set()
@@ -121,8 +126,6 @@ def parse_frames(spec: str | None, n: int) -> list[int]:
 
 
 def _floats(text: str | None, count: int, option: str) -> tuple[float, ...] | None:
-    from wcbench.errors import InputError
-
     if text is None:
         return None
     try:
@@ -135,9 +138,8 @@ def _floats(text: str | None, count: int, option: str) -> tuple[float, ...] | No
 
 
 def _weather(args: argparse.Namespace) -> Any:
-    from wcbench.errors import InputError
-    from wcbench.reference_model.particles import Wind
-    from wcbench.reference_model.weather import Weather
+    from wcbench.reference_model.weather.conditions import Weather
+    from wcbench.reference_model.weather.particles import Wind
 
     wind = _floats(args.wind, 3, "--wind")
     fog_color = _floats(args.fog_color, 3, "--fog-color")
@@ -160,8 +162,6 @@ def _weather(args: argparse.Namespace) -> Any:
 
 
 def _resolution(args: argparse.Namespace, width: int, height: int) -> tuple[int, int]:
-    from wcbench.errors import InputError
-
     if args.width is not None or args.height is not None:
         if args.width is None or args.height is None or args.width < 1 or args.height < 1:
             raise InputError("--width and --height go together and must be positive")
@@ -172,26 +172,34 @@ def _resolution(args: argparse.Namespace, width: int, height: int) -> tuple[int,
     return max(1, round(width * scale)), max(1, round(height * scale))
 
 
-def run(args: argparse.Namespace) -> int:
-    """Render every selected scene; return 0."""
-    from wcbench.reference_model.lidar_init_method import LidarInitMethod
-    from wcbench.scene_sets import data_root_from, resolve_scenes
+def _method_options(args: argparse.Namespace, scene_size: tuple[int, int], n_frames: int) -> dict[str, Any]:
+    """Options of the method: the weather, the output size, and the scene settings that were given."""
+    options: dict[str, Any] = {"weathers": {args.weather: _weather(args)}, "size": _resolution(args, *scene_size)}
+    if args.voxel is not None:
+        options["voxel_m"] = args.voxel
+    if args.init_frames is not None:
+        options["init_frames"] = parse_frames(args.init_frames, n_frames)
+    return options
 
+
+def run(args: argparse.Namespace) -> int:
+    """Render every selected scene through the units of work ``run`` uses; return 0."""
+    from wcbench.methods import get_method
+    from wcbench.scenes.sets import data_root_from, resolve_scenes
+    from wcbench.units import RenderSettings, WorkUnit
+
+    get_method(args.method)  # an unknown name fails before any scene is loaded
     weather = _weather(args)
-    refs = resolve_scenes(args.scenes, data_root=data_root_from(args.data_root))
-    for ref in refs:
+    settings_base = {"seed": weather.seed, "overwrite": args.overwrite, "video": not args.no_video,
+                     "show_progress": not args.no_progress}
+    for ref in resolve_scenes(args.scenes, data_root=data_root_from(args.data_root)):
         scene = ref.load()
-        method = LidarInitMethod(
-            weathers={weather.kind: weather}, size=_resolution(args, *scene.image_size), voxel_m=args.voxel,
-            init_frames=parse_frames(args.init_frames, len(scene)) if args.init_frames else None, name=args.method,
-        )
-        out_dir = Path(args.out) / args.method / scene.id / weather.kind
-        info = method.render(
-            scene, weather.kind, out_dir, seed=weather.seed, frames=parse_frames(args.frames, len(scene)),
-            overwrite=args.overwrite, video=not args.no_video, show_progress=not args.no_progress,
-        )
+        method = get_method(args.method, **_method_options(args, scene.image_size, len(scene)))
+        unit = WorkUnit(method, scene, weather.kind, Path(args.out) / method.info.name / scene.id)
+        settings = RenderSettings(frames=tuple(parse_frames(args.frames, len(scene))), **settings_base)
+        info = unit.render(settings)
         print(
-            f"{info['status']}: {out_dir} ({len(info['frames'])} frames, "
+            f"{info['status']}: {unit.root / unit.weather} ({len(info['frames'])} frames, "
             f"{info['timings']['median_frame_ms']:.1f} ms/frame median)"
         )
     return 0

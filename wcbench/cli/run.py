@@ -28,23 +28,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Render, then evaluate."""
-    from wcbench.evaluation import EvaluateConfig, check_out_folder, evaluate
+    """Render, then evaluate (one pass over the units of work)."""
+    from wcbench.evaluation import EvaluateConfig, evaluate
     from wcbench.methods import get_method
-    from wcbench.rendering import render_predictions
-    from wcbench.scene_sets import resolve_scenes
+    from wcbench.units import RenderSettings
 
     method = get_method(args.method)
-    weathers = split_list(args.weathers) or list(method.info.weathers)
     cfg = EvaluateConfig(
         method=args.method, scenes=args.scenes, predictions=args.out / method.info.name, out=args.out,
-        weathers=weathers, metrics=split_list(args.metrics), fps=args.fps, data_root=args.data_root,
-        overwrite=args.overwrite, show_progress=not args.no_progress,
+        weathers=split_list(args.weathers) or list(method.info.weathers), metrics=split_list(args.metrics),
+        fps=args.fps, data_root=args.data_root, overwrite=args.overwrite, show_progress=not args.no_progress,
         metric_options=parse_metric_options(args.metric_option),
+        render=RenderSettings(seed=args.seed, overwrite=args.overwrite, show_progress=not args.no_progress),
     )
-    check_out_folder(cfg)
-    scenes = resolve_scenes(args.scenes, data_root=args.data_root)
-    render_predictions(method, scenes, weathers, cfg.predictions, seed=args.seed, overwrite=args.overwrite,
-                       show_progress=not args.no_progress)
-    report(evaluate(cfg))
+    report(evaluate(cfg, method=method))
     return 0

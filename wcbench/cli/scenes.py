@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the listing."""
-    from wcbench.scene_sets import list_scene_sets, resolve_scenes
+    from wcbench.scenes.sets import list_scene_sets, resolve_scenes
 
     if args.action == "list":
         for name, desc in list_scene_sets():

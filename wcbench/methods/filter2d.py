@@ -18,10 +18,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from wcbench.image_io import read_rgb8, to_uint8
+from wcbench.core.image_io import read_rgb8, to_uint8
+from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
-from wcbench.scene import Scene
+from wcbench.scenes.scene import Scene
 
 FOG_COLOR = (0.80, 0.80, 0.85)  # paper's c_fog
 _PARAMS: dict[str, dict[str, Any]] = {
@@ -70,7 +71,7 @@ class Filter2DMethod(FrameRenderer):
         name="filter2d",
         description="Classical image-space weather filters (per-frame 2D baseline)",
         kind="runnable",
-        weathers=("clear", "rain", "snow", "fog"),
+        weathers=WEATHERS,
         layout="writes <out>/filter2d/<scene>/<weather>/{frame:03d}.png + info.json",
     )
 

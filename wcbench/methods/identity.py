@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from wcbench.image_io import read_rgb8
-from wcbench.methods.protocol import WEATHERS, MethodInfo
+from wcbench.core.image_io import read_rgb8
+from wcbench.core.weathers import WEATHERS
+from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
-from wcbench.scene import Scene
+from wcbench.scenes.scene import Scene
 
 
 class IdentityMethod(FrameRenderer):

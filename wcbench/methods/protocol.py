@@ -1,6 +1,6 @@
 """The method adapter protocol shared by runnable methods and output readers.
 
-Render and evaluate meet only at the on-disk prediction layout (DESIGN §4)::
+Render and evaluate meet only at the on-disk prediction layout (docs/design.md §4)::
 
     <root>/<scene>/<weather>/{frame:03d}.png     # one PNG per frame, uint8 sRGB
     <root>/<scene>/<weather>/info.json           # method, version, parameters, timings, hashes
@@ -12,16 +12,15 @@ another tool's files onto frames (:meth:`Method.open_predictions`). Both return 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 if TYPE_CHECKING:
     from wcbench.predictions import PredictionSequence
-    from wcbench.scene import Scene
+    from wcbench.scenes.scene import Scene
 
-#: Every weather wcbench knows; ``clear`` means the raw, unedited scene.
-WEATHERS = ("clear", "rain", "snow", "fog")
 
 
 @dataclass(frozen=True)
@@ -37,7 +36,7 @@ class MethodInfo:
     kind : {"runnable", "reader"}
         Whether wcbench runs it or only reads its outputs.
     weathers : tuple of str
-        Weathers it supports (subset of :data:`WEATHERS`).
+        Weathers it supports (subset of :data:`wcbench.core.weathers.WEATHERS`).
     outputs : tuple of str
         What it produces per frame (``"rgb"``; later ``"depth"``...).
     layout : str
@@ -76,11 +75,14 @@ class Method(Protocol):
 class RunnableMethod(Method, Protocol):
     """A method wcbench can run itself."""
 
-    def render(self, scene: Scene, weather: str, out_dir: Path, *, seed: int = 0, overwrite: bool = False,
+    def render(self, scene: Scene, weather: str, out_dir: Path, *, seed: int = 0,
+               frames: Sequence[int] | None = None, overwrite: bool = False, video: bool = False,
                show_progress: bool = True) -> dict[str, Any]:
-        """Render all frames of ``scene`` under ``weather`` into ``out_dir`` (the prediction layout).
+        """Render frames of ``scene`` under ``weather`` into ``out_dir`` (the prediction layout).
 
-        Returns the ``info.json`` content (method, version, parameters, timings, hashes). A folder
-        finished with other settings is kept unless ``overwrite``.
+        ``frames`` selects frame indices (default all; each frame is a pure function of the seed
+        and its index); ``video`` also writes ``<weather>.mp4`` beside ``out_dir``. Returns the
+        ``info.json`` content (method, version, parameters, timings, hashes). A folder finished
+        with other settings is kept unless ``overwrite``.
         """
         ...

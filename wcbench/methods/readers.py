@@ -19,9 +19,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from wcbench.methods.protocol import WEATHERS, MethodInfo
+from wcbench.core.weathers import WEATHERS
+from wcbench.methods.protocol import MethodInfo
 from wcbench.predictions import DEFAULT_PATTERN, PredictionSequence, match_predictions
-from wcbench.scene import Scene
+from wcbench.scenes.scene import Scene
 
 if sys.version_info >= (3, 11):
     import tomllib

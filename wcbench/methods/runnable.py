@@ -17,8 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from wcbench.errors import InputError, ResultsExistError
-from wcbench.image_io import read_rgb8, write_mp4, write_png
+from wcbench.core.errors import InputError, ResultsExistError
+from wcbench.core.image_io import read_rgb8, write_mp4, write_png
+from wcbench.core.progress import progress
+from wcbench.core.storage import atomic_write_json, sha256_file, sha256_json
+from wcbench.core.timing import FrameTimer
 from wcbench.methods.protocol import MethodInfo
 from wcbench.predictions import (
     CANONICAL_PATTERN,
@@ -27,10 +30,7 @@ from wcbench.predictions import (
     canonical_frame_path,
     match_predictions,
 )
-from wcbench.progress import progress
-from wcbench.scene import Scene
-from wcbench.storage import atomic_write_json, sha256_file, sha256_json
-from wcbench.timing import FrameTimer
+from wcbench.scenes.scene import Scene
 
 _STATE_FILE = ".render_state.json"
 FrameOutput = np.ndarray | tuple[np.ndarray, dict[str, Any]]

@@ -1,0 +1,1 @@
+"""Pixel metrics against a ground truth: PSNR (:mod:`.psnr`) and SSIM (:mod:`.ssim`)."""

@@ -1,0 +1,1 @@
+"""Temporal metrics: flow warping error and VBench-style temporal flicker (:mod:`.flicker`)."""

@@ -1,0 +1,175 @@
+"""Constants, the output container and input checks shared by both rasterizer backends.
+
+The constants are the gsplat / Inria 3DGS guards of DESIGN.md §7. Both backends (the numba fast
+path in :mod:`.kernels` and the pure-torch twin in :mod:`.torch_twin`) read them from
+here, so a change reaches both.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+#: Pixels per tile side. 16 float32 lanes are one AVX-512 register: a tile row is one vector.
+TILE_SIZE = 16
+#: Screen-space dilation added to the 2D covariance diagonal (px^2), as in gsplat / Inria.
+EPS2D = 0.3
+#: Half-extent of a Gaussian's pixel box, in standard deviations per axis.
+SIGMA_EXTENT = 3.0
+#: Pairs with alpha below this are skipped (they change an 8-bit pixel by less than one level).
+ALPHA_MIN = 1.0 / 255.0
+#: Alpha is clamped to this so that 1 - alpha never reaches 0 (the backward divides by it).
+ALPHA_MAX = 0.99
+#: Compositing stops before transmittance would fall below this.
+T_STOP = 1e-4
+#: Floor of alpha when expected depth is normalised by alpha.
+DEPTH_EPS = 1e-10
+#: Quaternions with a squared norm below this are treated as the identity rotation.
+QUAT_EPS2 = 1e-24
+#: Largest pixel half-extent we keep as a number (boxes are clipped to the image anyway).
+MAX_EXTENT = 1e7
+
+#: Names of the per-Gaussian cull counters in ``RenderOutput.meta`` (see :func:`cull_counts`).
+CULL_NONFINITE, CULL_NEAR_FAR, CULL_DEGENERATE, CULL_TRANSPARENT, CULL_OFFSCREEN = 1, 2, 3, 4, 5
+CULL_KEYS = {
+    CULL_NONFINITE: "culled_nonfinite",
+    CULL_NEAR_FAR: "culled_near_far",
+    CULL_DEGENERATE: "culled_degenerate",
+    CULL_TRANSPARENT: "culled_transparent",
+    CULL_OFFSCREEN: "culled_offscreen",
+}
+
+
+def box_extent_sigmas(opacity: float) -> float:
+    """Half-extent of the pixel box in standard deviations for a Gaussian of this opacity.
+
+    Beyond ``sqrt(2 ln(255 o))`` sigmas ``o * exp(-q / 2)`` is below 1/255, so every pair there would
+    be skipped anyway; the box is the smaller of that and :data:`SIGMA_EXTENT`.
+    """
+    if opacity * 255.0 <= 1.0:
+        return 0.0
+    return min(SIGMA_EXTENT, math.sqrt(2.0 * math.log(255.0 * opacity)))
+
+
+@dataclass
+class RenderOutput:
+    """What :func:`rasterize` returns.
+
+    Attributes
+    ----------
+    color : Tensor [H, W, C]
+        Composited colors (features), background included.
+    alpha : Tensor [H, W]
+        Accumulated opacity ``sum_i w_i`` (= ``1 - T_final``), w_i = alpha_i T_i the blending weights.
+    depth : Tensor [H, W] or None
+        Expected camera-z depth ``sum(w_i z_i) / max(alpha, 1e-10)`` (metres); 0 where nothing was
+        drawn. ``None`` when ``render_depth=False``.
+    means2d : Tensor [N, 2]
+        Projected centres in pixels (x right, y down, pixel centers at +0.5); 0 for culled
+        Gaussians. When gradients are on it is a leaf whose ``.grad`` after ``backward()`` holds
+        dL/d(means2d) (the densification signal of 3DGS).
+    means2d_abs : Tensor [N, 2] or None
+        A leaf with the same values whose ``.grad`` after ``backward()`` holds the per-pixel
+        absolute 2D gradient summed over pixels, per axis (AbsGS). ``None`` when gradients are off
+        or ``absgrad=False``.
+    radii : Tensor [N, 2] int32
+        Pixel half-extent of each Gaussian's box per axis (x, y); 0 for culled Gaussians.
+    depths : Tensor [N]
+        Camera-z of each Gaussian centre (metres); 0 for culled ones.
+    meta : dict
+        Counters and settings: ``backend``, ``n_gaussians``, ``n_visible``, the cull counters of
+        :data:`CULL_KEYS`, ``n_tile_entries`` (Gaussian-tile intersections), ``n_pairs``
+        (Gaussian-pixel pairs evaluated, after early termination), ``tile_size``.
+    """
+
+    color: torch.Tensor
+    alpha: torch.Tensor
+    depth: torch.Tensor | None
+    means2d: torch.Tensor
+    means2d_abs: torch.Tensor | None
+    radii: torch.Tensor
+    depths: torch.Tensor
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def check_inputs(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmat: Any,
+    K: Any,
+    width: int,
+    height: int,
+    near: float,
+    far: float,
+    background: torch.Tensor | None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Validate shapes, dtypes and devices; return ``viewmat``, ``K`` and ``background`` as tensors.
+
+    Raises
+    ------
+    ValueError
+        Naming the argument, its shape or dtype and what was expected.
+    """
+    for name, t in (("means", means), ("quats", quats), ("scales", scales), ("opacities", opacities),
+                    ("colors", colors)):
+        if not isinstance(t, torch.Tensor):
+            raise ValueError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
+        if t.device.type != "cpu":
+            raise ValueError(f"{name} is on {t.device}; this rasterizer runs on the CPU")
+        if t.dtype not in (torch.float32, torch.float64):
+            raise ValueError(f"{name} must be float32 or float64, got {t.dtype}")
+    n = means.shape[0] if means.dim() == 2 else -1
+    expected = {"means": (means, (n, 3)), "quats": (quats, (n, 4)), "scales": (scales, (n, 3)),
+                "opacities": (opacities, (n,))}
+    for name, (t, shape) in expected.items():
+        if tuple(t.shape) != shape or n < 0:
+            raise ValueError(f"{name} must have shape {shape} (N = len(means)), got {tuple(t.shape)}")
+    if colors.dim() != 2 or colors.shape[0] != n or colors.shape[1] < 1:
+        raise ValueError(f"colors must have shape [N={n}, C >= 1], got {tuple(colors.shape)}")
+    dtypes = {t.dtype for t in (means, quats, scales, opacities, colors)}
+    if len(dtypes) != 1:
+        raise ValueError(f"means, quats, scales, opacities and colors must share one dtype, got {dtypes}")
+    dtype = means.dtype
+    viewmat_t = torch.as_tensor(viewmat, dtype=dtype)
+    K_t = torch.as_tensor(K, dtype=dtype)
+    if tuple(viewmat_t.shape) != (4, 4):
+        raise ValueError(f"viewmat must be a [4, 4] world-to-camera matrix, got {tuple(viewmat_t.shape)}")
+    if tuple(K_t.shape) != (3, 3):
+        raise ValueError(f"K must be [3, 3] intrinsics, got {tuple(K_t.shape)}")
+    if not (bool(torch.isfinite(viewmat_t).all()) and bool(torch.isfinite(K_t).all())):
+        raise ValueError("viewmat and K must be finite")
+    if float(K_t[0, 0]) <= 0 or float(K_t[1, 1]) <= 0:
+        raise ValueError(f"K must have positive focal lengths, got fx={float(K_t[0, 0])}, fy={float(K_t[1, 1])}")
+    if int(width) != width or int(height) != height or width < 1 or height < 1:
+        raise ValueError(f"width and height must be positive integers, got {width} x {height}")
+    if not (0 < near < far):
+        raise ValueError(f"need 0 < near < far, got near={near}, far={far}")
+    bg = None
+    if background is not None:
+        bg = torch.as_tensor(background, dtype=dtype)
+        if tuple(bg.shape) != (colors.shape[1],):
+            raise ValueError(f"background must have shape [C={colors.shape[1]}], got {tuple(bg.shape)}")
+    return viewmat_t, K_t, bg
+
+
+def empty_meta(backend: str, n: int) -> dict[str, Any]:
+    """The meta dict with every counter present and zero."""
+    meta: dict[str, Any] = {"backend": backend, "n_gaussians": n, "n_visible": 0, "tile_size": TILE_SIZE,
+                            "n_tile_entries": 0, "n_pairs": 0}
+    for key in CULL_KEYS.values():
+        meta[key] = 0
+    return meta
+
+
+def cull_counts(reason: torch.Tensor) -> dict[str, int]:
+    """Count Gaussians per cull reason; ``reason`` [N] int (0 = visible, else a ``CULL_*`` code)."""
+    counts = torch.bincount(reason.to(torch.int64), minlength=len(CULL_KEYS) + 1).tolist()
+    out = {key: int(counts[code]) for code, key in CULL_KEYS.items()}
+    out["n_visible"] = int(counts[0])
+    return out

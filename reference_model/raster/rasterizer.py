@@ -1,0 +1,201 @@
+"""Public API of the differentiable CPU Gaussian rasterizer: :func:`rasterize`.
+
+Two backends compute the same function (DESIGN.md §7 guards, constants in :mod:`.common`):
+
+* ``"numba"``, the fast path (:mod:`.kernels`): tile binning, per-tile front-to-back
+  compositing with early termination, multithreaded over tiles, hand-written backward; wrapped
+  in a ``torch.autograd.Function``. float32 inputs only.
+* ``"torch"``, the pure-PyTorch twin (:func:`.torch_twin.rasterize_torch`): slow, obviously
+  correct, differentiable by autograd, any float dtype.
+
+``backend="auto"`` takes numba for float32 inputs and the twin for float64 ones (``gradcheck``).
+If numba cannot be imported the twin is used and one warning says so.
+"""
+
+from __future__ import annotations
+
+import warnings
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import torch
+
+from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
+from wcbench.reference_model.raster.common import DEPTH_EPS, RenderOutput, check_inputs
+from wcbench.reference_model.raster.torch_twin import rasterize_torch
+
+__all__ = ["RenderOutput", "numba_available", "rasterize"]
+
+_BACKENDS = ("auto", "numba", "torch")
+_warned = False
+
+
+def _load_numba() -> ModuleType | None:
+    """The numba backend; when it cannot be imported, warn once and use the twin."""
+    global _warned
+    module = load_numba_kernels("raster.kernels")
+    if module is None and not _warned:
+        _warned = True
+        warnings.warn(f"wcbench rasterizer: numba backend unavailable ({numba_error('raster.kernels')}); "
+                      "using the slow pure-torch twin", RuntimeWarning, stacklevel=3)
+    return module
+
+
+def numba_available() -> bool:
+    """True if the fast numba backend imports (it compiles lazily, on the first render)."""
+    return _load_numba() is not None
+
+
+class _RasterizeFunction(torch.autograd.Function):
+    """Tile rasterization of projected Gaussians (numba), with the hand-written backward.
+
+    Inputs that need gradients are the 3D parameters plus two placeholder leaves whose gradients
+    are dL/d(means2d) and the AbsGS absolute 2D gradient; the forward computes from ``job`` (a
+    :class:`.kernels.RenderJob` holding the numpy views and the projection).
+    """
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        means: torch.Tensor,
+        quats: torch.Tensor,
+        scales: torch.Tensor,
+        opacities: torch.Tensor,
+        colors: torch.Tensor,
+        means2d: torch.Tensor,
+        means2d_abs: torch.Tensor,
+        job: Any,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        color, alpha, dnum = job.forward()
+        ctx.job = job
+        return torch.from_numpy(color), torch.from_numpy(alpha), torch.from_numpy(dnum)
+
+    @staticmethod
+    def backward(  # type: ignore[override]
+        ctx: Any, g_color: torch.Tensor, g_alpha: torch.Tensor, g_dnum: torch.Tensor
+    ) -> tuple[torch.Tensor | None, ...]:
+        job = ctx.job
+
+        def arr(g: torch.Tensor | None, like: tuple[int, ...]) -> np.ndarray:
+            if g is None:
+                return np.zeros(like, np.float32)
+            return np.ascontiguousarray(g.detach().to(torch.float32).numpy())
+
+        h, w, c = job.height, job.width, job.n_channels
+        grads = job.backward(arr(g_color, (h, w, c)), arr(g_alpha, (h, w)), arr(g_dnum, (h, w)))
+        need = ctx.needs_input_grad
+        out: list[torch.Tensor | None] = []
+        for i, g in enumerate(grads):
+            out.append(torch.from_numpy(g) if need[i] else None)
+        out.append(None)  # job
+        return tuple(out)
+
+
+def rasterize(
+    means: torch.Tensor,  # [N, 3] world (metres)
+    quats: torch.Tensor,  # [N, 4] rotation, wxyz, any norm (normalised safely inside)
+    scales: torch.Tensor,  # [N, 3] standard deviations along the local axes (metres)
+    opacities: torch.Tensor,  # [N] in [0, 1]
+    colors: torch.Tensor,  # [N, C] colors or features (C free: 3 for RGB)
+    viewmat: Any,  # [4, 4] world-to-camera, OpenCV axes (x right, y down, z forward)
+    K: Any,  # [3, 3] intrinsics in pixels (pixel centers at +0.5)
+    width: int,
+    height: int,
+    *,
+    near: float = 0.01,
+    far: float = 1e10,
+    background: torch.Tensor | None = None,  # [C]
+    render_depth: bool = True,
+    absgrad: bool = True,
+    backend: str = "auto",
+) -> RenderOutput:
+    """Render 3D Gaussians into an image, differentiably, on the CPU.
+
+    Each Gaussian is projected with the EWA approximation, its 2D covariance dilated by 0.3 px^2,
+    and composited front to back over the pixels of its per-axis 3-sigma box (tighter for faint
+    Gaussians, where the rest would be skipped anyway). Pixel (i, j) has its center at
+    (i + 0.5, j + 0.5), as in gsplat and OpenCV.
+
+    Parameters
+    ----------
+    means : Tensor [N, 3]
+        Centres in world coordinates (metres).
+    quats : Tensor [N, 4]
+        Rotations as (w, x, y, z) quaternions of any norm; a zero quaternion means identity.
+    scales : Tensor [N, 3]
+        Standard deviations along the rotated axes (metres).
+    opacities : Tensor [N]
+        Opacity in [0, 1] (after the sigmoid).
+    colors : Tensor [N, C]
+        Per-Gaussian colors (float RGB in [0, 1]) or any C-channel features.
+    viewmat : Tensor or ndarray [4, 4]
+        World-to-camera transform, OpenCV camera axes.
+    K : Tensor or ndarray [3, 3]
+        Pinhole intrinsics (fx, fy, cx, cy) in pixels.
+    width, height : int
+        Image size in pixels.
+    near, far : float, keyword-only
+        Gaussians whose centre has camera z <= near or >= far are culled (metres).
+    background : Tensor [C], optional
+        Composited behind the Gaussians with weight ``1 - alpha``; zeros when ``None``.
+    render_depth : bool
+        Compute the expected-depth image; ``False`` skips that channel (``depth`` is ``None``).
+    absgrad : bool
+        Provide ``means2d_abs`` whose ``.grad`` is the absolute 2D gradient (AbsGS densification).
+    backend : {"auto", "numba", "torch"}
+        ``"auto"``: numba for float32 inputs, the torch twin for float64 (or when numba is
+        missing, with one warning).
+
+    Returns
+    -------
+    RenderOutput
+        ``color`` [H, W, C], ``alpha`` [H, W], ``depth`` [H, W] or None, per-Gaussian ``means2d``
+        [N, 2], ``means2d_abs`` [N, 2], ``radii`` [N, 2], ``depths`` [N], and ``meta`` counters
+        (culled Gaussians per reason, visible Gaussians, tile entries, pairs evaluated).
+
+    Raises
+    ------
+    ValueError
+        On wrong shapes, dtypes, devices, non-positive sizes or ``near``/``far``, or an unknown
+        ``backend``; non-finite per-Gaussian values are not errors: those Gaussians are culled and
+        counted in ``meta["culled_nonfinite"]``.
+
+    Notes
+    -----
+    Gradients flow to ``means``, ``quats``, ``scales``, ``opacities``, ``colors`` and
+    ``background``, not to ``viewmat`` or ``K``. Culled Gaussians get exactly zero gradient.
+    """
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")
+    viewmat_t, K_t, bg = check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height,
+                                      near, far, background)
+    use_torch = backend == "torch" or (backend == "auto" and means.dtype != torch.float32)
+    if backend == "numba" and means.dtype != torch.float32:
+        raise ValueError(f"the numba backend takes float32 inputs, got {means.dtype}; use backend='torch'")
+    mod = None if use_torch else _load_numba()
+    if mod is None:
+        if backend == "numba":
+            raise ValueError(f"backend='numba' requested but numba is unavailable ({numba_error('raster.kernels')})")
+        return rasterize_torch(means, quats, scales, opacities, colors, viewmat_t, K_t, width, height,
+                               near=near, far=far, background=bg, render_depth=render_depth, absgrad=absgrad)
+
+    job = mod.RenderJob(means, quats, scales, opacities, colors, viewmat_t, K_t, int(width), int(height),
+                        near=float(near), far=float(far), render_depth=render_depth)
+    means2d = torch.from_numpy(job.means2d.astype(np.float32))
+    radii = torch.from_numpy(job.radii.copy())
+    depths = torch.from_numpy(job.depths.copy())
+    params = (means, quats, scales, opacities, colors)
+    grads_on = torch.is_grad_enabled() and any(t.requires_grad for t in params)
+    means2d_abs = None
+    if grads_on:
+        means2d.requires_grad_(True)
+        if absgrad:
+            means2d_abs = means2d.detach().clone().requires_grad_(True)
+    holder_abs = means2d_abs if means2d_abs is not None else torch.zeros(0, 2)
+    color, alpha, dnum = _RasterizeFunction.apply(*params, means2d, holder_abs, job)
+    if bg is not None:
+        color = color + (1.0 - alpha)[..., None] * bg
+    depth = dnum / alpha.clamp_min(DEPTH_EPS) if render_depth else None
+    return RenderOutput(color=color, alpha=alpha, depth=depth, means2d=means2d, means2d_abs=means2d_abs,
+                        radii=radii, depths=depths, meta=job.meta)

@@ -1,0 +1,1162 @@
+"""Rain and snow as Gaussian particles in a camera-following volume (DESIGN §7).
+
+A raindrop is one Gaussian stretched along its velocity relative to the camera (motion blur over
+the exposure); a snowflake is three equal elongated Gaussians at 60 degrees sharing one center
+(WeatherCity's flake). Velocities are physical: fall speed from the drop diameter plus wind (plus a
+smooth seeded flutter for snow), with gravity along ``-up`` of the scene.
+
+Particles live in a box that follows the camera (horizontal half-size ``radius_m`` in the plane
+orthogonal to ``up``, ``below_m``/``above_m`` along it) and wraps periodically: a particle leaving
+one face re-enters through the opposite one, and on every vertical wrap its horizontal position is
+re-drawn from a counter-based hash of (seed, particle, wrap count). Positions are closed-form
+functions of time, so frame t is a pure function of (seed, t, parameters, camera center): frame
+17 rendered alone equals frame 17 of a sequence.
+
+Physical presets derive the density and sizes from a drop-size distribution
+N(D) = N0 exp(-Lambda D) (Marshall-Palmer for rain, Gunn-Marshall for snow, D in mm). Drops of at
+least ``min_diameter_mm`` in the box are simulated; above ``max_particles`` each particle stands
+for k = physical / simulated drops and its opacity becomes 1 - (1 - a)^k (the optical depth of k
+independent drops; equal to k a for faint drops). Rain beyond the box is haze: see
+:func:`extinction_coefficient`.
+
+All lengths are metres, times seconds, diameters millimetres; colors float RGB in [0, 1]
+(the images' values, as everywhere in wcbench).
+Quaternions are (w, x, y, z).
+
+The numpy code here is the reference; :mod:`.particle_kernels` computes the same frame in two
+numba passes (``fast=True``, the default when numba imports) and the tests compare the two.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from wcbench.reference_model._numba_backend import load_numba_kernels
+from wcbench.reference_model.transforms import apply_linear, quat_multiply, quat_to_matrix
+
+__all__ = [
+    "ParticleField",
+    "ParticleGaussians",
+    "ParticleSpec",
+    "Wind",
+    "extinction_coefficient",
+    "horizontal_basis",
+    "number_density",
+    "particle_dilation_compensation",
+    "quat_from_axis_to",
+    "rain_fall_speed",
+    "sample_diameters",
+    "size_distribution",
+    "snow_fall_speed",
+]
+
+KINDS = ("rain", "snow")
+_KIND_CODE = {"rain": 1, "snow": 2}
+_TURB_MODES = 3  # sinusoids per axis of the snow flutter
+_TURB_FREQ_HZ = (0.2, 1.0)  # flutter frequencies of falling aggregates
+_SHORT_OVER_LONG = 0.625  # the paper flake's axis ratio, 0.004 / 0.0064
+_MAX_SINGLE_OPACITY = 0.99  # the rasterizer's clamp; (1 - a)^k needs a < 1
+#: (N0, exponent of R in N0, Lambda coefficient, exponent of R in Lambda): Marshall-Palmer (1948)
+#: for rain, Gunn-Marshall (1958) for snow (melted diameters).
+_DSD_DEFAULTS = {"rain": (8000.0, 0.0, 4.1, -0.21), "snow": (3800.0, -0.87, 2.55, -0.48)}
+
+
+# --------------------------------------------------------------------------------------------
+# Physics of the drop population
+
+
+def size_distribution(kind: str, rate_mm_h: float, spec: ParticleSpec | None = None) -> tuple[float, float]:
+    """Exponential drop-size distribution N(D) = N0 exp(-Lambda D) for a precipitation rate.
+
+    Parameters
+    ----------
+    kind : {"rain", "snow"}
+        Rain uses Marshall-Palmer (N0 = 8000 m^-3 mm^-1, Lambda = 4.1 R^-0.21 mm^-1); snow uses
+        Gunn-Marshall on melted diameters (N0 = 3800 R^-0.87, Lambda = 2.55 R^-0.48).
+    rate_mm_h : float
+        Liquid-water precipitation rate R (mm/h), >= 0.
+    spec : ParticleSpec, optional
+        Takes the coefficients from ``spec`` instead of the defaults above.
+
+    Returns
+    -------
+    n0 : float
+        Intercept (m^-3 mm^-1); 0 when the rate is 0.
+    lam : float
+        Slope Lambda (mm^-1); ``inf`` when the rate is 0.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is unknown or ``rate_mm_h`` is negative or not finite.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    if not math.isfinite(rate_mm_h) or rate_mm_h < 0:
+        raise ValueError(f"rate_mm_h must be a finite rate >= 0 mm/h, got {rate_mm_h}")
+    a0, b0, a1, b1 = (
+        _DSD_DEFAULTS[kind] if spec is None else (spec.dsd_n0, spec.dsd_n0_b, spec.dsd_lambda_a, spec.dsd_lambda_b)
+    )
+    if rate_mm_h == 0:
+        return 0.0, math.inf
+    return float(a0 * rate_mm_h**b0), float(a1 * rate_mm_h**b1)
+
+
+def number_density(n0: float, lam: float, d_min_mm: float, d_max_mm: float = math.inf) -> float:
+    """Drops per cubic metre with diameter in [d_min, d_max] for N(D) = N0 exp(-Lambda D).
+
+    Parameters
+    ----------
+    n0 : float
+        m^-3 mm^-1.
+    lam : float
+        mm^-1 (``inf`` gives 0).
+    d_min_mm, d_max_mm : float
+        Diameter range (mm).
+
+    Returns
+    -------
+    float
+        m^-3.
+    """
+    if n0 <= 0 or not math.isfinite(lam) or d_max_mm <= d_min_mm:
+        return 0.0
+    upper = 0.0 if math.isinf(d_max_mm) else math.exp(-lam * d_max_mm)
+    return float(n0 / lam * (math.exp(-lam * d_min_mm) - upper))
+
+
+def sample_diameters(u: np.ndarray, lam: float, d_min_mm: float, d_max_mm: float) -> np.ndarray:
+    """Inverse-CDF sampling of the exponential distribution truncated to [d_min, d_max].
+
+    Parameters
+    ----------
+    u : ndarray [N]
+        Uniform numbers in [0, 1).
+    lam : float
+        Slope (mm^-1), > 0.
+    d_min_mm, d_max_mm : float
+        Truncation (mm).
+
+    Returns
+    -------
+    ndarray [N] float64
+        Diameters (mm).
+    """
+    span = -math.expm1(-lam * (d_max_mm - d_min_mm))  # CDF mass inside the range, precise for small lam
+    return d_min_mm - np.log1p(-np.asarray(u, np.float64) * span) / lam
+
+
+def rain_fall_speed(d_mm: np.ndarray | float) -> np.ndarray:
+    """Terminal fall speed of raindrops, v(D) = 9.65 - 10.3 exp(-0.6 D) m/s (Atlas et al. 1973).
+
+    Parameters
+    ----------
+    d_mm : ndarray [N] or float
+        Equivalent diameter (mm).
+
+    Returns
+    -------
+    ndarray [N] float64
+        m/s, clipped at 0 (the fit goes negative below 0.1 mm).
+    """
+    return np.maximum(9.65 - 10.3 * np.exp(-0.6 * np.asarray(d_mm, np.float64)), 0.0)
+
+
+def snow_fall_speed(d_mm: np.ndarray | float) -> np.ndarray:
+    """Fall speed of snow aggregates, v = 0.8 D^0.16 m/s (Locatelli & Hobbs 1974), in [0.5, 1.5].
+
+    Parameters
+    ----------
+    d_mm : ndarray [N] or float
+        Flake extent (mm).
+
+    Returns
+    -------
+    ndarray [N] float64
+        m/s.
+    """
+    return np.clip(0.8 * np.power(np.maximum(np.asarray(d_mm, np.float64), 1e-6), 0.16), 0.5, 1.5)
+
+
+def extinction_coefficient(n0: float, lam: float, *, size_ratio: float = 1.0) -> float:
+    """Optical extinction coefficient of an exponential drop population (geometric optics).
+
+    beta = integral Q_ext (pi/4) (r D)^2 N(D) dD with Q_ext = 2 (large-particle limit) gives
+    beta = pi r^2 N0 / Lambda^3 (with the mm units converted). Heavy rain (25 mm/h) gives
+    2.8e-3 m^-1, a visibility 2.996 / beta of about 1 km.
+
+    Parameters
+    ----------
+    n0 : float
+        m^-3 mm^-1.
+    lam : float
+        mm^-1 (``inf`` gives 0).
+    size_ratio : float
+        Optical extent / distribution diameter (snow: flake / melted diameter).
+
+    Returns
+    -------
+    float
+        beta (m^-1).
+    """
+    if n0 <= 0 or not math.isfinite(lam):
+        return 0.0
+    return float(math.pi * size_ratio**2 * n0 / lam**3 * 1e-6)  # mm^2 -> m^2
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry helpers
+
+
+def horizontal_basis(up: np.ndarray, heading: np.ndarray | None = None) -> np.ndarray:
+    """Right-handed orthonormal basis (e1, e2, up) with e1, e2 horizontal.
+
+    Parameters
+    ----------
+    up : ndarray [3]
+        Up vector of the world (normalised here).
+    heading : ndarray [3], optional
+        Direction e1 should follow (projected onto the horizontal plane), e.g. the first
+        camera's viewing direction; defaults to the world axis least aligned with ``up``.
+
+    Returns
+    -------
+    ndarray [3, 3] float64
+        Rows e1, e2 = up x e1, up.
+
+    Raises
+    ------
+    ValueError
+        If ``up`` is not a finite non-zero 3-vector.
+    """
+    u = np.asarray(up, np.float64).reshape(-1)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) < 1e-9:
+        raise ValueError(f"up must be a finite non-zero 3-vector, got {up!r}")
+    u = u / np.linalg.norm(u)
+    candidates = [] if heading is None else [np.asarray(heading, np.float64).reshape(3)]
+    candidates.append(np.eye(3)[int(np.argmin(np.abs(u)))])
+    for h in candidates:
+        e1 = h - (h @ u) * u
+        if np.all(np.isfinite(e1)) and np.linalg.norm(e1) > 1e-6:
+            e1 = e1 / np.linalg.norm(e1)
+            return np.stack([e1, np.cross(u, e1), u])
+    raise AssertionError("unreachable: the least aligned axis is never parallel to up")
+
+
+def quat_from_axis_to(v: np.ndarray) -> np.ndarray:
+    """Quaternions [N, 4] rotating the local z axis onto the line of each ``v`` [N, 3].
+
+    The Gaussian is symmetric, so z is mapped onto +v or -v, whichever needs the smaller turn;
+    this avoids the singular 180-degree case for rain falling along -z.
+    """
+    v = np.asarray(v, np.float64)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    d = np.where(n > 1e-12, v / np.maximum(n, 1e-300), np.array([0.0, 0.0, 1.0]))
+    d = d * np.where(d[..., 2:3] < 0, -1.0, 1.0)
+    # Half-way quaternion between z and d: (1 + z.d, z x d), with z.d >= 0 so never degenerate.
+    q = np.stack([1.0 + d[..., 2], -d[..., 1], d[..., 0], np.zeros_like(d[..., 0])], -1)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def _quat_about_z(angle: np.ndarray) -> np.ndarray:
+    half = 0.5 * np.asarray(angle, np.float64)
+    zero = np.zeros_like(half)
+    return np.stack([np.cos(half), zero, zero, np.sin(half)], -1)
+
+
+def _random_quaternions(u: np.ndarray) -> np.ndarray:
+    """Uniformly random rotations from u [N, 3] in [0, 1) (Shoemake 1992)."""
+    a, b, c = u[:, 0], 2 * np.pi * u[:, 1], 2 * np.pi * u[:, 2]
+    r1, r2 = np.sqrt(1 - a), np.sqrt(a)
+    return np.stack([r2 * np.cos(c), r1 * np.sin(b), r1 * np.cos(b), r2 * np.sin(c)], -1)
+
+
+def _hash_uniform(seed: int, index: np.ndarray, counter: np.ndarray, stream: int) -> np.ndarray:
+    """Counter-based uniform numbers in [0, 1): splitmix64 of (seed, index, counter, stream).
+
+    Used for the horizontal re-draw on wrap, so that the value for wrap n of particle i never
+    depends on which frames were rendered before.
+    """
+    with np.errstate(over="ignore"):
+        x = np.uint64(seed & 0xFFFFFFFFFFFFFFFF) * np.uint64(0x9E3779B97F4A7C15)
+        x = _splitmix64(x ^ np.asarray(index).astype(np.uint64))
+        x = _splitmix64(x ^ np.asarray(counter).astype(np.int64).astype(np.uint64))
+        x = _splitmix64(x ^ np.uint64(stream))
+    return (x >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    with np.errstate(over="ignore"):
+        x = np.asarray(x, np.uint64) + np.uint64(0x9E3779B97F4A7C15)
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return x ^ (x >> np.uint64(31))
+
+
+def particle_dilation_compensation(
+    means: np.ndarray,
+    quats: np.ndarray,
+    scales: np.ndarray,
+    viewmat: np.ndarray,
+    K: np.ndarray,
+    *,
+    eps2d: float,
+) -> np.ndarray:
+    """Opacity factor sqrt(det Sigma / det(Sigma + eps I)) per Gaussian (gsplat "antialiased").
+
+    The rasterizer dilates every 2D covariance by ``eps2d`` px^2; a raindrop a tenth of a pixel
+    wide would grow several-fold in coverage, and by a resolution-dependent amount. Scaling its
+    opacity by this factor keeps its integrated coverage.
+
+    Parameters
+    ----------
+    means : ndarray [M, 3]
+        World (m).
+    quats : ndarray [M, 4]
+        wxyz.
+    scales : ndarray [M, 3]
+        Standard deviations (m).
+    viewmat : ndarray [4, 4]
+        World-to-camera (OpenCV axes).
+    K : ndarray [3, 3]
+        Intrinsics.
+    eps2d : float
+        The rasterizer's dilation (px^2).
+
+    Returns
+    -------
+    ndarray [M] float32
+        In (0, 1]; 1 where the projection is degenerate (such Gaussians are culled anyway).
+    """
+    if len(means) == 0:
+        return np.zeros(0, np.float32)
+    W = np.asarray(viewmat, np.float64)
+    cam = apply_linear(np.asarray(means, np.float64), W[:3, :3].T) + W[:3, 3]
+    x, y, z = cam[:, 0], cam[:, 1], np.maximum(cam[:, 2], 1e-6)
+    fx, fy = K[0, 0], K[1, 1]
+    J = np.zeros((len(cam), 2, 3))
+    J[:, 0, 0], J[:, 0, 2] = fx / z, -fx * x / z**2
+    J[:, 1, 1], J[:, 1, 2] = fy / z, -fy * y / z**2
+    M = quat_to_matrix(quats) * np.asarray(scales, np.float64)[:, None, :]
+    T = J @ W[:3, :3] @ M
+    cov = T @ T.transpose(0, 2, 1)
+    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
+    det_d = (cov[:, 0, 0] + eps2d) * (cov[:, 1, 1] + eps2d) - cov[:, 0, 1] ** 2
+    factor = np.sqrt(np.clip(det, 0.0, None) / np.maximum(det_d, 1e-30))
+    return np.where(np.isfinite(factor), np.clip(factor, 0.0, 1.0), 1.0).astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------------
+# Parameters
+
+
+@dataclass(frozen=True)
+class Wind:
+    """A uniform wind.
+
+    Attributes
+    ----------
+    speed_m_s : float
+        Magnitude (m/s), >= 0.
+    tilt_deg : float
+        Angle of the wind vector below the horizontal plane (degrees, in [-90, 90]); positive
+        blows downward (a descending gust), negative upward.
+    azimuth_deg : float
+        Horizontal direction the wind blows *toward*, counter-clockwise seen from above, from the
+        basis axis e1 (the first camera's horizontal viewing direction in a rendered scene).
+    """
+
+    speed_m_s: float = 0.0
+    tilt_deg: float = 0.0
+    azimuth_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("speed_m_s", "tilt_deg", "azimuth_deg"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"wind {name} must be finite, got {getattr(self, name)}")
+        if self.speed_m_s < 0:
+            raise ValueError(f"wind speed_m_s must be >= 0, got {self.speed_m_s}")
+        if not -90.0 <= self.tilt_deg <= 90.0:
+            raise ValueError(f"wind tilt_deg must be in [-90, 90], got {self.tilt_deg}")
+
+    def vector(self, basis: np.ndarray) -> np.ndarray:
+        """[3] wind velocity in world coordinates (m/s) for a :func:`horizontal_basis`."""
+        tilt, az = math.radians(self.tilt_deg), math.radians(self.azimuth_deg)
+        e1, e2, up = np.asarray(basis, np.float64)
+        horizontal = math.cos(az) * e1 + math.sin(az) * e2
+        return self.speed_m_s * (math.cos(tilt) * horizontal - math.sin(tilt) * up)
+
+
+@dataclass(frozen=True)
+class ParticleSpec:
+    """Everything that defines a rain or snow particle population (see ``weather_presets.toml``).
+
+    Either ``rate_mm_h`` (physical: density, sizes and speeds from the size distribution) or
+    ``count`` (fixed count with fixed ``scale_m``/``opacity``, the paper's settings) is used;
+    ``count`` wins when both are set.
+    """
+
+    kind: str = "rain"
+    rate_mm_h: float | None = None
+    count: int | None = None
+    max_particles: int = 40000
+    dsd_n0: float = 8000.0
+    dsd_n0_b: float = 0.0
+    dsd_lambda_a: float = 4.1
+    dsd_lambda_b: float = -0.21
+    min_diameter_mm: float = 0.5
+    max_diameter_mm: float = 6.0
+    flake_ratio: float = 1.0
+    radius_m: float = 10.0
+    below_m: float = 3.0
+    above_m: float = 5.0
+    fade_m: float = 1.0
+    min_distance_m: float = 0.3
+    color: tuple[float, float, float] = (0.75, 0.76, 0.8)
+    opacity: float = 0.6
+    scale_m: tuple[float, float, float] | None = None
+    fall_speed_m_s: float | None = None
+    stretch_with_exposure: bool = True
+    turbulence_m_s: float = 0.0
+    spin_rad_s: float = 0.0
+    haze: bool = True
+    haze_color: tuple[float, float, float] = (0.6, 0.62, 0.66)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
+        if self.rate_mm_h is None and self.count is None:
+            raise ValueError("a particle spec needs rate_mm_h (physical) or count (fixed)")
+        if self.rate_mm_h is not None and (not math.isfinite(self.rate_mm_h) or self.rate_mm_h < 0):
+            raise ValueError(f"rate_mm_h must be a finite rate >= 0 mm/h, got {self.rate_mm_h}")
+        if self.count is not None and self.count < 0:
+            raise ValueError(f"count must be >= 0, got {self.count}")
+        if self.max_particles < 0:
+            raise ValueError(f"max_particles must be >= 0, got {self.max_particles}")
+        for name in ("radius_m", "below_m", "above_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.below_m + self.above_m <= 0 or self.fade_m < 0 or self.min_distance_m < 0:
+            raise ValueError("fade_m and min_distance_m must be >= 0")
+        if not 0.0 <= self.opacity <= 1.0:
+            raise ValueError(f"opacity must be in [0, 1], got {self.opacity}")
+        if not 0 < self.min_diameter_mm < self.max_diameter_mm:
+            raise ValueError(
+                f"need 0 < min_diameter_mm < max_diameter_mm, got {self.min_diameter_mm}, {self.max_diameter_mm}"
+            )
+        if self.scale_m is not None and (len(self.scale_m) != 3 or min(self.scale_m) <= 0):
+            raise ValueError(f"scale_m must be three positive lengths (m), got {self.scale_m}")
+        if self.count is not None and (self.scale_m is None or self.fall_speed_m_s is None):
+            raise ValueError("a fixed-count spec needs scale_m and fall_speed_m_s")
+        if self.fall_speed_m_s is not None and not (math.isfinite(self.fall_speed_m_s)):
+            raise ValueError(f"fall_speed_m_s must be finite, got {self.fall_speed_m_s}")
+        if self.turbulence_m_s < 0 or self.spin_rad_s < 0:
+            raise ValueError("turbulence_m_s and spin_rad_s must be >= 0")
+
+    @classmethod
+    def from_mapping(cls, kind: str, values: Mapping[str, Any]) -> ParticleSpec:
+        """Build a spec from a preset table; unknown keys raise ``ValueError`` naming them.
+
+        ``drop_opacity`` (rain) and ``flake_opacity`` (snow) map to ``opacity`` unless the table
+        sets ``opacity`` itself (fixed presets).
+        """
+        known = {f.name for f in fields(cls)}
+        values = dict(values)
+        for alias in ("drop_opacity", "flake_opacity"):
+            if alias in values:
+                v = values.pop(alias)
+                values.setdefault("opacity", v)
+        values.pop("default_preset", None)
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown {kind} particle settings {unknown}; known: {sorted(known)}")
+        for key in ("color", "haze_color", "scale_m"):
+            if values.get(key) is not None:
+                values[key] = tuple(float(x) for x in values[key])
+        if values.get("count") is not None:
+            values["count"] = int(values["count"])
+        return cls(kind=kind, **{k: v for k, v in values.items() if k != "kind"})
+
+    @property
+    def box_size(self) -> np.ndarray:
+        """[3] box edge lengths along (e1, e2, up), metres."""
+        return np.array([2 * self.radius_m, 2 * self.radius_m, self.below_m + self.above_m])
+
+    @property
+    def box_low(self) -> np.ndarray:
+        """[3] lower box corner relative to the camera center along (e1, e2, up), metres."""
+        return np.array([-self.radius_m, -self.radius_m, -self.below_m])
+
+    @property
+    def physical(self) -> bool:
+        """Whether sizes and counts come from the drop-size distribution."""
+        return self.count is None
+
+
+@dataclass
+class ParticleGaussians:
+    """Particles of one frame as Gaussians (float32 numpy arrays).
+
+    Attributes
+    ----------
+    means : ndarray [M, 3]
+        World positions (m).
+    quats : ndarray [M, 4]
+        Rotations (w, x, y, z), unit.
+    scales : ndarray [M, 3]
+        Standard deviations along the local axes (m).
+    opacities : ndarray [M]
+        In [0, 1].
+    colors : ndarray [M, 3]
+        RGB in [0, 1].
+    particle : ndarray [M] int64
+        Index of the particle each Gaussian belongs to (a flake has three).
+    velocity : ndarray [M, 3]
+        World velocity of the particle (m/s).
+    """
+
+    means: np.ndarray
+    quats: np.ndarray
+    scales: np.ndarray
+    opacities: np.ndarray
+    colors: np.ndarray
+    particle: np.ndarray
+    velocity: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    def subset(self, keep: np.ndarray) -> ParticleGaussians:
+        """The Gaussians selected by a boolean mask or index array ``keep``."""
+        return ParticleGaussians(
+            **{f.name: getattr(self, f.name)[keep] for f in fields(self)}  # type: ignore[arg-type]
+        )
+
+    def head(self, k: int) -> ParticleGaussians:
+        """Views of the first ``k`` Gaussians (no copy)."""
+        return ParticleGaussians(
+            **{f.name: getattr(self, f.name)[:k] for f in fields(self)}  # type: ignore[arg-type]
+        )
+
+    @staticmethod
+    def allocate(n: int) -> ParticleGaussians:
+        """Uninitialised buffers for ``n`` Gaussians (see :meth:`ParticleField.gaussians`)."""
+        e = np.empty
+        return ParticleGaussians(
+            e((n, 3), np.float32),
+            e((n, 4), np.float32),
+            e((n, 3), np.float32),
+            e(n, np.float32),
+            e((n, 3), np.float32),
+            e(n, np.int64),
+            e((n, 3), np.float32),
+        )
+
+    @staticmethod
+    def empty() -> ParticleGaussians:
+        """No Gaussians (clear weather, zero rate)."""
+        z = np.zeros
+        return ParticleGaussians(
+            z((0, 3), np.float32),
+            z((0, 4), np.float32),
+            z((0, 3), np.float32),
+            z(0, np.float32),
+            z((0, 3), np.float32),
+            z(0, np.int64),
+            z((0, 3), np.float32),
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# The particle field
+
+
+@dataclass
+class ParticleField:
+    """A seeded population of rain drops or snowflakes; positions are closed-form in time.
+
+    Parameters
+    ----------
+    spec : ParticleSpec
+    wind : Wind
+    up : ndarray [3]
+        World up vector (gravity is ``-up``).
+    heading : ndarray [3], optional
+        Reference horizontal direction for the wind azimuth (see :func:`horizontal_basis`).
+    seed : int
+        Same seed and parameters give the same particles.
+    anchor : ndarray [3], optional
+        World point the initial box is centred on at t = 0 (default: the origin, which is the
+        first camera of a re-based scene). Part of the parameters: keep it fixed for a sequence.
+    """
+
+    spec: ParticleSpec
+    wind: Wind = field(default_factory=Wind)
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    heading: np.ndarray | None = None
+    seed: int = 0
+    anchor: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        spec = self.spec
+        self.basis = horizontal_basis(self.up, self.heading)
+        self.anchor_ = np.zeros(3) if self.anchor is None else np.asarray(self.anchor, np.float64).reshape(3)
+        volume = float(np.prod(spec.box_size))
+        if spec.physical:
+            assert spec.rate_mm_h is not None
+            self.n0, self.lam = size_distribution(spec.kind, spec.rate_mm_h, spec)
+            self.density_per_m3 = number_density(self.n0, self.lam, spec.min_diameter_mm, spec.max_diameter_mm)
+            self.physical_count = self.density_per_m3 * volume
+            n = int(min(round(self.physical_count), spec.max_particles))
+        else:
+            assert spec.count is not None
+            self.n0, self.lam, self.density_per_m3 = 0.0, math.inf, spec.count / volume
+            self.physical_count = float(spec.count)
+            n = spec.count
+        self.count = n
+        # Each simulated particle stands for `represented` physical ones (1 below the cap).
+        self.represented = self.physical_count / n if n > 0 else 1.0
+
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(self.seed), _KIND_CODE[spec.kind]])))
+        self.initial = spec.box_low + rng.random((n, 3)) * spec.box_size  # box coords at t = 0
+        if spec.physical:
+            self.diameter_mm = sample_diameters(rng.random(n), self.lam, spec.min_diameter_mm, spec.max_diameter_mm)
+        else:
+            rng.random(n)  # keep the stream aligned between the two modes
+            self.diameter_mm = np.zeros(n)
+        if spec.fall_speed_m_s is not None:
+            fall = np.full(n, float(spec.fall_speed_m_s))
+        elif spec.kind == "rain":
+            fall = rain_fall_speed(self.diameter_mm)
+        else:
+            fall = snow_fall_speed(self.diameter_mm * spec.flake_ratio)
+        self.fall_speed = fall
+        self.wind_vector = self.wind.vector(self.basis)
+        # Mean velocity in box coordinates (e1, e2, up) and in world coordinates.
+        self.velocity_box = np.zeros((n, 3)) + self.wind_vector @ self.basis.T
+        self.velocity_box[:, 2] -= fall
+        # Flutter: per axis a sum of sinusoids with RMS velocity turbulence_m_s (half vertically).
+        freq = 2 * np.pi * (_TURB_FREQ_HZ[0] + (_TURB_FREQ_HZ[1] - _TURB_FREQ_HZ[0]) * rng.random((n, 3, _TURB_MODES)))
+        self.turb_omega = freq
+        self.turb_phase = 2 * np.pi * rng.random((n, 3, _TURB_MODES))
+        amp_v = spec.turbulence_m_s * math.sqrt(2.0 / _TURB_MODES) * np.array([1.0, 1.0, 0.5])
+        self.turb_amp = amp_v[None, :, None] / freq  # displacement amplitude (m)
+        # Displacement at t = 0, subtracted so the flutter starts at the drawn position.
+        self.turb_offset = (self.turb_amp * np.sin(self.turb_phase)).sum(-1)
+        self._speed_max = (
+            float(np.sqrt(np.einsum("ij,ij->i", self.velocity_box, self.velocity_box)).max()) if n else 0.0
+        )
+        # Flake orientation: random rotation, then spin about its normal (local z).
+        self.orientation = _random_quaternions(rng.random((n, 3)))
+        self.spin_rate = spec.spin_rad_s * rng.standard_normal(n)
+
+    # ---- kinematics -----------------------------------------------------------------------
+
+    def _turbulence(self, t: float, idx: np.ndarray | slice = slice(None)) -> np.ndarray | None:
+        """[K, 3] flutter displacement since t = 0 in box coordinates, or None without flutter."""
+        if self.spec.turbulence_m_s == 0:
+            return None
+        omega, phase = self.turb_omega[idx], self.turb_phase[idx]
+        return (self.turb_amp[idx] * np.sin(omega * t + phase)).sum(-1) - self.turb_offset[idx]
+
+    def _velocity_box(self, t: float, idx: np.ndarray | slice = slice(None)) -> np.ndarray:
+        v = self.velocity_box[idx]
+        if self.spec.turbulence_m_s == 0:
+            return v
+        omega = self.turb_omega[idx]
+        return v + (self.turb_amp[idx] * omega * np.cos(omega * t + self.turb_phase[idx])).sum(-1)
+
+    def displacement(self, t: float) -> np.ndarray:
+        """[N, 3] world displacement of every particle from t = 0 to ``t``, ignoring wraps (m)."""
+        d = self.velocity_box * t
+        turb = self._turbulence(t)
+        if turb is not None:
+            d = d + turb
+        return apply_linear(d, self.basis)
+
+    def velocity(self, t: float) -> np.ndarray:
+        """[N, 3] world velocity of every particle at time ``t`` (m/s)."""
+        return apply_linear(self._velocity_box(t), self.basis)
+
+    def initial_positions(self) -> np.ndarray:
+        """[N, 3] world positions at t = 0 (before any wrap), metres."""
+        return self.anchor_ + apply_linear(self.initial, self.basis)
+
+    def positions(self, t: float, camera_center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Wrapped world positions at time ``t`` in the box around ``camera_center``.
+
+        Parameters
+        ----------
+        t : float
+            Seconds since the field's time origin (the scene's first frame).
+        camera_center : ndarray [3]
+            World position the box is centred on (horizontally; vertically it spans
+            [-below_m, above_m] around it).
+
+        Returns
+        -------
+        positions : ndarray [N, 3] float64
+            World positions (m), all inside the box.
+        wraps : ndarray [N] int64
+            Vertical wrap count of each particle (0 until it first leaves the box vertically).
+
+        Raises
+        ------
+        ValueError
+            If ``t`` or ``camera_center`` is not finite.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"t must be finite seconds, got {t}")
+        c = np.asarray(camera_center, np.float64).reshape(-1)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise ValueError(f"camera_center must be a finite [3] position, got {camera_center!r}")
+        lo, size = self.spec.box_low, self.spec.box_size
+        cam = (c - self.anchor_) @ self.basis.T  # camera in box coordinates
+        # Box-relative coordinates before wrapping; shifting by -lo makes the wrap a plain modulo.
+        unwrapped = self.initial + (self.velocity_box * t - (cam + lo))
+        turb = self._turbulence(t)
+        if turb is not None:
+            unwrapped += turb
+        wraps = np.floor(unwrapped[:, 2] / size[2]).astype(np.int64)
+        moved = np.nonzero(wraps)[0]
+        if moved.size:
+            # A vertical wrap re-draws the horizontal position; the hash keeps it a pure function
+            # of (seed, particle, wrap count), whatever frames were rendered before.
+            for axis in (0, 1):
+                unwrapped[moved, axis] += size[axis] * _hash_uniform(self.seed, moved, wraps[moved], axis)
+        # u - floor(u / size) size, not np.mod: the same operations as the numba kernel.
+        rel = unwrapped - np.floor(unwrapped / size) * size + lo
+        return apply_linear(rel, self.basis) + c, wraps
+
+    # ---- appearance -----------------------------------------------------------------------
+
+    def visible(
+        self,
+        t: float,
+        camera_center: np.ndarray,
+        *,
+        exposure_s: float = 0.01,
+        camera_speed: float = 0.0,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None = None,
+        near: float = 0.01,
+        fast: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and indices of the particles within range (and in view, with ``view``).
+
+        Parameters
+        ----------
+        t, camera_center, exposure_s, view, near
+            As in :meth:`gaussians`.
+        camera_speed : float
+            |camera velocity| (m/s), for the bound on streak lengths.
+        fast : bool
+            The numba kernel when available; else (or ``False``) the numpy reference.
+
+        Returns
+        -------
+        positions : ndarray [K, 3] float64
+            World positions of the kept particles (m).
+        index : ndarray [K] int64
+            Their particle indices, increasing.
+        """
+        spec = self.spec
+        c = np.asarray(camera_center, np.float64).reshape(3)
+        kernels = _numba_kernels() if fast else None
+        if kernels is None:
+            pos, _ = self.positions(t, c)
+            d2 = np.einsum("ij,ij->i", pos - c, pos - c)
+            ok = (d2 < spec.radius_m**2) & (d2 > spec.min_distance_m**2)
+            if view is not None:
+                ok &= self._in_view(pos, view, near, exposure_s, camera_speed)
+            keep = np.nonzero(ok)[0]
+            return pos[keep], keep
+        pos, keep = self._cull_fast(kernels, t, c, exposure_s, camera_speed, view, near)
+        return pos[keep], keep
+
+    def _cull_fast(
+        self,
+        kernels: Any,
+        t: float,
+        c: np.ndarray,
+        exposure_s: float,
+        camera_speed: float,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None,
+        near: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The numba twin of the reference branch of :meth:`visible`: ([N, 3] positions of all
+        particles, kept indices)."""
+        spec = self.spec
+        if not math.isfinite(t):
+            raise ValueError(f"t must be finite seconds, got {t}")
+        if not np.all(np.isfinite(c)):
+            raise ValueError(f"camera_center must be a finite [3] position, got {c!r}")
+        shift = (c - self.anchor_) @ self.basis.T + spec.box_low
+        if view is None:
+            W, kparams, size_px, near_, reach = np.eye(4), np.ones(4), np.zeros(2), -np.inf, 0.0
+        else:
+            W = np.asarray(view[0], np.float64)
+            Kv = np.asarray(view[1], np.float64)
+            kparams = np.array([Kv[0, 0], Kv[1, 1], Kv[0, 2], Kv[1, 2]])
+            size_px = np.array([float(view[2]), float(view[3])])
+            near_ = float(near)
+            reach = 3.0 * self.max_extent(exposure_s=exposure_s, camera_speed=camera_speed)
+        pos = np.empty((self.count, 3))
+        ok = np.empty(self.count, np.bool_)
+        kernels.field_kernel(
+            self.initial,
+            self.velocity_box,
+            self.turb_amp,
+            self.turb_omega,
+            self.turb_phase,
+            self.turb_offset,
+            self.spec.turbulence_m_s > 0,
+            float(t),
+            shift,
+            spec.box_size,
+            spec.box_low,
+            np.uint64(self.seed),
+            self.basis,
+            c,
+            spec.radius_m**2,
+            spec.min_distance_m**2,
+            view is not None,
+            np.ascontiguousarray(W[:3, :4]),
+            kparams,
+            size_px,
+            near_,
+            reach,
+            pos,
+            ok,
+        )
+        return pos, np.nonzero(ok)[0]
+
+    def max_extent(self, *, exposure_s: float, camera_speed: float = 0.0) -> float:
+        """Upper bound of any particle's longest standard deviation (m), for view culling."""
+        if self.count == 0:
+            return 0.0
+        spec = self.spec
+        if spec.physical:
+            ratio = spec.flake_ratio if spec.kind == "snow" else 1.0
+            base = spec.max_diameter_mm * ratio * 1e-3 / 4.0
+        else:
+            assert spec.scale_m is not None
+            base = max(spec.scale_m)
+        if spec.kind != "rain" or not spec.stretch_with_exposure:
+            return float(base)
+        # The flutter's speed never exceeds sum(a_k) = sqrt(2 K) times its RMS per axis.
+        flutter = spec.turbulence_m_s * math.sqrt(2.0 * _TURB_MODES) * math.sqrt(2.25)
+        speed = self._speed_max + flutter + camera_speed
+        return float(math.sqrt(base**2 + (speed * exposure_s) ** 2 / 12.0))
+
+    def _in_view(
+        self,
+        pos: np.ndarray,
+        view: tuple[np.ndarray, np.ndarray, int, int],
+        near: float,
+        exposure_s: float,
+        camera_speed: float,
+    ) -> np.ndarray:
+        """[N] bool: the particle's 3-sigma extent may reach the image and it is beyond ``near``."""
+        world_to_camera, K, width, height = view
+        W = np.asarray(world_to_camera, np.float64)
+        K = np.asarray(K, np.float64)
+        cam = apply_linear(pos, W[:3, :3].T) + W[:3, 3]
+        z = cam[:, 2]
+        ok = z > near
+        zs = np.where(ok, z, 1.0)
+        reach = 3.0 * self.max_extent(exposure_s=exposure_s, camera_speed=camera_speed) / zs
+        # Compare in normalised coordinates: |x/z - x_edge| within the extent (+ 3 px of dilation).
+        xn, yn = cam[:, 0] / zs, cam[:, 1] / zs
+        pad_x, pad_y = reach + 3.0 / K[0, 0], reach + 3.0 / K[1, 1]
+        x_lo, x_hi = -K[0, 2] / K[0, 0], (width - K[0, 2]) / K[0, 0]
+        y_lo, y_hi = -K[1, 2] / K[1, 1], (height - K[1, 2]) / K[1, 1]
+        return ok & (xn > x_lo - pad_x) & (xn < x_hi + pad_x) & (yn > y_lo - pad_y) & (yn < y_hi + pad_y)
+
+    def gaussians(
+        self,
+        t: float,
+        camera_center: np.ndarray,
+        *,
+        exposure_s: float = 0.01,
+        camera_velocity: np.ndarray | None = None,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None = None,
+        near: float = 0.01,
+        dilation_eps2d: float | None = None,
+        out: ParticleGaussians | None = None,
+        fast: bool = True,
+    ) -> ParticleGaussians:
+        """The particles of time ``t`` as Gaussians, dropped where they would be invisible.
+
+        Particles farther than ``radius_m`` or nearer than ``min_distance_m`` from the camera are
+        dropped; opacity fades to 0 over ``fade_m`` before ``radius_m`` (no popping at the box
+        faces) and over ``min_distance_m`` after the near limit. With ``view``, particles whose
+        3-sigma extent cannot reach the image are dropped before their shapes are computed.
+
+        Parameters
+        ----------
+        t : float
+            Seconds since the time origin.
+        camera_center : ndarray [3]
+            World camera position (m).
+        exposure_s : float
+            Camera exposure (s): a streak spans the relative motion during it.
+        camera_velocity : ndarray [3], optional
+            World velocity of the camera (m/s); streaks follow the velocity relative to it.
+        view : (ndarray [4, 4], ndarray [3, 3], int, int), optional
+            World-to-camera matrix (OpenCV axes), intrinsics, width and height of the image.
+        near : float
+            With ``view``: particles with camera z <= near are dropped (m).
+        dilation_eps2d : float, optional
+            With ``view``: scale opacities by :func:`particle_dilation_compensation` for a
+            rasterizer that dilates 2D covariances by this many px^2.
+        out : ParticleGaussians, optional
+            Buffers of at least :attr:`max_gaussians` rows to write into (float32 arrays, int64
+            ``particle``); the result is then made of views of their first rows. Lets a renderer
+            put the particles straight behind its scene Gaussians without a copy.
+        fast : bool
+            Use the numba kernels when numba is available (the numpy path is their reference).
+
+        Returns
+        -------
+        ParticleGaussians
+            One Gaussian per raindrop, three per snowflake.
+
+        Raises
+        ------
+        ValueError
+            If ``exposure_s`` is negative or not finite, ``dilation_eps2d`` is given without
+            ``view``, or ``out`` is too small.
+        """
+        if not math.isfinite(exposure_s) or exposure_s < 0:
+            raise ValueError(f"exposure_s must be finite and >= 0 seconds, got {exposure_s}")
+        if dilation_eps2d is not None and view is None:
+            raise ValueError("dilation_eps2d needs the view it compensates for")
+        if out is not None and len(out) < self.max_gaussians:
+            raise ValueError(f"out holds {len(out)} Gaussians, this field needs up to {self.max_gaussians}")
+        if self.count == 0:
+            return ParticleGaussians.empty()
+        c = np.asarray(camera_center, np.float64).reshape(3)
+        cam_vel = np.zeros(3) if camera_velocity is None else np.asarray(camera_velocity, np.float64).reshape(3)
+        kernels = _numba_kernels() if fast else None
+        if kernels is not None:
+            return self._gaussians_fast(kernels, t, c, exposure_s, cam_vel, view, near, dilation_eps2d, out)
+        g = self._gaussians_reference(t, c, exposure_s, cam_vel, view, near)
+        if dilation_eps2d is not None and len(g):
+            assert view is not None
+            g.opacities = g.opacities * particle_dilation_compensation(
+                g.means, g.quats, g.scales, view[0], view[1], eps2d=dilation_eps2d
+            )
+        if out is None:
+            return g
+        k = len(g)
+        for f in fields(ParticleGaussians):
+            getattr(out, f.name)[:k] = getattr(g, f.name)
+        return out.head(k)
+
+    @property
+    def max_gaussians(self) -> int:
+        """Most Gaussians one frame can have: the particle count (rain) or three times it (snow)."""
+        return self.count * (1 if self.spec.kind == "rain" else 3)
+
+    def _gaussians_fast(
+        self,
+        kernels: Any,
+        t: float,
+        c: np.ndarray,
+        exposure_s: float,
+        cam_vel: np.ndarray,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None,
+        near: float,
+        dilation_eps2d: float | None,
+        out: ParticleGaussians | None,
+    ) -> ParticleGaussians:
+        """The numba twin of :meth:`_gaussians_reference` plus the dilation compensation."""
+        spec = self.spec
+        pos, keep = self._cull_fast(kernels, t, c, exposure_s, float(np.linalg.norm(cam_vel)), view, near)
+        rows = keep.size * (1 if spec.kind == "rain" else 3)
+        if out is None:
+            out = ParticleGaussians.allocate(rows)
+        if view is None:
+            W, fx, fy = np.zeros((3, 4)), 1.0, 1.0
+        else:
+            W = np.ascontiguousarray(np.asarray(view[0], np.float64)[:3, :4])
+            fx, fy = float(view[1][0][0]), float(view[1][1][1])
+        if spec.physical:
+            size_ratio = spec.flake_ratio if spec.kind == "snow" else 1.0
+            short_ratio = _SHORT_OVER_LONG if spec.kind == "snow" else 1.0
+            scale_m = np.ones(3)
+        else:
+            assert spec.scale_m is not None
+            size_ratio = short_ratio = 1.0
+            scale_m = np.asarray(spec.scale_m, np.float64)
+        kernels.shape_kernel(
+            keep,
+            pos,
+            c,
+            float(t),
+            self.velocity_box,
+            self.turb_amp,
+            self.turb_omega,
+            self.turb_phase,
+            spec.turbulence_m_s > 0,
+            self.basis,
+            cam_vel,
+            float(exposure_s),
+            spec.kind == "rain",
+            spec.physical,
+            spec.stretch_with_exposure,
+            self.diameter_mm,
+            float(size_ratio),
+            float(short_ratio),
+            scale_m,
+            float(min(spec.opacity, _MAX_SINGLE_OPACITY)),
+            float(spec.fade_m),
+            float(spec.radius_m),
+            float(spec.min_distance_m),
+            float(self.represented),
+            self.orientation,
+            self.spin_rate,
+            dilation_eps2d is not None,
+            W,
+            fx,
+            fy,
+            0.0 if dilation_eps2d is None else float(dilation_eps2d),
+            np.asarray(spec.color, np.float32),
+            out.means,
+            out.quats,
+            out.scales,
+            out.opacities,
+            out.colors,
+            out.particle,
+            out.velocity,
+        )
+        return out.head(rows)
+
+    def _gaussians_reference(
+        self,
+        t: float,
+        c: np.ndarray,
+        exposure_s: float,
+        cam_vel: np.ndarray,
+        view: tuple[np.ndarray, np.ndarray, int, int] | None,
+        near: float,
+    ) -> ParticleGaussians:
+        """The numpy reference of :meth:`gaussians` (no dilation compensation, no buffers)."""
+        spec = self.spec
+        pos, keep = self.visible(
+            t,
+            c,
+            exposure_s=exposure_s,
+            camera_speed=float(np.linalg.norm(cam_vel)),
+            view=view,
+            near=near,
+            fast=False,
+        )
+        dist = np.sqrt(np.einsum("ij,ij->i", pos - c, pos - c))
+        fade = np.ones(keep.size)
+        if spec.fade_m > 0:
+            fade *= np.clip((spec.radius_m - dist) / spec.fade_m, 0.0, 1.0)
+        if spec.min_distance_m > 0:
+            fade *= np.clip((dist - spec.min_distance_m) / spec.min_distance_m, 0.0, 1.0)
+        vel = apply_linear(self._velocity_box(t, keep), self.basis)
+        rel_vel = vel - cam_vel
+
+        if spec.physical:
+            if spec.kind == "rain":
+                base = np.repeat((self.diameter_mm[keep] * 1e-3 / 4.0)[:, None], 3, axis=1)  # sigma = D / 4
+            else:
+                long = self.diameter_mm[keep] * spec.flake_ratio * 1e-3 / 4.0
+                base = np.stack([long, long * _SHORT_OVER_LONG, long * _SHORT_OVER_LONG], 1)
+        else:
+            assert spec.scale_m is not None
+            base = np.broadcast_to(np.asarray(spec.scale_m, np.float64), (keep.size, 3)).copy()
+        opacity = np.full(keep.size, min(spec.opacity, _MAX_SINGLE_OPACITY))
+
+        if spec.kind == "rain":
+            scales = base
+            if spec.stretch_with_exposure:
+                # A uniform segment of length |v| t_exp has variance (|v| t_exp)^2 / 12; the streak
+                # keeps the drop's integrated opacity, so the peak drops by the stretch factor.
+                travel = np.linalg.norm(rel_vel, axis=1) * exposure_s
+                long = np.sqrt(scales[:, 2] ** 2 + travel**2 / 12.0)
+                opacity = opacity * scales[:, 2] / long
+                scales = np.concatenate([scales[:, :2], long[:, None]], 1)
+            quats = quat_from_axis_to(rel_vel)
+            particle = keep
+            means, velocity = pos, vel
+        else:
+            angle = self.spin_rate[keep] * t
+            arms = np.arange(3) * (np.pi / 3.0)  # three arms at 60 degrees
+            spin = _quat_about_z(angle[:, None] + arms[None, :])  # [K, 3, 4]
+            quats = quat_multiply(self.orientation[keep][:, None, :], spin).reshape(-1, 4)
+            scales = np.repeat(base, 3, axis=0)
+            means = np.repeat(pos, 3, axis=0)
+            velocity = np.repeat(vel, 3, axis=0)
+            particle = np.repeat(keep, 3)
+            opacity = np.repeat(opacity, 3)
+            fade = np.repeat(fade, 3)
+
+        if self.represented > 1.0:
+            # k = physical / simulated drops per particle: optical depth of k independent drops.
+            opacity = -np.expm1(self.represented * np.log1p(-np.minimum(opacity, _MAX_SINGLE_OPACITY)))
+        opacity = np.clip(opacity * fade, 0.0, 1.0)
+        colors = np.broadcast_to(np.asarray(spec.color, np.float32), (means.shape[0], 3))
+        return ParticleGaussians(
+            means=means.astype(np.float32),
+            quats=quats.astype(np.float32),
+            scales=scales.astype(np.float32),
+            opacities=opacity.astype(np.float32),
+            colors=np.ascontiguousarray(colors),
+            particle=np.asarray(particle, np.int64),
+            velocity=velocity.astype(np.float32),
+        )
+
+    # ---- bookkeeping ----------------------------------------------------------------------
+
+    def haze_density(self) -> float:
+        """Extinction coefficient (m^-1) of the population beyond the box, 0 if haze is off."""
+        if not self.spec.haze or not self.spec.physical:
+            return 0.0
+        ratio = self.spec.flake_ratio if self.spec.kind == "snow" else 1.0
+        return extinction_coefficient(self.n0, self.lam, size_ratio=ratio)
+
+    def info(self) -> dict[str, Any]:
+        """JSON-ready description of the population (for ``info.json``)."""
+        spec = self.spec
+        return {
+            "kind": spec.kind,
+            "mode": "physical" if spec.physical else "fixed_count",
+            "rate_mm_h": spec.rate_mm_h if spec.physical else None,
+            "density_per_m3": self.density_per_m3,
+            "box_m": [float(x) for x in spec.box_size],
+            "physical_count": self.physical_count,
+            "simulated_count": self.count,
+            "gaussians_per_particle": 1 if spec.kind == "rain" else 3,
+            "capped": bool(spec.physical and self.physical_count > spec.max_particles),
+            "represented_per_particle": self.represented,
+            "opacity_scaling": (
+                "opacity' = 1 - (1 - opacity)^k with k = physical_count / simulated_count"
+                if self.represented > 1.0
+                else "none"
+            ),
+            "haze_density_per_m": self.haze_density(),
+            "wind_m_s": [float(x) for x in self.wind_vector],
+            "mean_fall_speed_m_s": float(self.fall_speed.mean()) if self.count else None,
+            "seed": int(self.seed),
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# numba kernels (the numpy code above is their reference)
+
+
+def _numba_kernels() -> Any:
+    """The compiled kernels' module, or ``None`` when numba is unavailable (numpy is used)."""
+    return load_numba_kernels("weather.particle_kernels")

@@ -1,0 +1,141 @@
+"""The one JSON schema every ``wcbench bench <suite>`` writes.
+
+A benchmark file is::
+
+    {
+      "schema": "wcbench-benchmark",
+      "schema_version": 1,
+      "suite": "raster",                 # which `wcbench bench` suite
+      "created": "2026-11-22T10:00:00+00:00",
+      "machine": {"cpu": ..., "cores": 2, "memory_gb": 23.4, ...},
+      "versions": {"python": ..., "numpy": ..., "torch": ...},
+      "notes": ["free text: what was substituted, what could not run"],
+      "cases": [
+        {"name": "b_pandaset_117k",      # unique within the suite
+         "knob": "gaussians",            # the parameter this case varies
+         "value": 117000,                # its value
+         "time_ms": 31.2,                # the headline time of the case
+         "error": 3.1e-07,               # the headline error against the suite's reference
+         "error_unit": "abs",            # unit of `error` ("abs", "rel", "px", ...)
+         ...}                            # any further suite-specific fields (numbers or strings)
+      ]
+    }
+
+``time_ms`` and ``error`` may be ``null`` when a case measures only one of them. Reports chart any
+suite by (knob, value, time_ms, error) without knowing the suite.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from wcbench.core.environment import machine_info, package_versions
+from wcbench.core.storage import atomic_write_json
+
+SCHEMA = "wcbench-benchmark"
+SCHEMA_VERSION = 1
+_REQUIRED = ("name", "knob", "value", "time_ms", "error", "error_unit")
+
+
+@dataclass
+class BenchCase:
+    """One measured case of a benchmark suite.
+
+    Attributes
+    ----------
+    name : str
+        Unique name of the case within its suite.
+    knob, value
+        The parameter this case varies and its value (e.g. ``"gaussians"``, ``117000``).
+    time_ms : float or None
+        Headline wall time in milliseconds.
+    error : float or None
+        Headline error against the suite's reference, in ``error_unit``.
+    error_unit : str
+        Unit of ``error``: ``"abs"``, ``"rel"``, ``"px"``...
+    extra : dict
+        Further suite-specific fields, flattened into the case's JSON object.
+    """
+
+    name: str
+    knob: str
+    value: Any
+    time_ms: float | None
+    error: float | None
+    error_unit: str
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The case as a flat JSON object."""
+        clash = set(self.extra) & set(_REQUIRED)
+        if clash:
+            raise ValueError(f"case {self.name!r}: extra fields {sorted(clash)} shadow required fields")
+        return {
+            "name": self.name, "knob": self.knob, "value": self.value, "time_ms": self.time_ms,
+            "error": self.error, "error_unit": self.error_unit, **self.extra,
+        }
+
+
+@dataclass
+class BenchReport:
+    """A suite's cases plus free-text notes (substitutions, skipped cases)."""
+
+    suite: str
+    cases: list[BenchCase] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """The whole report in the benchmark schema (see module docstring)."""
+        names = [c.name for c in self.cases]
+        if len(set(names)) != len(names):
+            raise ValueError(f"suite {self.suite!r}: duplicate case names in {names}")
+        return {
+            "schema": SCHEMA,
+            "schema_version": SCHEMA_VERSION,
+            "suite": self.suite,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "machine": machine_info(),
+            "versions": package_versions(),
+            "notes": list(self.notes),
+            "cases": [c.to_json() for c in self.cases],
+        }
+
+    def write(self, path: str | os.PathLike[str]) -> None:
+        """Write the report atomically as JSON."""
+        atomic_write_json(path, self.to_json())
+
+    def format_table(self) -> str:
+        """A plain-text table of the cases for the terminal."""
+        keys: list[str] = list(_REQUIRED)
+        for case in self.cases:
+            keys += [k for k in case.extra if k not in keys]
+        rows = [[_fmt(c.to_json().get(k)) for k in keys] for c in self.cases]
+        widths = [max(len(k), *(len(r[i]) for r in rows)) if rows else len(k) for i, k in enumerate(keys)]
+        lines = ["  ".join(k.ljust(w) for k, w in zip(keys, widths))]
+        lines += ["  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in rows]
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def validate_benchmark(obj: dict[str, Any]) -> None:
+    """Raise ``ValueError`` if ``obj`` is not a benchmark file of this schema version."""
+    if obj.get("schema") != SCHEMA or obj.get("schema_version") != SCHEMA_VERSION:
+        raise ValueError(f"not a {SCHEMA} v{SCHEMA_VERSION} file")
+    for key in ("suite", "created", "machine", "versions", "notes", "cases"):
+        if key not in obj:
+            raise ValueError(f"benchmark file lacks {key!r}")
+    for case in obj["cases"]:
+        missing = [k for k in _REQUIRED if k not in case]
+        if missing:
+            raise ValueError(f"case {case.get('name')!r} lacks {missing}")

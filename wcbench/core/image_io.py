@@ -1,0 +1,152 @@
+"""Reading and writing frames strictly: 8-bit RGB in, float32 RGB in [0, 1] out.
+
+Images on disk are uint8 sRGB. Anything else (grayscale, 16-bit, alpha, unreadable bytes) is an
+:class:`~wcbench.core.errors.InputError` naming the file and what was expected, never a silent
+conversion that would shift a metric.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from wcbench.core.errors import InputError
+from wcbench.core.storage import atomic_path
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm")
+_NUM = re.compile(r"(\d+)")
+
+
+def natural_key(name: str) -> list[object]:
+    """Sort key that orders ``frame2`` before ``frame10``."""
+    return [int(part) if part.isdigit() else part.lower() for part in _NUM.split(name)]
+
+
+def _check_rgb8(img: np.ndarray | None, path: Path) -> np.ndarray:
+    expected = "expected an 8-bit RGB image"
+    if img is None:
+        raise InputError(f"{path}: cannot decode image (corrupt or not an image); {expected}")
+    if img.dtype != np.uint8:
+        bits = img.dtype.itemsize * 8
+        raise InputError(f"{path}: {bits}-bit image ({img.dtype}); {expected} (8 bits per channel)")
+    if img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 1):
+        raise InputError(f"{path}: grayscale image; {expected} with 3 channels")
+    if img.ndim == 3 and img.shape[2] == 4:
+        raise InputError(f"{path}: image has an alpha channel (RGBA); {expected} without alpha")
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"{path}: image of shape {img.shape}; {expected} [H, W, 3]")
+    return img
+
+
+def read_rgb8(path: str | Path) -> np.ndarray:
+    """Read an image file as uint8 RGB [H, W, 3].
+
+    Raises
+    ------
+    InputError
+        If the file is missing, corrupt, grayscale, not 8-bit or has an alpha channel.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: image file not found")
+    data = np.fromfile(path, dtype=np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    return cv2.cvtColor(_check_rgb8(img, path), cv2.COLOR_BGR2RGB)
+
+
+def to_float(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """uint8 RGB -> float32 RGB in [0, 1] (into ``out`` when given: same values to the bit)."""
+    return np.multiply(img, np.float32(1.0 / 255.0), out=out, dtype=np.float32)
+
+
+def to_uint8(img: np.ndarray) -> np.ndarray:
+    """Float RGB in [0, 1] -> uint8 by ``round(255 x)``, clipped (exactly inverts :func:`to_float`).
+
+    Parameters
+    ----------
+    img : ndarray [..., 3]
+        Float in [0, 1], or uint8 (returned unchanged).
+    """
+    a = np.asarray(img)
+    if a.dtype == np.uint8:
+        return a
+    # float32 arithmetic is exact here (k/255 * 255 lands within 1e-4 of k) and halves the memory
+    # traffic of a full-HD frame; float64 input keeps float64.
+    scaled = a * 255.0 if a.dtype == np.float64 else a.astype(np.float32, copy=False) * np.float32(255)
+    np.rint(scaled, out=scaled)
+    np.clip(scaled, 0, 255, out=scaled)
+    return scaled.astype(np.uint8)
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> None:
+    """Write uint8 RGB [H, W, 3] (or float in [0, 1]) as PNG, atomically."""
+    img = rgb if rgb.dtype == np.uint8 else to_uint8(rgb)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"write_png: expected [H, W, 3], got {img.shape}")
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    from wcbench.core.storage import atomic_write_bytes
+
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def resize_rgb8(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize uint8 RGB to (width, height): area filter when shrinking, bicubic when enlarging."""
+    w, h = size
+    shrink = w * h < img.shape[0] * img.shape[1]
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_CUBIC)
+
+
+def video_frame_count(path: Path) -> int:
+    """Number of decodable frames of a video (decodes it: container counts can lie)."""
+    return sum(1 for _ in iter_video_rgb8(path))
+
+
+def iter_video_rgb8(path: str | Path) -> Iterator[np.ndarray]:
+    """Decode a video file frame by frame as uint8 RGB [H, W, 3].
+
+    Raises
+    ------
+    InputError
+        If the file is missing or OpenCV cannot open or decode it.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: video file not found")
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            raise InputError(f"{path}: cannot open video (corrupt or unsupported codec); expected an mp4/avi file")
+        n = 0
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            n += 1
+            yield cv2.cvtColor(_check_rgb8(frame, path), cv2.COLOR_BGR2RGB)
+        if n == 0:
+            raise InputError(f"{path}: video has no decodable frames")
+    finally:
+        cap.release()
+
+
+def write_mp4(path: str | Path, frames: list[np.ndarray], *, fps: float = 10.0) -> None:
+    """Write uint8 RGB frames [H, W, 3] as an mp4 (mp4v codec), atomically."""
+    if not frames:
+        raise ValueError("write_mp4: no frames")
+    h, w = frames[0].shape[:2]
+    with atomic_path(path, suffix=".mp4") as tmp:
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (w, h))
+        if not writer.isOpened():
+            raise OSError(f"{path}: OpenCV cannot write mp4 here")
+        try:
+            for f in frames:
+                writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+        finally:
+            writer.release()

@@ -1,0 +1,387 @@
+"""Loaders for processed driving scenes on disk.
+
+Two layouts of drivestudio/OmniRe (the format WeatherCity trains on) are read:
+
+``drivestudio_waymo`` (``processed/training/NNN/``)
+    ``images/{t:03d}_{cam}.jpg``, ``ego_pose/{t:03d}.txt`` (4x4 vehicle-to-world),
+    ``extrinsics/{cam}.txt`` (4x4 camera-to-vehicle in *Waymo camera axes*: x forward, y left,
+    z up), ``intrinsics/{cam}.txt`` (fx fy cx cy k1 k2 p1 p2 k3), ``lidar/{t:03d}.bin`` (float32
+    N x 14 in the vehicle frame of frame t: origin 3, xyz 3, flow 3, flow class, ground,
+    intensity, elongation, laser id), optional ``sky_masks/{t:03d}_{cam}.png`` and
+    ``dynamic_masks/all/{t:03d}_{cam}.png``, ``instances/*.json``.
+``drivestudio_nuscenes`` (``processed_10Hz/<split>/NNN/``; also ``pandaset_002``)
+    ``images/{t:03d}_{cam}.jpg``, ``extrinsics/{t:03d}_{cam}.txt`` (4x4 camera-to-world, OpenCV
+    axes), ``intrinsics/{cam}.txt``, ``lidar/{t:03d}.bin`` (float32 N x 4: xyz + intensity in the
+    lidar frame) with ``lidar_pose/{t:03d}.txt`` (lidar-to-world), optional
+    ``lidar_semseg/{t:03d}.bin`` (uint8 per point) + ``classes.json``, ``timestamps.json``.
+
+Both are in a global z-up frame on disk; the loaders re-base every scene so that the first
+camera sits at the origin (see :mod:`wcbench.scenes.scene`).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from wcbench.core.errors import InputError
+from wcbench.scenes.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene, check_finite_matrix
+
+#: Maps OpenCV camera axes (x right, y down, z forward) to Waymo camera axes (x forward, y left,
+#: z up): camera_to_world_opencv = ego_to_world @ camera_to_ego_waymo @ OPENCV_TO_WAYMO.
+OPENCV_TO_WAYMO = np.array(
+    [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
+Z_UP = np.array([0.0, 0.0, 1.0])
+_FRAME_RATE_HZ = 10.0  # both drivestudio layouts are 10 Hz when no timestamps file exists
+_IMAGE_EXTS = (".jpg", ".jpeg", ".png")
+
+
+def read_matrix(path: Path, *, what: str, shape: tuple[int, ...] = (4, 4)) -> np.ndarray:
+    """Read a whitespace-separated text matrix, checking shape and finiteness.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, unparsable, of the wrong size or holds NaN/Inf.
+    """
+    if not path.is_file():
+        raise InputError(f"{path}: missing {what} file (expected {int(np.prod(shape))} numbers)")
+    try:
+        values = np.array(path.read_text(encoding="utf-8").split(), dtype=np.float64)
+    except ValueError as exc:
+        raise InputError(f"{path}: {what} is not a list of numbers ({exc})") from None
+    if values.size != int(np.prod(shape)):
+        raise InputError(f"{path}: expected {int(np.prod(shape))} numbers for {what}, found {values.size}")
+    return check_finite_matrix(values.reshape(shape), what=what, path=path, shape=shape)
+
+
+def read_intrinsics(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``fx fy cx cy k1 k2 p1 p2 k3``; return K [3, 3] and distortion [5]."""
+    v = read_matrix(path, what="intrinsics (fx fy cx cy k1 k2 p1 p2 k3)", shape=(9,))
+    fx, fy, cx, cy = v[:4]
+    if fx <= 0 or fy <= 0:
+        raise InputError(f"{path}: focal lengths must be positive, got fx={fx}, fy={fy}")
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return K, v[4:9].copy()
+
+
+def _read_lidar(path: Path, columns: int) -> np.ndarray:
+    data = np.fromfile(path, dtype=np.float32)
+    if data.size % columns:
+        raise InputError(
+            f"{path}: lidar file holds {data.size} float32 values, not a multiple of {columns} columns"
+        )
+    pts = data.reshape(-1, columns)
+    return pts
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (OSError, SyntaxError) as exc:
+        raise InputError(f"{path}: cannot read image header ({exc})") from None
+
+
+def _find_frames(root: Path, camera: int) -> dict[int, Path]:
+    images = root / "images"
+    if not images.is_dir():
+        raise InputError(f"{root}: no images/ folder (expected images/{{t:03d}}_{camera}.jpg)")
+    pat = re.compile(rf"^(\d+)_{camera}$")
+    frames: dict[int, Path] = {}
+    for p in images.iterdir():
+        m = pat.match(p.stem)
+        if m and p.suffix.lower() in _IMAGE_EXTS:
+            frames[int(m.group(1))] = p
+    if not frames:
+        raise InputError(f"{images}: no images for camera {camera} (expected {{t:03d}}_{camera}.jpg)")
+    return frames
+
+
+def _select(frames: dict[int, Path], start: int, count: int | None, root: Path) -> list[int]:
+    indices = sorted(frames)
+    wanted = [t for t in indices if t >= start]
+    if count is not None:
+        expect = list(range(start, start + count))
+        missing = [t for t in expect if t not in frames]
+        if missing:
+            raise InputError(
+                f"{root}: frames {missing} are missing (the scene spec asks for {count} frames from {start}; "
+                f"found {len(indices)} images, indices {indices[0]}..{indices[-1]})"
+            )
+        return expect
+    gaps = [t for t in range(wanted[0], wanted[-1] + 1) if t not in frames] if wanted else []
+    if gaps:
+        raise InputError(f"{root}/images: frame numbering has gaps at {gaps}")
+    if not wanted:
+        raise InputError(f"{root}: no frames from index {start}")
+    return wanted
+
+
+def _timestamps(root: Path, indices: list[int]) -> list[float]:
+    path = root / "timestamps.json"
+    if not path.is_file():
+        return [t / _FRAME_RATE_HZ for t in indices]
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    values = raw if isinstance(raw, list) else [raw[str(t)] if str(t) in raw else raw[f"{t:03d}"] for t in indices]
+    try:
+        return [float(values[t]) for t in indices] if isinstance(raw, list) else [float(v) for v in values]
+    except (IndexError, KeyError, TypeError, ValueError):
+        raise InputError(f"{path}: expected one timestamp (seconds) per frame for frames {indices}") from None
+
+
+def _read_tracks(root: Path, index_map: dict[int, int], offset: np.ndarray) -> list[ObjectTrack]:
+    path = root / "instances" / "instances_info.json"
+    if not path.is_file():
+        return []
+    try:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    tracks = []
+    for key, obj in info.items():
+        ann = obj.get("frame_annotations", {})
+        try:
+            frames = np.asarray(ann["frame_idx"], dtype=np.int64)
+            poses = np.asarray(ann["obj_to_world"], dtype=np.float64).reshape(-1, 4, 4)
+            sizes = np.asarray(ann["box_size"], dtype=np.float64).reshape(-1, 3)
+        except (KeyError, ValueError):
+            raise InputError(
+                f"{path}: instance {key} lacks frame_annotations.frame_idx/obj_to_world/box_size"
+            ) from None
+        if not (len(frames) == len(poses) == len(sizes)):
+            raise InputError(f"{path}: instance {key} has mismatched annotation lengths")
+        keep = np.array([int(f) in index_map for f in frames], dtype=bool)
+        if not keep.any():
+            continue
+        if not (np.all(np.isfinite(poses[keep])) and np.all(np.isfinite(sizes[keep]))):
+            raise InputError(f"{path}: instance {key} has non-finite box poses or sizes")
+        poses = poses[keep].copy()
+        poses[:, :3, 3] -= offset
+        tracks.append(
+            ObjectTrack(
+                id=str(obj.get("id", key)),
+                class_name=str(obj.get("class_name", "unknown")),
+                frames=np.array([index_map[int(f)] for f in frames[keep]], dtype=np.int64),
+                object_to_world=poses,
+                box_size=sizes[keep],
+            )
+        )
+    return tracks
+
+
+def _class_names(root: Path) -> dict[int, str]:
+    path = root / "classes.json"
+    if not path.is_file():
+        return {}
+    try:
+        return {int(k): str(v) for k, v in json.loads(path.read_text(encoding="utf-8")).items()}
+    except (json.JSONDecodeError, ValueError, AttributeError):
+        raise InputError(f"{path}: expected a JSON object {{class id: name}}") from None
+
+
+def _optional(path: Path) -> Path | None:
+    return path if path.is_file() else None
+
+
+def _build_scene(
+    root: Path,
+    *,
+    scene_id: str | None,
+    source_format: str,
+    indices: list[int],
+    images: dict[int, Path],
+    c2w: list[np.ndarray],
+    K: np.ndarray,
+    dist: np.ndarray,
+    lidar_paths: list[Path | None],
+    lidar_reader: Callable[[Frame, np.ndarray], LidarSweep],
+    camera: int,
+) -> Scene:
+    width, height = _image_size(images[indices[0]])
+    for t in indices[1:]:
+        if _image_size(images[t]) != (width, height):
+            raise InputError(
+                f"{images[t]}: image is {_image_size(images[t])}, expected {(width, height)} like frame {indices[0]}"
+            )
+    offset = c2w[0][:3, 3].copy()
+    times = _timestamps(root, indices)
+    frames = []
+    for k, t in enumerate(indices):
+        pose = c2w[k].copy()
+        pose[:3, 3] -= offset
+        cam = Camera(K=K, width=width, height=height, camera_to_world=pose, distortion=dist)
+        frames.append(
+            Frame(
+                index=k,
+                timestamp=times[k],
+                camera=cam,
+                image_path=images[t],
+                lidar_path=lidar_paths[k],
+                sky_mask_path=_optional(root / "sky_masks" / f"{t:03d}_{camera}.png"),
+                dynamic_mask_path=_optional(root / "dynamic_masks" / "all" / f"{t:03d}_{camera}.png"),
+            )
+        )
+    index_map = {t: k for k, t in enumerate(indices)}
+    return Scene(
+        id=scene_id or root.name,
+        frames=frames,
+        tracks=_read_tracks(root, index_map, offset),
+        up=Z_UP.copy(),
+        world_offset=offset,
+        source_format=source_format,
+        root=root,
+        lidar_loader=lambda f: lidar_reader(f, offset),
+        class_names=_class_names(root),
+    )
+
+
+def load_nuscenes_layout(
+    root: Path, *, scene_id: str | None = None, camera: int = 0, start: int = 0, count: int | None = None
+) -> Scene:
+    """Load a drivestudio nuScenes-style scene folder (also ``pandaset_002``).
+
+    Parameters
+    ----------
+    root : Path
+        The scene folder (``.../processed_10Hz/mini/000``).
+    scene_id : str, optional
+        Id used in outputs; defaults to the folder name.
+    camera : int
+        Camera id in the file names.
+    start, count : int
+        First frame and number of frames (``None``: all from ``start``).
+
+    Returns
+    -------
+    Scene
+        Re-based to the first camera, z up.
+    """
+    images = _find_frames(root, camera)
+    indices = _select(images, start, count, root)
+    K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
+    c2w = [read_matrix(root / "extrinsics" / f"{t:03d}_{camera}.txt", what="camera-to-world pose") for t in indices]
+    lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
+    semseg = root / "lidar_semseg"
+    orig = dict(zip(range(len(indices)), indices))
+
+    def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
+        assert frame.lidar_path is not None
+        t = orig[frame.index]
+        pts = _read_lidar(frame.lidar_path, 4)
+        pose = read_matrix(root / "lidar_pose" / f"{t:03d}.txt", what="lidar-to-world pose")
+        world = pts[:, :3].astype(np.float64) @ pose[:3, :3].T + (pose[:3, 3] - offset)
+        labels = None
+        label_path = semseg / f"{t:03d}.bin"
+        if label_path.is_file():
+            labels = np.fromfile(label_path, dtype=np.uint8)
+            if labels.size != len(pts):
+                raise InputError(f"{label_path}: {labels.size} labels for {len(pts)} lidar points")
+        return LidarSweep(points=world.astype(np.float32), labels=labels)
+
+    return _build_scene(
+        root, scene_id=scene_id, source_format="drivestudio_nuscenes", indices=indices, images=images,
+        c2w=c2w, K=K, dist=dist, lidar_paths=lidar_paths, lidar_reader=read, camera=camera,
+    )
+
+
+def load_waymo_layout(
+    root: Path, *, scene_id: str | None = None, camera: int = 0, start: int = 0, count: int | None = None
+) -> Scene:
+    """Load a drivestudio processed Waymo scene folder (``processed/training/NNN``).
+
+    Camera extrinsics are camera-to-vehicle in Waymo axes and are converted to OpenCV axes
+    (:data:`OPENCV_TO_WAYMO`); lidar points are in the vehicle frame of their own frame.
+    Parameters as :func:`load_nuscenes_layout`.
+    """
+    images = _find_frames(root, camera)
+    indices = _select(images, start, count, root)
+    K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
+    cam_to_ego = read_matrix(root / "extrinsics" / f"{camera}.txt", what="camera-to-vehicle extrinsics")
+    ego = [read_matrix(root / "ego_pose" / f"{t:03d}.txt", what="vehicle-to-world pose") for t in indices]
+    c2w = [e @ cam_to_ego @ OPENCV_TO_WAYMO for e in ego]
+    lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
+
+    def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
+        assert frame.lidar_path is not None
+        pts = _read_lidar(frame.lidar_path, 14).astype(np.float64)
+        pose = ego[frame.index]
+        R, tr = pose[:3, :3], pose[:3, 3] - offset
+        return LidarSweep(
+            points=(pts[:, 3:6] @ R.T + tr).astype(np.float32),
+            origins=(pts[:, 0:3] @ R.T + tr).astype(np.float32),
+        )
+
+    return _build_scene(
+        root, scene_id=scene_id, source_format="drivestudio_waymo", indices=indices, images=images,
+        c2w=c2w, K=K, dist=dist, lidar_paths=lidar_paths, lidar_reader=read, camera=camera,
+    )
+
+
+LOADERS: dict[str, Callable[..., Scene]] = {
+    "drivestudio_waymo": load_waymo_layout,
+    "drivestudio_nuscenes": load_nuscenes_layout,
+}
+
+
+def detect_format(root: Path) -> str:
+    """Guess the layout of a scene folder from the files it holds.
+
+    Raises
+    ------
+    InputError
+        If the folder is missing or matches no known layout.
+    """
+    if not root.is_dir():
+        raise InputError(f"{root}: scene folder does not exist")
+    if (root / "ego_pose").is_dir():
+        return "drivestudio_waymo"
+    if (root / "extrinsics").is_dir() and any((root / "extrinsics").glob("[0-9][0-9][0-9]_*.txt")):
+        return "drivestudio_nuscenes"
+    raise InputError(
+        f"{root}: not a processed scene folder: expected images/ and either ego_pose/ + extrinsics/{{cam}}.txt "
+        "(drivestudio Waymo) or extrinsics/{t:03d}_{cam}.txt (drivestudio nuScenes)"
+    )
+
+
+def load_scene(
+    path: str | Path,
+    *,
+    format: str | None = None,
+    scene_id: str | None = None,
+    camera: int = 0,
+    start: int = 0,
+    count: int | None = None,
+) -> Scene:
+    """Load a processed scene folder, detecting its layout unless ``format`` is given.
+
+    Parameters
+    ----------
+    path : str or Path
+        The scene folder.
+    format : {"drivestudio_waymo", "drivestudio_nuscenes"}, optional
+    scene_id : str, optional
+        Id used in outputs; defaults to the folder name.
+    camera, start, count
+        Camera id, first frame, number of frames (``None``: all).
+
+    Returns
+    -------
+    Scene
+    """
+    root = Path(path)
+    fmt = format or detect_format(root)
+    if fmt not in LOADERS:
+        raise InputError(f"unknown scene format {fmt!r}; known: {sorted(LOADERS)}")
+    if not root.is_dir():
+        raise InputError(f"{root}: scene folder does not exist")
+    return LOADERS[fmt](root, scene_id=scene_id, camera=camera, start=start, count=count)

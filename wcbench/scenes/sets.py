@@ -1,0 +1,158 @@
+"""Scene sets as data: one TOML spec per set in this folder.
+
+A spec names a layout, loader options and scene folders relative to the data root::
+
+    name = "waymo_5"
+    description = "..."
+    format = "drivestudio_waymo"      # loader (see wcbench.scenes.loaders)
+    camera = 0                        # optional loader options: camera, start, count
+    generator = "module:function"     # optional: builds the scenes itself (built-in sets)
+    scenes = [{ id = "waymo_788", path = "waymo/processed/training/788" }]
+
+The data root comes from ``--data-root`` or the ``WCBENCH_DATA`` environment variable. Built-in
+sets with a ``generator`` need no data root: the generator writes them into the cache folder.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from wcbench.core.errors import InputError, UnknownNameError
+from wcbench.core.registry import import_string
+from wcbench.scenes.loaders import detect_format, load_scene
+from wcbench.scenes.scene import Scene
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+DATA_ENV = "WCBENCH_DATA"
+_LOADER_OPTIONS = ("camera", "start", "count")
+
+
+@dataclass(frozen=True)
+class SceneSet:
+    """A named list of scene references (loaded on demand).
+
+    Attributes
+    ----------
+    name : str
+    description : str
+    scenes : list[SceneRef]
+    """
+
+    name: str
+    description: str
+    scenes: Sequence[SceneRef]
+
+
+@dataclass(frozen=True)
+class SceneRef:
+    """Where one scene of a set lives and how to read it.
+
+    Attributes
+    ----------
+    id : str
+        Scene id used in output folders (e.g. ``"waymo_788"``).
+    format : str
+        Loader name (``"drivestudio_waymo"``, ``"drivestudio_nuscenes"``, ``"builtin"``).
+    path : Path
+        Scene folder.
+    options : dict
+        Loader options (camera, first frame, frame count...).
+    """
+
+    id: str
+    format: str
+    path: Path
+    options: dict = field(default_factory=dict)
+
+    def load(self) -> Scene:
+        """Load the scene with its loader (see :mod:`wcbench.scenes.loaders`)."""
+        return load_scene(self.path, format=self.format, scene_id=self.id, **self.options)
+
+
+
+def _specs() -> dict[str, dict[str, Any]]:
+    out = {}
+    for entry in resources.files("wcbench.scenes").joinpath("specs").iterdir():
+        if entry.name.endswith(".toml"):
+            spec = tomllib.loads(entry.read_text(encoding="utf-8"))
+            out[spec["name"]] = spec
+    return out
+
+
+def list_scene_sets() -> list[tuple[str, str]]:
+    """(name, description) of every built-in scene set, sorted by name."""
+    return sorted((name, spec.get("description", "")) for name, spec in _specs().items())
+
+
+def data_root_from(value: str | os.PathLike[str] | None) -> Path | None:
+    """The data root: ``value`` if given, else ``$WCBENCH_DATA``, else ``None``."""
+    if value:
+        return Path(value).expanduser()
+    env = os.environ.get(DATA_ENV)
+    return Path(env).expanduser() if env else None
+
+
+def get_scene_set(name: str, *, data_root: str | os.PathLike[str] | None = None) -> SceneSet:
+    """Resolve a named scene set to scene references and check that their folders exist.
+
+    Raises
+    ------
+    UnknownNameError
+        No such set.
+    InputError
+        The set needs a data root and none was given, or scene folders are missing under it
+        (the message lists every expected folder).
+    """
+    specs = _specs()
+    if name not in specs:
+        raise UnknownNameError("scene set", name, specs)
+    spec = specs[name]
+    options = {k: spec[k] for k in _LOADER_OPTIONS if k in spec}
+    if "generator" in spec:
+        root = Path(import_string(spec["generator"])())
+    else:
+        root_opt = data_root_from(data_root)
+        expected = "\n".join(f"  <data-root>/{s['path']}/images/..." for s in spec["scenes"])
+        if root_opt is None:
+            raise InputError(
+                f"scene set {name!r} needs a data root: pass --data-root DIR or set {DATA_ENV}. "
+                f"Expected under it:\n{expected}"
+            )
+        root = root_opt
+        if not root.is_dir():
+            raise InputError(f"data root {root} does not exist. Scene set {name!r} expects:\n{expected}")
+        missing = [s["path"] for s in spec["scenes"] if not (root / s["path"]).is_dir()]
+        if missing:
+            listing = "\n".join(f"  {root / m}" for m in missing)
+            raise InputError(f"scene set {name!r}: {len(missing)} scene folder(s) missing:\n{listing}")
+    refs = [
+        SceneRef(id=s["id"], format=spec["format"], path=root / s["path"], options=dict(options))
+        for s in spec["scenes"]
+    ]
+    return SceneSet(name=name, description=spec.get("description", ""), scenes=refs)
+
+
+def resolve_scenes(
+    name_or_path: str | os.PathLike[str], *, data_root: str | os.PathLike[str] | None = None
+) -> list[SceneRef]:
+    """Scenes of ``--scenes``: a set name, or a path to one processed scene folder.
+
+    A path is recognised by containing a path separator or existing on disk.
+    """
+    text = str(name_or_path)
+    path = Path(text).expanduser()
+    if os.sep in text or "/" in text or (path.is_dir() and text not in _specs()):
+        if not path.is_dir():
+            raise InputError(f"{path}: scene folder does not exist")
+        return [SceneRef(id=path.resolve().name, format=detect_format(path), path=path)]
+    return list(get_scene_set(text, data_root=data_root).scenes)

@@ -1,0 +1,299 @@
+"""The unit of work: one method x scene x weather, rendered (runnable methods) and scored.
+
+Everything that produces numbers goes through :class:`WorkUnit`: ``wcbench run`` renders then
+scores each unit, ``wcbench evaluate`` scores units of another tool's files, ``wcbench render``
+renders units without scoring, and the benchmarks call the same code. A unit's result is kept in
+``OUT/.work/<scene>/<weather>.json`` under a key over every input that can change a number (the
+sha256 of each prediction, source and reference frame, the metric settings and the results schema),
+so a killed run resumes, a re-run with unchanged inputs does no work, and units can be computed in
+any order or place and assembled afterwards (docs/design.md §1, §9).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wcbench.core.errors import InputError
+from wcbench.core.image_io import read_rgb8, to_float
+from wcbench.core.progress import progress
+from wcbench.core.storage import atomic_write_json, json_safe, sha256_json
+from wcbench.methods import Method, is_runnable
+from wcbench.metrics.base import Metric, MetricContext
+from wcbench.predictions import PredictionSequence
+from wcbench.results import SCHEMA_VERSION
+from wcbench.scenes.scene import Scene
+
+#: Folder of ``OUT`` holding one finished result per unit.
+WORK_DIR = ".work"
+#: Frames handed to metrics per update: model metrics batch their inference; 8 frames of 1080p
+#: in three float32 streams stay under 0.6 GB.
+FRAME_BATCH = 8
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How a runnable method renders a unit (part of the method's own resume key).
+
+    Attributes
+    ----------
+    seed : int
+        Random seed of the method; each frame is a pure function of (seed, frame).
+    frames : tuple of int, optional
+        Frame indices to render (default: all).
+    overwrite : bool
+        Replace a folder rendered with other settings.
+    video : bool
+        Also write ``<weather>.mp4`` beside the weather folder.
+    show_progress : bool
+        Progress bars.
+    """
+
+    seed: int = 0
+    frames: tuple[int, ...] | None = None
+    overwrite: bool = False
+    video: bool = False
+    show_progress: bool = True
+
+
+@dataclass
+class WorkUnit:
+    """One method x scene x weather.
+
+    Attributes
+    ----------
+    method : Method
+    scene : Scene
+    weather : str
+    root : Path
+        The scene's prediction folder (``<predictions>/<scene>``, or the predictions folder itself
+        when one scene is scored).
+    source_hashes : list of str
+        sha256 of the scene's raw frames (shared by the scene's units).
+    predictions : PredictionSequence or None
+        Set by :meth:`open`.
+    """
+
+    method: Method
+    scene: Scene
+    weather: str
+    root: Path
+    source_hashes: list[str] = field(default_factory=list)
+    predictions: PredictionSequence | None = None
+
+    @property
+    def label(self) -> str:
+        """``<method> <scene> <weather>`` for messages and progress bars."""
+        return f"{self.method.info.name} {self.scene.id} {self.weather}"
+
+    def render(self, settings: RenderSettings) -> dict[str, Any]:
+        """Render this unit's frames into ``root/<weather>/`` (runnable methods only; resumable).
+
+        Returns
+        -------
+        dict
+            The ``info.json`` content plus ``status`` (``"rendered"`` or ``"up to date"``).
+
+        Raises
+        ------
+        InputError
+            If the method is an output reader (wcbench cannot run it).
+        """
+        if not is_runnable(self.method):
+            name = self.method.info.name
+            raise InputError(
+                f"method {name!r} is an output reader: wcbench cannot run it. Render with the tool itself, "
+                f"then score its frames with `wcbench evaluate --method {name} --predictions DIR`"
+            )
+        return self.method.render(  # type: ignore[attr-defined]
+            self.scene, self.weather, self.root / self.weather, seed=settings.seed, frames=settings.frames,
+            overwrite=settings.overwrite, video=settings.video, show_progress=settings.show_progress,
+        )
+
+    def open(self, *, pattern: str | None = None, resize: bool = False) -> PredictionSequence:
+        """Match the unit's prediction files to the scene's frames (see :meth:`Method.open_predictions`)."""
+        self.predictions = self.method.open_predictions(self.scene, self.weather, self.root, pattern=pattern,
+                                                        resize=resize)
+        return self.predictions
+
+    def _opened(self) -> PredictionSequence:
+        if self.predictions is None:
+            raise RuntimeError(f"{self.label}: open() the predictions first")
+        return self.predictions
+
+    @property
+    def reference_paths(self) -> list[Path] | None:
+        """Ground-truth frames of this weather, or ``None`` when the scene has none."""
+        return self.scene.reference_paths(self.weather)
+
+    def inputs(self) -> dict[str, Any]:
+        """sha256 of every input frame: ``predictions``, ``source`` and ``reference`` (or ``None``)."""
+        refs = self.reference_paths
+        if refs is None:
+            ref_hashes = None
+        elif self.weather == "clear":
+            ref_hashes = self.source_hashes  # the raw frames are the truth of clear
+        else:
+            from wcbench.core.storage import sha256_file
+
+            ref_hashes = [sha256_file(p) for p in refs]
+        return {"predictions": self._opened().sha256s(), "source": self.source_hashes, "reference": ref_hashes}
+
+    def key(self, metric_config: dict[str, Any]) -> str:
+        """Cache key of this unit's result: every input hash and the metric settings."""
+        inputs = self.inputs()
+        return sha256_json({
+            "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
+            "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
+            "metrics": metric_config, "resize": self._opened().resize,
+        })
+
+    def work_path(self, out: Path) -> Path:
+        """Where this unit's finished result is kept: ``out/.work/<scene>/<weather>.json``."""
+        return out / WORK_DIR / self.scene.id / f"{self.weather}.json"
+
+    def cached_result(self, out: Path, key: str) -> dict[str, Any] | None:
+        """The finished result stored under ``key``, or ``None``."""
+        path = self.work_path(out)
+        if not path.is_file():
+            return None
+        try:
+            rec = json.loads(path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError:
+            return None  # never torn (atomic writes); a hand-edited file is simply recomputed
+        return rec["result"] if rec.get("key") == key else None
+
+    def validate(self, *, show_progress: bool = True) -> None:
+        """Decode every prediction once (size, bit depth, video length), so bad input fails before work starts."""
+        preds = self._opened()
+        for _ in progress(preds, desc=f"checking {self.scene.id} {self.weather}", total=len(preds),
+                          enabled=show_progress):
+            pass
+
+    def score(self, metrics: dict[str, Metric], *, fps: float | None = None,
+              show_progress: bool = True) -> dict[str, Any]:
+        """Run every metric over the unit's frames.
+
+        Returns
+        -------
+        dict
+            ``{"outputs": {output: record}, "skipped": [{"scene", "weather", "metric", "reason"}]}``,
+            JSON-safe (non-finite values as ``None``).
+        """
+        scene, preds = self.scene, self._opened()
+        refs = self.reference_paths
+        ctx = MetricContext(
+            weather=self.weather, n_frames=len(scene), has_reference=refs is not None,
+            has_source=True, method_info=preds.info, fps_override=fps,
+        )
+        active, skipped = {}, []
+        for name, m in metrics.items():
+            m.bind(ctx)
+            reason = m.skip_reason(ctx)
+            if reason:
+                skipped.append({"scene": scene.id, "weather": self.weather, "metric": name, "reason": reason})
+            else:
+                m.reset()
+                active[name] = m
+        needs_ref = refs is not None and any(m.needs_reference for m in active.values())
+        frames = progress(enumerate(preds), desc=f"{scene.id} {self.weather}", total=len(scene),
+                          enabled=show_progress)
+        # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
+        w, h = scene.image_size
+        streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
+        buffers = {name: np.empty((FRAME_BATCH, h, w, 3), np.float32) for name in streams}
+        filled = 0
+
+        def flush(n: int) -> None:
+            if n == 0:
+                return
+            reference = buffers["reference"][:n] if needs_ref else None
+            for m in active.values():
+                m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
+
+        for k, pred8 in frames:
+            to_float(pred8, out=buffers["pred"][filled])
+            to_float(read_rgb8(scene.frames[k].image_path), out=buffers["source"][filled])
+            if needs_ref:
+                assert refs is not None
+                if self.weather == "clear":
+                    buffers["reference"][filled] = buffers["source"][filled]
+                else:
+                    to_float(read_rgb8(refs[k]), out=buffers["reference"][filled])
+            filled += 1
+            if filled == FRAME_BATCH:
+                flush(filled)
+                filled = 0
+        flush(filled)
+        outputs: dict[str, Any] = {}
+        for name, m in active.items():
+            for out_name, value in m.compute().items():
+                outputs[out_name] = {
+                    "metric": name, "value": value.value, "variant": value.variant, "reason": value.reason,
+                    "higher_is_better": m.higher_is_better, "per_frame": value.per_frame, "extra": value.extra,
+                }
+        result: dict[str, Any] = json_safe({"outputs": outputs, "skipped": skipped})
+        return result
+
+
+@dataclass
+class Scoring:
+    """What scoring a unit needs besides the unit: the metrics and where results go.
+
+    Attributes
+    ----------
+    out : Path
+        The results folder (units are kept in ``out/.work/``).
+    metrics : dict of str to Metric
+    metric_config : dict
+        Class and settings of every metric (part of each unit's key and of results.json).
+    fps : float, optional
+        Frame rate to report when the predictions carry no timings (``--fps``).
+    show_progress : bool
+    """
+
+    out: Path
+    metrics: dict[str, Metric]
+    metric_config: dict[str, Any]
+    fps: float | None = None
+    show_progress: bool = True
+
+
+@dataclass
+class UnitResult:
+    """A unit's scores and whether they were computed now or reused from ``.work``."""
+
+    unit: WorkUnit
+    key: str
+    result: dict[str, Any]
+    computed: bool
+
+
+def execute_unit(unit: WorkUnit, scoring: Scoring, *, key: str | None = None) -> UnitResult:
+    """Score ``unit`` unless its result is already kept under its key; keep the new result atomically.
+
+    Parameters
+    ----------
+    unit : WorkUnit
+        With its predictions opened.
+    scoring : Scoring
+    key : str, optional
+        The unit's key if already computed (:meth:`WorkUnit.key`).
+    """
+    key = key or unit.key(scoring.metric_config)
+    cached = unit.cached_result(scoring.out, key)
+    if cached is not None:
+        return UnitResult(unit, key, cached, computed=False)
+    result = unit.score(scoring.metrics, fps=scoring.fps, show_progress=scoring.show_progress)
+    atomic_write_json(unit.work_path(scoring.out), {"key": key, "result": result})
+    return UnitResult(unit, key, result, computed=True)
+
+
+def render_units(units: Sequence[WorkUnit], settings: RenderSettings) -> list[dict[str, Any]]:
+    """Render every unit (resumable; finished folders are left alone); their ``info.json`` contents."""
+    return [u.render(settings) for u in units]
