@@ -7,10 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
-PANDASET = SHARED_DATA / "pandaset_002"
+from paths import PANDASET
 
 
 @pytest.fixture(scope="session", autouse=True)

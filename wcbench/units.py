@@ -22,7 +22,7 @@ import numpy as np
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_float
 from wcbench.core.progress import progress
-from wcbench.core.storage import atomic_write_json, json_safe, sha256_json
+from wcbench.core.storage import atomic_write_json, json_safe, sha256_file, sha256_json
 from wcbench.methods import Method, is_runnable
 from wcbench.metrics.base import Metric, MetricContext
 from wcbench.predictions import PredictionSequence
@@ -139,8 +139,6 @@ class WorkUnit:
         elif self.weather == "clear":
             ref_hashes = self.source_hashes  # the raw frames are the truth of clear
         else:
-            from wcbench.core.storage import sha256_file
-
             ref_hashes = [sha256_file(p) for p in refs]
         return {"predictions": self._opened().sha256s(), "source": self.source_hashes, "reference": ref_hashes}
 

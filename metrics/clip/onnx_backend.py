@@ -73,6 +73,10 @@ class OnnxClipBackend:
             self._sessions[which] = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
         return self._sessions[which]
 
+    def __getstate__(self) -> dict[str, Any]:
+        # onnxruntime sessions do not pickle; they are reopened on first use
+        return {**self.__dict__, "_sessions": {}}
+
     @property
     def identity(self) -> str:
         """A string that changes whenever the weights change (cache key component)."""

@@ -1,4 +1,4 @@
-"""CLIP image preprocessing (torch-free): PIL bicubic resize, crop, CLIP mean/std (DESIGN §5).
+"""CLIP image preprocessing (torch-free): PIL bicubic resize, crop, CLIP mean/std (docs/design.md §5).
 
 This is OpenAI's ``clip.load`` transform (``Resize(224, BICUBIC)``, ``CenterCrop(224)``,
 ``ToTensor``, ``Normalize``) on uint8 RGB, and it equals ``transformers``' ``CLIPImageProcessor``

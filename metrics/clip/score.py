@@ -1,4 +1,4 @@
-"""CLIP-S and CLIP-DS (DESIGN §5): metric classes and their functional twins (torch-free).
+"""CLIP-S and CLIP-DS (docs/design.md §5): functional forms and the metric classes built on them (torch-free).
 
 With f the CLIP image encoder and g the text encoder, both L2-normalised:
 
@@ -94,13 +94,15 @@ def load_weather_prompts(path: str | os.PathLike[str] | None = None) -> dict[str
     return out
 
 
-def _clip_s(f_src: np.ndarray, f_edit: np.ndarray) -> np.ndarray:
-    """Per-frame cosine of unit embeddings [B, E] x [B, E] -> [B] float64."""
+def clip_s_per_frame(f_src: np.ndarray, f_edit: np.ndarray) -> np.ndarray:
+    """CLIP-S per frame: cosine of unit embeddings [B, E] x [B, E] -> [B] float64."""
     return np.einsum("be,be->b", np.asarray(f_src, np.float64), np.asarray(f_edit, np.float64))
 
 
-def _clip_ds(f_src: np.ndarray, f_edit: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame cos(f_edit - f_src, direction) and a mask of degenerate (zero-delta) frames.
+def clip_ds_per_frame(
+    f_src: np.ndarray, f_edit: np.ndarray, direction: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """CLIP-DS per frame, cos(f_edit - f_src, direction), and a mask of degenerate (zero-delta) frames.
 
     Parameters
     ----------
@@ -126,6 +128,23 @@ def _clip_ds(f_src: np.ndarray, f_edit: np.ndarray, direction: np.ndarray) -> tu
     ok = ~degenerate
     values[ok] = (delta[ok] @ d) / (norms[ok] * dn)
     return values, degenerate
+
+
+def text_directions(
+    embedder: ClipEmbedder, prompt: WeatherPrompt, where: str | os.PathLike[str] = ""
+) -> dict[str, np.ndarray]:
+    """The text directions of both CLIP-DS forms: ``{"paper": g(T), "directional": g(T) - g(T_src)}`` [E].
+
+    Raises
+    ------
+    ValueError
+        If a text is longer than CLIP's 77 tokens (the message names ``where`` and the weather).
+    """
+    try:
+        target, source = embedder.text_embeddings([prompt.target, prompt.source])
+    except ValueError as exc:
+        raise ValueError(f"{where} [{prompt.weather}]: {exc}") from exc
+    return {"paper": target, "directional": target - source}
 
 
 def _summary(values: list[float], *, variant: str, extra: dict[str, Any]) -> MetricValue:
@@ -249,7 +268,7 @@ class ClipScore(_ClipMetric):
         edit, src = _frames(pred, "pred"), _frames(source, "source")
         check_same_shape(edit, src, names=("pred", "source"))
         emb = self.embedder
-        self._values.extend(_clip_s(emb.image_embeddings(src), emb.image_embeddings(edit)).tolist())
+        self._values.extend(clip_s_per_frame(emb.image_embeddings(src), emb.image_embeddings(edit)).tolist())
 
     def compute(self) -> dict[str, MetricValue]:
         """``{"clip_s": mean over frames, per-frame values}``."""
@@ -343,12 +362,7 @@ class ClipDirectionalScore(_ClipMetric):
 
     def _direction(self, weather: str) -> dict[str, np.ndarray]:
         if weather not in self._directions:
-            p = self._prompt(weather)
-            try:
-                target, source = self.embedder.text_embeddings([p.target, p.source])
-            except ValueError as exc:
-                raise ValueError(f"{self.prompts_path} [{weather}]: {exc}") from exc
-            self._directions[weather] = {"paper": target, "directional": target - source}
+            self._directions[weather] = text_directions(self.embedder, self._prompt(weather), self.prompts_path)
         return self._directions[weather]
 
     def update(
@@ -369,7 +383,7 @@ class ClipDirectionalScore(_ClipMetric):
         emb = self.embedder
         f_src, f_edit = emb.image_embeddings(src), emb.image_embeddings(edit)
         for form in FORMS:
-            values, degenerate = _clip_ds(f_src, f_edit, directions[form])
+            values, degenerate = clip_ds_per_frame(f_src, f_edit, directions[form])
             self._values[form].extend(values.tolist())
         self._degenerate += int(degenerate.sum())
 
@@ -387,16 +401,25 @@ class ClipDirectionalScore(_ClipMetric):
         }
 
 
-def _value_or_raise(out: MetricValue) -> float:
-    if out.value is None:
-        raise ValueError(f"no score: {out.reason}")
-    return out.value
-
-
 def _resolve(model: str | ClipEmbedder, store: ModelStore | None, backend: str, crop: str) -> ClipEmbedder:
     if isinstance(model, str):
         return shared_clip_encoder(model, store=store, backend=backend, crop=crop)
     return model
+
+
+def _pair(img0: np.ndarray, img1: np.ndarray, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
+    a, b = _frames(img0, names[0]), _frames(img1, names[1])
+    check_same_shape(a, b, names=names)
+    if not len(a):
+        raise ValueError("no score: no frames were scored")
+    return a, b
+
+
+def _mean_or_raise(values: np.ndarray) -> float:
+    value = float(np.mean(values))
+    if not np.isfinite(value):
+        raise ValueError(f"no score: non-finite CLIP embedding (value was {value})")
+    return value
 
 
 def clip_s(
@@ -408,7 +431,7 @@ def clip_s(
     backend: str = "onnx",
     crop: str = "center",
 ) -> float:
-    """CLIP-S = cos(f(img0), f(img1)), the functional twin of :class:`ClipScore`.
+    """CLIP-S = cos(f(img0), f(img1)), mean over frames; :class:`ClipScore` accumulates the same values.
 
     Parameters
     ----------
@@ -434,10 +457,9 @@ def clip_s(
     ModelMissingError
         If the weights are not installed.
     """
-    metric = ClipScore(embedder=_resolve(model, store, backend, crop))
-    metric.update(img1, source=img0)
-    out = metric.compute()["clip_s"]
-    return _value_or_raise(out)
+    src, edit = _pair(img0, img1, ("img0", "img1"))
+    emb = _resolve(model, store, backend, crop)
+    return _mean_or_raise(clip_s_per_frame(emb.image_embeddings(src), emb.image_embeddings(edit)))
 
 
 def clip_ds(
@@ -452,7 +474,7 @@ def clip_ds(
     backend: str = "onnx",
     crop: str = "center",
 ) -> float:
-    """CLIP-DS of an edit, the functional twin of :class:`ClipDirectionalScore`.
+    """CLIP-DS of an edit, mean over frames; :class:`ClipDirectionalScore` accumulates the same values.
 
     Parameters
     ----------
@@ -483,9 +505,12 @@ def clip_ds(
     """
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
-    metric = ClipDirectionalScore(
-        weather=weather, prompts=prompts, embedder=_resolve(model, store, backend, crop)
-    )
-    metric.update(edit, source=src)
-    out = metric.compute()["clip_ds" if form == "paper" else "clip_ds_directional"]
-    return _value_or_raise(out)
+    path = Path(prompts) if prompts is not None else DEFAULT_PROMPTS
+    texts = load_weather_prompts(path)
+    if weather not in texts:
+        raise ValueError(f"no CLIP-DS texts for weather {weather!r} in {path} (it has {', '.join(texts)})")
+    s, e = _pair(src, edit, ("source", "pred"))
+    emb = _resolve(model, store, backend, crop)
+    direction = text_directions(emb, texts[weather], path)[form]
+    values, _ = clip_ds_per_frame(emb.image_embeddings(s), emb.image_embeddings(e), direction)
+    return _mean_or_raise(values)

@@ -1,4 +1,4 @@
-"""SSIM exactly as DESIGN §5 defines it (and as scikit-image computes it).
+"""SSIM exactly as docs/design.md §5 defines it (and as scikit-image computes it).
 
 Gaussian window 11x11 with sigma 1.5, K1 = 0.01, K2 = 0.03, data range 1, population
 covariances, float64, SSIM map averaged over the valid region (5 px cropped at each border, as

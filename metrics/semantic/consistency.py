@@ -5,7 +5,7 @@ With the confusion matrix n_ij = number of pixels labelled i in seg(I) (source) 
 
     fwIoU = sum_c (t_c / sum_k t_k) * n_cc / (t_c + sum_i n_ic - n_cc)
 
-(DESIGN §5). Classes absent from seg(I) have zero weight. Two numbers are reported: the mean of
+(docs/design.md §5). Classes absent from seg(I) have zero weight. Two numbers are reported: the mean of
 per-frame fwIoU (the paper's form) and the fwIoU of the confusion matrix summed over all frames
 ("pooled"). Label maps can be given directly (:func:`sem_cs`, or :class:`SemanticConsistency` with
 ``segmenter=None``); otherwise a segmenter callable ``segment(images [B, H, W, 3] float in [0, 1])
@@ -25,7 +25,8 @@ import numpy as np
 
 from wcbench.core.models.store import StoreBacked
 from wcbench.metrics.base import Metric, MetricContext, MetricValue, as_float_images, finite_or_none
-from wcbench.metrics.semantic.segmenter import SPEC_FILE, load_segmenter
+from wcbench.metrics.semantic.loading import load_segmenter
+from wcbench.metrics.semantic.segmenter import SPEC_FILE
 
 __all__ = [
     "DEFAULT_SEGMENTER",

@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import os
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,13 +35,11 @@ import numpy as np
 
 from wcbench.core.image_io import to_uint8
 from wcbench.core.imagenet import IMAGENET_MEAN, IMAGENET_STD
-from wcbench.core.models.store import ModelStore
 
 __all__ = [
     "SPEC_FILE",
     "OnnxSegmenter",
     "SegmenterSpec",
-    "load_segmenter",
     "preprocess",
     "upsample_argmax",
 ]
@@ -350,49 +348,3 @@ class OnnxSegmenter(LogitsSegmenter):
             "onnx_sha256": self._onnx_sha256,
             **self.spec.to_json(),
         }
-
-
-def load_segmenter(
-    name_or_dir: str | os.PathLike[str],
-    *,
-    backend: str = "onnx",
-    store: Any = None,
-    threads: int | None = None,
-) -> Callable[[np.ndarray], np.ndarray]:
-    """A segmenter from a model-store name (``"segformer-b0-ade"``) or a converted folder.
-
-    Parameters
-    ----------
-    name_or_dir : str or path-like
-        A converted folder, or else a model-store name (``models.toml``).
-    backend : {"onnx", "torch"}
-        ``"torch"`` needs the ``[model]`` extra and the folder's ``weights.safetensors``.
-    store : ModelStore, optional
-        Default: ``ModelStore()`` (root from ``WCBENCH_MODELS`` or the user cache).
-    threads : int, optional
-        onnxruntime intra-op threads.
-
-    Raises
-    ------
-    wcbench.core.models.store.ModelMissingError
-        When the named model is not in the store (the message says how to get it).
-    wcbench.core.errors.UnknownNameError
-        When ``name_or_dir`` is neither a folder nor a registered model.
-    ValueError
-        On an unknown backend.
-    """
-    if backend not in ("onnx", "torch"):
-        raise ValueError(f"backend must be 'onnx' or 'torch', got {backend!r}")
-    key = os.fspath(name_or_dir)
-    if Path(key).is_dir():
-        model_dir, name = Path(key), Path(key).name
-    else:
-        if store is None:
-            store = ModelStore()
-        model_dir, name = Path(store.require(key)).parent, key  # require() gives the main file, model.onnx
-    if backend == "torch":
-        # torch is optional: the evaluation side scores with onnxruntime and never imports it
-        from wcbench.metrics.semantic.pytorch.backend import load_torch_segmenter
-
-        return load_torch_segmenter(model_dir, name=name)
-    return OnnxSegmenter(model_dir, name=name, threads=threads)

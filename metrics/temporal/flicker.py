@@ -4,7 +4,7 @@ Temporal flicker (cheap)
     mean over consecutive frame pairs of mean |V_t - V_{t+1}|, RGB in [0, 1]. VBench reports
     1 - this (x255 scaled); we keep the raw mean absolute difference (lower is better) and the
     ratio edited / source, so camera motion that is in the source is factored out.
-Flow warping error (DESIGN §5)
+Flow warping error (docs/design.md §5)
     E_warp = mean_t [ sum_i M_t(i) ||V_t(i) - V_{t+1}(i + F_t(i))||^2 / sum_i M_t(i) ], squared
     error summed over RGB channels in [0, 1]. The flow F (t -> t+1) and the mask M come from the
     *source* sequence, so a method is judged on whether its edit moves with the scene. M = 1 where
@@ -186,38 +186,77 @@ class _FlowCache:
 FLOW_CACHE = _FlowCache()
 
 
+def _mean_abs_diff(a: np.ndarray, b: np.ndarray) -> float:
+    """mean |a - b|: differences in the inputs' precision, the long sum in float64."""
+    return float(np.abs(a - b).sum(dtype=np.float64) / a.size)
+
+
+def _sequence(frames: np.ndarray, name: str, what: str) -> np.ndarray:
+    f = as_float_images(frames, name=name)
+    if len(f) < 2:
+        raise ValueError(f"{what}: needs at least 2 frames, got {len(f)}")
+    return f
+
+
+def source_pair(flow: str | FlowFn, s0: np.ndarray, s1: np.ndarray, keys: tuple[bytes, bytes] | None = None
+                ) -> SourcePair:
+    """Flow, occlusion mask and warping error of consecutive source frames [H, W, 3] (float32).
+
+    Named flows are cached per process (:data:`FLOW_CACHE`) under the frames' digests ``keys``
+    (computed when not given); a callable flow is never cached.
+    """
+    if isinstance(flow, str):
+        keys = keys or (frame_digest(s0), frame_digest(s1))
+        return FLOW_CACHE.get(flow, FLOW_METHODS[flow], s0, s1, keys)
+    return FLOW_CACHE.get(None, flow, s0, s1, (b"", b""))
+
+
 # --------------------------------------------------------------------------- functional API
 def temporal_flicker(frames: np.ndarray) -> float:
     """Mean absolute difference of consecutive frames (RGB in [0, 1]); lower is steadier.
+
+    :class:`TemporalFlicker` accumulates the same per-pair values.
 
     Parameters
     ----------
     frames : ndarray [T, H, W, 3]
         T >= 2.
     """
-    f = as_float_images(frames, name="frames").astype(np.float64)
-    if len(f) < 2:
-        raise ValueError(f"temporal_flicker: needs at least 2 frames, got {len(f)}")
-    return float(np.mean(np.abs(np.diff(f, axis=0)).mean(axis=(1, 2, 3))))
+    f = _sequence(frames, "frames", "temporal_flicker")
+    return float(np.mean([_mean_abs_diff(f[k + 1], f[k]) for k in range(len(f) - 1)]))
 
 
-def flow_warp_error(edited: np.ndarray, source: np.ndarray | None = None, *, flow: str = "dis") -> float:
-    """Flow warping error of ``edited`` [T, H, W, 3] with flow and mask from ``source``.
+def flow_warp_errors(edited: np.ndarray, source: np.ndarray | None = None, *,
+                     flow: str | FlowFn = "dis") -> np.ndarray:
+    """Per-pair flow warping errors [T - 1] of ``edited`` with flow and mask from ``source``.
 
-    ``source`` defaults to ``edited`` itself (the error of a raw video). RGB in [0, 1].
+    ``source`` defaults to ``edited`` itself (the error of a raw video). RGB in [0, 1]; NaN for a
+    pair whose mask is empty.
     """
-    m = FlowWarpingError(flow=flow)
-    m.update(edited, source=edited if source is None else source)
-    value = m.compute()["flow_warping_error"].value
-    return float("nan") if value is None else value
+    e = _sequence(edited, "edited", "flow_warp_error").astype(np.float32)
+    s = e if source is None else _sequence(source, "source", "flow_warp_error").astype(np.float32)
+    if e.shape != s.shape:
+        raise ValueError(f"edited has shape {e.shape} but source has shape {s.shape}")
+    if isinstance(flow, str) and flow not in FLOW_METHODS:
+        raise ValueError(f"flow must be one of {sorted(FLOW_METHODS)} or a callable, got {flow!r}")
+    out = []
+    for k in range(len(e) - 1):
+        pair = source_pair(flow, s[k], s[k + 1])
+        out.append(warp_error_pair(e[k], e[k + 1], pair.forward, pair.mask))
+    return np.asarray(out, np.float64)
+
+
+def flow_warp_error(edited: np.ndarray, source: np.ndarray | None = None, *, flow: str | FlowFn = "dis") -> float:
+    """Flow warping error E_warp of ``edited`` [T, H, W, 3] with flow and mask from ``source``: the mean
+    of :func:`flow_warp_errors` over pairs with valid pixels (NaN when none has any).
+
+    :class:`FlowWarpingError` accumulates the same per-pair values.
+    """
+    errors = flow_warp_errors(edited, source, flow=flow)
+    return float(np.nanmean(errors)) if np.isfinite(errors).any() else float("nan")
 
 
 # --------------------------------------------------------------------------- metrics
-def _mean_abs_diff(a: np.ndarray, b: np.ndarray) -> float:
-    """mean |a - b|: differences in the inputs' precision, the long sum in float64."""
-    return float(np.abs(a - b).sum(dtype=np.float64) / a.size)
-
-
 class TemporalFlicker(Metric):
     """VBench-style temporal flicker and its ratio to the source's own flicker."""
 
@@ -268,7 +307,7 @@ class TemporalFlicker(Metric):
 
 
 class FlowWarpingError(Metric):
-    """Flow warping error with flow and occlusion mask from the source sequence (DESIGN §5).
+    """Flow warping error with flow and occlusion mask from the source sequence (docs/design.md §5).
 
     Parameters
     ----------
@@ -319,7 +358,7 @@ class FlowWarpingError(Metric):
             key = frame_digest(s[k])  # once per frame, not once per pair it belongs to
             if self._last is not None:
                 p0, s0, key0 = self._last
-                pair = FLOW_CACHE.get(self.flow_name if self._cacheable else None, self._flow, s0, s[k], (key0, key))
+                pair = source_pair(self.flow_name if self._cacheable else self._flow, s0, s[k], (key0, key))
                 self._pred.append(warp_error_pair(p0, p[k], pair.forward, pair.mask))
                 self._src.append(pair.source_error)
             self._last = (p[k], s[k], key)

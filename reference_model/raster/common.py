@@ -1,6 +1,6 @@
 """Constants, the output container and input checks shared by both rasterizer backends.
 
-The constants are the gsplat / Inria 3DGS guards of DESIGN.md §7. Both backends (the numba fast
+The constants are the gsplat / Inria 3DGS guards of docs/design.md §7. Both backends (the numba fast
 path in :mod:`.kernels` and the pure-torch twin in :mod:`.torch_twin`) read them from
 here, so a change reaches both.
 """

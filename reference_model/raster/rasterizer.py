@@ -1,6 +1,6 @@
 """Public API of the differentiable CPU Gaussian rasterizer: :func:`rasterize`.
 
-Two backends compute the same function (DESIGN.md §7 guards, constants in :mod:`.common`):
+Two backends compute the same function (docs/design.md §7 guards, constants in :mod:`.common`):
 
 * ``"numba"``, the fast path (:mod:`.kernels`): tile binning, per-tile front-to-back
   compositing with early termination, multithreaded over tiles, hand-written backward; wrapped

@@ -1,4 +1,4 @@
-"""Beer-Lambert fog: the exact per-layer form and the paper's depth-map post-process (DESIGN §7).
+"""Beer-Lambert fog: the exact per-layer form and the paper's depth-map post-process (docs/design.md §7).
 
 Light from a point at distance l along the ray keeps the fraction t = exp(-beta l) and the fog
 adds (1 - t) c_fog. With Gaussian splatting a pixel mixes several layers, so the exact image

@@ -1,4 +1,4 @@
-"""Rain and snow as Gaussian particles in a camera-following volume (DESIGN §7).
+"""Rain and snow as Gaussian particles in a camera-following volume (docs/design.md §7).
 
 A raindrop is one Gaussian stretched along its velocity relative to the camera (motion blur over
 the exposure); a snowflake is three equal elongated Gaussians at 60 degrees sharing one center

@@ -1,6 +1,6 @@
 """Model cases of ``wcbench bench metrics``: CLIP and SegFormer backends, and scoring a whole scene.
 
-No real CLIP or segmenter weights are reachable here (DESIGN §6), so every model has the true
+No real CLIP or segmenter weights are reachable here (docs/design.md §6), so every model has the true
 architecture and seeded random weights, installed through the path a user's checkpoint takes
 (:meth:`~wcbench.core.models.store.ModelStore.import_file`: converter, ONNX export) into a
 temporary model store. Times are those of the real networks; the scores the random weights give
@@ -228,6 +228,7 @@ def install_models(store: ModelStore, work: Path, *, quick: bool, vocab: Path | 
     list of str
         Notes (what could not be installed).
     """
+    # torch-only imports live in the cases that need them: the suite runs without the [model] extra
     from safetensors.torch import save_file
 
     from wcbench.metrics.clip.pytorch.checkpoints import save_clip_safetensors
@@ -282,6 +283,7 @@ def clip_cases(store: ModelStore, work: Path, src: np.ndarray, edit: np.ndarray,
     """The ``clip_<backend>`` cases (see module docstring); also returns notes."""
     import torch
 
+    # torch-only (see install_models)
     from wcbench.metrics.clip.pytorch.backend import TorchClipBackend
 
     torch_backend = TorchClipBackend.from_file(store.require(CLIP_ENTRY), identity="torch")
@@ -351,6 +353,7 @@ def segformer_cases(store: ModelStore, frames: np.ndarray, *, quick: bool) -> tu
     """
     import torch
 
+    # torch-only (see install_models)
     from wcbench.metrics.semantic.pytorch.backend import TorchSegmenter, load_torch_segmenter
 
     folder = store.dir(SEG_ENTRY)

@@ -1,6 +1,6 @@
 """``wcbench bench raster``: speed and accuracy of the CPU rasterizer, fast path against its twin.
 
-Cases (DESIGN.md §8 yardsticks):
+Cases (docs/design.md §8 yardsticks):
 
 a. 20k random Gaussians at 320x180;
 b. the real workload: the lidar of ``pandaset_002`` (every sweep, voxelised at 0.15 m, voxel
@@ -12,7 +12,7 @@ d. 1M Gaussians at 1920x1080, forward only, fast path only, with peak memory.
 
 Per case: forward and backward wall time of the fast path (median over repeats after a warm-up)
 and of the pure-torch twin (one run), the Gaussian-pixel pairs evaluated, ns per pair, the
-speed-up over the twin, the fraction of the compiled-kernel floor of DESIGN §8 reached, and the
+speed-up over the twin, the fraction of the compiled-kernel floor of docs/design.md §8 reached, and the
 largest error of the fast path against a float64 reference: the twin run in float64 on the very
 pairs the float32 fast path composited (same skip and stop decisions).
 """
@@ -38,7 +38,7 @@ from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.raster.torch_twin import rasterize_torch
 from wcbench.scenes.loaders import load_scene
 
-#: DESIGN §8: ~6M pairs cost a compiled tile kernel >= 4 ms forward and >= 10 ms backward on this
+#: docs/design.md §8: ~6M pairs cost a compiled tile kernel >= 4 ms forward and >= 10 ms backward on this
 #: machine (~35 FLOP per pair forward, ~2.5x that backward): the floor per pair.
 FLOOR_NS_PER_PAIR_FWD = 4e6 / 6e6
 FLOOR_NS_PER_PAIR_BWD = 10e6 / 6e6
@@ -301,7 +301,7 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
         "max_abs_err: largest |fast - reference| over color and alpha, the reference being the torch twin in "
         "float64 on the pairs the float32 fast path composited; depth_max_rel_err over drawn pixels")
     report.notes.append(
-        "floor_fraction: DESIGN 8 floor (4 ms fwd / 10 ms bwd per 6M pairs) divided by the measured time")
+        "floor_fraction: docs/design.md §8 floor (4 ms fwd / 10 ms bwd per 6M pairs) divided by the measured time")
 
     # (d) first, so that the growth of the process's max RSS is the case's own peak.
     n_d, size_d = (30_000, (320, 180)) if quick else (1_000_000, (1920, 1080))

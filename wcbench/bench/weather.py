@@ -7,7 +7,7 @@ snow (16,000 flakes = 48,000 Gaussians), the physical ``heavy`` rain and snow, a
 and post-processed. Every case times the whole frame (particles, culling, rasterizer, fog); each
 case is timed right after a clear render and the ratio taken within the pair, so that slow drifts
 of the machine's load cancel; ``ratio_vs_clear`` is the median of the pair ratios and ``time_ms``
-the median time. Targets (DESIGN, issue 4): rain and snow ``paper`` add at most 30 % to the clear
+the median time. Targets: rain and snow ``paper`` add at most 30 % to the clear
 render, exact fog at most 15 %. The fog error is the mean and 99th percentile of
 |post-process - exact| over pixels and channels (RGB in [0, 1]).
 

@@ -12,6 +12,9 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from wcbench import __version__
+from wcbench.core.errors import WcbenchError
+
 #: verb -> module; the order is the order in ``--help``.
 COMMANDS = {
     "run": "wcbench.cli.run",
@@ -27,8 +30,6 @@ COMMANDS = {
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser (imports every verb module, none of which imports heavy code)."""
-    from wcbench import __version__
-
     parser = argparse.ArgumentParser(
         prog="wcbench",
         description="Weather editing of driving scenes: render, evaluate and benchmark methods.",
@@ -55,8 +56,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Input errors (:class:`~wcbench.core.errors.WcbenchError`) print one message and exit with 2.
     """
-    from wcbench.core.errors import WcbenchError
-
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):

@@ -1,7 +1,7 @@
 """Run a benchmark suite and write its JSON (one schema for all suites: wcbench.bench.schema).
 
 Suites measure speed against error in one run (fast path vs its slow reference, ours vs the
-yardsticks in DESIGN §8); they never assert times.
+yardsticks of docs/design.md §8); they never assert times.
 
 Examples::
 
@@ -15,14 +15,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "run a benchmark suite (speed vs error)"
+from wcbench.bench import SUITES
+from wcbench.core.errors import UnknownNameError
+from wcbench.core.registry import LazyRegistry
 
-#: suite -> "module:function" returning a wcbench.bench.schema.BenchReport
-SUITES = {
-    "metrics": "wcbench.bench.metrics:run",
-    "raster": "wcbench.bench.raster:run",
-    "weather": "wcbench.bench.weather:run",
-}
+HELP = "run a benchmark suite (speed vs error)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,11 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the suite, print its table, write the JSON."""
-    from wcbench.core.errors import UnknownNameError
-    from wcbench.core.registry import LazyRegistry
     from wcbench.scenes.sets import data_root_from
 
-    suites: LazyRegistry = LazyRegistry("benchmark", SUITES)
+    suites: LazyRegistry = LazyRegistry("benchmark", SUITES)  # entry points add suites of other packages
     if args.suite == "list":
         for name in suites.names():
             print(f"{name:10s} {SUITES.get(name, '(entry point)')}")

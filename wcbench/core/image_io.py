@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from wcbench.core.errors import InputError
-from wcbench.core.storage import atomic_path
+from wcbench.core.storage import atomic_path, atomic_write_bytes
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm")
@@ -91,8 +91,6 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
     ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     if not ok:
         raise OSError(f"{path}: PNG encoding failed")
-    from wcbench.core.storage import atomic_write_bytes
-
     atomic_write_bytes(path, buf.tobytes())
 
 

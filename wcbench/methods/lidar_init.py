@@ -1,9 +1,10 @@
 """``lidar_init``: the untrained reference scene under physics-driven weather, as a runnable method.
 
 The scene is the lidar initialisation training starts from (static Gaussians plus one rigid node
-per moving object, colored from the images, see :mod:`.lidar_init`); rain and snow particles are
-rasterized with it and fog is composed on top (:mod:`.weather`). It is what ``wcbench render``
-writes and what ``wcbench run --method lidar_init`` scores.
+per moving object, colored from the images, see :mod:`wcbench.reference_model.scene_graph.lidar_init`);
+rain and snow particles are rasterized with it and fog is composed on top
+(:mod:`wcbench.reference_model.weather`). ``wcbench render`` and ``wcbench run --method lidar_init``
+both render it through the same units of work (:mod:`wcbench.units`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ from wcbench.scenes.scene import Scene
 
 
 class LidarInitMethod(FrameRenderer):
-    """Lidar-initialised Gaussians rendered under a :class:`~.weather.Weather` per weather kind.
+    """Lidar-initialised Gaussians rendered under a physics weather per kind.
+
+    Each kind draws the :class:`~wcbench.reference_model.weather.conditions.Weather` given for it.
 
     Parameters
     ----------
@@ -40,8 +43,6 @@ class LidarInitMethod(FrameRenderer):
         Voxel size of the lidar initialisation (m).
     init_frames : list of int, optional
         Frames whose lidar sweeps build the scene (default: all).
-    name : str
-        Method name in the output layout.
     """
 
     version = "1"
@@ -54,7 +55,6 @@ class LidarInitMethod(FrameRenderer):
         scale: float = 1.0,
         voxel_m: float = 0.2,
         init_frames: list[int] | None = None,
-        name: str = "lidar_init",
     ):
         if not 0 < scale <= 4:
             raise InputError(f"scale must be in (0, 4], got {scale}")
@@ -63,11 +63,11 @@ class LidarInitMethod(FrameRenderer):
         self.weathers = dict(weathers or {})
         self.size, self.scale, self.voxel_m, self.init_frames = size, scale, voxel_m, init_frames
         self.info = MethodInfo(
-            name=name,
+            name="lidar_init",
             description="Untrained lidar-initialised Gaussians + physics weather (particles, Beer-Lambert fog)",
             kind="runnable",
             weathers=WEATHERS,
-            layout=f"writes <out>/{name}/<scene>/<weather>/{{frame:03d}}.png + info.json",
+            layout="writes <out>/lidar_init/<scene>/<weather>/{frame:03d}.png + info.json",
         )
         self._scene_key: tuple[str, str] | None = None
         self._gaussians: Any = None

@@ -184,7 +184,8 @@ class FrameRenderer(ABC):
             write_mp4(video_path, seq, fps=sequence_frame_rate([scene.frames[k].timestamp for k in indices]))
         info = {
             "method": self.info.name, "version": self.version, "scene": scene.id, "weather": weather,
-            "seed": seed, "key": key, "parameters": {**self.parameters(weather), **self.describe()},
+            "seed": seed, "key": key, "size": [width, height],
+            "parameters": {**self.parameters(weather), **self.describe()},
             "timings": timer.summary(width=width, height=height),
             "frames": [
                 {"file": canonical_frame_path(out_dir, k).name, "index": k,

@@ -1,6 +1,6 @@
 """The data model: cameras, frames, scenes and scene sets.
 
-Conventions (DESIGN.md §2):
+Conventions (docs/design.md §2):
 
 * Cameras use **OpenCV axes** (x right, y down, z forward); ``camera_to_world`` is a 4x4 matrix.
   Pixel (i, j) covers [i, i+1) x [j, j+1), so its center is at (i + 0.5, j + 0.5).

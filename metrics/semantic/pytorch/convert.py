@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from safetensors.torch import save_file
 from torch import nn
 
 from wcbench.core.storage import atomic_path, atomic_write_json, sha256_file
@@ -107,8 +108,9 @@ def write_segmenter_dir(
     source : str or Path, optional
         The checkpoint converted from (its name and sha256 are recorded).
     """
-    from safetensors.torch import save_file
-
+    cfg: Any = getattr(model, "cfg", None)  # the architecture dataclass of SegFormer / UperNet-ConvNeXt
+    if not dataclasses.is_dataclass(cfg) or isinstance(cfg, type) or not hasattr(cfg, "num_labels"):
+        raise TypeError(f"{type(model).__name__}: expected a segmentation network with a .cfg dataclass")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     state = {
@@ -120,11 +122,11 @@ def write_segmenter_dir(
     spec = SegmenterSpec(
         arch=arch,
         variant=variant,
-        num_classes=int(model.cfg.num_labels),
+        num_classes=int(cfg.num_labels),
         input_size=(int(input_size[0]), int(input_size[1])),
         logits_stride=logits_stride,
         architecture={
-            k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(model.cfg).items()
+            k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(cfg).items()
         },
     )
     record: dict[str, Any] = spec.to_json()

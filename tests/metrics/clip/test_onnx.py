@@ -10,6 +10,7 @@ import importlib.util  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from paths import DATA  # noqa: E402
 
 from wcbench.metrics.clip.config import CLIP_ARCHS  # noqa: E402
 from wcbench.metrics.clip.onnx_backend import OnnxClipBackend  # noqa: E402
@@ -17,7 +18,6 @@ from wcbench.metrics.clip.pytorch.backend import TorchClipBackend  # noqa: E402
 from wcbench.metrics.clip.pytorch.export import export_onnx  # noqa: E402
 from wcbench.metrics.clip.pytorch.model import ClipModel, randomize_  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[1] / "data"
 #: Required agreement of embeddings (|x| ~ 1) between onnxruntime and torch: both float32,
 #: different kernels and summation order (measured ~2e-6 for ViT-B/32).
 ONNX_TOL = 1e-4

@@ -22,7 +22,7 @@ EXACT = 1e-12
 
 
 def fwiou_bruteforce(l0: np.ndarray, l1: np.ndarray, num_classes: int, ignore: int | None) -> float:
-    """DESIGN §5 word for word, with python loops over classes and pixels."""
+    """docs/design.md §5 word for word, with python loops over classes and pixels."""
     pairs = [
         (int(a), int(b))
         for a, b in zip(l0.ravel(), l1.ravel())
@@ -213,7 +213,13 @@ def test_shared_metric_tester():
     rng = np.random.default_rng(8)
     src = rng.random((4, 6, 5, 3))
     edit = np.clip(src + rng.normal(0, 0.15, src.shape), 0, 1)
-    out = check_metric(lambda: SemanticConsistency(_ThresholdSegmenter(), num_classes=4), edit, source=src)
+    seg = _ThresholdSegmenter()
+    functional = {  # the functional form on the segmenter's label maps
+        "sem_cs": lambda p, s, r: sem_cs(seg(s), seg(p), num_classes=4),
+        "sem_cs_pooled": lambda p, s, r: sem_cs(seg(s), seg(p), num_classes=4, reduction="pooled"),
+    }
+    out = check_metric(lambda: SemanticConsistency(_ThresholdSegmenter(), num_classes=4), edit, source=src,
+                       functional=functional)
     assert 0 < out["sem_cs"].value < 1
     # labels mode gives the same numbers (the tester's float-dtype pass does not apply to labels)
     seg, labels = _ThresholdSegmenter(), SemanticConsistency(None, num_classes=4)

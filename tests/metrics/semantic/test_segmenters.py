@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from paths import DATA
 
 from wcbench.metrics.semantic.segmenter import OnnxSegmenter, SegmenterSpec, preprocess, upsample_argmax
 
-DATA = Path(__file__).resolve().parents[1] / "data"
 TINY = {"segformer": DATA / "seg_tiny_segformer", "upernet": DATA / "seg_tiny_upernet"}
 # float32 networks of a few dozen layers: torch, onnxruntime and transformers differ by ~1e-6 relative
 LOGITS_ATOL = 1e-4
@@ -464,7 +464,7 @@ def test_model_store_import_then_segment(hf_segformer_b0, tmp_path):
     from wcbench.core.models.store import ModelStore
     from wcbench.metrics.base import MetricContext
     from wcbench.metrics.semantic.consistency import SemanticConsistency
-    from wcbench.metrics.semantic.segmenter import load_segmenter
+    from wcbench.metrics.semantic.loading import load_segmenter
 
     _, folder = hf_segformer_b0
     store = ModelStore(root=tmp_path / "store")

@@ -11,6 +11,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+from paths import DATA  # noqa: E402
 
 from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore, ModelStoreError  # noqa: E402
 from wcbench.metrics.clip.config import CLIP_ARCHS, ClipArch, get_arch  # noqa: E402
@@ -30,7 +31,6 @@ from wcbench.metrics.clip.pytorch.model import ClipModel  # noqa: E402
 
 #: (pixels [B, 3, S, S] float32, tokens [B, 77] int64) torch tensors.
 Inputs = tuple[Any, Any]
-DATA = Path(__file__).resolve().parents[1] / "data"
 #: Same weights, same float32 arithmetic up to op order: rounding only.
 SAME_TOL = 1e-5
 

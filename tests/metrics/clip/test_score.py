@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from metric_tester import check_metric
+from paths import DATA
 
 from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore
 from wcbench.metrics.base import MetricContext
@@ -23,13 +25,12 @@ from wcbench.metrics.clip.score import (
     DEGENERATE_NORM,
     ClipDirectionalScore,
     ClipScore,
-    _clip_ds,
     clip_ds,
+    clip_ds_per_frame,
     clip_s,
     load_weather_prompts,
 )
 
-DATA = Path(__file__).resolve().parents[1] / "data"
 VISUAL, TEXT = DATA / "clip_tiny_visual.onnx", DATA / "clip_tiny_text.onnx"
 #: Cosines of float64-normalised float32 embeddings: float32 rounding only.
 COS_TOL = 1e-6
@@ -99,12 +100,12 @@ def test_clip_ds_formula_by_hand() -> None:
     f_src = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     f_edit = np.array([[0.6, 0.8, 0.0], [0.0, 1.0, 0.0]])
     direction = np.array([0.0, 2.0, 0.0])
-    values, degenerate = _clip_ds(f_src, f_edit, direction)
+    values, degenerate = clip_ds_per_frame(f_src, f_edit, direction)
     delta = np.array([-0.4, 0.8, 0.0])
     assert values[0] == pytest.approx(delta @ [0, 1, 0] / np.linalg.norm(delta), abs=1e-12)
     assert values[1] == 0.0 and degenerate.tolist() == [False, True]
     with pytest.raises(ValueError, match="text direction is zero"):
-        _clip_ds(f_src, f_edit, np.zeros(3))
+        clip_ds_per_frame(f_src, f_edit, np.zeros(3))
 
 
 def test_clip_s_identical_frames_is_one(encoder: ClipEncoder, rng: np.random.Generator) -> None:
@@ -131,6 +132,20 @@ def test_clip_s_batch_equals_accumulated_and_functional(
     assert -1.0 <= a.value <= 1.0 and a.value < 1.0 - 1e-4
     whole.reset()
     assert whole.compute()["clip_s"].value is None
+
+
+def test_shared_metric_tester(encoder: ClipEncoder, rng: np.random.Generator) -> None:
+    src = frames(rng, 4)
+    edit = np.clip(src + 0.3 * rng.standard_normal(src.shape), 0, 1)
+    out = check_metric(lambda: ClipScore(embedder=encoder), edit, source=src,
+                       functional={"clip_s": lambda p, s, r: clip_s(s, p, model=encoder)})
+    assert out["clip_s"].value is not None and out["clip_s"].value < 1.0
+    functional = {
+        "clip_ds": lambda p, s, r: clip_ds(s, p, "rain", model=encoder),
+        "clip_ds_directional": lambda p, s, r: clip_ds(s, p, "rain", model=encoder, form="directional"),
+    }
+    check_metric(lambda: ClipDirectionalScore(weather="rain", embedder=encoder), edit, source=src,
+                 functional=functional)
 
 
 def test_clip_ds_zero_delta_is_zero_with_degenerate_count(

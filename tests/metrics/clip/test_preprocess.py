@@ -74,7 +74,7 @@ def test_resized_size_truncates() -> None:
 
 
 def test_pil_bicubic_differs_from_opencv() -> None:
-    # Why DESIGN §5 insists on PIL: OpenCV's cubic kernel (a = -0.75, no antialiasing) gives
+    # Why docs/design.md §5 insists on PIL: OpenCV's cubic kernel (a = -0.75, no antialiasing) gives
     # other pixels, enough to move CLIP scores in the third decimal.
     cv2 = pytest.importorskip("cv2")
     from PIL import Image

@@ -5,14 +5,16 @@
 - one update with all frames == frame-by-frame updates (sufficient statistics, up to FP order);
 - reset forgets everything; a pickled and restored metric continues identically;
 - float32 and float64 inputs agree (to float32 precision);
-- every output is a finite number, or None with a reason.
+- every output is a finite number, or None with a reason;
+- the functional form of each output (``functional={output: fn(pred, source, reference)}``)
+  gives the class's number.
 """
 
 from __future__ import annotations
 
 import math
 import pickle
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -44,12 +46,23 @@ def _close(a: MetricValue, b: MetricValue, rtol: float, what: str) -> None:
     assert math.isclose(a.value, b.value, rel_tol=rtol, abs_tol=1e-12), f"{what}: {a.value} != {b.value}"
 
 
+#: ``fn(pred, source, reference) -> float``: a metric's functional form for one output.
+Functional = Callable[[np.ndarray, np.ndarray | None, np.ndarray | None], float]
+
+
 def check_metric(factory: Callable[[], Metric], pred: np.ndarray, *, source: np.ndarray | None = None,
-                 reference: np.ndarray | None = None) -> dict[str, MetricValue]:
+                 reference: np.ndarray | None = None,
+                 functional: Mapping[str, Functional] | None = None) -> dict[str, MetricValue]:
     """Run the shared checks; return the outputs of the all-at-once run."""
     metric = factory()
     whole = _run(metric, pred, source, reference, split=[])
     assert set(whole) == set(type(metric).outputs), f"outputs {set(whole)} != declared {type(metric).outputs}"
+    for name, fn in (functional or {}).items():
+        value = fn(pred, source, reference)
+        expected = whole[name].value
+        assert expected is not None, f"{name}: the class gave null ({whole[name].reason}), the functional {value}"
+        assert math.isclose(value, expected, rel_tol=ACCUMULATION_RTOL, abs_tol=1e-12), \
+            f"{name}: functional {value} != class {expected}"
     for name, v in whole.items():
         assert v.value is None or math.isfinite(v.value), f"{name}: non-finite value {v.value}"
         assert v.value is not None or v.reason, f"{name}: null without a reason"

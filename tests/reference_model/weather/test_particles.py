@@ -53,7 +53,7 @@ def test_marshall_palmer_and_fall_speed_match_published_values() -> None:
     n0, lam = size_distribution("rain", 25.0)
     assert n0 == 8000.0
     assert lam == pytest.approx(4.1 * 25.0**-0.21, rel=1e-12)
-    # DESIGN §7: a 1 mm drop falls at ~4 m/s, a 3 mm drop at ~8 m/s.
+    # docs/design.md §7: a 1 mm drop falls at ~4 m/s, a 3 mm drop at ~8 m/s.
     assert rain_fall_speed(1.0) == pytest.approx(4.0, abs=0.05)
     assert rain_fall_speed(3.0) == pytest.approx(8.0, abs=0.1)
     v_snow = snow_fall_speed(np.array([0.01, 2.0, 50.0]))

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from paths import PANDASET
 
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import (
@@ -18,7 +19,6 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 )
 from wcbench.scenes.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene
 
-PANDASET = Path(__file__).resolve().parents[2].parent / "shared/data/pandaset_002"
 RED, BLUE, SKY = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.6, 0.7, 0.9)
 W, H, F = 80, 60, 50.0
 

@@ -3,6 +3,7 @@ and leaves no file in the cache or model store."""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -13,7 +14,8 @@ pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
 
 from wcbench.bench.models import timed_methods
-from wcbench.bench.schema import BenchReport, validate_benchmark
+from wcbench.bench.schema import validate_benchmark
+from wcbench.cli import main
 
 EXPECTED = {
     "ssim_320x180", "flow_deepflow", "flow_dis", "flow_farneback",
@@ -37,54 +39,64 @@ def _files(root: str | None) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def quick_run() -> tuple[BenchReport, dict[str, set[str]], dict[str, set[str]]]:
-    from wcbench.bench.metrics import run
-
+def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, dict[str, set[str]], dict[str, set[str]]]:
+    """``wcbench bench metrics --quick --json FILE`` once: the written JSON, and the cache and store
+    files before and after."""
     roots = {k: os.environ.get(k) for k in ("WCBENCH_CACHE", "WCBENCH_MODELS")}
     before = {k: _files(v) for k, v in roots.items()}
-    report = run(data_root=None, quick=True)
+    path = tmp_path_factory.mktemp("bench") / "metrics.json"
+    assert main(["bench", "metrics", "--quick", "--json", str(path)]) == 0
     assert {k: os.environ.get(k) for k in roots} == roots  # environment restored
     after = {k: _files(v) for k, v in roots.items()}
-    return report, before, after
+    return json.loads(path.read_text()), before, after
+
+
+def _cases(report: dict) -> dict[str, dict]:
+    return {c["name"]: c for c in report["cases"]}
 
 
 def test_quick_suite_validates_and_has_every_case(quick_run) -> None:
-    report, _, _ = quick_run
-    validate_benchmark(report.to_json())
-    assert {c.name for c in report.cases} == EXPECTED
-    assert report.format_table().count("\n") >= len(EXPECTED)
+    report = quick_run[0]
+    validate_benchmark(report)
+    assert set(_cases(report)) == EXPECTED
+    assert _cases(report)["ssim_320x180"]["error"] < 1e-12  # our SSIM vs scikit-image's
 
 
 def test_backends_agree(quick_run) -> None:
-    cases = {c.name: c for c in quick_run[0].cases}
-    assert cases["clip_torch"].error == 0.0
-    assert cases["clip_onnx"].error is not None and cases["clip_onnx"].error <= CLIP_S_FP32_TOL
-    assert cases["clip_onnx_int8"].error is not None and cases["clip_onnx_int8"].error <= CLIP_S_INT8_TOL
-    assert all(cases[n].time_ms and cases[n].time_ms > 0 for n in ("clip_torch", "clip_onnx", "clip_onnx_int8"))
+    cases = _cases(quick_run[0])
+    assert cases["clip_torch"]["error"] == 0.0
+    assert cases["clip_onnx"]["error"] is not None and cases["clip_onnx"]["error"] <= CLIP_S_FP32_TOL
+    assert cases["clip_onnx_int8"]["error"] is not None and cases["clip_onnx_int8"]["error"] <= CLIP_S_INT8_TOL
+    assert all(cases[n]["time_ms"] and cases[n]["time_ms"] > 0 for n in ("clip_torch", "clip_onnx", "clip_onnx_int8"))
     onnx = cases["segformer_b0_onnx"]
-    assert onnx.error is not None and onnx.error <= LOGITS_ATOL
-    assert onnx.extra["label_agreement"] >= LABEL_AGREEMENT
+    assert onnx["error"] is not None and onnx["error"] <= LOGITS_ATOL
+    assert onnx["label_agreement"] >= LABEL_AGREEMENT
 
 
 def test_evaluate_scene_scores_every_metric(quick_run) -> None:
     report = quick_run[0]
-    cases = {c.name: c for c in report.cases}
+    cases = _cases(report)
     for name in ("evaluate_scene", "evaluate_scene_warm"):
         case = cases[name]
-        assert case.time_ms is not None and case.time_ms > 0
-        scored = case.extra["scored"]
-        # fog skips the content metrics (CLIP-S, Sem-CS): DESIGN §5
+        assert case["time_ms"] is not None and case["time_ms"] > 0
+        scored = case["scored"]
+        # fog skips the content metrics (CLIP-S, Sem-CS): docs/design.md §5
         for part in ("clip_s:2/3", "sem_cs:2/3", "temporal_flicker:3/3", "flow_warping_error:3/3"):
             assert part in scored
-        vocab_missing = any("CLIP vocabulary not installed" in n for n in report.notes)
+        vocab_missing = any("CLIP vocabulary not installed" in n for n in report["notes"])
         assert vocab_missing or "clip_ds:3/3" in scored
-        assert case.extra["other_s"] >= 0
-    assert any(n.startswith("target: one method") for n in report.notes)
+        assert case["other_s"] >= 0
+    assert any(n.startswith("target: one method") for n in report["notes"])
 
 
 def test_leaves_no_files_in_cache_or_store(quick_run) -> None:
     _, before, after = quick_run
     assert after == before
+
+
+def test_unknown_suite_is_an_input_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "nope"]) == 2
+    assert "unknown benchmark suite 'nope'" in capsys.readouterr().err
 
 
 def test_timed_methods_restores_classes() -> None:

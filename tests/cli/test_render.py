@@ -1,0 +1,97 @@
+"""``wcbench render``: a thin front of the units of work ``run`` uses; options, frames and bad input."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from paths import PANDASET
+
+pytest.importorskip("torch")
+
+
+UP = np.array([0.0, -1.0, 0.0])  # camera at the origin with OpenCV axes: world up is -y
+
+
+def _args(out: Path, **kw: object) -> argparse.Namespace:
+    from wcbench.cli import render
+
+    parser = argparse.ArgumentParser()
+    render.add_arguments(parser)
+    argv = ["--scenes", str(PANDASET), "--out", str(out)]
+    for key, value in kw.items():
+        flag = "--" + key.replace("_", "-")
+        argv += [flag] if value is True else [flag, str(value)]
+    return parser.parse_args(argv)
+
+
+def test_cli_render_smoke_on_pandaset(tmp_path: Path) -> None:
+    if not (PANDASET / "images").is_dir():
+        pytest.skip(f"real scene not present at {PANDASET}")
+    from wcbench.cli import render
+    from wcbench.core.errors import ResultsExistError
+    from wcbench.core.storage import sha256_file
+
+    # Frames 16 and 17 have no lidar sweep: the scene comes from the sweeps of 15 and 19.
+    common = {
+        "weather": "rain",
+        "preset": "heavy",
+        "frames": "16-17",
+        "width": 96,
+        "height": 54,
+        "init_frames": "15,19",
+        "seed": 3,
+    }
+    assert render.run(_args(tmp_path, **common)) == 0
+    folder = tmp_path / "lidar_init" / "pandaset_002" / "rain"
+    info = json.loads((folder / "info.json").read_text())
+    assert [f["file"] for f in info["frames"]] == ["016.png", "017.png"]
+    for f in info["frames"]:
+        assert sha256_file(folder / f["file"]) == f["sha256"]
+        assert f["info"]["particles_in_view"] > 0
+    assert (
+        info["method"] == "lidar_init"
+        and info["weather"] == "rain"
+        and info["timings"]["resolution"] == [96, 54]
+    )
+    assert info["parameters"]["renderer"]["particles"]["capped"] is True
+    assert (tmp_path / "lidar_init" / "pandaset_002" / "rain.mp4").stat().st_size > 0
+    # Same settings: up to date; a damaged frame is re-rendered identically (pure function of the seed).
+    assert render.run(_args(tmp_path, **common)) == 0
+    (folder / "016.png").write_bytes(b"torn")
+    assert render.run(_args(tmp_path, **common)) == 0
+    assert sha256_file(folder / "016.png") == info["frames"][0]["sha256"]
+    # Other settings: refused unless --overwrite.
+    with pytest.raises(ResultsExistError):
+        render.run(_args(tmp_path, **{**common, "preset": "light"}))
+    # Frame 17 alone is frame 17 of the sequence.
+    assert render.run(_args(tmp_path / "alone", **{**common, "frames": "17"})) == 0
+    alone = json.loads((tmp_path / "alone/lidar_init/pandaset_002/rain/info.json").read_text())
+    assert alone["frames"][0]["sha256"] == info["frames"][1]["sha256"]
+
+
+def test_cli_parses_frames_and_rejects_bad_input() -> None:
+    from wcbench.cli.render import _weather, parse_frames
+    from wcbench.core.errors import InputError
+
+    assert parse_frames("0-2,7", 10) == [0, 1, 2, 7]
+    assert parse_frames(None, 3) == [0, 1, 2]
+    for bad in ("5-2", "x", "12"):
+        with pytest.raises(InputError):
+            parse_frames(bad, 10)
+    parser = argparse.ArgumentParser()
+    from wcbench.cli import render
+
+    render.add_arguments(parser)
+    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weather", "snow", "--wind", "4,20,30"])
+    w = _weather(args)
+    assert (w.wind.speed_m_s, w.wind.tilt_deg, w.wind.azimuth_deg) == (4.0, 20.0, 30.0)
+    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weather", "snow", "--wind", "4,20"])
+    with pytest.raises(InputError, match="--wind"):
+        _weather(args)
+    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weather", "fog", "--visibility", "-3"])
+    with pytest.raises(InputError, match="visibility_m"):
+        _weather(args)

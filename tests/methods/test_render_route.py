@@ -1,0 +1,48 @@
+"""One render route: ``wcbench render`` and ``wcbench run`` go through the same units of work."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from wcbench.cli import main
+from wcbench.core.errors import InputError
+from wcbench.methods import get_method, method_options
+
+
+def test_render_and_run_give_identical_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("torch")
+    pytest.importorskip("numba")
+    run_out, render_out = tmp_path / "run", tmp_path / "render"
+    assert main(["run", "--method", "lidar_init", "--scenes", "demo", "--out", str(run_out), "--weathers", "rain",
+                 "--metrics", "temporal_flicker", "--no-progress"]) == 0
+    assert main(["render", "--scenes", "demo", "--weather", "rain", "--scale", "1", "--out", str(render_out),
+                 "--no-video", "--no-progress"]) == 0
+    capsys.readouterr()
+    a = run_out / "lidar_init" / "demo_street" / "rain"
+    b = render_out / "lidar_init" / "demo_street" / "rain"
+    frames = sorted(p.name for p in a.glob("*.png"))
+    assert len(frames) == 12 and frames == sorted(p.name for p in b.glob("*.png"))
+    for name in frames:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    info_a, info_b = (json.loads((d / "info.json").read_text()) for d in (a, b))
+    # same settings, recorded the same way (the key covers method, weather, seed, size and sources)
+    assert info_a["key"] == info_b["key"] and info_a["parameters"] == info_b["parameters"]
+    assert info_a["timings"]["resolution"] == [320, 180]
+
+
+def test_render_refuses_a_method_without_physics_weather(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["render", "--method", "filter2d", "--scenes", "demo", "--weather", "rain", "--out", str(tmp_path)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "method 'filter2d' takes no option size, weathers" in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_method_options_are_checked_before_construction() -> None:
+    assert {"weathers", "size", "scale", "voxel_m", "init_frames"} <= set(method_options("lidar_init"))
+    assert method_options("identity") == []
+    with pytest.raises(InputError, match="takes no option voxel"):
+        get_method("filter2d", voxel=0.1)

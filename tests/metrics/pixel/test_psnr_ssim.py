@@ -1,0 +1,53 @@
+"""PSNR and SSIM: equal to scikit-image, closed forms, shape errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from wcbench.core.image_io import read_rgb8, to_float
+from wcbench.metrics import psnr, ssim
+
+#: docs/design.md §5: our SSIM equals skimage's with these settings to 1e-12.
+SSIM_SKIMAGE_ATOL = 1e-12
+
+
+SSIM_SKIMAGE_ATOL = 1e-12
+
+
+def _skimage_ssim(a, b):
+    return structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+                                 data_range=1, channel_axis=-1)
+
+
+@pytest.mark.parametrize("shape", [(11, 11, 3), (37, 53, 3), (64, 48, 3)])
+def test_ssim_equals_skimage_on_random_images(rng, shape):
+    a = rng.random(shape)
+    b = np.clip(a + 0.2 * rng.standard_normal(shape), 0, 1)
+    assert abs(ssim(a, b) - _skimage_ssim(a, b)) < SSIM_SKIMAGE_ATOL
+
+
+def test_ssim_equals_skimage_on_real_frames(pandaset_root):
+    a = to_float(read_rgb8(pandaset_root / "images" / "000_0.jpg")).astype(np.float64)[::4, ::4]
+    b = to_float(read_rgb8(pandaset_root / "images" / "005_0.jpg")).astype(np.float64)[::4, ::4]
+    assert abs(ssim(a, b) - _skimage_ssim(a, b)) < SSIM_SKIMAGE_ATOL
+
+
+def test_ssim_rejects_tiny_images(rng):
+    with pytest.raises(ValueError, match="at least 11 px"):
+        ssim(rng.random((8, 20, 3)), rng.random((8, 20, 3)))
+
+
+def test_psnr_matches_skimage_and_closed_form(rng):
+    a = rng.random((20, 30, 3))
+    b = np.clip(a + 0.05, 0, 1)
+    assert psnr(a, b) == pytest.approx(peak_signal_noise_ratio(a, b, data_range=1), abs=1e-10)
+    flat = np.full((4, 4, 3), 0.5)
+    assert psnr(flat, flat + 0.1) == pytest.approx(20.0, abs=1e-9)  # 10 log10(1 / 0.01)
+    assert psnr(flat, flat) == float("inf")
+
+
+def test_shape_mismatch_names_both_shapes(rng):
+    with pytest.raises(ValueError, match=r"\(1, 4, 4, 3\).*\(1, 5, 4, 3\)"):
+        psnr(rng.random((4, 4, 3)), rng.random((5, 4, 3)))

@@ -1,0 +1,105 @@
+"""Temporal flicker and flow warping error: closed forms, flows, occlusion masks, the fast path's twin,
+the shared source-flow cache."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sequences import translated_sequence
+
+from wcbench.metrics import flow_warp_error, temporal_flicker
+from wcbench.metrics.temporal.flicker import FlowWarpingError, consistency_mask, dis_flow, warp
+
+#: docs/design.md §5: our SSIM equals skimage's with these settings to 1e-12.
+SSIM_SKIMAGE_ATOL = 1e-12
+
+
+def _reference_mask(forward, backward):
+    """The slow twin of consistency_mask: float64 throughout, numpy's own gradient."""
+    h, w = forward.shape[:2]
+    f = forward.astype(np.float64)
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    tx, ty = gx + f[..., 0], gy + f[..., 1]
+    inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)
+    b = warp(backward.astype(np.float32), forward.astype(np.float32)).astype(np.float64)
+    occluded = ((f + b) ** 2).sum(-1) > 0.01 * ((f**2).sum(-1) + (b**2).sum(-1)) + 0.5
+    dby, dbx = np.gradient(b, axis=(0, 1))
+    boundary = (dbx**2).sum(-1) + (dby**2).sum(-1) > 0.01 * (b**2).sum(-1) + 0.002
+    return inside & ~occluded & ~boundary
+
+
+#: float32 vs float64 flips only pixels sitting on a threshold.
+MASK_MAX_DISAGREEMENT = 1e-3
+
+
+def test_temporal_flicker_closed_form():
+    seq = np.zeros((3, 4, 4, 3))
+    seq[1] = 0.5
+    assert temporal_flicker(seq) == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="at least 2 frames"):
+        temporal_flicker(seq[:1])
+
+
+def test_dis_flow_recovers_a_translation():
+    seq = translated_sequence()
+    flow = dis_flow(seq[0], seq[1])
+    core = flow[10:-10, 10:-10]
+    assert np.median(core[..., 0]) == pytest.approx(-3.0, abs=0.1)
+    assert np.median(core[..., 1]) == pytest.approx(0.0, abs=0.1)
+
+
+def test_flow_warp_error_zero_on_static_and_small_on_translation():
+    seq = translated_sequence()
+    static = np.repeat(seq[:1], 4, axis=0)
+    assert flow_warp_error(static) == pytest.approx(0.0, abs=1e-12)
+    assert flow_warp_error(seq) < 1e-3
+    # an edit that does not move with the scene is penalised
+    frozen_edit = np.repeat(seq[:1], 4, axis=0)
+    assert flow_warp_error(frozen_edit, seq) > 10 * flow_warp_error(seq)
+
+
+def test_consistency_mask_flags_inconsistent_flow_and_borders():
+    h, w = 20, 30
+    fwd = np.zeros((h, w, 2), np.float32)
+    fwd[..., 0] = 2.0
+    bwd = -fwd.copy()
+    mask = consistency_mask(fwd, bwd)
+    assert mask[:, : w - 3].all() and not mask[:, w - 2 :].any()  # targets past the right edge
+    bad_bwd = bwd.copy()
+    bad_bwd[5:10, 5:10] = 5.0
+    assert not consistency_mask(fwd, bad_bwd)[5:8, 4:8].any()
+
+
+def test_warp_samples_at_i_plus_flow():
+    img = np.arange(12, dtype=np.float32).reshape(3, 4, 1)
+    flow = np.zeros((3, 4, 2), np.float32)
+    flow[..., 0] = 1.0
+    np.testing.assert_allclose(warp(img, flow)[:, :3, 0], img[:, 1:, 0])
+
+
+def test_fast_mask_and_error_match_float64_twin(rng):
+    import cv2
+
+    h, w = 90, 120
+    fwd = cv2.GaussianBlur(rng.normal(0, 8, (h, w, 2)).astype(np.float32), (0, 0), 6) * 2
+    bwd = -fwd + cv2.GaussianBlur(rng.normal(0, 1.5, (h, w, 2)).astype(np.float32), (0, 0), 2)
+    fast, slow = consistency_mask(fwd, bwd), _reference_mask(fwd, bwd)
+    assert 0.1 < slow.mean() < 0.98  # a mix of valid and masked pixels
+    assert np.mean(fast != slow) < MASK_MAX_DISAGREEMENT
+    v0, v1 = rng.random((h, w, 3)), rng.random((h, w, 3))
+    from wcbench.metrics.temporal.flicker import warp_error_pair
+
+    d = v0 - warp(v1.astype(np.float32), fwd).astype(np.float64)
+    ref = ((d**2).sum(-1) * slow).sum() / slow.sum()
+    assert warp_error_pair(v0, v1, fwd, slow) == pytest.approx(ref, rel=1e-6)
+
+
+def test_source_flow_is_computed_once_across_weathers():
+    from wcbench.metrics.temporal.flicker import FLOW_CACHE
+
+    seq = translated_sequence(n=3, size=(40, 48))
+    before = FLOW_CACHE.misses
+    for edit in (seq * 0.9, seq * 0.8):  # two "weathers" of the same source
+        m = FlowWarpingError()
+        m.update(edit, source=seq)
+    assert FLOW_CACHE.misses - before == 2  # two frame pairs, flowed once each
