@@ -285,12 +285,16 @@ class SceneRef:
         Scene folder.
     options : dict
         Loader options (camera, first frame, frame count...).
+    aliases : tuple of str
+        Other names tools give the scene's folder (``"23"`` for ``waymo_023``); besides these, a
+        prediction folder may carry the scene id or the name of the scene's data folder.
     """
 
     id: str
     format: str
     path: Path
     options: dict = field(default_factory=dict)
+    aliases: tuple[str, ...] = ()
 
     def load(self) -> Scene:
         """Load the scene with its loader (see :mod:`wcbench.scene_loaders`)."""
