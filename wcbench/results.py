@@ -61,6 +61,18 @@ def read_results(path: Path) -> dict[str, Any]:
     return obj
 
 
+def frames_text(frames: list[int]) -> str:
+    """``[25, 26, 27, 29]`` -> ``"25-27,29"``."""
+    out, i = [], 0
+    while i < len(frames):
+        j = i
+        while j + 1 < len(frames) and frames[j + 1] == frames[j] + 1:
+            j += 1
+        out.append(str(frames[i]) if i == j else f"{frames[i]}-{frames[j]}")
+        i = j + 1
+    return ",".join(out)
+
+
 def csv_rows(results: dict[str, Any]) -> list[dict[str, Any]]:
     """Tidy rows (see module docstring) from a results object."""
     rows = []
