@@ -9,7 +9,7 @@ from __future__ import annotations
 from wcbench.methods.protocol import WEATHERS, Method, MethodInfo, RunnableMethod
 from wcbench.registry import LazyRegistry
 
-_READERS = ("folder", "controlnet", "turboedit", "fresco", "qwen-image", "climatenerf")
+_READERS = ("folder", "controlnet", "turboedit", "fresco", "qwen-image", "climatenerf", "weathercity")
 
 METHODS: LazyRegistry = LazyRegistry(
     "method",
