@@ -6,6 +6,14 @@ metric settings, so a killed run resumes where it stopped and gives the same num
 re-run with unchanged inputs does no work. ``results.csv`` then ``results.json`` are written last,
 atomically; an existing ``results.json`` for other inputs is never replaced without
 ``overwrite=True``.
+
+Each scene's predictions folder is found by name (:func:`~wcbench.predictions.find_scene_folder`:
+the scene id, its data folder's name or an alias, and reader patterns such as ``{scene}_*``), and
+the match is recorded. A sequence shorter than the scene (a reader that declares its tool can end
+early) is scored on its contiguous run of frames, so temporal metrics only compare neighbours, and
+the missing frames are named in ``results.json`` (``partial``) and ``results.csv``. Frames of an
+editing tool that all equal their source frames raise a warning (``warnings``): the predictions
+folder is likely the tool's copy of its input.
 """
 
 from __future__ import annotations
@@ -16,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from wcbench.environment import machine_info, package_versions
@@ -24,7 +33,13 @@ from wcbench.image_io import read_rgb8, to_float
 from wcbench.methods import WEATHERS, Method, get_method
 from wcbench.metrics.base import Metric, MetricContext
 from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric
-from wcbench.predictions import PredictionSequence, PredictionsMissingError, scene_prediction_root
+from wcbench.predictions import (
+    RESIZE_INTERPOLATION,
+    PredictionSequence,
+    PredictionsMissingError,
+    SceneFolder,
+    find_scene_folder,
+)
 from wcbench.progress import progress
 from wcbench.results import RESULTS_CSV, RESULTS_JSON, SCHEMA_VERSION, read_results, to_csv
 from wcbench.scene import Scene
@@ -35,6 +50,12 @@ WORK_DIR = ".work"
 #: Frames handed to metrics per update: model metrics batch their inference; 8 frames of 1080p
 #: in three float32 streams stay under 0.6 GB.
 FRAME_BATCH = 8
+#: "Equal to the source" for the wrong-folder warning: on every frame, the mean |difference| of
+#: 64-px-wide area-averaged thumbnails of prediction and source is at most this many uint8 levels.
+#: Measured: a resize round trip through FRESCO's 512-px size plus JPEG at quality 75 stays below 0.6
+#: (pandaset_002 and the demo scene), while a 3 % darkening gives 3.4 and sparse rain streaks 4.8.
+UNEDITED_LEVELS = 1.0
+UNEDITED_THUMB_WIDTH = 64
 
 
 @dataclass
@@ -59,6 +80,8 @@ class EvaluateConfig:
         Resize predictions of another size to the scene's size.
     fps : float or None
         Frame rate to report when the predictions carry no timings.
+    frame_offset : int
+        The method's frame *i* is scene frame ``i + frame_offset``.
     """
 
     method: str
@@ -70,6 +93,7 @@ class EvaluateConfig:
     pattern: str | None = None
     resize: bool = False
     fps: float | None = None
+    frame_offset: int = 0
     data_root: Path | None = None
     overwrite: bool = False
     show_progress: bool = True
@@ -87,13 +111,17 @@ class Unit:
     source_hashes: list[str]
     reference_paths: list[Path] | None
     reference_hashes: list[str] | None
+    check_unedited: bool = False
 
     def key(self, metric_config: dict[str, Any]) -> str:
         """Cache key of this unit's result."""
+        p = self.predictions
         return sha256_json({
             "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
             "predictions": self.pred_hashes, "source": self.source_hashes, "reference": self.reference_hashes,
-            "metrics": metric_config, "resize": self.predictions.resize,
+            "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
+            "frames": p.frame_indices, "missing": p.missing, "partial_reason": p.partial_reason,
+            "check_unedited": [self.check_unedited, UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH],
         })
 
 
@@ -122,25 +150,49 @@ def _metric_config(names: list[str], options: dict[str, dict[str, Any]]) -> tupl
     return metrics, {n: {"class": type(m).__qualname__, "config": m.config()} for n, m in metrics.items()}
 
 
-def _open_units(cfg: EvaluateConfig, method: Method) -> list[Unit]:
+def scene_folders(cfg: EvaluateConfig, method: Method) -> dict[str, SceneFolder]:
+    """The predictions folder of every scene of ``cfg.scenes`` (see :func:`find_scene_folder`).
+
+    Raises
+    ------
+    InputError
+        A scene has no folder or several candidates, or two scenes match one folder.
+    """
+    refs = resolve_scenes(cfg.scenes, data_root=cfg.data_root)
+    folders = {ref.id: find_scene_folder(cfg.predictions, ref, n_scenes=len(refs),
+                                         folder_patterns=method.info.scene_folders) for ref in refs}
+    claimed: dict[Path, list[str]] = {}
+    for f in folders.values():
+        claimed.setdefault(f.path, []).append(f.scene_id)
+    shared = {p: ids for p, ids in claimed.items() if len(ids) > 1}
+    if shared:
+        listing = "\n".join(f"  {p}: {', '.join(ids)}" for p, ids in shared.items())
+        raise InputError(f"{cfg.predictions}: one folder matches several scenes:\n{listing}")
+    return folders
+
+
+def _open_units(cfg: EvaluateConfig, method: Method, folders: dict[str, SceneFolder]) -> list[Unit]:
     refs = resolve_scenes(cfg.scenes, data_root=cfg.data_root)
     units: list[Unit] = []
+    single_weather = cfg.weathers is not None and len(cfg.weathers) == 1
     for ref in refs:
         scene = ref.load()
-        root = scene_prediction_root(cfg.predictions, scene.id, n_scenes=len(refs))
+        root = folders[ref.id].path
         weathers = cfg.weathers or list(method.info.weathers)
         opened: dict[str, PredictionSequence] = {}
         errors: dict[str, InputError] = {}
         for w in weathers:
             try:
-                opened[w] = method.open_predictions(scene, w, root, pattern=cfg.pattern, resize=cfg.resize)
+                opened[w] = method.open_predictions(scene, w, root, pattern=cfg.pattern, resize=cfg.resize,
+                                                    frame_offset=cfg.frame_offset, single_weather=single_weather)
             except PredictionsMissingError as exc:
                 if cfg.weathers:  # asked for explicitly: its absence is an error
                     errors[w] = exc
             except InputError as exc:
                 errors[w] = exc
         if errors:
-            lines = [f"  {w}: {len(p)} frames found" for w, p in opened.items()]
+            lines = [f"  {w}: {len(p)} frames found" + (f" (missing {p.missing})" if p.missing else "")
+                     for w, p in opened.items()]
             lines += [f"  {w}: {e}" for w, e in errors.items()]
             what = "frame counts differ across weathers" if opened else "predictions do not match the scene"
             raise InputError(f"scene {scene.id!r} ({len(scene)} frames): {what}:\n" + "\n".join(lines))
@@ -154,8 +206,44 @@ def _open_units(cfg: EvaluateConfig, method: Method) -> list[Unit]:
             ref_paths = scene.reference_paths(w)
             ref_hashes = None if ref_paths is None else (
                 source_hashes if w == "clear" else [sha256_file(p) for p in ref_paths])
-            units.append(Unit(scene, w, preds, preds.sha256s(), source_hashes, ref_paths, ref_hashes))
+            units.append(Unit(scene, w, preds, preds.sha256s(), source_hashes, ref_paths, ref_hashes,
+                              check_unedited=method.info.edits_source and w != "clear"))
     return units
+
+
+def _thumbnail(img: np.ndarray) -> np.ndarray:
+    """Area-averaged float32 thumbnail [h, UNEDITED_THUMB_WIDTH, 3] of a uint8 RGB frame."""
+    h, w = img.shape[:2]
+    size = (UNEDITED_THUMB_WIDTH, max(1, round(UNEDITED_THUMB_WIDTH * h / w)))
+    return cv2.resize(img, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+
+
+class _UneditedCheck:
+    """Whether every prediction equals its source frame: byte for byte, or up to resampling
+    (thumbnails within :data:`UNEDITED_LEVELS`)."""
+
+    def __init__(self) -> None:
+        self.identical = True
+        self.worst = 0.0
+        self.frames = 0
+
+    def update(self, pred8: np.ndarray, src8: np.ndarray) -> None:
+        self.frames += 1
+        self.identical = self.identical and np.array_equal(pred8, src8)
+        self.worst = max(self.worst, float(np.abs(_thumbnail(pred8) - _thumbnail(src8)).mean()))
+
+    def warning(self, unit: Unit, hint: str) -> dict[str, Any] | None:
+        if not self.frames or (not self.identical and self.worst > UNEDITED_LEVELS):
+            return None
+        how = ("are byte-identical to the scene's source frames" if self.identical else
+               f"equal the scene's source frames up to resampling (largest mean |difference| "
+               f"{self.worst:.2f}/255 on {UNEDITED_THUMB_WIDTH}-px thumbnails)")
+        where = unit.predictions.location or unit.predictions.files[0]
+        message = (f"all {self.frames} {unit.weather} frames from {where} {how}: they look like the unedited "
+                   "input, not an edit. Is --predictions pointing at the right folder?"
+                   + (f" ({hint})" if hint else ""))
+        return {"scene": unit.scene.id, "weather": unit.weather, "kind": "unedited", "message": message,
+                "identical": self.identical, "max_thumbnail_difference": self.worst}
 
 
 def _validate_frames(units: list[Unit], show_progress: bool) -> None:
@@ -169,8 +257,9 @@ def _validate_frames(units: list[Unit], show_progress: bool) -> None:
 
 def _score_unit(unit: Unit, metrics: dict[str, Metric], ctx_extra: dict[str, Any], show_progress: bool) -> dict:
     scene = unit.scene
+    preds = unit.predictions
     ctx = MetricContext(
-        weather=unit.weather, n_frames=len(scene), has_reference=unit.reference_paths is not None,
+        weather=unit.weather, n_frames=len(preds), has_reference=unit.reference_paths is not None,
         has_source=True, method_info=unit.predictions.info, fps_override=ctx_extra.get("fps"),
     )
     active, skipped = {}, []
@@ -183,8 +272,11 @@ def _score_unit(unit: Unit, metrics: dict[str, Metric], ctx_extra: dict[str, Any
             m.reset()
             active[name] = m
     needs_ref = unit.reference_paths is not None and any(m.needs_reference for m in active.values())
-    frames = progress(enumerate(unit.predictions), desc=f"{scene.id} {unit.weather}", total=len(scene),
+    # the scene frames of a partial sequence are one contiguous run: consecutive predictions are
+    # consecutive scene frames, as temporal metrics assume
+    frames = progress(zip(preds.frame_indices, preds), desc=f"{scene.id} {unit.weather}", total=len(preds),
                       enabled=show_progress)
+    check = _UneditedCheck() if unit.check_unedited else None
     # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
     w, h = scene.image_size
     streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
@@ -199,8 +291,11 @@ def _score_unit(unit: Unit, metrics: dict[str, Metric], ctx_extra: dict[str, Any
             m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
 
     for k, pred8 in frames:
+        src8 = read_rgb8(scene.frames[k].image_path)
         to_float(pred8, out=buffers["pred"][filled])
-        to_float(read_rgb8(scene.frames[k].image_path), out=buffers["source"][filled])
+        to_float(src8, out=buffers["source"][filled])
+        if check is not None:
+            check.update(pred8, src8)
         if needs_ref:
             assert unit.reference_paths is not None
             if unit.weather == "clear":
@@ -219,15 +314,34 @@ def _score_unit(unit: Unit, metrics: dict[str, Metric], ctx_extra: dict[str, Any
                 "metric": name, "value": value.value, "variant": value.variant, "reason": value.reason,
                 "higher_is_better": m.higher_is_better, "per_frame": value.per_frame, "extra": value.extra,
             }
-    return {"outputs": outputs, "skipped": skipped}
+    result: dict[str, Any] = {"outputs": outputs, "skipped": skipped, "warnings": []}
+    warning = check.warning(unit, ctx_extra.get("unedited_hint", "")) if check is not None else None
+    if warning is not None:
+        result["warnings"].append(warning)
+    if preds.missing:
+        result["partial"] = {
+            "scene": scene.id, "weather": unit.weather, "n_scene_frames": len(scene),
+            "scored": [preds.frame_indices[0], preds.frame_indices[-1]], "missing": preds.missing,
+            "reason": preds.partial_reason,
+        }
+    if preds.native_sizes:
+        result["resized"] = {
+            "scene": scene.id, "weather": unit.weather, "from": sorted(list(s) for s in preds.native_sizes),
+            "to": list(scene.image_size), "interpolation": RESIZE_INTERPOLATION,
+        }
+    return result
 
 
-def _config_record(cfg: EvaluateConfig, method: Method, units: list[Unit], metric_cfg: dict) -> dict[str, Any]:
+def _config_record(cfg: EvaluateConfig, method: Method, units: list[Unit], metric_cfg: dict,
+                   folders: dict[str, SceneFolder]) -> dict[str, Any]:
     return {
         "method": method.info.name, "method_kind": method.info.kind, "scenes": cfg.scenes,
         "scene_ids": sorted({u.scene.id for u in units}), "weathers": sorted({u.weather for u in units}),
         "metrics": sorted(metric_cfg), "metric_config": metric_cfg, "predictions": str(cfg.predictions),
-        "pattern": cfg.pattern, "resize": cfg.resize, "fps": cfg.fps,
+        "pattern": cfg.pattern, "resize": cfg.resize, "resize_interpolation": RESIZE_INTERPOLATION,
+        "frame_offset": cfg.frame_offset, "fps": cfg.fps, "reader": method.info.defaults,
+        "unedited_check": method.info.edits_source,
+        "scene_folders": {sid: f.record() for sid, f in sorted(folders.items())},
     }
 
 
@@ -283,12 +397,16 @@ def evaluate(cfg: EvaluateConfig) -> EvaluateOutcome:
     method, metric_names, previous = check_out_folder(cfg)
     results_path = cfg.out / RESULTS_JSON
     metrics, metric_cfg = _metric_config(metric_names, cfg.metric_options)
-    units = _open_units(cfg, method)
-    config = _config_record(cfg, method, units, metric_cfg)
+    folders = scene_folders(cfg, method)
+    units = _open_units(cfg, method, folders)
+    config = _config_record(cfg, method, units, metric_cfg, folders)
     inputs: dict[str, Any] = {"scenes": {}}
     for u in units:
+        p = u.predictions
         inputs["scenes"].setdefault(u.scene.id, {})[u.weather] = {
-            "predictions": u.pred_hashes, "source": u.source_hashes, "reference": u.reference_hashes}
+            "predictions": u.pred_hashes, "source": u.source_hashes, "reference": u.reference_hashes,
+            "location": str(p.location) if p.location else None, "layout": p.layout, "frames": p.frame_indices,
+            "ignored": p.ignored}
     inputs["sha256"] = sha256_json({"inputs": inputs["scenes"], "config": config})
     if previous is not None:
         if previous.get("inputs", {}).get("sha256") == inputs["sha256"]:
@@ -312,22 +430,30 @@ def evaluate(cfg: EvaluateConfig) -> EvaluateOutcome:
     _validate_frames(todo, cfg.show_progress)
     computed = 0
     for u in todo:
-        result = json_safe(_score_unit(u, metrics, {"fps": cfg.fps}, cfg.show_progress))
+        extra = {"fps": cfg.fps, "unedited_hint": method.info.unedited_hint}
+        result = json_safe(_score_unit(u, metrics, extra, cfg.show_progress))
         atomic_write_json(cfg.out / WORK_DIR / u.scene.id / f"{u.weather}.json",
                           {"key": keys[(u.scene.id, u.weather)], "result": result})
         cached[(u.scene.id, u.weather)] = result
         computed += 1
     results: dict[str, Any] = {}
     skipped: list[dict[str, Any]] = []
+    partial: list[dict[str, Any]] = []
+    warnings: list[dict[str, Any]] = []
+    resized: list[dict[str, Any]] = []
     for u in units:
         rec = cached[(u.scene.id, u.weather)]
         results.setdefault(u.scene.id, {})[u.weather] = rec["outputs"]
         skipped += rec["skipped"]
+        warnings += rec.get("warnings", [])
+        partial += [rec["partial"]] if "partial" in rec else []
+        resized += [rec["resized"]] if "resized" in rec else []
     doc = {
         "kind": "wcbench-results", "schema_version": SCHEMA_VERSION,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "machine": machine_info(), "config": config,
-        "inputs": inputs, "results": results, "skipped": skipped,
+        "inputs": inputs, "results": results, "skipped": skipped, "partial": partial, "resized": resized,
+        "warnings": warnings,
     }
     doc = json_safe(doc)
     atomic_write_text(cfg.out / RESULTS_CSV, to_csv(doc))

@@ -521,10 +521,3 @@ def find_scene_folder(root: Path, ref: SceneRef, *, n_scenes: int,
 def canonical_frame_path(out_dir: Path, index: int) -> Path:
     """Where frame ``index`` lives in a weather folder of the canonical layout."""
     return out_dir / f"{index:03d}.png"
-
-
-def scene_prediction_root(root: Path, scene_id: str, *, n_scenes: int) -> Path:
-    """The folder of one scene's predictions by its id (kept until evaluation matches scene folders
-    with :func:`find_scene_folder`)."""
-    ref = SceneRef(id=scene_id, format="", path=Path(scene_id))
-    return find_scene_folder(root, ref, n_scenes=n_scenes).path
