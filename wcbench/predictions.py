@@ -309,7 +309,9 @@ def match_predictions(
         dropped = _drop_weather_level(candidate) if weather_level_optional else None
         if not hits and dropped is not None:
             read = dropped
-            hits = _locate(root, read, names=names, scene=scene)
+            # without its weather level, a frames folder counts only if it holds images
+            hits = [(p, w) for p, w in _locate(root, read, names=names, scene=scene)
+                    if p.is_file() or any(c.suffix.lower() in IMAGE_EXTENSIONS for c in p.iterdir())]
         if len(hits) > 1:
             listing = "\n".join(f"  {p}" for p, _ in hits)
             raise InputError(

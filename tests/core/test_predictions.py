@@ -154,6 +154,9 @@ def test_ignore_rules_and_weather_names(demo_scene, tmp_path):
 
 
 def test_weather_level_may_be_left_out_for_one_weather(demo_scene, tmp_path):
+    _copy_frames(demo_scene, tmp_path / "snow")
+    with pytest.raises(InputError, match="folder not found for weather 'rain'"):
+        match_predictions(demo_scene, "rain", tmp_path, weather_level_optional=True)
     _copy_frames(demo_scene, tmp_path)
     with pytest.raises(InputError, match="folder not found for weather 'rain'"):
         match_predictions(demo_scene, "rain", tmp_path)
