@@ -404,7 +404,8 @@ def test_weathercity_eval_runs_of_five_scenes(waymo_root, waymo_scenes, tmp_path
     any number, _gt_rgbs/_depths/_Background_rgbs and the mp4s are left alone."""
     project = tmp_path / "output" / "waymo_weathercity"
     for idx, scene in waymo_scenes.items():
-        run_name = f"{'23' if idx == '023' else idx}_1_cam_000_029"  # data.scene_idx=23 for scene 023
+        name = {"023": "23", "621": "waymo_621"}.get(idx, idx)  # data.scene_idx=23 for 023; a run named by id
+        run_name = f"{name}_1_cam_000_029"
         _weathercity_eval_run(project / run_name, scene, ["rain", "snow"])
     out = tmp_path / "out"
     code, stdout, err = _evaluate(capsys, "--method", "weathercity", "--scenes", "waymo_5", "--data-root",
@@ -420,6 +421,7 @@ def test_weathercity_eval_runs_of_five_scenes(waymo_root, waymo_scenes, tmp_path
     assert "folder pattern '{scene}_*'" in folders["waymo_788"]["rule"]
     assert folders["waymo_023"]["matched"] == "23" and "alias" in folders["waymo_023"]["rule"]
     assert "scene waymo_788: predictions from" in stdout and "788_1_cam_000_029" in stdout
+    assert f"scene waymo_621: predictions from {project / 'waymo_621_1_cam_000_029'}" in stdout
     clear = doc["inputs"]["scenes"]["waymo_788"]["clear"]
     assert clear["location"] == str(project / "788_1_cam_000_029" / "videos_eval" / "raw" / "full_set_30000_rgbs")
     assert doc["resized"] == [] and doc["partial"] == [] and doc["warnings"] == []

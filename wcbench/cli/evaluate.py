@@ -64,7 +64,7 @@ def report(outcome: object) -> None:
     assert isinstance(outcome, EvaluateOutcome)
     doc = outcome.results
     for scene, f in doc["config"].get("scene_folders", {}).items():
-        if f["matched"] != scene:
+        if Path(f["folder"]).name != scene:  # said whenever the folder is not simply named like the scene
             print(f"scene {scene}: predictions from {f['folder']} ({f['rule']})")
     for w in doc.get("warnings", []):
         print(f"warning: {w['scene']} {w['weather']}: {w['message']}", file=sys.stderr)
