@@ -25,6 +25,7 @@ Fast: the built-in demo scene (12 frames, 320x180) and a generated 30-frame ``wa
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -560,3 +561,19 @@ def test_methods_list_verbose_shows_each_readers_tree(capsys):
         assert needle in listing, needle
     assert "weathercity  reader    clear,rain,snow,fog" in listing
     assert "climatenerf  reader    snow,fog" in listing
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"pattern": "{weather}/{frame}"}, "unknown keys ['pattern']"),
+    ({"layouts": []}, "'layouts' is empty"),
+    ({"layouts": "{weather}/{frame}"}, "'layouts' must be of type"),
+    ({"weathers": ["rain", "hail"]}, "unknown weathers in weathers: ['hail']"),
+    ({"weather_names": {"smog": ["fog"]}}, "unknown weathers in weather_names: ['smog']"),
+    ({"resizes": "yes"}, "'resizes' must be of type"),
+])
+def test_presets_are_checked(change, message):
+    from wcbench.methods.readers import check_preset, load_preset
+
+    spec = {**load_preset("fresco"), **change}
+    with pytest.raises(ValueError, match=re.escape(message)):
+        check_preset(spec, name="fresco")

@@ -145,7 +145,17 @@ def load_preset(name: str) -> dict[str, Any]:
         On unknown keys, values of the wrong type, or unknown weathers (a bug in the preset).
     """
     text = resources.files("wcbench.methods").joinpath("presets").joinpath(f"{name}.toml").read_text(encoding="utf-8")
-    spec = tomllib.loads(text)
+    return check_preset(tomllib.loads(text), name=name)
+
+
+def check_preset(spec: dict[str, Any], *, name: str) -> dict[str, Any]:
+    """Return ``spec`` after checking its keys, their types and its weathers.
+
+    Raises
+    ------
+    ValueError
+        On unknown or missing keys, values of the wrong type, or unknown weathers.
+    """
     where = f"preset {name!r}"
     unknown = sorted(set(spec) - set(_KEYS))
     if unknown:
@@ -156,6 +166,11 @@ def load_preset(name: str) -> dict[str, Any]:
     for key, kind in _KEYS.items():
         if key in spec and not isinstance(spec[key], kind):
             raise ValueError(f"{where}: {key!r} must be of type {kind}, got {type(spec[key]).__name__}")
+    for key in ("layouts", "weathers", "ignore", "scene_folders"):
+        if key in spec and not all(isinstance(v, str) for v in spec[key]):
+            raise ValueError(f"{where}: {key!r} must be a list of strings")
+    if not spec["layouts"]:
+        raise ValueError(f"{where}: 'layouts' is empty")
     weathers = spec.get("weathers", list(WEATHERS))
     for what, names in (("weathers", weathers), ("weather_names", list(spec.get("weather_names", {})))):
         bad = sorted(set(names) - set(WEATHERS))
