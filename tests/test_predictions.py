@@ -111,3 +111,54 @@ def test_corrupt_image(tmp_path):
     path.write_bytes(b"\x89PNG not really")
     with pytest.raises(InputError, match="cannot decode"):
         read_rgb8(path)
+
+
+def _copy_frames(scene, folder, name=lambda f: f"{f.index:03d}.png", frames=None):
+    folder.mkdir(parents=True, exist_ok=True)
+    for f in frames if frames is not None else scene.frames:
+        cv2.imwrite(str(folder / name(f)), cv2.imread(str(f.image_path)))
+
+
+def test_star_and_step_in_folder_names_are_wildcards(demo_scene, tmp_path):
+    _copy_frames(demo_scene, tmp_path / "run_7" / "rain" / "ckpt_30000")
+    (tmp_path / "run_7" / "rain" / "ckpt_30000_gt").mkdir()  # not digits only: no match
+    (tmp_path / "run_*").mkdir()  # a literal star in a name is not what the pattern means
+    seq = match_predictions(demo_scene, "rain", tmp_path, pattern="run_*/{weather}/ckpt_{step}/{frame}.png")
+    assert seq.location == tmp_path / "run_7" / "rain" / "ckpt_30000" and len(seq) == 12
+    _copy_frames(demo_scene, tmp_path / "run_8" / "rain" / "ckpt_100")
+    with pytest.raises(InputError, match="matches 2 places") as exc:
+        match_predictions(demo_scene, "rain", tmp_path, pattern="run_*/{weather}/ckpt_{step}/{frame}.png")
+    assert "run_7" in str(exc.value) and "run_8" in str(exc.value)
+    with pytest.raises(InputError, match=r"\{frame\} may only appear in the file name"):
+        match_predictions(demo_scene, "rain", tmp_path, pattern="{weather}/{frame}/x.png")
+
+
+def test_short_sequences_need_a_declaration_and_one_contiguous_run(demo_scene, tmp_path):
+    _copy_frames(demo_scene, tmp_path / "rain", frames=demo_scene.frames[:9])
+    with pytest.raises(InputError, match=r"missing frames \[9, 10, 11\]"):
+        match_predictions(demo_scene, "rain", tmp_path)
+    seq = match_predictions(demo_scene, "rain", tmp_path, partial_reason="the tool stops early")
+    assert seq.frame_indices == list(range(9)) and seq.missing == [9, 10, 11]
+    assert len(list(seq)) == 9
+    (tmp_path / "rain" / "004.png").unlink()
+    with pytest.raises(InputError, match=r"missing frames \[4\] inside the sequence"):
+        match_predictions(demo_scene, "rain", tmp_path, partial_reason="the tool stops early")
+
+
+def test_ignore_rules_and_weather_names(demo_scene, tmp_path):
+    _copy_frames(demo_scene, tmp_path / "smog", name=lambda f: f"{f.index}-rgb.png")
+    _copy_frames(demo_scene, tmp_path / "smog", name=lambda f: f"{f.index}-depth.png")
+    seq = match_predictions(demo_scene, "fog", tmp_path, pattern="{weather}/{frame}-rgb.png",
+                            weather_names={"fog": ["smog"]}, ignore=["*-depth.png"])
+    assert len(seq) == 12 and len(seq.ignored) == 12 and seq.location == tmp_path / "smog"
+
+
+def test_weather_level_may_be_left_out_for_one_weather(demo_scene, tmp_path):
+    _copy_frames(demo_scene, tmp_path / "snow")
+    with pytest.raises(InputError, match="folder not found for weather 'rain'"):
+        match_predictions(demo_scene, "rain", tmp_path, weather_level_optional=True)
+    _copy_frames(demo_scene, tmp_path)
+    with pytest.raises(InputError, match="folder not found for weather 'rain'"):
+        match_predictions(demo_scene, "rain", tmp_path)
+    seq = match_predictions(demo_scene, "rain", tmp_path, weather_level_optional=True)
+    assert seq.location == tmp_path and seq.layout == "{frame}"

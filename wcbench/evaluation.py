@@ -6,6 +6,14 @@ checks every prediction before any result is written, scores each unit or reuses
 (:func:`~wcbench.units.execute_unit`), then writes ``results.csv`` and ``results.json`` last,
 atomically. An existing ``results.json`` for other inputs is never replaced without
 ``overwrite=True``.
+
+Each scene's predictions folder is found by name (:func:`~wcbench.predictions.find_scene_folder`:
+the scene id, its data folder's name or an alias, and reader patterns such as ``{scene}_*``), and
+the match is recorded. A sequence shorter than the scene (a reader that declares its tool can end
+early) is scored on its contiguous run of frames, so temporal metrics only compare neighbours, and
+the missing frames are named in ``results.json`` (``partial``) and ``results.csv``. Frames of an
+editing tool that all equal their source frames raise a warning (``warnings``, see
+:mod:`wcbench.unedited`): the predictions folder is likely the tool's copy of its input.
 """
 
 from __future__ import annotations
@@ -25,7 +33,13 @@ from wcbench.core.weathers import WEATHERS
 from wcbench.methods import Method, get_method
 from wcbench.metrics.base import Metric
 from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric
-from wcbench.predictions import PredictionSequence, PredictionsMissingError, scene_prediction_root
+from wcbench.predictions import (
+    RESIZE_INTERPOLATION,
+    PredictionSequence,
+    PredictionsMissingError,
+    SceneFolder,
+    find_scene_folder,
+)
 from wcbench.results import RESULTS_CSV, RESULTS_JSON, SCHEMA_VERSION, read_results, to_csv
 from wcbench.scenes.sets import resolve_scenes
 from wcbench.units import RenderSettings, Scoring, UnitResult, WorkUnit, execute_unit, render_units
@@ -53,6 +67,8 @@ class EvaluateConfig:
         Resize predictions of another size to the scene's size.
     fps : float or None
         Frame rate to report when the predictions carry no timings.
+    frame_offset : int
+        The method's frame *i* is scene frame ``i + frame_offset``.
     render : RenderSettings or None
         Render the units first with the (runnable) method into ``predictions/<scene>/<weather>/``
         (``wcbench run``); ``None`` reads existing files (``wcbench evaluate``).
@@ -71,6 +87,7 @@ class EvaluateConfig:
     overwrite: bool = False
     show_progress: bool = True
     metric_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    frame_offset: int = 0
     render: RenderSettings | None = None
 
 
@@ -99,19 +116,42 @@ def _metric_config(names: list[str], options: dict[str, dict[str, Any]]) -> tupl
     return metrics, {n: {"class": type(m).__qualname__, "config": m.config()} for n, m in metrics.items()}
 
 
-def _plan_units(cfg: EvaluateConfig, method: Method) -> list[list[WorkUnit]]:
-    """The units of every scene (scenes loaded, predictions not yet opened), grouped by scene."""
+def scene_folders(cfg: EvaluateConfig, method: Method) -> dict[str, SceneFolder]:
+    """The predictions folder of every scene of ``cfg.scenes`` (see :func:`find_scene_folder`).
+
+    Raises
+    ------
+    InputError
+        A scene has no folder or several candidates, or two scenes match one folder.
+    """
+    refs = resolve_scenes(cfg.scenes, data_root=cfg.data_root)
+    folders = {ref.id: find_scene_folder(cfg.predictions, ref, n_scenes=len(refs),
+                                         folder_patterns=method.info.scene_folders) for ref in refs}
+    claimed: dict[Path, list[str]] = {}
+    for f in folders.values():
+        claimed.setdefault(f.path, []).append(f.scene_id)
+    shared = {p: ids for p, ids in claimed.items() if len(ids) > 1}
+    if shared:
+        listing = "\n".join(f"  {p}: {', '.join(ids)}" for p, ids in shared.items())
+        raise InputError(f"{cfg.predictions}: one folder matches several scenes:\n{listing}")
+    return folders
+
+
+def _plan_units(cfg: EvaluateConfig, method: Method, folders: dict[str, SceneFolder] | None) -> list[list[WorkUnit]]:
+    """The units of every scene (scenes loaded, predictions not yet opened), grouped by scene.
+
+    ``folders`` maps scene ids to another tool's prediction folders; ``None`` when wcbench renders
+    the predictions itself into the canonical layout (one folder per scene).
+    """
     refs = resolve_scenes(cfg.scenes, data_root=cfg.data_root)
     weathers = cfg.weathers or list(method.info.weathers)
     plan = []
     for ref in refs:
         scene = ref.load()
-        if cfg.render is not None:  # rendered here: the canonical layout, one folder per scene
-            root = cfg.predictions / scene.id
-        else:
-            root = scene_prediction_root(cfg.predictions, scene.id, n_scenes=len(refs))
+        root = cfg.predictions / scene.id if folders is None else folders[ref.id].path
         source_hashes = [sha256_file(f.image_path) for f in scene.frames]
-        plan.append([WorkUnit(method, scene, w, root, source_hashes) for w in weathers])
+        plan.append([WorkUnit(method, scene, w, root, source_hashes,
+                              check_unedited=method.info.edits_source and w != "clear") for w in weathers])
     return plan
 
 
@@ -124,20 +164,23 @@ def _open_units(cfg: EvaluateConfig, plan: list[list[WorkUnit]]) -> list[WorkUni
         Naming, per scene, every weather whose predictions do not match the scene.
     """
     units: list[WorkUnit] = []
+    single_weather = cfg.weathers is not None and len(cfg.weathers) == 1
     for scene_units in plan:
         scene = scene_units[0].scene
         opened: dict[str, PredictionSequence] = {}
         errors: dict[str, InputError] = {}
         for u in scene_units:
             try:
-                opened[u.weather] = u.open(pattern=cfg.pattern, resize=cfg.resize)
+                opened[u.weather] = u.open(pattern=cfg.pattern, resize=cfg.resize, frame_offset=cfg.frame_offset,
+                                           single_weather=single_weather)
             except PredictionsMissingError as exc:
                 if cfg.weathers:  # asked for explicitly: its absence is an error
                     errors[u.weather] = exc
             except InputError as exc:
                 errors[u.weather] = exc
         if errors:
-            lines = [f"  {w}: {len(p)} frames found" for w, p in opened.items()]
+            lines = [f"  {w}: {len(p)} frames found" + (f" (missing {p.missing})" if p.missing else "")
+                     for w, p in opened.items()]
             lines += [f"  {w}: {e}" for w, e in errors.items()]
             what = "frame counts differ across weathers" if opened else "predictions do not match the scene"
             raise InputError(f"scene {scene.id!r} ({len(scene)} frames): {what}:\n" + "\n".join(lines))
@@ -152,12 +195,16 @@ def _open_units(cfg: EvaluateConfig, plan: list[list[WorkUnit]]) -> list[WorkUni
     return units
 
 
-def _config_record(cfg: EvaluateConfig, method: Method, units: list[WorkUnit], metric_cfg: dict) -> dict[str, Any]:
+def _config_record(cfg: EvaluateConfig, method: Method, units: list[WorkUnit], metric_cfg: dict,
+                   folders: dict[str, SceneFolder] | None) -> dict[str, Any]:
     return {
         "method": method.info.name, "method_kind": method.info.kind, "scenes": cfg.scenes,
         "scene_ids": sorted({u.scene.id for u in units}), "weathers": sorted({u.weather for u in units}),
         "metrics": sorted(metric_cfg), "metric_config": metric_cfg, "predictions": str(cfg.predictions),
-        "pattern": cfg.pattern, "resize": cfg.resize, "fps": cfg.fps,
+        "pattern": cfg.pattern, "resize": cfg.resize, "resize_interpolation": RESIZE_INTERPOLATION,
+        "frame_offset": cfg.frame_offset, "fps": cfg.fps, "reader": method.info.defaults,
+        "unedited_check": method.info.edits_source,
+        "scene_folders": {sid: f.record() for sid, f in sorted((folders or {}).items())},
     }
 
 
@@ -223,11 +270,12 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None) -> EvaluateOu
     method, metric_names, previous = check_out_folder(cfg, method=method)
     results_path = cfg.out / RESULTS_JSON
     metrics, metric_cfg = _metric_config(metric_names, cfg.metric_options)
-    plan = _plan_units(cfg, method)
+    folders = None if cfg.render is not None else scene_folders(cfg, method)
+    plan = _plan_units(cfg, method, folders)
     if cfg.render is not None:
         render_units([u for scene_units in plan for u in scene_units], cfg.render)
     units = _open_units(cfg, plan)
-    config = _config_record(cfg, method, units, metric_cfg)
+    config = _config_record(cfg, method, units, metric_cfg, folders)
     inputs: dict[str, Any] = {"scenes": {}}
     for u in units:
         inputs["scenes"].setdefault(u.scene.id, {})[u.weather] = u.inputs()
@@ -256,14 +304,22 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
     """The ``results.json`` document from finished units (see :mod:`wcbench.results` for the schema)."""
     results: dict[str, Any] = {}
     skipped: list[dict[str, Any]] = []
+    partial: list[dict[str, Any]] = []
+    warnings: list[dict[str, Any]] = []
+    resized: list[dict[str, Any]] = []
     for o in outcomes:
-        results.setdefault(o.unit.scene.id, {})[o.unit.weather] = o.result["outputs"]
-        skipped += o.result["skipped"]
+        rec = o.result
+        results.setdefault(o.unit.scene.id, {})[o.unit.weather] = rec["outputs"]
+        skipped += rec["skipped"]
+        warnings += rec.get("warnings", [])
+        partial += [rec["partial"]] if "partial" in rec else []
+        resized += [rec["resized"]] if "resized" in rec else []
     doc: dict[str, Any] = json_safe({
         "kind": "wcbench-results", "schema_version": SCHEMA_VERSION,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "machine": machine_info(), "config": config,
-        "inputs": inputs, "results": results, "skipped": skipped,
+        "inputs": inputs, "results": results, "skipped": skipped, "partial": partial, "resized": resized,
+        "warnings": warnings,
     })
     return doc
 

@@ -2,22 +2,34 @@
 
 Patterns are paths relative to a scene's prediction folder with these tokens:
 
-``{weather}``  the weather name (``rain``...);
+``{weather}``  the weather name (``rain``...), or the tool's own name for it when the reader
+               declares one (``smog`` for ``fog``, ``raw`` for ``clear``);
 ``{frame}``    the frame number, an integer with any zero padding (``7``, ``007``, ``0007``);
                a preset's ``frame_start`` says what number the first frame has (default 0);
 ``{stem}``     the source image's file stem (``000_0`` for ``images/000_0.jpg``);
-``*``          any text: files are then matched to frames in natural sort order.
+``{scene}``    the scene id;
+``{step}``     any run of digits, e.g. a training step: ``full_set_{step}_rgbs`` matches
+               ``full_set_30000_rgbs`` but not ``full_set_30000_gt_rgbs``;
+``*``          any text. In the file name, files are then matched to frames in natural sort order.
 
-The last component may name an extension (``{weather}/{frame}.png``); without one, any image
-extension matches. A pattern whose last component is a video (``{weather}.mp4``) yields the
-video's frames in order.
+Folder components may hold ``{weather}``, ``{scene}``, ``{step}`` and ``*``; a wildcard that
+matches several folders is an error naming them all. The last component may name an extension
+(``{weather}/{frame}.png``); without one, any image extension matches. A last component that is a
+video (``{weather}.mp4``) yields the video's frames in order.
+
+Frame *i* of a tool (file number minus ``frame_start``, position in natural order, or video frame)
+is scene frame ``i + frame_offset``. A sequence that does not cover the scene is an error listing
+the missing frames, unless the reader declares that its tool can end early (``partial_reason``):
+then the present frames must be one contiguous run, which is scored, and the missing frames are
+named in the results (never silently).
 """
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,20 +44,26 @@ from wcbench.core.image_io import (
     natural_key,
     read_rgb8,
     resize_rgb8,
+    video_frame_count,
 )
 from wcbench.core.storage import sha256_file
+from wcbench.results import frames_text
 from wcbench.scenes.scene import Scene
+from wcbench.scenes.sets import SceneRef
 
 DEFAULT_PATTERN = "{weather}/{frame}"
 CANONICAL_PATTERN = "{weather}/{frame:03d}.png"
 INFO_FILE = "info.json"
+#: How predictions of another size are brought to the scene's size (see :func:`resize_rgb8`);
+#: recorded in results.json and part of every cache key.
+RESIZE_INTERPOLATION = "OpenCV INTER_AREA to shrink, INTER_CUBIC to enlarge, on uint8 frames"
 
 
 class PredictionsMissingError(InputError):
     """No predictions at all for a (scene, weather): the weather folder or video does not exist."""
 
 
-_TOKEN = re.compile(r"\{(weather|frame|stem|scene)(:[^}]*)?\}")
+_TOKEN = re.compile(r"\{(weather|frame|stem|scene|step)(:[^}]*)?\}")
 
 
 @dataclass
@@ -55,31 +73,59 @@ class PredictionSequence:
     Attributes
     ----------
     files : list of Path
-        One image per frame, or a single video for all frames.
+        One image per scored frame, or a single video for all of them.
     size : (int, int)
         Expected (width, height): the scene's frame size.
+    frame_indices : list of int
+        The scene frame of each prediction, increasing and contiguous (all frames unless partial).
     resize : bool
-        Resize frames of another size instead of failing.
+        Resize frames of another size (with :data:`RESIZE_INTERPOLATION`) instead of failing.
     info : dict or None
         The method's ``info.json`` if one was found.
+    is_video : bool
+        ``files`` is one video whose frames are the predictions, in order.
+    missing : list of int
+        Scene frames the tool did not produce (only when ``partial_reason`` allows it).
+    partial_reason : str or None
+        Why the tool may produce fewer frames than the scene (from the reader).
+    layout : str
+        The pattern that matched.
+    location : Path or None
+        The folder (or video) the frames were read from.
+    ignored : list of str
+        Sibling files left out by a reader's ignore rule (depth maps...).
+    native_sizes : set of (int, int)
+        (width, height) of every frame seen so far that had to be resized.
     """
 
     files: list[Path]
     size: tuple[int, int]
-    n_frames: int
+    frame_indices: list[int]
     resize: bool = False
     info: dict[str, Any] | None = None
     is_video: bool = False
+    missing: list[int] = field(default_factory=list)
+    partial_reason: str | None = None
+    layout: str = ""
+    location: Path | None = None
+    ignored: list[str] = field(default_factory=list)
+    native_sizes: set[tuple[int, int]] = field(default_factory=set)
     _hashes: list[str] | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
-        return self.n_frames
+        return len(self.frame_indices)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of predictions (scene frames scored)."""
+        return len(self.frame_indices)
 
     def _fit(self, img: np.ndarray, where: str) -> np.ndarray:
         h, w = img.shape[:2]
         if (w, h) == self.size:
             return img
         if self.resize:
+            self.native_sizes.add((w, h))
             return resize_rgb8(img, self.size)
         raise InputError(
             f"{where}: image is {w}x{h}, expected {self.size[0]}x{self.size[1]} like the scene's frames "
@@ -87,7 +133,7 @@ class PredictionSequence:
         )
 
     def __iter__(self) -> Iterator[np.ndarray]:
-        """uint8 RGB frames [H, W, 3] in order."""
+        """uint8 RGB frames [H, W, 3] in order, at the scene's size."""
         if self.is_video:
             count = 0
             for img in iter_video_rgb8(self.files[0]):
@@ -110,51 +156,109 @@ class PredictionSequence:
         return self._hashes
 
 
-def _compile(last: str, *, weather: str, scene: Scene) -> tuple[re.Pattern[str], bool, bool]:
-    """Regex for the file-name component; returns (regex, uses_frame, uses_stem)."""
-    parts, pos, uses_frame, uses_stem = [], 0, False, False
-    for m in _TOKEN.finditer(last):
-        parts.append(re.escape(last[pos : m.start()]).replace(r"\*", ".*"))
+# --------------------------------------------------------------------------- pattern pieces
+def _literal(text: str) -> str:
+    return re.escape(text).replace(r"\*", ".*")
+
+
+def _part_regex(part: str, *, weather: str, scene_id: str, pattern: str, file_name: bool) -> tuple[str, set[str]]:
+    """Regex body of one path component and the tokens it uses."""
+    pieces, pos, used = [], 0, set()
+    for m in _TOKEN.finditer(part):
+        pieces.append(_literal(part[pos : m.start()]))
         tok = m.group(1)
-        if tok == "frame":
-            parts.append(r"(?P<frame>\d+)")
-            uses_frame = True
-        elif tok == "stem":
-            parts.append(r"(?P<stem>.+)")
-            uses_stem = True
-        elif tok == "weather":
-            parts.append(re.escape(weather))
-        else:
-            parts.append(re.escape(scene.id))
+        if tok in ("frame", "stem") and not file_name:
+            raise InputError(f"pattern {pattern!r}: {{{tok}}} may only appear in the file name")
+        if tok in used and tok in ("frame", "stem"):
+            raise InputError(f"pattern {pattern!r}: {{{tok}}} appears twice in one name")
+        pieces.append({"frame": r"(?P<frame>\d+)", "stem": r"(?P<stem>.+)", "step": r"\d+",
+                       "weather": re.escape(weather), "scene": re.escape(scene_id)}[tok])
+        used.add(tok)
         pos = m.end()
-    parts.append(re.escape(last[pos:]).replace(r"\*", ".*"))
-    body = "".join(parts)
-    has_ext = Path(_TOKEN.sub("x", last)).suffix.lower() in (*IMAGE_EXTENSIONS, *VIDEO_EXTENSIONS)
-    if not has_ext:
-        exts = "|".join(re.escape(e) for e in IMAGE_EXTENSIONS)
-        body += rf"(?i:{exts})"
-    return re.compile(rf"^{body}$"), uses_frame, uses_stem
+    pieces.append(_literal(part[pos:]))
+    if "*" in _TOKEN.sub("", part):
+        used.add("*")
+    return "".join(pieces), used
 
 
-def _substitute_dirs(part: str, *, weather: str, scene: Scene, pattern: str) -> str:
-    def sub(m: re.Match[str]) -> str:
-        if m.group(1) == "weather":
-            return weather
-        if m.group(1) == "scene":
-            return scene.id
-        raise InputError(f"pattern {pattern!r}: {{{m.group(1)}}} may only appear in the file name")
-
-    return _TOKEN.sub(sub, part)
+def _is_video_name(last: str) -> bool:
+    tokens = {m.group(1) for m in _TOKEN.finditer(last)}
+    return not tokens & {"frame", "stem"} and Path(_TOKEN.sub("x", last)).suffix.lower() in VIDEO_EXTENSIONS
 
 
+def _expand(root: Path, parts: Sequence[str], *, weather: str, scene_id: str, pattern: str,
+            files: bool = False) -> list[Path]:
+    """Every path under ``root`` matching the components ``parts`` (the last ones are files when
+    ``files``), wildcards expanded, in natural order."""
+    current = [root]
+    for i, part in enumerate(parts):
+        want_file = files and i == len(parts) - 1
+        body, used = _part_regex(part, weather=weather, scene_id=scene_id, pattern=pattern, file_name=want_file)
+        nxt: list[Path] = []
+        for base in current:
+            if not used & {"step", "*"}:
+                name = _TOKEN.sub(lambda m: weather if m.group(1) == "weather" else scene_id, part)
+                cand = base / name
+                if cand.is_file() if want_file else cand.is_dir():
+                    nxt.append(cand)
+            elif base.is_dir():
+                regex = re.compile(rf"^{body}$")
+                nxt += sorted((c for c in base.iterdir()
+                               if (c.is_file() if want_file else c.is_dir()) and regex.match(c.name)),
+                              key=lambda c: natural_key(c.name))
+        current = nxt
+    return current
+
+
+def _weather_names(weather: str, weather_names: Mapping[str, Sequence[str]]) -> list[str]:
+    """Names the ``{weather}`` token may take: the tool's own names for it, then ours."""
+    return list(dict.fromkeys([*weather_names.get(weather, ()), weather]))
+
+
+def _locate(root: Path, layout: str, *, names: Sequence[str], scene: Scene) -> list[tuple[Path, str]]:
+    """(folder or video, weather name used) for every place ``layout`` points to that exists."""
+    pieces = layout.split("/")
+    video = _is_video_name(pieces[-1])
+    found: dict[Path, str] = {}
+    for name in names:
+        if video:
+            hits = _expand(root, pieces, weather=name, scene_id=scene.id, pattern=layout, files=True)
+        else:
+            hits = _expand(root, pieces[:-1], weather=name, scene_id=scene.id, pattern=layout)
+        for h in hits:
+            found.setdefault(h, name)
+    return list(found.items())
+
+
+def _drop_weather_level(layout: str) -> str | None:
+    """``layout`` without its ``{weather}`` folder level (``None`` if it has none)."""
+    pieces = layout.split("/")
+    kept = [p for p in pieces[:-1] if p != "{weather}"]
+    if len(kept) == len(pieces) - 1:
+        return None
+    return "/".join([*kept, pieces[-1]])
+
+
+def _with_weather(layout: str, name: str) -> str:
+    """``layout`` with ``{weather}`` written out (for messages)."""
+    return _TOKEN.sub(lambda m: name if m.group(1) == "weather" else m.group(0), layout)
+
+
+# --------------------------------------------------------------------------- matching
 def match_predictions(
     scene: Scene,
     weather: str,
     root: Path,
     *,
-    pattern: str = DEFAULT_PATTERN,
+    pattern: str | Sequence[str] = DEFAULT_PATTERN,
     frame_start: int = 0,
+    frame_offset: int = 0,
     resize: bool = False,
+    weather_names: Mapping[str, Sequence[str]] | None = None,
+    ignore: Sequence[str] = (),
+    partial_reason: str | None = None,
+    hints: Mapping[str, str] | None = None,
+    weather_level_optional: bool = False,
 ) -> PredictionSequence:
     """Find one prediction per scene frame under ``root`` following ``pattern``.
 
@@ -164,81 +268,163 @@ def match_predictions(
     weather : str
     root : Path
         The scene's prediction folder.
-    pattern : str
-        See the module docstring.
+    pattern : str or sequence of str
+        See the module docstring. Several patterns are alternative layouts of one tool, tried in
+        order: the first whose folder (or video) exists is read.
     frame_start : int
-        The number ``{frame}`` has for the scene's first frame.
+        The number ``{frame}`` has for the tool's first frame.
+    frame_offset : int
+        Tool frame *i* is scene frame ``i + frame_offset`` (numbered files, natural order, videos;
+        ``{stem}`` names the scene frame itself).
     resize : bool
-        Allow predictions of another size (resized on read).
+        Allow predictions of another size (resized on read with :data:`RESIZE_INTERPOLATION`).
+    weather_names : mapping, optional
+        The tool's own folder names per weather (``{"fog": ["smog"]}``), tried before ours.
+    ignore : sequence of str
+        Glob patterns (``fnmatch``) of sibling files in the frames folder that are not frames
+        (``*-depth.png``); they are left out instead of being reported as extra files.
+    partial_reason : str, optional
+        Set when the tool can write fewer frames than the scene: a contiguous run of frames is
+        then accepted and the missing ones are listed in :attr:`PredictionSequence.missing`.
+    hints : mapping, optional
+        Pattern -> explanation of folders the tool also writes (``{weather}/keys``); when no layout
+        matches but such a folder exists, the error says what it holds.
+    weather_level_optional : bool
+        One weather is scored: its ``{weather}`` folder level may be left out when it is absent.
 
     Raises
     ------
+    PredictionsMissingError
+        When no layout exists for this weather (the weather was not produced).
     InputError
-        If files are missing or extra (every one named), the folder is empty, or a video is
-        unreadable.
+        If files are missing (every one named) or extra, several folders match a wildcard, the
+        folder is empty, or a video is unreadable or of the wrong length.
     """
-    pieces = pattern.split("/")
-    folder = root.joinpath(*[_substitute_dirs(p, weather=weather, scene=scene, pattern=pattern) for p in pieces[:-1]])
-    last = pieces[-1]
+    layouts = [pattern] if isinstance(pattern, str) else list(pattern)
+    names = _weather_names(weather, weather_names or {})
     n = len(scene.frames)
+    chosen: tuple[str, Path, str] | None = None
+    for candidate in layouts:
+        read = candidate
+        hits = _locate(root, read, names=names, scene=scene)
+        dropped = _drop_weather_level(candidate) if weather_level_optional else None
+        if not hits and dropped is not None:
+            read = dropped
+            # without its weather level, a frames folder counts only if it holds images
+            hits = [(p, w) for p, w in _locate(root, read, names=names, scene=scene)
+                    if p.is_file() or any(c.suffix.lower() in IMAGE_EXTENSIONS for c in p.iterdir())]
+        if len(hits) > 1:
+            listing = "\n".join(f"  {p}" for p, _ in hits)
+            raise InputError(
+                f"{root}: pattern {read!r} matches {len(hits)} places for weather {weather!r}, expected one:\n"
+                f"{listing}\npass --pattern with the one to score"
+            )
+        if hits:
+            chosen = (read, *hits[0])
+            break
+    if chosen is None:
+        expected = " or ".join(repr(str(root / _with_weather(lay, names[0]))) for lay in layouts)
+        hint_places = list((hints or {}).items())
+        if weather_level_optional:
+            hint_places += [(d, msg) for hp, msg in hint_places if (d := _drop_weather_level(hp)) is not None]
+        found_hints = [f"{p} {msg}" for hp, msg in hint_places for name in names
+                       for p in _expand(root, hp.split("/"), weather=name, scene_id=scene.id, pattern=hp)]
+        if found_hints:
+            raise InputError(f"{root}: no predictions for weather {weather!r} (expected {expected}); "
+                             + "; ".join(found_hints))
+        raise PredictionsMissingError(
+            f"{root}: folder not found for weather {weather!r}: expected {expected} holding {n} frames "
+            f"for scene {scene.id!r}"
+        )
+    layout, location, _ = chosen
+    last = layout.split("/")[-1]
     size = scene.image_size
-    where = f"{folder} (pattern {pattern!r}, weather {weather!r})"
-    literal_last = _TOKEN.sub(lambda m: weather if m.group(1) == "weather" else scene.id, last)
-    if not _TOKEN.search(literal_last) and Path(literal_last).suffix.lower() in VIDEO_EXTENSIONS:
-        video = folder / literal_last
-        if not video.is_file():
-            raise PredictionsMissingError(f"{video}: missing video for weather {weather!r} (pattern {pattern!r})")
-        return PredictionSequence([video], size, n, resize, read_info(video.parent), is_video=True)
-    if not folder.is_dir():
-        raise PredictionsMissingError(f"{where}: folder not found; expected {n} frames for scene {scene.id!r}")
-    regex, uses_frame, uses_stem = _compile(last, weather=weather, scene=scene)
-    candidates = sorted(
-        (p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
-        key=lambda p: natural_key(p.name),
-    )
+    if _is_video_name(last):
+        count = video_frame_count(location)
+        pairs = [(location, frame_offset + i) for i in range(count)]
+        frames, missing = _check_frames(pairs, scene, where=f"{location}", partial_reason=partial_reason,
+                                        video_count=count, unmatched=[], stem_mode=False,
+                                        frame_start=frame_start, frame_offset=frame_offset)
+        return PredictionSequence([location], size, [k for _, k in frames], resize=resize,
+                                  info=read_info(location.parent), is_video=True, missing=missing,
+                                  partial_reason=partial_reason, layout=layout, location=location)
+    where = f"{location} (pattern {layout!r}, weather {weather!r})"
+    body, used = _part_regex(last, weather=chosen[2], scene_id=scene.id, pattern=layout, file_name=True)
+    if Path(_TOKEN.sub("x", last)).suffix.lower() not in IMAGE_EXTENSIONS:
+        body += "(?i:" + "|".join(re.escape(e) for e in IMAGE_EXTENSIONS) + ")"
+    regex = re.compile(rf"^{body}$")
+    everything = sorted((p for p in location.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
+                        key=lambda p: natural_key(p.name))
+    ignored = [p.name for p in everything if any(fnmatch.fnmatchcase(p.name, g) for g in ignore)]
+    skip = set(ignored)
+    candidates = [p for p in everything if p.name not in skip]
     if not candidates:
-        raise InputError(f"{where}: no image files; expected {n} frames for scene {scene.id!r}")
+        raise InputError(f"{where}: no image files; expected {n} frames for scene {scene.id!r}"
+                         + (f" ({len(ignored)} files ignored by the reader's rules {list(ignore)})" if ignored else ""))
     matched = [(p, m) for p in candidates if (m := regex.match(p.name))]
     unmatched = [p.name for p in candidates if not regex.match(p.name)]
-    if uses_frame or uses_stem:
-        by_frame: dict[int, list[Path]] = {}
-        stems = {f.image_path.stem: f.index for f in scene.frames}
-        extra = list(unmatched)
-        for p, m in matched:
-            if uses_frame:
-                k = int(m.group("frame")) - frame_start
-            else:
-                k = stems.get(m.group("stem"), -1)
-            if 0 <= k < n:
-                by_frame.setdefault(k, []).append(p)
-            else:
-                extra.append(p.name)
-        missing = [k for k in range(n) if k not in by_frame]
-        dupes = {k: [p.name for p in v] for k, v in by_frame.items() if len(v) > 1}
-        problems = []
-        if missing:
-            expect = (
-                [f"{k + frame_start}" for k in missing] if uses_frame
-                else [scene.frames[k].image_path.stem for k in missing]
-            )
-            kind = "numbers" if uses_frame else "stems"
-            problems.append(f"missing frames {missing} (expected names for {kind} {expect})")
-        if extra:
-            problems.append(f"extra files {extra}")
-        if dupes:
-            problems.append(f"several files for one frame {dupes}")
-        if problems:
-            raise InputError(f"{where}: " + "; ".join(problems) + f"; the scene has {n} frames")
-        files = [by_frame[k][0] for k in range(n)]
+    stems = {f.image_path.stem: f.index for f in scene.frames}
+    if "frame" in used:
+        pairs = [(p, int(m.group("frame")) - frame_start + frame_offset) for p, m in matched]
+    elif "stem" in used:
+        pairs = [(p, stems.get(m.group("stem"), -1)) for p, m in matched]
     else:
-        files = [p for p, _ in matched]
-        if len(files) != n or unmatched:
-            detail = f"extra files {[p.name for p in files[n:]] + unmatched}" if len(files) >= n else (
-                f"{n - len(files)} frames missing after {files[-1].name if files else 'the start'}"
-            )
-            raise InputError(f"{where}: found {len(files)} frames for {n} scene frames: {detail}")
-    info = read_info(folder)
-    return PredictionSequence(files, size, n, resize, info)
+        pairs = [(p, frame_offset + i) for i, (p, _) in enumerate(matched)]
+    frames, missing = _check_frames(pairs, scene, where=where, partial_reason=partial_reason, video_count=None,
+                                    unmatched=unmatched, stem_mode="stem" in used and "frame" not in used,
+                                    frame_start=frame_start, frame_offset=frame_offset)
+    return PredictionSequence([p for p, _ in frames], size, [k for _, k in frames], resize=resize,
+                              info=read_info(location), missing=missing, partial_reason=partial_reason,
+                              layout=layout, location=location, ignored=ignored)
+
+
+def _check_frames(
+    pairs: list[tuple[Path, int]], scene: Scene, *, where: str, partial_reason: str | None, video_count: int | None,
+    unmatched: list[str], stem_mode: bool, frame_start: int, frame_offset: int,
+) -> tuple[list[tuple[Path, int]], list[int]]:
+    """Check (file, scene frame) pairs against the scene; return the pairs in frame order and the
+    missing frames (allowed only as a missing head or tail when ``partial_reason`` is set)."""
+    n = len(scene.frames)
+    by_frame: dict[int, list[Path]] = {}
+    extra = list(unmatched)
+    for p, k in pairs:
+        if 0 <= k < n:
+            by_frame.setdefault(k, []).append(p)
+        elif video_count is None:
+            extra.append(p.name)
+    missing = [k for k in range(n) if k not in by_frame]
+    if video_count is not None:
+        outside = [i for i, (_, k) in enumerate(pairs) if not 0 <= k < n]
+        if (missing and partial_reason is None) or outside:
+            shift = f" with --frame-offset {frame_offset}" if frame_offset else ""
+            detail = f"; video frames {frames_text(outside)} fall outside the scene{shift}" if outside else ""
+            raise InputError(f"{where}: video has {video_count} frames, expected {n} (one per scene frame)"
+                             f"{detail}" + (f"; missing scene frames {missing}" if missing and frame_offset else ""))
+    dupes = {k: [p.name for p in v] for k, v in by_frame.items() if len(v) > 1}
+    present = sorted(by_frame)
+    holes = [k for k in range(present[0], present[-1] + 1) if k not in by_frame] if present else []
+    problems = []
+    if missing and (partial_reason is None or holes or not present):
+        only_holes = partial_reason is not None and bool(present)
+        shown = holes if only_holes else missing
+        expect = ([scene.frames[k].image_path.stem for k in shown] if stem_mode
+                  else [str(k + frame_start - frame_offset) for k in shown])
+        kind = "stems" if stem_mode else "numbers"
+        inside = " inside the sequence (the tool may only end early, not skip frames)" if only_holes else ""
+        before = [k for k in shown if k < frame_offset]
+        if before and not stem_mode:
+            problems.append(f"missing frames {shown}{inside} (frames {before} come before the tool's first frame "
+                            f"with --frame-offset {frame_offset}; expected names for the others: "
+                            f"{[e for k, e in zip(shown, expect) if k >= frame_offset]})")
+        else:
+            problems.append(f"missing frames {shown}{inside} (expected names for {kind} {expect})")
+    if extra:
+        problems.append(f"extra files {extra}")
+    if dupes:
+        problems.append(f"several files for one frame {dupes}")
+    if problems:
+        raise InputError(f"{where}: " + "; ".join(problems) + f"; the scene has {n} frames")
+    return [(by_frame[k][0], k) for k in present], missing
 
 
 def read_info(folder: Path) -> dict[str, Any] | None:
@@ -256,25 +442,82 @@ def read_info(folder: Path) -> dict[str, Any] | None:
     return None
 
 
-def scene_prediction_root(root: Path, scene_id: str, *, n_scenes: int) -> Path:
-    """The folder holding one scene's predictions: ``root/<scene>`` if present, else ``root``
-    itself when a single scene is evaluated.
+# --------------------------------------------------------------------------- scene folders
+@dataclass(frozen=True)
+class SceneFolder:
+    """Where one scene's predictions are and why that folder was chosen.
+
+    Attributes
+    ----------
+    scene_id : str
+    path : Path
+    matched : str
+        The name that matched (the scene id, the scene's data folder name, an alias), or ``""``
+        when the predictions folder itself is used (one scene).
+    rule : str
+        How it matched, for the user.
+    """
+
+    scene_id: str
+    path: Path
+    matched: str
+    rule: str
+
+    def record(self) -> dict[str, str]:
+        """JSON form for results.json."""
+        return {"folder": str(self.path), "matched": self.matched, "rule": self.rule}
+
+
+def scene_names(ref: SceneRef) -> list[tuple[str, str]]:
+    """(name, why) a tool may call scene ``ref``: its id, its data folder's name, its aliases."""
+    out = {ref.id: "the scene id"}
+    out.setdefault(ref.path.name, f"named like the scene's data folder, {ref.path.name}")
+    for a in ref.aliases:
+        out.setdefault(a, "an alias in the scene set")
+    return list(out.items())
+
+
+def find_scene_folder(root: Path, ref: SceneRef, *, n_scenes: int,
+                      folder_patterns: Sequence[str] = ()) -> SceneFolder:
+    """The folder holding one scene's predictions.
+
+    It is the sub-folder of ``root`` named like the scene (:func:`scene_names`), or matching one
+    of a reader's ``folder_patterns`` (``"{scene}_*"``: ``{scene}`` stands for any of those names,
+    ``*`` for any text); else ``root`` itself when a single scene is evaluated.
 
     Raises
     ------
     InputError
-        If neither exists.
+        If ``root`` is missing or empty, no folder matches (several scenes), or several do
+        (every candidate named).
     """
     if not root.is_dir():
         raise InputError(f"{root}: predictions folder not found")
-    if (root / scene_id).is_dir():
-        return root / scene_id
+    subdirs = sorted((d for d in root.iterdir() if d.is_dir()), key=lambda d: natural_key(d.name))
+    hits: dict[Path, tuple[str, str]] = {}
+    for name, why in scene_names(ref):
+        for pat in ("{scene}", *folder_patterns):
+            regex = re.compile("^" + _literal(pat).replace(re.escape("{scene}"), re.escape(name)) + "$")
+            for d in subdirs:
+                if regex.match(d.name):
+                    rule = why if pat == "{scene}" else f"{why}, folder pattern {pat!r}"
+                    hits.setdefault(d, (name, rule))
+    if len(hits) == 1:
+        (path, (name, rule)), = hits.items()
+        return SceneFolder(ref.id, path, name, rule)
+    if len(hits) > 1:
+        listing = "\n".join(f"  {p.name}  ({rule})" for p, (_, rule) in hits.items())
+        raise InputError(f"{root}: several folders could hold scene {ref.id!r}:\n{listing}\n"
+                         "keep one, or point --predictions at the one to score (with a single scene)")
     if n_scenes == 1:
         if not any(root.iterdir()):
             raise InputError(f"{root}: predictions folder is empty")
-        return root
+        return SceneFolder(ref.id, root, "", "the predictions folder itself: one scene is scored")
+    tried = ", ".join(repr(pat.replace("{scene}", name)) for name, _ in scene_names(ref)
+                      for pat in ("{scene}", *folder_patterns))
     raise InputError(
-        f"{root}: no folder {scene_id!r}; expected one sub-folder per scene ({root}/<scene>/<weather>/...)"
+        f"{root}: no folder for scene {ref.id!r} (tried {tried}); expected one sub-folder per scene "
+        f"({root}/<scene>/<weather>/...)"
     )
 
 

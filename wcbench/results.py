@@ -6,18 +6,30 @@
       "kind": "wcbench-results", "schema_version": 1, "created": ISO time,
       "versions": {...}, "machine": {...},
       "config": {"method", "scenes", "scene_ids", "weathers", "metrics", "metric_config",
-                 "predictions", "pattern", "resize", "fps"},
+                 "predictions", "pattern", "resize", "resize_interpolation", "frame_offset", "fps",
+                 "reader": the reader's naming settings, "unedited_check",
+                 "scene_folders": {scene: {"folder", "matched", "rule"}}},
       "inputs": {"sha256": hash of everything below,
                  "scenes": {scene: {weather: {"predictions": [sha256...], "source": [...],
-                                              "reference": [...] or null}}}},
+                                              "reference": [...] or null, "location", "layout",
+                                              "frames": [scene frame of each prediction], "ignored"}}}},
       "results": {scene: {weather: {output: {"metric", "value", "variant", "reason",
                                              "higher_is_better", "per_frame", "extra"}}}},
-      "skipped": [{"scene", "weather", "metric", "reason"}]
+      "skipped": [{"scene", "weather", "metric", "reason"}],
+      "partial": [{"scene", "weather", "n_scene_frames", "scored": [first, last], "missing": [...],
+                   "reason"}],
+      "resized": [{"scene", "weather", "from": [[w, h]...], "to": [w, h], "interpolation"}],
+      "warnings": [{"scene", "weather", "kind", "message", ...}]
     }
 
-A ``value`` that is not a finite number is ``null`` with its ``reason``. ``results.csv`` has one row
-per (scene, weather, output): ``scene, weather, metric, output, value, status, reason, variant,
-higher_is_better, n_frames`` with status ``ok``, ``null`` or ``skipped``.
+A ``value`` that is not a finite number is ``null`` with its ``reason``. A *partial* (scene, weather)
+was scored on the contiguous run of frames its tool wrote (a reader declares that its tool can end
+early); ``missing`` names the scene frames without a prediction. ``results.csv`` has one row per
+(scene, weather, output): ``scene, weather, metric, output, value, status, reason, variant,
+higher_is_better, n_frames, missing_frames`` with status ``ok``, ``null`` or ``skipped`` and
+``missing_frames`` the missing scene frames of a partial sequence (``25-29``; empty when complete).
+The keys ``partial``, ``resized`` and ``warnings`` may be absent from files of earlier wcbench
+versions, which never scored partial sequences.
 """
 
 from __future__ import annotations
@@ -36,6 +48,7 @@ RESULTS_JSON = "results.json"
 RESULTS_CSV = "results.csv"
 CSV_COLUMNS = (
     "scene", "weather", "metric", "output", "value", "status", "reason", "variant", "higher_is_better", "n_frames",
+    "missing_frames",
 )
 
 
@@ -61,9 +74,22 @@ def read_results(path: Path) -> dict[str, Any]:
     return obj
 
 
+def frames_text(frames: list[int]) -> str:
+    """``[25, 26, 27, 29]`` -> ``"25-27,29"``."""
+    out, i = [], 0
+    while i < len(frames):
+        j = i
+        while j + 1 < len(frames) and frames[j + 1] == frames[j] + 1:
+            j += 1
+        out.append(str(frames[i]) if i == j else f"{frames[i]}-{frames[j]}")
+        i = j + 1
+    return ",".join(out)
+
+
 def csv_rows(results: dict[str, Any]) -> list[dict[str, Any]]:
     """Tidy rows (see module docstring) from a results object."""
     rows = []
+    missing = {(p["scene"], p["weather"]): frames_text(p["missing"]) for p in results.get("partial", [])}
     for scene, weathers in results["results"].items():
         for weather, outputs in weathers.items():
             for output, r in outputs.items():
@@ -72,12 +98,13 @@ def csv_rows(results: dict[str, Any]) -> list[dict[str, Any]]:
                     "value": r["value"], "status": "ok" if r["value"] is not None else "null",
                     "reason": r.get("reason") or "", "variant": r.get("variant", ""),
                     "higher_is_better": r["higher_is_better"], "n_frames": len(r.get("per_frame", [])),
+                    "missing_frames": missing.get((scene, weather), ""),
                 })
     for s in results["skipped"]:
         rows.append({
             "scene": s["scene"], "weather": s["weather"], "metric": s["metric"], "output": s["metric"],
             "value": None, "status": "skipped", "reason": s["reason"], "variant": "",
-            "higher_is_better": "", "n_frames": 0,
+            "higher_is_better": "", "n_frames": 0, "missing_frames": missing.get((s["scene"], s["weather"]), ""),
         })
     rows.sort(key=lambda r: (r["scene"], r["weather"], r["metric"], r["output"]))
     return rows

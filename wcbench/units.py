@@ -25,9 +25,10 @@ from wcbench.core.progress import progress
 from wcbench.core.storage import atomic_write_json, json_safe, sha256_file, sha256_json
 from wcbench.methods import Method, is_runnable
 from wcbench.metrics.base import Metric, MetricContext
-from wcbench.predictions import PredictionSequence
+from wcbench.predictions import RESIZE_INTERPOLATION, PredictionSequence
 from wcbench.results import SCHEMA_VERSION
 from wcbench.scenes.scene import Scene
+from wcbench.unedited import UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH, UneditedCheck
 
 #: Folder of ``OUT`` holding one finished result per unit.
 WORK_DIR = ".work"
@@ -77,6 +78,9 @@ class WorkUnit:
         sha256 of the scene's raw frames (shared by the scene's units).
     predictions : PredictionSequence or None
         Set by :meth:`open`.
+    check_unedited : bool
+        Warn when every prediction equals its source frame (readers of editing tools; see
+        :mod:`wcbench.unedited`).
     """
 
     method: Method
@@ -85,6 +89,7 @@ class WorkUnit:
     root: Path
     source_hashes: list[str] = field(default_factory=list)
     predictions: PredictionSequence | None = None
+    check_unedited: bool = False
 
     @property
     def label(self) -> str:
@@ -115,10 +120,13 @@ class WorkUnit:
             overwrite=settings.overwrite, video=settings.video, show_progress=settings.show_progress,
         )
 
-    def open(self, *, pattern: str | None = None, resize: bool = False) -> PredictionSequence:
+    def open(self, *, pattern: str | None = None, resize: bool = False, frame_offset: int = 0,
+             single_weather: bool = False) -> PredictionSequence:
         """Match the unit's prediction files to the scene's frames (see :meth:`Method.open_predictions`)."""
-        self.predictions = self.method.open_predictions(self.scene, self.weather, self.root, pattern=pattern,
-                                                        resize=resize)
+        self.predictions = self.method.open_predictions(
+            self.scene, self.weather, self.root, pattern=pattern, resize=resize, frame_offset=frame_offset,
+            single_weather=single_weather,
+        )
         return self.predictions
 
     def _opened(self) -> PredictionSequence:
@@ -132,7 +140,8 @@ class WorkUnit:
         return self.scene.reference_paths(self.weather)
 
     def inputs(self) -> dict[str, Any]:
-        """sha256 of every input frame: ``predictions``, ``source`` and ``reference`` (or ``None``)."""
+        """sha256 of every input frame (``predictions``, ``source``, ``reference`` or ``None``) and
+        where the predictions were found (``location``, ``layout``, scored ``frames``, ``ignored``)."""
         refs = self.reference_paths
         if refs is None:
             ref_hashes = None
@@ -140,15 +149,20 @@ class WorkUnit:
             ref_hashes = self.source_hashes  # the raw frames are the truth of clear
         else:
             ref_hashes = [sha256_file(p) for p in refs]
-        return {"predictions": self._opened().sha256s(), "source": self.source_hashes, "reference": ref_hashes}
+        p = self._opened()
+        return {"predictions": p.sha256s(), "source": self.source_hashes, "reference": ref_hashes,
+                "location": str(p.location) if p.location else None, "layout": p.layout,
+                "frames": p.frame_indices, "ignored": p.ignored}
 
     def key(self, metric_config: dict[str, Any]) -> str:
         """Cache key of this unit's result: every input hash and the metric settings."""
-        inputs = self.inputs()
+        inputs, p = self.inputs(), self._opened()
         return sha256_json({
             "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
             "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
-            "metrics": metric_config, "resize": self._opened().resize,
+            "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
+            "frames": p.frame_indices, "missing": p.missing, "partial_reason": p.partial_reason,
+            "check_unedited": [self.check_unedited, UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH],
         })
 
     def work_path(self, out: Path) -> Path:
@@ -186,7 +200,7 @@ class WorkUnit:
         scene, preds = self.scene, self._opened()
         refs = self.reference_paths
         ctx = MetricContext(
-            weather=self.weather, n_frames=len(scene), has_reference=refs is not None,
+            weather=self.weather, n_frames=len(preds), has_reference=refs is not None,
             has_source=True, method_info=preds.info, fps_override=fps,
         )
         active, skipped = {}, []
@@ -199,8 +213,11 @@ class WorkUnit:
                 m.reset()
                 active[name] = m
         needs_ref = refs is not None and any(m.needs_reference for m in active.values())
-        frames = progress(enumerate(preds), desc=f"{scene.id} {self.weather}", total=len(scene),
+        # the scene frames of a partial sequence are one contiguous run: consecutive predictions are
+        # consecutive scene frames, as temporal metrics assume
+        frames = progress(zip(preds.frame_indices, preds), desc=f"{scene.id} {self.weather}", total=len(preds),
                           enabled=show_progress)
+        check = UneditedCheck() if self.check_unedited else None
         # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
         w, h = scene.image_size
         streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
@@ -215,8 +232,11 @@ class WorkUnit:
                 m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
 
         for k, pred8 in frames:
+            src8 = read_rgb8(scene.frames[k].image_path)
             to_float(pred8, out=buffers["pred"][filled])
-            to_float(read_rgb8(scene.frames[k].image_path), out=buffers["source"][filled])
+            to_float(src8, out=buffers["source"][filled])
+            if check is not None:
+                check.update(pred8, src8)
             if needs_ref:
                 assert refs is not None
                 if self.weather == "clear":
@@ -235,8 +255,25 @@ class WorkUnit:
                     "metric": name, "value": value.value, "variant": value.variant, "reason": value.reason,
                     "higher_is_better": m.higher_is_better, "per_frame": value.per_frame, "extra": value.extra,
                 }
-        result: dict[str, Any] = json_safe({"outputs": outputs, "skipped": skipped})
-        return result
+        result: dict[str, Any] = {"outputs": outputs, "skipped": skipped, "warnings": []}
+        warning = None if check is None else check.warning(
+            scene=scene.id, weather=self.weather, where=preds.location or preds.files[0],
+            hint=self.method.info.unedited_hint)
+        if warning is not None:
+            result["warnings"].append(warning)
+        if preds.missing:
+            result["partial"] = {
+                "scene": scene.id, "weather": self.weather, "n_scene_frames": len(scene),
+                "scored": [preds.frame_indices[0], preds.frame_indices[-1]], "missing": preds.missing,
+                "reason": preds.partial_reason,
+            }
+        if preds.native_sizes:
+            result["resized"] = {
+                "scene": scene.id, "weather": self.weather, "from": sorted(list(s) for s in preds.native_sizes),
+                "to": list(scene.image_size), "interpolation": RESIZE_INTERPOLATION,
+            }
+        safe: dict[str, Any] = json_safe(result)
+        return safe
 
 
 @dataclass

@@ -45,7 +45,8 @@ __all__ = [
 
 
 class GaussianSet(Protocol):
-    """Anything with the five Gaussian arrays (e.g. :class:`.lidar_init.GaussianCloud`)."""
+    """Anything with the five Gaussian arrays (e.g. a
+    :class:`~wcbench.reference_model.scene_graph.gaussians.GaussianCloud`)."""
 
     means: Any  # [N, 3] world (m)
     quats: Any  # [N, 4] wxyz
@@ -339,7 +340,7 @@ class WeatherRenderer:
             Overrides the weather's ``fog_mode`` (the benchmark renders both).
         gaussians : GaussianSet, optional
             Scene Gaussians of this frame instead of the renderer's (dynamic scenes: e.g.
-            :meth:`.lidar_init.SceneGaussians.at_frame`).
+            :meth:`~wcbench.reference_model.scene_graph.nodes.SceneGaussians.at_frame`).
         particles : ParticleGaussians, optional
             Particle Gaussians to rasterize instead of the weather's own (custom effects, tests);
             used as given (no culling, no dilation compensation).

@@ -137,10 +137,17 @@ def test_unreadable_video(capsys, demo_scene, tmp_path):
 
 
 def test_video_with_wrong_frame_count(capsys, demo_scene, tmp_path):
-    root = tmp_path / "fresco"
-    write_mp4(root / "rain" / "blend.mp4", [read_rgb8(f.image_path) for f in demo_scene.frames[:7]])
-    code, err = _evaluate(capsys, predictions=root, out=tmp_path / "o", method="fresco")
+    """A short video is an error unless the reader declares that its tool can end early (FRESCO
+    does: see test_tool_layouts); a video longer than the scene is an error for every reader."""
+    root = tmp_path / "videos"
+    frames = [read_rgb8(f.image_path) for f in demo_scene.frames]
+    write_mp4(root / "rain" / "blend.mp4", frames[:7])
+    code, err = _evaluate(capsys, predictions=root, out=tmp_path / "o", extra=["--pattern", "{weather}/blend.mp4"])
     _assert_refused(code, err, tmp_path / "o", str(root / "rain" / "blend.mp4"), "7 frames, expected 12")
+    write_mp4(root / "rain" / "blend.mp4", [*frames, frames[-1]])
+    code, err = _evaluate(capsys, predictions=root, out=tmp_path / "o", method="fresco")
+    _assert_refused(code, err, tmp_path / "o", str(root / "rain" / "blend.mp4"), "13 frames, expected 12",
+                    "video frames 12 fall outside the scene")
 
 
 def test_results_from_another_schema_version(capsys, preds, tmp_path):

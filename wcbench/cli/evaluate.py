@@ -1,9 +1,10 @@
 """Score a method's rendered frames from files alone and write results.json + results.csv.
 
-The predictions folder holds one sub-folder per scene (left out when one scene is scored); each
-method reader knows its tool's file naming (`wcbench methods list -v`), or pass --pattern.
-Re-running with the same inputs does no work; a killed run resumes; finished results of other
-inputs are kept unless --overwrite.
+The predictions folder holds one sub-folder per scene (left out when one scene is scored), named
+like the scene id, its data folder (788 for waymo_788) or an alias of the scene set; each method
+reader knows its tool's file naming (`wcbench methods list -v`), or pass --pattern. Re-running with
+the same inputs does no work; a killed run resumes; finished results of other inputs are kept
+unless --overwrite.
 
 Examples::
 
@@ -11,6 +12,8 @@ Examples::
         --predictions my_frames/ --out results/mine
     wcbench evaluate --method controlnet --scenes waymo_5 --predictions controlnet_out/ \\
         --out results/controlnet --weathers rain,snow --metrics temporal_flicker,fps --fps 0.4
+    wcbench evaluate --method fresco --scenes pandaset_002 --data-root ../shared/data \\
+        --predictions fresco_rain/ --weathers rain --out results/fresco    # FRESCO's save_path itself
 """
 
 from __future__ import annotations
@@ -45,20 +48,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_scene_arguments(parser)
     parser.add_argument("--predictions", type=Path, required=True, help="folder with the method's frames")
     parser.add_argument("--pattern", default=None, help="file pattern, e.g. '{weather}/{frame}.png' or '{weather}.mp4'")
-    parser.add_argument("--resize", action="store_true", help="resize predictions of another size to the scene's")
+    parser.add_argument("--resize", action="store_true",
+                        help="resize predictions of another size to the scene's (readers of tools that work at "
+                             "their own size do it anyway)")
+    parser.add_argument("--frame-offset", type=int, default=0, metavar="N",
+                        help="the method's frame i is scene frame i + N (default 0)")
     add_evaluate_options(parser)
 
 
 def report(outcome: object) -> None:
     """Print where results went and a short table."""
     from wcbench.evaluation import EvaluateOutcome, summarize
+    from wcbench.results import frames_text
 
     assert isinstance(outcome, EvaluateOutcome)
+    doc = outcome.results
+    for scene, f in doc["config"].get("scene_folders", {}).items():
+        if Path(f["folder"]).name != scene:  # said whenever the folder is not simply named like the scene
+            print(f"scene {scene}: predictions from {f['folder']} ({f['rule']})")
+    for w in doc.get("warnings", []):
+        print(f"warning: {w['scene']} {w['weather']}: {w['message']}", file=sys.stderr)
+    sys.stderr.flush()
     if outcome.status == "up-to-date":
         print(f"up to date: {outcome.results_path} (inputs unchanged, nothing recomputed)")
     else:
         print(f"wrote {outcome.results_path} and results.csv "
               f"({outcome.units_computed} computed, {outcome.units_reused} reused)")
+    for p in doc.get("partial", []):
+        print(f"partial: {p['scene']} {p['weather']}: scored frames {p['scored'][0]}-{p['scored'][1]} of "
+              f"{p['n_scene_frames']}, missing {frames_text(p['missing'])} ({p['reason']})")
     for scene, weather, name, text in summarize(outcome.results):
         print(f"  {scene:16s} {weather:6s} {name:26s} {text}")
     sys.stdout.flush()
@@ -71,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = EvaluateConfig(
         method=args.method, scenes=args.scenes, predictions=args.predictions, out=args.out,
         weathers=split_list(args.weathers), metrics=split_list(args.metrics), pattern=args.pattern,
-        resize=args.resize, fps=args.fps, data_root=args.data_root, overwrite=args.overwrite,
+        resize=args.resize, fps=args.fps, frame_offset=args.frame_offset, data_root=args.data_root,
+        overwrite=args.overwrite,
         show_progress=not args.no_progress, metric_options=parse_metric_options(args.metric_option),
     )
     report(evaluate(cfg))

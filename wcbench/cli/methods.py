@@ -24,10 +24,12 @@ def run(args: argparse.Namespace) -> int:
     """Print the methods."""
     from wcbench.methods import METHODS, get_method
 
-    for name in METHODS.names():
+    names = METHODS.names()
+    width = max(len(n) for n in names)
+    for name in names:
         m = get_method(name)
-        print(f"{name:12s} {m.info.kind:9s} {','.join(m.info.weathers):22s} {m.info.description}")
+        print(f"{name:{width}s} {m.info.kind:9s} {','.join(m.info.weathers):22s} {m.info.description}")
         if args.verbose and m.info.layout:
             for line in m.info.layout.splitlines():
-                print(f"{'':14s}{line}")
+                print(f"{'':{width + 2}s}{line}")
     return 0

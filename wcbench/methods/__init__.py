@@ -14,7 +14,7 @@ from wcbench.core.registry import LazyRegistry
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import Method, MethodInfo, RunnableMethod
 
-_READERS = ("folder", "controlnet", "turboedit", "fresco", "qwen-image", "climatenerf")
+_READERS = ("folder", "controlnet", "turboedit", "fresco", "qwen-image", "climatenerf", "weathercity-release")
 
 METHODS: LazyRegistry = LazyRegistry(
     "method",

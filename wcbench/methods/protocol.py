@@ -41,6 +41,17 @@ class MethodInfo:
         What it produces per frame (``"rgb"``; later ``"depth"``...).
     layout : str
         The file layout and naming it reads or writes (shown by ``wcbench methods list -v``).
+    defaults : dict
+        A reader's naming settings (patterns, frame numbering...), recorded with results.
+    edits_source : bool
+        The tool edits the source frames (an image or video editor): when its frames of a weather
+        other than ``clear`` all equal the source frames, evaluation warns that ``--predictions``
+        likely points at the tool's copy of its input.
+    unedited_hint : str
+        Appended to that warning (which of the tool's folders holds its input).
+    scene_folders : tuple of str
+        Extra patterns for the folder of a scene, ``{scene}`` standing for any name the scene set
+        gives it and ``*`` for any text (``"{scene}_*"`` for run folders named ``788_1_cam_000_029``).
     """
 
     name: str
@@ -50,6 +61,9 @@ class MethodInfo:
     outputs: tuple[str, ...] = ("rgb",)
     layout: str = ""
     defaults: dict[str, Any] = field(default_factory=dict)
+    edits_source: bool = False
+    unedited_hint: str = ""
+    scene_folders: tuple[str, ...] = ()
 
 
 @runtime_checkable
@@ -59,12 +73,26 @@ class Method(Protocol):
     info: MethodInfo
 
     def open_predictions(
-        self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False
+        self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False,
+        frame_offset: int = 0, single_weather: bool = False,
     ) -> PredictionSequence:
         """Map the files under ``root`` to the scene's frames for ``weather``.
 
+        Parameters
+        ----------
+        pattern : str, optional
+            Overrides the method's file naming (see :mod:`wcbench.predictions`).
+        resize : bool
+            Resize frames of another size to the scene's size.
+        frame_offset : int
+            The method's frame *i* is scene frame ``i + frame_offset``.
+        single_weather : bool
+            Only this weather is scored: its ``<weather>`` folder level may be left out.
+
         Raises
         ------
+        PredictionsMissingError
+            Nothing for this weather.
         InputError
             Missing or extra frames (all named), unreadable files, wrong sizes (unless ``resize``).
         """

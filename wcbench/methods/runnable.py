@@ -71,10 +71,12 @@ class FrameRenderer(ABC):
         per-frame facts for ``info.json``."""
 
     def open_predictions(
-        self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False
+        self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False,
+        frame_offset: int = 0, single_weather: bool = False,
     ) -> PredictionSequence:
         """Read frames this method wrote (the canonical layout)."""
-        return match_predictions(scene, weather, root, pattern=pattern or CANONICAL_PATTERN, resize=resize)
+        return match_predictions(scene, weather, root, pattern=pattern or CANONICAL_PATTERN, resize=resize,
+                                 frame_offset=frame_offset, weather_level_optional=single_weather)
 
     def _key(self, scene: Scene, weather: str, seed: int, frames: list[int]) -> str:
         return sha256_json({

@@ -8,6 +8,8 @@ A spec names a layout, loader options and scene folders relative to the data roo
     camera = 0                        # optional loader options: camera, start, count
     generator = "module:function"     # optional: builds the scenes itself (built-in sets)
     scenes = [{ id = "waymo_788", path = "waymo/processed/training/788" }]
+    # optional per scene: aliases = ["23"], other names tools give the scene's folder (a prediction
+    # folder may also be named like the scene id or the scene's data folder, here "788")
 
 The data root comes from ``--data-root`` or the ``WCBENCH_DATA`` environment variable. Built-in
 sets with a ``generator`` need no data root: the generator writes them into the cache folder.
@@ -67,12 +69,16 @@ class SceneRef:
         Scene folder.
     options : dict
         Loader options (camera, first frame, frame count...).
+    aliases : tuple of str
+        Other names tools give the scene's folder (``"23"`` for ``waymo_023``); besides these, a
+        prediction folder may carry the scene id or the name of the scene's data folder.
     """
 
     id: str
     format: str
     path: Path
     options: dict = field(default_factory=dict)
+    aliases: tuple[str, ...] = ()
 
     def load(self) -> Scene:
         """Load the scene with its loader (see :mod:`wcbench.scenes.loaders`)."""
@@ -136,7 +142,8 @@ def get_scene_set(name: str, *, data_root: str | os.PathLike[str] | None = None)
             listing = "\n".join(f"  {root / m}" for m in missing)
             raise InputError(f"scene set {name!r}: {len(missing)} scene folder(s) missing:\n{listing}")
     refs = [
-        SceneRef(id=s["id"], format=spec["format"], path=root / s["path"], options=dict(options))
+        SceneRef(id=s["id"], format=spec["format"], path=root / s["path"], options=dict(options),
+                 aliases=tuple(str(a) for a in s.get("aliases", ())))
         for s in spec["scenes"]
     ]
     return SceneSet(name=name, description=spec.get("description", ""), scenes=refs)
