@@ -307,6 +307,7 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
     partial: list[dict[str, Any]] = []
     warnings: list[dict[str, Any]] = []
     resized: list[dict[str, Any]] = []
+    working: list[dict[str, Any]] = []
     for o in outcomes:
         rec = o.result
         results.setdefault(o.unit.scene.id, {})[o.unit.weather] = rec["outputs"]
@@ -314,12 +315,13 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
         warnings += rec.get("warnings", [])
         partial += [rec["partial"]] if "partial" in rec else []
         resized += [rec["resized"]] if "resized" in rec else []
+        working += [rec["working_size"]] if "working_size" in rec else []
     doc: dict[str, Any] = json_safe({
         "kind": "wcbench-results", "schema_version": SCHEMA_VERSION,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "machine": machine_info(), "config": config,
         "inputs": inputs, "results": results, "skipped": skipped, "partial": partial, "resized": resized,
-        "warnings": warnings,
+        "warnings": warnings, "working_size": working,
     })
     return doc
 

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from wcbench.core.errors import InputError
-from wcbench.core.image_io import read_rgb8, to_float
+from wcbench.core.image_io import read_rgb8, resize_rgb8, to_float
 from wcbench.core.progress import progress
 from wcbench.core.storage import atomic_write_json, json_safe, sha256_file, sha256_json
 from wcbench.methods import Method, is_runnable
@@ -30,6 +30,9 @@ from wcbench.results import SCHEMA_VERSION
 from wcbench.scenes.scene import Scene
 from wcbench.unedited import UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH, UneditedCheck
 
+#: How the scene's frames are resized for a method scored at its own resolution (see
+#: :func:`wcbench.core.image_io.resize_rgb8`), recorded with every such result.
+SOURCE_INTERPOLATION = "area (cv2.INTER_AREA) when shrinking, bicubic when enlarging"
 #: Folder of ``OUT`` holding one finished result per unit.
 WORK_DIR = ".work"
 #: Frames handed to metrics per update: model metrics batch their inference; 8 frames of 1080p
@@ -161,6 +164,7 @@ class WorkUnit:
             "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
             "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
             "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
+            "size": list(p.size),
             "frames": p.frame_indices, "missing": p.missing, "partial_reason": p.partial_reason,
             "check_unedited": [self.check_unedited, UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH],
         })
@@ -218,8 +222,16 @@ class WorkUnit:
         frames = progress(zip(preds.frame_indices, preds), desc=f"{scene.id} {self.weather}", total=len(preds),
                           enabled=show_progress)
         check = UneditedCheck() if self.check_unedited else None
-        # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
-        w, h = scene.image_size
+        # frames are converted straight into reused float32 batch buffers (no per-batch stacking).
+        # A method that renders at its own resolution is scored there: the scene's frames (and any
+        # ground truth) are resized to it as they are read.
+        w, h = preds.size
+        rescale = (w, h) != scene.image_size
+
+        def read_source(path: Path) -> np.ndarray:
+            img = read_rgb8(path)
+            return resize_rgb8(img, (w, h)) if rescale else img
+
         streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
         buffers = {name: np.empty((FRAME_BATCH, h, w, 3), np.float32) for name in streams}
         filled = 0
@@ -232,7 +244,7 @@ class WorkUnit:
                 m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
 
         for k, pred8 in frames:
-            src8 = read_rgb8(scene.frames[k].image_path)
+            src8 = read_source(scene.frames[k].image_path)
             to_float(pred8, out=buffers["pred"][filled])
             to_float(src8, out=buffers["source"][filled])
             if check is not None:
@@ -242,7 +254,7 @@ class WorkUnit:
                 if self.weather == "clear":
                     buffers["reference"][filled] = buffers["source"][filled]
                 else:
-                    to_float(read_rgb8(refs[k]), out=buffers["reference"][filled])
+                    to_float(read_source(refs[k]), out=buffers["reference"][filled])
             filled += 1
             if filled == FRAME_BATCH:
                 flush(filled)
@@ -266,6 +278,11 @@ class WorkUnit:
                 "scene": scene.id, "weather": self.weather, "n_scene_frames": len(scene),
                 "scored": [preds.frame_indices[0], preds.frame_indices[-1]], "missing": preds.missing,
                 "reason": preds.partial_reason,
+            }
+        if rescale:
+            result["working_size"] = {
+                "scene": scene.id, "weather": self.weather, "from": list(scene.image_size), "to": [w, h],
+                "interpolation": SOURCE_INTERPOLATION,
             }
         if preds.native_sizes:
             result["resized"] = {

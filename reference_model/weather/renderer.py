@@ -323,6 +323,7 @@ class WeatherRenderer:
         fog_mode: str | None = None,
         gaussians: GaussianSet | None = None,
         particles: ParticleGaussians | None = None,
+        background_image: np.ndarray | None = None,
     ) -> WeatherFrame:
         """Render one frame.
 
@@ -344,12 +345,22 @@ class WeatherRenderer:
         particles : ParticleGaussians, optional
             Particle Gaussians to rasterize instead of the weather's own (custom effects, tests);
             used as given (no culling, no dilation compensation).
+        background_image : ndarray [H, W, 3], optional
+            A per-pixel background (a sky map's colors, RGB in [0, 1]) instead of the constant
+            ``background``. Fog and haze put the sky at infinite distance, so there it is the fog
+            color whatever the background.
 
         Returns
         -------
         WeatherFrame
         """
         mode = self.weather.fog_mode if fog_mode is None else fog_mode
+        bg_image = None
+        if background_image is not None:
+            bg_image = np.asarray(background_image, np.float32)
+            if bg_image.shape != (int(camera.height), int(camera.width), 3):
+                raise ValueError(f"background_image must have shape ({camera.height}, {camera.width}, 3), "
+                                 f"got {bg_image.shape}")
         if mode not in FOG_MODES:
             raise ValueError(f"fog_mode must be one of {FOG_MODES}, got {mode!r}")
         t_start = time.perf_counter()
@@ -392,7 +403,7 @@ class WeatherRenderer:
             colors = torch.from_numpy(channels)
             background = None
         else:
-            background = torch.from_numpy(self.background)
+            background = None if bg_image is not None else torch.from_numpy(self.background)
         viewmat = np.asarray(camera.world_to_camera, np.float32)
         K = np.asarray(camera.K, np.float32)
         with torch.no_grad():
@@ -425,6 +436,8 @@ class WeatherRenderer:
             )
         elif fog:
             assert depth is not None
+            if bg_image is not None:  # rasterized without a background: composite the image's now
+                color = color + (1.0 - alpha)[..., None] * bg_image
             image = fog_postprocess(
                 color,
                 depth,
@@ -432,9 +445,11 @@ class WeatherRenderer:
                 camera.K,
                 beta=self.beta,
                 fog_color=self.fog_color,
-                background=self.background,
+                background=self.background if bg_image is None else bg_image,
                 offset_m=self.fog_offset,
             )
+        elif bg_image is not None:
+            image = color + (1.0 - alpha)[..., None] * bg_image
         else:
             image = color.copy()  # the rasterizer's buffer stays untouched
         np.clip(image, 0.0, 1.0, out=image)

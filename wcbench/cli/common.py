@@ -54,3 +54,47 @@ def split_list(values: list[str] | None) -> list[str] | None:
     if not values:
         return None
     return [v for item in values for v in item.split(",") if v]
+
+
+def add_method_options(parser: argparse.ArgumentParser) -> None:
+    """Options handed to a runnable method (``--profile``, ``--supervision``, ``--edit``, ``--method-option``).
+
+    A method that does not take one of them refuses it by name (``wcbench methods list -v``
+    shows what each takes).
+    """
+    group = parser.add_argument_group("method options (passed to the method; see `wcbench methods list -v`)")
+    group.add_argument("--profile", default=None, help="training profile of a trained method: default, quick")
+    group.add_argument("--supervision", default=None,
+                       help="edited frames a trained method learns from: filter2d (built in) or READER:DIR, "
+                            "e.g. qwen-image:edits/")
+    group.add_argument("--edit", action="append", default=None, metavar="EDIT",
+                       help="object edit, repeatable: 'remove class=Car except ids=3,7', "
+                            "'translate id=5 by=0,2,0', or a JSON list")
+    group.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE",
+                       help="any option of the method, repeatable (VALUE read as JSON when it parses), "
+                            "e.g. jitter=0.5, ablation=no-wgs, holdout=[5,15,25]")
+
+
+def method_options_from(args: argparse.Namespace) -> dict[str, Any]:
+    """The method options given on the command line (only those given).
+
+    Raises
+    ------
+    InputError
+        On a ``--method-option`` not of the form ``KEY=VALUE``.
+    """
+    out: dict[str, Any] = {}
+    for name in ("profile", "supervision"):
+        if getattr(args, name, None) is not None:
+            out[name] = getattr(args, name)
+    if getattr(args, "edit", None):
+        out["edits"] = list(args.edit)
+    for item in getattr(args, "method_option", []) or []:
+        key, sep, raw = item.partition("=")
+        if not (sep and key):
+            raise InputError(f"--method-option {item!r}: expected KEY=VALUE, e.g. jitter=0.5")
+        try:
+            out[key] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key] = raw
+    return out

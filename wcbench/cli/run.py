@@ -7,13 +7,21 @@ Examples::
 
     wcbench run --method filter2d --scenes demo --out runs/demo
     wcbench run --method identity --scenes pandaset_002 --data-root ../shared/data --out runs/id
+    wcbench run --method weathercity --scenes pandaset_002 --data-root ../shared/data --out runs/wc
+    wcbench run --method weathercity --scenes demo --profile quick --edit "remove class=Car" --out runs/edit
 """
 
 from __future__ import annotations
 
 import argparse
 
-from wcbench.cli.common import add_scene_arguments, parse_metric_options, split_list
+from wcbench.cli.common import (
+    add_method_options,
+    add_scene_arguments,
+    method_options_from,
+    parse_metric_options,
+    split_list,
+)
 from wcbench.cli.evaluate import add_evaluate_options, report
 
 HELP = "render with a runnable method, then evaluate"
@@ -25,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_scene_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="random seed of the method")
     add_evaluate_options(parser)
+    add_method_options(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from wcbench.methods import get_method
     from wcbench.units import RenderSettings
 
-    method = get_method(args.method)
+    method = get_method(args.method, **method_options_from(args))
     cfg = EvaluateConfig(
         method=args.method, scenes=args.scenes, predictions=args.out / method.info.name, out=args.out,
         weathers=split_list(args.weathers) or list(method.info.weathers), metrics=split_list(args.metrics),

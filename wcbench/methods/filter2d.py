@@ -9,6 +9,12 @@ Each frame is edited on its own, as 2D photo filters do:
 
 Streaks and flakes are drawn afresh per frame from (seed, frame), so the baseline is deterministic
 but, like any per-frame editor, not temporally coherent: exactly what flicker metrics should see.
+
+Two options make it a stand-in for a 2D editor's output as training supervision (the WeatherCity
+method trains on edited frames): ``effects=False`` leaves out the streaks and flakes (particles
+come from the physics, as the paper's edited backgrounds leave them out), and ``jitter`` in [0, 1]
+adds seeded per-frame tone, color and local-structure perturbations, the way frame-by-frame
+editors flicker.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_uint8
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
@@ -64,8 +71,43 @@ def _overlay_strokes(img: np.ndarray, rng: np.random.Generator, *, count: int, l
     return img * (1 - a) + a * 0.9
 
 
+def jitter_frame(img: np.ndarray, rng: np.random.Generator, strength: float) -> np.ndarray:
+    """A frame-by-frame editor's inconsistency on float RGB [H, W, 3]: seeded exposure, contrast and
+    per-channel gain changes, a smooth displacement of a few pixels (structures wobble) and a few
+    blotches where local structure is smeared away. ``strength`` 0 returns the frame unchanged."""
+    if strength <= 0:
+        return img
+    s = float(strength)
+    h, w = img.shape[:2]
+    mean = float(img.mean())
+    out = (img - mean) * (1.0 + s * rng.normal(0.0, 0.08)) + mean
+    out = out * (1.0 + s * rng.normal(0.0, 0.08)) * (1.0 + s * rng.normal(0.0, 0.04, 3)).astype(np.float32)
+    amp = 2.0 * s * h / 270.0  # px, relative to a 270-row frame
+    field = [cv2.resize(rng.normal(0.0, 1.0, (4, 6)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
+             for _ in range(2)]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    out = cv2.remap(out.astype(np.float32), gx + amp * field[0], gy + amp * field[1], cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REFLECT)
+    smeared = cv2.GaussianBlur(out, (0, 0), max(1.0, 0.02 * h))
+    mask = np.zeros((h, w), np.float32)
+    for _ in range(int(rng.poisson(3.0 * s))):
+        center = (int(rng.uniform(0, w)), int(rng.uniform(0, h)))
+        axes = (max(1, int(rng.uniform(0.03, 0.08) * h)), max(1, int(rng.uniform(0.03, 0.08) * h)))
+        cv2.ellipse(mask, center, axes, float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+    mask = cv2.GaussianBlur(mask, (0, 0), max(1.0, 0.01 * h))[..., None] * min(1.0, 0.8 * s)
+    return np.clip(out * (1 - mask) + smeared * mask, 0.0, 1.0)
+
+
 class Filter2DMethod(FrameRenderer):
-    """Per-frame image filters for rain, snow and fog (see module docstring)."""
+    """Per-frame image filters for rain, snow and fog (see module docstring).
+
+    Parameters
+    ----------
+    effects : bool
+        Draw rain streaks and snowflakes (``False``: the weather's grade only).
+    jitter : float
+        Strength in [0, 1] of the per-frame perturbations of :func:`jitter_frame`.
+    """
 
     info = MethodInfo(
         name="filter2d",
@@ -75,9 +117,17 @@ class Filter2DMethod(FrameRenderer):
         layout="writes <out>/filter2d/<scene>/<weather>/{frame:03d}.png + info.json",
     )
 
+    def __init__(self, *, effects: bool = True, jitter: float = 0.0):
+        if not 0.0 <= float(jitter) <= 1.0:
+            raise InputError(f"filter2d: jitter must be in [0, 1], got {jitter}")
+        self.effects, self.jitter = bool(effects), float(jitter)
+
     def parameters(self, weather: str) -> dict[str, Any]:
         """The filter settings used for ``weather``."""
-        return dict(_PARAMS[weather])
+        out = dict(_PARAMS[weather])
+        if not self.effects or self.jitter:  # the defaults leave the record (and render keys) as they were
+            out.update(effects=self.effects, jitter=self.jitter)
+        return out
 
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> np.ndarray:
         """Edit raw frame ``index``; uint8 RGB out."""
@@ -94,12 +144,18 @@ class Filter2DMethod(FrameRenderer):
             rng = _rng(seed, index)
             gray = raw.mean(axis=2, keepdims=True)
             if weather == "rain":
-                base = (0.7 * raw + 0.3 * gray) * p["darken"] * np.asarray(p["tint"], np.float32)
-                out = _overlay_strokes(base, rng, count=max(1, int(p["streaks_per_megapixel"] * mpx)),
-                                       length=p["streak_px"] * h, angle=0.15, thickness=1, intensity=0.35, blur=3)
+                out = (0.7 * raw + 0.3 * gray) * p["darken"] * np.asarray(p["tint"], np.float32)
+                if self.effects:
+                    out = _overlay_strokes(out, rng, count=max(1, int(p["streaks_per_megapixel"] * mpx)),
+                                           length=p["streak_px"] * h, angle=0.15, thickness=1, intensity=0.35,
+                                           blur=3)
             else:
-                base = raw * (1 - p["brighten"]) + p["brighten"]
-                out = _overlay_strokes(base, rng, count=max(1, int(p["flakes_per_megapixel"] * mpx)),
-                                       length=max(1.0, p["flake_px"] * h), angle=0.3,
-                                       thickness=max(1, int(p["flake_px"] * h)), intensity=0.8, blur=3)
+                out = raw * (1 - p["brighten"]) + p["brighten"]
+                if self.effects:
+                    out = _overlay_strokes(out, rng, count=max(1, int(p["flakes_per_megapixel"] * mpx)),
+                                           length=max(1.0, p["flake_px"] * h), angle=0.3,
+                                           thickness=max(1, int(p["flake_px"] * h)), intensity=0.8, blur=3)
+        if self.jitter:
+            # its own stream: jitter does not move the streaks of the same seed
+            out = jitter_frame(np.asarray(out, np.float32), np.random.default_rng([seed, index, 0x71]), self.jitter)
         return to_uint8(np.asarray(out))

@@ -74,9 +74,21 @@ class FrameRenderer(ABC):
         self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False,
         frame_offset: int = 0, single_weather: bool = False,
     ) -> PredictionSequence:
-        """Read frames this method wrote (the canonical layout)."""
-        return match_predictions(scene, weather, root, pattern=pattern or CANONICAL_PATTERN, resize=resize,
-                                 frame_offset=frame_offset, weather_level_optional=single_weather)
+        """Read frames this method wrote (the canonical layout).
+
+        Frames rendered at another size than the scene's (``info.json`` ``size``) are scored at
+        that size, the scene's frames resized to it once (see :meth:`wcbench.units.WorkUnit.score`),
+        unless ``resize`` asks for the predictions to be resized to the scene's size instead.
+        """
+        seq = match_predictions(scene, weather, root, pattern=pattern or CANONICAL_PATTERN, resize=resize,
+                                frame_offset=frame_offset, weather_level_optional=single_weather)
+        size = (seq.info or {}).get("size")
+        if size is not None and not resize:
+            if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
+                raise InputError(f"{root / weather / INFO_FILE}: 'size' must be [width, height] in pixels, "
+                                 f"got {size!r}")
+            seq.size = (size[0], size[1])
+        return seq
 
     def _key(self, scene: Scene, weather: str, seed: int, frames: list[int]) -> str:
         return sha256_json({

@@ -1,0 +1,201 @@
+"""Object editing through the scene graph: remove, keep only, translate or copy tracked objects.
+
+An edit selects objects by track id or class and acts on their nodes at render time:
+
+    remove class=Car except ids=3,7      hide every car but tracks 3 and 7
+    keep-only ids=5,9                    hide every other object (the background stays)
+    translate id=5 by=0,2,0              move track 5 by (0, 2, 0) m in the world frame
+    insert id=5 by=0,4,0                 add a copy of track 5, 4 m along y
+
+or the same as JSON objects (``{"op": "remove", "class": "Car", "except": ["3", "7"]}``; keys
+``op``, ``ids``/``id``, ``class``, ``except``, ``by``). Classes match case-insensitively and
+exactly; a selection that matches no object is an error (a typo would otherwise edit nothing).
+Edits apply in order; the result is a :class:`~wcbench.reference_model.model.scene_model.Placement`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from wcbench.reference_model.model.objects import RigidObject
+from wcbench.reference_model.model.scene_model import Placement
+
+__all__ = ["OPS", "Edit", "parse_edit", "parse_edits", "placement_for"]
+
+OPS = ("remove", "keep-only", "translate", "insert")
+
+
+@dataclass(frozen=True)
+class Edit:
+    """One edit: an operation on the objects a selector picks.
+
+    Attributes
+    ----------
+    op : {"remove", "keep-only", "translate", "insert"}
+    ids : tuple of str
+        Track ids selected.
+    classes : tuple of str
+        Track classes selected (case-insensitive).
+    exclude : tuple of str
+        Track ids never selected.
+    by : tuple of 3 float or None
+        World translation (m) of ``translate`` and ``insert``.
+    """
+
+    op: str
+    ids: tuple[str, ...] = ()
+    classes: tuple[str, ...] = ()
+    exclude: tuple[str, ...] = ()
+    by: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.op not in OPS:
+            raise ValueError(f"edit: unknown operation {self.op!r}; operations: {', '.join(OPS)}")
+        if not self.ids and not self.classes:
+            raise ValueError(f"edit {self.op!r}: select objects with id=, ids= or class=")
+        needs_by = self.op in ("translate", "insert")
+        if needs_by and self.by is None:
+            raise ValueError(f"edit {self.op!r}: needs by=X,Y,Z (metres)")
+        if not needs_by and self.by is not None:
+            raise ValueError(f"edit {self.op!r}: by= only goes with translate and insert")
+        if self.by is not None and (len(self.by) != 3 or not np.all(np.isfinite(self.by))):
+            raise ValueError(f"edit {self.op!r}: by= must be three finite numbers, got {self.by}")
+
+    def to_json(self) -> dict[str, Any]:
+        """The edit as a JSON object (the form :func:`parse_edits` reads)."""
+        out: dict[str, Any] = {"op": self.op}
+        if self.ids:
+            out["ids"] = list(self.ids)
+        if self.classes:
+            out["class"] = list(self.classes)
+        if self.exclude:
+            out["except"] = list(self.exclude)
+        if self.by is not None:
+            out["by"] = list(self.by)
+        return out
+
+
+def _list(value: Any) -> tuple[str, ...]:
+    if isinstance(value, str):
+        return tuple(v.strip() for v in value.split(",") if v.strip())
+    if isinstance(value, Iterable):
+        return tuple(str(v) for v in value)
+    return (str(value),)
+
+
+def _from_mapping(obj: Mapping[str, Any]) -> Edit:
+    unknown = sorted(set(obj) - {"op", "id", "ids", "class", "except", "by"})
+    if unknown:
+        raise ValueError(f"edit {dict(obj)}: unknown keys {unknown}")
+    if "op" not in obj:
+        raise ValueError(f"edit {dict(obj)}: missing 'op' ({', '.join(OPS)})")
+    by = obj.get("by")
+    try:
+        by_t = None if by is None else tuple(float(v) for v in _list(by))
+    except ValueError:
+        raise ValueError(f"edit {dict(obj)}: by= must be numbers, got {by!r}") from None
+    if by_t is not None and len(by_t) != 3:
+        raise ValueError(f"edit {dict(obj)}: by= needs three numbers X,Y,Z, got {by!r}")
+    return Edit(op=str(obj["op"]), ids=_list(obj.get("ids", ())) + _list(obj.get("id", ())),
+                classes=_list(obj.get("class", ())), exclude=_list(obj.get("except", ())),
+                by=by_t)  # type: ignore[arg-type]
+
+
+def parse_edit(text: str) -> Edit:
+    """One edit from its text form (see the module docstring).
+
+    Raises
+    ------
+    ValueError
+        Naming what is wrong (unknown operation or key, missing selector, malformed numbers).
+    """
+    words = text.split()
+    if not words:
+        raise ValueError("edit: empty")
+    fields: dict[str, Any] = {"op": words[0]}
+    i = 1
+    while i < len(words):
+        word = words[i]
+        if word == "except":  # "except ids=3,7"
+            if i + 1 >= len(words) or "=" not in words[i + 1]:
+                raise ValueError(f"edit {text!r}: 'except' needs ids=...")
+            key, _, value = words[i + 1].partition("=")
+            if key not in ("id", "ids"):
+                raise ValueError(f"edit {text!r}: 'except' takes ids=..., got {key}=")
+            fields["except"] = value
+            i += 2
+            continue
+        key, sep, value = word.partition("=")
+        if not sep:
+            raise ValueError(f"edit {text!r}: expected KEY=VALUE, got {word!r}")
+        if key in fields:
+            raise ValueError(f"edit {text!r}: {key}= given twice")
+        fields[key] = value
+        i += 1
+    return _from_mapping(fields)
+
+
+def parse_edits(spec: str | Sequence[str] | Sequence[Mapping[str, Any]]) -> list[Edit]:
+    """Edits from text forms, a JSON list (text starting with ``[``) or JSON objects."""
+    if isinstance(spec, str):
+        text = spec.strip()
+        if text.startswith("["):
+            try:
+                items = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"edit list: not valid JSON ({exc})") from None
+            if not isinstance(items, list):
+                raise ValueError("edit list: expected a JSON list of edits")
+            return [_from_mapping(x) if isinstance(x, Mapping) else parse_edit(str(x)) for x in items]
+        return [parse_edit(text)]
+    return [_from_mapping(x) if isinstance(x, Mapping) else parse_edit(str(x)) for x in spec]
+
+
+def _selected(edit: Edit, objects: Mapping[str, RigidObject]) -> list[str]:
+    classes = {c.lower() for c in edit.classes}
+    ids = set(edit.ids)
+    keys = [k for k, o in objects.items()
+            if (o.track_id in ids or o.class_name.lower() in classes) and o.track_id not in set(edit.exclude)]
+    if not keys:
+        known = sorted({o.class_name for o in objects.values()})
+        raise ValueError(f"edit {edit.to_json()}: selects no object of the scene graph "
+                         f"(classes: {', '.join(known) or 'none'}; {len(objects)} objects)")
+    return keys
+
+
+def placement_for(edits: Sequence[Edit], objects: Mapping[str, RigidObject]) -> Placement:
+    """The node placement that ``edits`` (applied in order) make of a model's ``objects``.
+
+    Parameters
+    ----------
+    edits : sequence of Edit
+    objects : mapping of node key to RigidObject
+        :meth:`~wcbench.reference_model.model.scene_model.WeatherCityModel.objects`.
+
+    Raises
+    ------
+    ValueError
+        If an edit selects no object.
+    """
+    place = Placement()
+    for edit in edits:
+        keys = _selected(edit, objects)
+        if edit.op == "remove":
+            place.hidden.update(keys)
+        elif edit.op == "keep-only":
+            place.hidden.update(k for k in objects if k not in keys)
+        elif edit.op == "translate":
+            assert edit.by is not None
+            for k in keys:
+                place.offsets[k] = place.offsets.get(k, np.zeros(3)) + np.asarray(edit.by, np.float64)
+        else:
+            assert edit.by is not None
+            for k in keys:
+                base = place.offsets.get(k, np.zeros(3))
+                place.copies.append((k, base + np.asarray(edit.by, np.float64)))
+    return place

@@ -1,0 +1,110 @@
+"""Dynamic scene-graph nodes in torch: rigid objects moved by their track, pedestrians deformed per frame.
+
+A rigid object keeps its Gaussians in its box frame (x along the length, z up) and is placed at
+frame t by the track's object-to-world pose: mu_w = R_t mu + p_t, r_w = q_t * r. A non-rigid object
+(a pedestrian) is placed the same way after a small learned per-frame offset of each Gaussian,
+delta_t [N, 3] in the box frame, kept small and smooth in time by the training's regulariser
+(docs/design.md §7). Frames where a track is not annotated have no Gaussians of it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from wcbench.reference_model.model.gaussians import GaussianParams
+from wcbench.reference_model.transforms import quat_from_matrix
+
+__all__ = ["NonRigidObject", "RigidObject", "quat_multiply_torch"]
+
+
+def quat_multiply_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product a * b of (w, x, y, z) quaternions, broadcast over leading axes."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], -1)
+
+
+class RigidObject(nn.Module):
+    """A moving object's Gaussians in its box frame and its poses per scene frame.
+
+    Parameters
+    ----------
+    gaussians : GaussianParams
+        In the box frame (m).
+    track_id, class_name : str
+    frames : ndarray [M] int
+        Scene frames where the track is annotated.
+    object_to_world : ndarray [M, 4, 4]
+        Box pose at each of those frames.
+    box_size : ndarray [3]
+        Length, width, height (m), for edits and masks.
+    n_frames : int
+        Frames of the scene.
+    """
+
+    def __init__(self, gaussians: GaussianParams, *, track_id: str, class_name: str, frames: np.ndarray,
+                 object_to_world: np.ndarray, box_size: np.ndarray, n_frames: int):
+        super().__init__()
+        self.gaussians = gaussians
+        self.track_id, self.class_name = str(track_id), str(class_name)
+        present = np.zeros(n_frames, bool)
+        rot = np.tile(np.eye(3, dtype=np.float32), (n_frames, 1, 1))
+        pos = np.zeros((n_frames, 3), np.float32)
+        quat = np.tile(np.array([1, 0, 0, 0], np.float32), (n_frames, 1))
+        for f, T in zip(np.asarray(frames, np.int64), np.asarray(object_to_world, np.float64)):
+            if 0 <= f < n_frames:
+                present[f] = True
+                rot[f], pos[f], quat[f] = T[:3, :3], T[:3, 3], quat_from_matrix(T[:3, :3])
+        self.register_buffer("present", torch.from_numpy(present))
+        self.register_buffer("rotation", torch.from_numpy(rot))
+        self.register_buffer("position", torch.from_numpy(pos))
+        self.register_buffer("quat", torch.from_numpy(quat))
+        self.box_size = np.asarray(box_size, np.float64).reshape(3)
+
+    def at(self, frame: int) -> bool:
+        """Whether the object exists at ``frame``."""
+        return 0 <= frame < len(self.present) and bool(self.present[frame])
+
+    def local_means(self, frame: int) -> torch.Tensor:
+        """[N, 3] box-frame centres at ``frame`` (the learned ones; deformed for non-rigid objects)."""
+        return self.gaussians.means
+
+    def world(self, frame: int, offset: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """World centres [N, 3] and rotations [N, 4] at ``frame``; ``offset`` [3] moves the box (edits)."""
+        R, p, q = self.rotation[frame], self.position[frame], self.quat[frame]
+        if offset is not None:
+            p = p + offset
+        means = self.local_means(frame) @ R.T + p
+        quats = quat_multiply_torch(q.expand_as(self.gaussians.quats), self.gaussians.quats)
+        return means, quats
+
+
+class NonRigidObject(RigidObject):
+    """A deformable object (pedestrian): a rigid object plus a learned per-frame offset of each Gaussian.
+
+    The offsets start at zero; :meth:`deformation_penalty` is the regulariser that keeps them small
+    and smooth in time.
+    """
+
+    def __init__(self, gaussians: GaussianParams, **kwargs: object):
+        super().__init__(gaussians, **kwargs)  # type: ignore[arg-type]
+        self.offsets = nn.Parameter(torch.zeros(len(self.present), len(gaussians), 3))
+
+    def local_means(self, frame: int) -> torch.Tensor:
+        """[N, 3] box-frame centres deformed for ``frame``."""
+        return self.gaussians.means + self.offsets[frame]
+
+    def deformation_penalty(self) -> torch.Tensor:
+        """Mean squared offset plus mean squared change between consecutive frames (m^2)."""
+        d = self.offsets
+        if d.numel() == 0:
+            return d.new_zeros(())
+        smooth = (d[1:] - d[:-1]).square().mean() if len(d) > 1 else d.new_zeros(())
+        return d.square().mean() + smooth

@@ -1,0 +1,240 @@
+"""The WeatherCity scene graph: background, rigid and non-rigid nodes of weather Gaussians, a sky.
+
+:meth:`WeatherCityModel.frame_gaussians` places every node at a frame and concatenates their
+Gaussians; :meth:`WeatherCityModel.render` decodes the colors of several weathers at once and
+rasterizes them as stacked channels in **one** pass (geometry is shared, so depth and alpha are
+the same for every weather), then puts each weather's sky behind the Gaussians:
+
+    I_w = C_w + (1 - A) S_w,      C_w = sum_i c_i^w alpha_i T_i,   A = sum_i alpha_i T_i
+
+with S_w the weather's environment map looked up along each pixel's ray (docs/design.md §7).
+Node placement can be changed per render (edits: hide, move or copy nodes, :class:`Placement`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from wcbench.reference_model.model.decoders import WeatherDecoders
+from wcbench.reference_model.model.gaussians import GaussianParams
+from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
+from wcbench.reference_model.model.sky import SkyModel
+from wcbench.reference_model.raster.rasterizer import rasterize
+
+__all__ = ["FrameGaussians", "Placement", "WeatherCityModel", "WeatherRender"]
+
+#: Key of the background node; objects are ``rigid:<track id>`` and ``nonrigid:<track id>``.
+BACKGROUND = "background"
+
+
+@dataclass
+class Placement:
+    """How nodes are placed at render time (object editing).
+
+    Attributes
+    ----------
+    hidden : set of str
+        Node keys not rendered.
+    offsets : dict of str to ndarray [3]
+        World translation (m) added to an object's pose.
+    copies : list of (str, ndarray [3])
+        Extra instances: (node key, world translation of the copy).
+    """
+
+    hidden: set[str] = field(default_factory=set)
+    offsets: dict[str, np.ndarray] = field(default_factory=dict)
+    copies: list[tuple[str, np.ndarray]] = field(default_factory=list)
+
+
+@dataclass
+class FrameGaussians:
+    """All Gaussians of a frame in world coordinates, concatenated node by node.
+
+    ``segments`` lists (node key, start, stop) of each node's rows (a copied node appears twice).
+    """
+
+    means: torch.Tensor  # [N, 3] m
+    quats: torch.Tensor  # [N, 4]
+    scales: torch.Tensor  # [N, 3] m
+    opacities: torch.Tensor  # [N]
+    features: torch.Tensor  # [N, F]
+    segments: list[tuple[str, int, int]]
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+
+@dataclass
+class WeatherRender:
+    """One render of several weathers of a frame.
+
+    Attributes
+    ----------
+    images : Tensor [H, W, 3 len(weathers)]
+        RGB in [0, 1] of each weather, sky included, weather-major channels.
+    alpha : Tensor [H, W]
+        Accumulated opacity of the Gaussians (the same for every weather).
+    depth : Tensor [H, W] or None
+        Expected depth of the Gaussians (m).
+    raster : Any
+        The rasterizer's output (``means2d_abs`` for densification, ``meta`` counters).
+    gaussians : FrameGaussians
+    weathers : tuple of str
+    """
+
+    images: torch.Tensor
+    alpha: torch.Tensor
+    depth: torch.Tensor | None
+    raster: Any
+    gaussians: FrameGaussians
+    weathers: tuple[str, ...]
+
+    def image(self, weather: str) -> torch.Tensor:
+        """[H, W, 3] of one weather."""
+        k = self.weathers.index(weather)
+        return self.images[..., 3 * k : 3 * k + 3]
+
+
+class WeatherCityModel(nn.Module):
+    """Weather Gaussians on a scene graph (sky, background, rigid and non-rigid nodes).
+
+    Parameters
+    ----------
+    background : GaussianParams
+        Static Gaussians in world coordinates.
+    rigid, nonrigid : sequence of RigidObject / NonRigidObject
+        Moving objects; empty sequences build no such node (and run none of its code).
+    decoders : WeatherDecoders
+    sky : SkyModel
+    """
+
+    def __init__(self, background: GaussianParams, rigid: Sequence[RigidObject],
+                 nonrigid: Sequence[NonRigidObject], decoders: WeatherDecoders, sky: SkyModel):
+        super().__init__()
+        self.background = background
+        self.rigid = nn.ModuleList(rigid)
+        self.nonrigid = nn.ModuleList(nonrigid)
+        self.decoders = decoders
+        self.sky = sky
+
+    @property
+    def weathers(self) -> tuple[str, ...]:
+        """Weathers the decoders know."""
+        return self.decoders.weathers
+
+    def objects(self) -> dict[str, RigidObject]:
+        """Every object node by key (``rigid:<id>`` / ``nonrigid:<id>``)."""
+        out: dict[str, RigidObject] = {f"rigid:{o.track_id}": o for o in self.rigid}
+        out.update({f"nonrigid:{o.track_id}": o for o in self.nonrigid})
+        return out
+
+    def nodes(self) -> dict[str, GaussianParams]:
+        """The Gaussians of every node by key, the background first."""
+        out = {BACKGROUND: self.background}
+        out.update({key: obj.gaussians for key, obj in self.objects().items()})
+        return out
+
+    def counts(self) -> dict[str, int]:
+        """Gaussians per node type: background, rigid, nonrigid, total."""
+        rigid = sum(len(o.gaussians) for o in self.rigid)
+        nonrigid = sum(len(o.gaussians) for o in self.nonrigid)
+        return {"background": len(self.background), "rigid": rigid, "nonrigid": nonrigid,
+                "rigid_nodes": len(self.rigid), "nonrigid_nodes": len(self.nonrigid),
+                "total": len(self.background) + rigid + nonrigid}
+
+    def frame_gaussians(self, frame: int, placement: Placement | None = None) -> FrameGaussians:
+        """Every node's Gaussians placed at ``frame`` (world coordinates), concatenated.
+
+        Parameters
+        ----------
+        frame : int
+            Scene frame; objects not annotated there are absent.
+        placement : Placement, optional
+            Hidden, moved and copied nodes (object editing).
+        """
+        place = placement or Placement()
+        parts: list[tuple[str, torch.Tensor, torch.Tensor, GaussianParams]] = []
+        if BACKGROUND not in place.hidden:
+            bg = self.background
+            parts.append((BACKGROUND, bg.means, bg.quats, bg))
+        objects = self.objects()
+        instances: list[tuple[str, np.ndarray | None]] = [
+            (key, place.offsets.get(key)) for key in objects if key not in place.hidden
+        ]
+        instances += [(key, np.asarray(offset)) for key, offset in place.copies]
+        for key, offset in instances:
+            if key not in objects:
+                raise KeyError(f"no node {key!r}; nodes: {sorted(objects)}")
+            obj = objects[key]
+            if not obj.at(frame):
+                continue
+            off = None if offset is None else torch.as_tensor(np.asarray(offset, np.float32))
+            means, quats = obj.world(frame, off)
+            parts.append((key, means, quats, obj.gaussians))
+        segments, start = [], 0
+        for key, means, _, _ in parts:
+            segments.append((key, start, start + int(means.shape[0])))
+            start += int(means.shape[0])
+        if not parts:
+            empty = GaussianParams.empty(self.background.feature_dim)
+            parts.append((BACKGROUND, empty.means, empty.quats, empty))
+        return FrameGaussians(
+            means=torch.cat([p[1] for p in parts]),
+            quats=torch.cat([p[2] for p in parts]),
+            scales=torch.cat([p[3].scales() for p in parts]),
+            opacities=torch.cat([p[3].opacities() for p in parts]),
+            features=torch.cat([p[3].features for p in parts]),
+            segments=segments,
+        )
+
+    def render(
+        self,
+        frame: int,
+        world_to_camera: np.ndarray,
+        K: np.ndarray,
+        width: int,
+        height: int,
+        weathers: Sequence[str],
+        *,
+        sky_grid: torch.Tensor,
+        depth: bool = True,
+        absgrad: bool = False,
+        placement: Placement | None = None,
+        rasterizer: Callable[..., Any] = rasterize,
+    ) -> WeatherRender:
+        """Render ``weathers`` of ``frame`` in one rasterization pass (differentiable).
+
+        Parameters
+        ----------
+        frame : int
+        world_to_camera : ndarray [4, 4]
+            OpenCV axes.
+        K : ndarray [3, 3]
+            Intrinsics in pixels at ``width`` x ``height``.
+        weathers : sequence of str
+            Decoded and stacked as channels, in this order.
+        sky_grid : Tensor [1, H, W, 2]
+            :meth:`SkyModel.grid` of the camera's ray directions.
+        depth, absgrad : bool
+            As :func:`~wcbench.reference_model.raster.rasterizer.rasterize`.
+        placement : Placement, optional
+        rasterizer : callable
+            ``rasterize``-compatible (tests inject the pure-torch twin).
+        """
+        g = self.frame_gaussians(frame, placement)
+        colors = self.decoders(g.features, weathers)
+        out = rasterizer(
+            g.means, g.quats, g.scales, g.opacities, colors,
+            torch.from_numpy(np.asarray(world_to_camera, np.float32)), torch.from_numpy(np.asarray(K, np.float32)),
+            int(width), int(height), render_depth=depth, absgrad=absgrad,
+        )
+        sky = self.sky(sky_grid, weathers)
+        images = out.color + (1.0 - out.alpha)[..., None] * sky
+        return WeatherRender(images=images, alpha=out.alpha, depth=out.depth, raster=out, gaussians=g,
+                             weathers=tuple(weathers))

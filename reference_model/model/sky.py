@@ -1,0 +1,115 @@
+"""The sky node: one learnable environment map per weather, looked up by view direction.
+
+The map is equirectangular in the scene's own frame (azimuth around ``up`` from a heading, and
+elevation above the horizon), so it is independent of where the camera is: the sky is at infinite
+distance. Rays below ``min_elevation`` read the map's lowest row (the sky is rarely seen there;
+Gaussians cover the ground). Colors are sigmoid(logits), RGB in (0, 1).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = ["SkyModel", "view_directions"]
+
+
+def view_directions(camera_to_world: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Unit world directions [H, W, 3] (float32) of the rays through every pixel center.
+
+    Parameters
+    ----------
+    camera_to_world : ndarray [4, 4]
+        OpenCV axes (x right, y down, z forward).
+    K : ndarray [3, 3]
+        Intrinsics in pixels; pixel (i, j) has its center at (i + 0.5, j + 0.5).
+    """
+    K = np.asarray(K, np.float64)
+    xs = (np.arange(width) + 0.5 - K[0, 2]) / K[0, 0]
+    ys = (np.arange(height) + 0.5 - K[1, 2]) / K[1, 1]
+    d = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((height, width))), -1)
+    d = d @ np.asarray(camera_to_world, np.float64)[:3, :3].T
+    return (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+
+
+class SkyModel(nn.Module):
+    """Environment maps [D, 3, rows, cols] over (elevation, azimuth), one per weather.
+
+    Parameters
+    ----------
+    weathers : sequence of str
+        The weathers with a sky (``"clear"`` included).
+    up : ndarray [3]
+        The scene's up vector (world).
+    heading : ndarray [3]
+        Azimuth 0 (projected on the horizontal plane), e.g. the first camera's forward axis.
+    rows, cols : int
+        Resolution of each map in elevation and azimuth.
+    min_elevation : float
+        Lowest elevation covered (radians, negative: below the horizon).
+    color : ndarray [3], optional
+        Initial color of every map (RGB in (0, 1)); mid grey when omitted.
+    shared : bool
+        One map for every weather (the "w/o WGS" ablation).
+    """
+
+    def __init__(self, weathers: Sequence[str], *, up: np.ndarray, heading: np.ndarray, rows: int = 32,
+                 cols: int = 128, min_elevation: float = -0.2, color: np.ndarray | None = None,
+                 shared: bool = False):
+        super().__init__()
+        self.weathers = tuple(weathers)
+        self.shared = shared
+        u = np.asarray(up, np.float64)
+        u = u / np.linalg.norm(u)
+        h = np.asarray(heading, np.float64)
+        e1 = h - (h @ u) * u
+        if not np.linalg.norm(e1) > 1e-6:
+            raise ValueError("heading must not be parallel to up")
+        e1 = e1 / np.linalg.norm(e1)
+        self.register_buffer("basis", torch.tensor(np.stack([e1, np.cross(u, e1), u]), dtype=torch.float32))
+        self.min_elevation = float(min_elevation)
+        c = np.full(3, 0.5) if color is None else np.clip(np.asarray(color, np.float64), 0.02, 0.98)
+        logit = torch.tensor(np.log(c / (1 - c)), dtype=torch.float32)
+        n = 1 if shared else len(self.weathers)
+        self.logits = nn.Parameter(logit.view(1, 3, 1, 1).repeat(n, 1, rows, cols).contiguous())
+
+    def grid(self, directions: torch.Tensor) -> torch.Tensor:
+        """Sampling grid [1, H, W, 2] in [-1, 1] of world directions [H, W, 3] (see ``grid_sample``)."""
+        local = directions @ self.basis.T  # (forward, left, up) components
+        elevation = torch.asin(local[..., 2].clamp(-1.0, 1.0))
+        azimuth = torch.atan2(local[..., 1], local[..., 0])
+        x = azimuth / math.pi
+        span = math.pi / 2 - self.min_elevation
+        y = 1.0 - 2.0 * (elevation - self.min_elevation) / span  # row 0 at the zenith
+        return torch.stack([x, y.clamp(-1.0, 1.0)], -1)[None]
+
+    def forward(self, grid: torch.Tensor, weathers: Sequence[str]) -> torch.Tensor:
+        """Sky colors [H, W, 3 len(weathers)] (weather-major) at a grid from :meth:`grid`."""
+        idx = [0 if self.shared else self.weathers.index(w) for w in weathers]
+        maps = self.logits[idx].reshape(1, 3 * len(idx), *self.logits.shape[2:])
+        out = F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        return torch.sigmoid(out[0].permute(1, 2, 0))
+
+    @torch.no_grad()
+    def fill_from(self, weather: str, grid: torch.Tensor, colors: torch.Tensor, mask: torch.Tensor) -> None:
+        """Set the map of ``weather`` to the mean of ``colors`` [H, W, 3] where ``mask`` [H, W] holds,
+        binned by map cell; cells never seen keep their value (a warm start before training)."""
+        if self.shared and weather != self.weathers[0]:
+            return
+        k = 0 if self.shared else self.weathers.index(weather)
+        rows, cols = self.logits.shape[2:]
+        g = grid[0][mask]
+        cx = ((g[:, 0] + 1) / 2 * cols - 0.5).round().clamp(0, cols - 1).long()
+        cy = ((g[:, 1] + 1) / 2 * rows - 0.5).round().clamp(0, rows - 1).long()
+        cell = cy * cols + cx
+        sums = torch.zeros(rows * cols, 3).index_add_(0, cell, colors[mask].float())
+        counts = torch.zeros(rows * cols).index_add_(0, cell, torch.ones(len(cell)))
+        seen = counts > 0
+        mean = (sums[seen] / counts[seen, None]).clamp(0.02, 0.98)
+        flat = self.logits.data[k].reshape(3, -1)
+        flat[:, seen] = (torch.log(mean) - torch.log1p(-mean)).T

@@ -1,0 +1,185 @@
+"""Build the WeatherCity model to train from a scene: the scene graph skips what the scene does not need.
+
+- Background: Gaussians from the lidar of the training frames (voxel-downsampled, colored by their
+  own frame), plus sparse far Gaussians along the rays of pixels no lidar return reaches, so that
+  distant structure exists; Gaussians outside every training frustum are dropped.
+- One rigid node per *moving* track (tracks that do not move stay in the background); tracks of
+  deformable classes (pedestrians, cyclists) become non-rigid nodes. A node type with no object is
+  not built, and its code never runs.
+- Decoders for the clear weather and each supervised weather only (a weather without supervision
+  is not trained); one sky map per decoded weather, warm-started from the sky pixels.
+
+What was built and skipped is returned as a JSON-ready record for ``info.json``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from wcbench.reference_model.model.decoders import WeatherDecoders
+from wcbench.reference_model.model.gaussians import GaussianParams
+from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
+from wcbench.reference_model.model.scene_model import WeatherCityModel
+from wcbench.reference_model.model.sky import SkyModel, view_directions
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.scene_graph.lidar_init import init_scene_from_lidar, sample_image
+from wcbench.reference_model.training.config import TrainConfig
+from wcbench.reference_model.training.views import TrainingView
+
+__all__ = ["NONRIGID_WORDS", "build_model", "far_cloud", "in_any_frustum", "is_nonrigid"]
+
+#: Track classes containing one of these words (case-insensitive) deform: non-rigid nodes.
+NONRIGID_WORDS = ("pedestrian", "person", "cyclist", "bicyclist", "human", "child")
+
+
+def is_nonrigid(class_name: str) -> bool:
+    """Whether a track class is deformable (pedestrians, cyclists)."""
+    name = class_name.lower()
+    return any(w in name for w in NONRIGID_WORDS)
+
+
+def in_any_frustum(means: np.ndarray, views: Sequence[TrainingView], *, margin: float = 0.05,
+                   near: float = 0.1) -> np.ndarray:
+    """[N] bool: centres (world, m) inside the view frustum of at least one view (image grown by
+    ``margin`` of its size on each side, beyond ``near`` metres)."""
+    keep = np.zeros(len(means), bool)
+    pts = np.asarray(means, np.float64)
+    for v in views:
+        w2c = v.world_to_camera
+        p = pts @ w2c[:3, :3].T + w2c[:3, 3]
+        z = p[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = p[:, 0] / z * v.K[0, 0] + v.K[0, 2]
+            w = p[:, 1] / z * v.K[1, 1] + v.K[1, 2]
+        mx, my = margin * v.width, margin * v.height
+        keep |= (z > near) & (u >= -mx) & (u <= v.width + mx) & (w >= -my) & (w <= v.height + my)
+    return keep
+
+
+def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int = 3,
+              opacity: float = 0.5) -> GaussianCloud:
+    """Gaussians far along the rays of pixels that no lidar return reaches (not sky, not objects).
+
+    Each sampled pixel gets one Gaussian at 1.2 times the view's 95th-percentile lidar depth (at
+    least 40 m), as wide as ``stride_px`` pixels there, colored by the pixel.
+    """
+    means, colors, scales = [], [], []
+    for v in list(views)[::every]:
+        if v.depth is None:
+            continue
+        hits = v.depth[v.depth > 0]
+        dist = max(40.0, 1.2 * float(np.percentile(hits, 95))) if hits.size else 40.0
+        ys, xs = np.mgrid[stride_px // 2 : v.height : stride_px, stride_px // 2 : v.width : stride_px]
+        ys, xs = ys.ravel(), xs.ravel()
+        # no lidar return within half a stride of the sample
+        covered = np.zeros(len(xs), bool)
+        r = stride_px // 2
+        for dy in range(-r, r + 1, max(1, r // 2)):
+            for dx in range(-r, r + 1, max(1, r // 2)):
+                yy, xx = np.clip(ys + dy, 0, v.height - 1), np.clip(xs + dx, 0, v.width - 1)
+                covered |= v.depth[yy, xx] > 0
+        ok = ~covered & ~v.dynamic[ys, xs]
+        if v.sky is not None:
+            ok &= ~v.sky[ys, xs]
+        xs, ys = xs[ok], ys[ok]
+        if not len(xs):
+            continue
+        rays = np.stack([(xs + 0.5 - v.K[0, 2]) / v.K[0, 0], (ys + 0.5 - v.K[1, 2]) / v.K[1, 1], np.ones(len(xs))], 1)
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        world = (rays * dist) @ v.camera_to_world[:3, :3].T + v.camera_to_world[:3, 3]
+        means.append(world)
+        colors.append(sample_image(v.images["clear"], np.stack([xs + 0.5, ys + 0.5], 1)))
+        scales.append(np.full(len(xs), dist * stride_px / (2 * v.K[0, 0])))
+    if not means:
+        return GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+    m, c, s = np.concatenate(means), np.concatenate(colors), np.concatenate(scales)
+    quats = np.zeros((len(m), 4), np.float32)
+    quats[:, 0] = 1
+    return GaussianCloud(means=m, quats=quats, scales=np.repeat(s[:, None], 3, 1),
+                         opacities=np.full(len(m), opacity, np.float32), colors=np.clip(c, 0, 1))
+
+
+def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, *,
+                weathers: Sequence[str]) -> tuple[WeatherCityModel, dict[str, Any]]:
+    """The model to train, initialised from the scene's lidar and the training views.
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+        Or any object with its attributes.
+    views : sequence of TrainingView
+        The training views (held-out frames excluded): their lidar builds the Gaussians, their
+        frusta cull them, their sky pixels warm-start the sky maps.
+    config : TrainConfig
+    weathers : sequence of str
+        ``"clear"`` first, then the supervised weathers.
+
+    Returns
+    -------
+    model : WeatherCityModel
+    facts : dict
+        Gaussian counts per node type, what was skipped and why.
+    """
+    frames = [v.frame for v in views]
+    graph = init_scene_from_lidar(scene, voxel_m=config.voxel_m, node_voxel_m=config.node_voxel_m,
+                                  frames=frames, opacity=config.init_opacity)
+    clouds = [graph.static]
+    n_far = 0
+    if config.far_points:
+        far = far_cloud(views, opacity=config.init_opacity)
+        n_far = len(far)
+        clouds.append(far)
+    background = GaussianCloud.concatenate(clouds)
+    inside = in_any_frustum(background.means, views)
+    dropped = int((~inside).sum())
+    background = background.subset(inside)
+    n_frames = len(scene.frames)
+    rigid, nonrigid = [], []
+    tracks = {str(t.id): t for t in scene.tracks}
+    empty_nodes = 0
+    for i, node in enumerate(graph.nodes):
+        if len(node.cloud) == 0:  # too few lidar returns on the object to make a Gaussian
+            empty_nodes += 1
+            continue
+        track = tracks[node.track_id]
+        size = np.asarray(track.box_size, np.float64).reshape(-1, 3).mean(0)
+        params = GaussianParams.from_cloud(node.cloud, feature_dim=config.feature_dim, seed=config.seed + 1 + i)
+        kwargs = dict(track_id=node.track_id, class_name=node.class_name, frames=node.frames,
+                      object_to_world=node.object_to_world, box_size=size, n_frames=n_frames)
+        (nonrigid if is_nonrigid(node.class_name) else rigid).append(
+            NonRigidObject(params, **kwargs) if is_nonrigid(node.class_name) else RigidObject(params, **kwargs)
+        )
+    decoders = WeatherDecoders(weathers, feature_dim=config.feature_dim, hidden=config.hidden,
+                               shared=config.shared_decoder, seed=config.seed)
+    first = views[0]
+    sky = SkyModel(weathers, up=np.asarray(scene.up, np.float64), heading=first.camera_to_world[:3, 2],
+                   shared=config.shared_decoder)
+    for v in views:
+        if v.sky is None or not v.sky.any():
+            continue
+        grid = sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+        for w in weathers:
+            if w in v.images:
+                sky.fill_from(w, grid, torch.from_numpy(v.images[w]), torch.from_numpy(v.sky))
+    model = WeatherCityModel(
+        GaussianParams.from_cloud(background, feature_dim=config.feature_dim, seed=config.seed),
+        rigid, nonrigid, decoders, sky,
+    )
+    moving = len(graph.nodes)
+    facts = {
+        "gaussians": model.counts(),
+        "far_gaussians": n_far,
+        "skipped": {
+            "static_tracks_in_background": len(scene.tracks) - moving,
+            "moving_tracks_without_lidar_points": empty_nodes,
+            "gaussians_outside_every_training_frustum": dropped,
+            "nonrigid_nodes": None if nonrigid else "no moving pedestrian or cyclist: node type not built",
+            "rigid_nodes": None if rigid else "no moving rigid object: node type not built",
+        },
+        "weathers": list(weathers),
+    }
+    return model, facts

@@ -1,0 +1,171 @@
+"""Training settings, the named profiles (``default``, ``quick``) and ablations (``no-wgs``,
+``no-content-loss``).
+
+Every field that can change the trained model is part of the training's cache key; the defaults of
+the ``default`` profile are chosen from the time-versus-quality table of ``wcbench bench model``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
+
+__all__ = ["ABLATIONS", "PROFILES", "TrainConfig", "make_config"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How a WeatherCity model is built and trained.
+
+    Attributes
+    ----------
+    width, height : int
+        Training (and rendering) resolution in pixels; ``height`` 0 keeps the scene's aspect ratio
+        (:meth:`size_for`).
+    iterations : int
+        Optimisation steps.
+    feature_dim, hidden : int
+        Shared feature size and decoder hidden width (paper: 32 and 64).
+    shared_decoder : bool
+        One decoder for every weather (the "w/o WGS" ablation).
+    ssim_weight : float
+        lambda of the RGB loss (paper: 0.2).
+    content_weight, content_interval : float, int
+        Content loss weight (paper: 1.0) and its interval in steps (0 weight: off).
+    content_size : (int, int)
+        (width, height) the content loss runs at.
+    depth_weight, opacity_weight, deform_weight : float
+        Lidar depth (paper: 0.01), opacity/sky (paper: 0.05) and pedestrian deformation weights.
+    weather_interval : int
+        Every this many steps the edited weathers are rendered (in the same pass) and supervised;
+        the other steps fit the raw frame only.
+    lr : dict of str to float
+        Adam learning rates: ``means`` (times the scene extent), ``log_scales``, ``quats``,
+        ``object_quats``, ``opacity_logits``, ``features``, ``decoders``, ``sky``, ``offsets``.
+    voxel_m, node_voxel_m : float
+        Voxel of the lidar initialisation: background and objects (m).
+    init_opacity : float
+        Opacity every Gaussian starts with.
+    far_points : bool
+        Add Gaussians far along the rays of pixels no lidar point reaches (distant structure).
+    budget : int
+        Most Gaussians the densification may reach (the render speed depends on it).
+    densify_from, densify_until, densify_interval : int
+        Steps of the densification schedule.
+    densify_grad : float
+        Mean absolute 2D gradient (AbsGS) above which a Gaussian is cloned or split.
+    prune_opacity : float
+        Gaussians below this opacity are pruned at each densification.
+    split_scale : float
+        Gaussians larger than this fraction of the scene extent are split rather than cloned.
+    holdout : tuple of int
+        Frames left out of training (for held-out evaluation).
+    seed : int
+    checkpoint_interval : int
+        Steps between checkpoints (a killed training resumes from the last one).
+    profile, ablation : str
+        Names the settings came from (recorded).
+    """
+
+    width: int = 480
+    height: int = 0
+    iterations: int = 3000
+    feature_dim: int = 32
+    hidden: int = 64
+    shared_decoder: bool = False
+    ssim_weight: float = 0.2
+    content_weight: float = 1.0
+    content_interval: int = 10
+    content_size: tuple[int, int] = (240, 135)
+    depth_weight: float = 0.01
+    opacity_weight: float = 0.05
+    deform_weight: float = 1.0
+    weather_interval: int = 2
+    lr: dict[str, float] = field(default_factory=lambda: {
+        "means": 1.6e-4, "log_scales": 5e-3, "quats": 1e-3, "object_quats": 1e-4, "opacity_logits": 3e-2,
+        "features": 5e-3, "decoders": 2e-3, "sky": 2e-2, "offsets": 1e-3,
+    })
+    voxel_m: float = 0.15
+    node_voxel_m: float = 0.08
+    init_opacity: float = 0.5
+    far_points: bool = True
+    budget: int = 300_000
+    densify_from: int = 300
+    densify_until: int = 2200
+    densify_interval: int = 150
+    densify_grad: float = 2e-4
+    prune_opacity: float = 0.005
+    split_scale: float = 0.01
+    holdout: tuple[int, ...] = ()
+    seed: int = 0
+    checkpoint_interval: int = 500
+    profile: str = "default"
+    ablation: str = ""
+
+    def size_for(self, scene_size: tuple[int, int]) -> tuple[int, int]:
+        """(width, height) of the training views of a scene of ``scene_size`` (its aspect kept unless
+        ``height`` is set)."""
+        w, h = scene_size
+        return self.width, self.height or max(1, round(self.width * h / w))
+
+    def to_json(self) -> dict[str, Any]:
+        """The settings as a JSON-ready dict (tuples as lists)."""
+        d = asdict(self)
+        d["content_size"] = list(self.content_size)
+        d["holdout"] = list(self.holdout)
+        return d
+
+    @classmethod
+    def from_json(cls, obj: dict[str, Any]) -> TrainConfig:
+        """Inverse of :meth:`to_json` (unknown keys are an error)."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(obj) - known)
+        if unknown:
+            raise ValueError(f"unknown training settings {unknown}; known: {sorted(known)}")
+        obj = dict(obj)
+        for key in ("content_size", "holdout"):
+            if key in obj:
+                obj[key] = tuple(obj[key])
+        return cls(**obj)
+
+
+#: Named settings: ``default`` is the measured trade-off at 480x270; ``quick`` trains small in
+#: seconds for demos and tests.
+PROFILES: dict[str, dict[str, Any]] = {
+    "default": {},
+    "quick": {
+        "width": 240, "iterations": 300, "content_interval": 5, "content_size": (120, 68),
+        "voxel_m": 0.3, "node_voxel_m": 0.15, "budget": 60_000, "densify_from": 60, "densify_until": 240,
+        "densify_interval": 60, "checkpoint_interval": 100, "far_points": False,
+    },
+}
+
+#: The paper's ablations (Table 3): "w/o WGS" and "w/o L_cc".
+ABLATIONS: dict[str, dict[str, Any]] = {
+    "": {},
+    "no-wgs": {"shared_decoder": True},
+    "no-content-loss": {"content_weight": 0.0},
+}
+
+
+def make_config(profile: str = "default", *, ablation: str = "", **overrides: Any) -> TrainConfig:
+    """The settings of a profile, an ablation and explicit overrides (in that order).
+
+    Raises
+    ------
+    ValueError
+        On an unknown profile, ablation or setting.
+    """
+    if profile not in PROFILES:
+        raise ValueError(f"unknown training profile {profile!r}; profiles: {sorted(PROFILES)}")
+    if ablation not in ABLATIONS:
+        raise ValueError(f"unknown ablation {ablation!r}; ablations: {sorted(a for a in ABLATIONS if a)}")
+    known = {f.name for f in fields(TrainConfig)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"unknown training settings {unknown}; known: {sorted(known)}")
+    base = TrainConfig()
+    lr = dict(base.lr)
+    lr.update(overrides.pop("lr", {}))
+    return replace(base, **{**PROFILES[profile], **ABLATIONS[ablation], **overrides, "lr": lr,
+                            "profile": profile, "ablation": ablation})

@@ -1,0 +1,195 @@
+"""Adaptive density control driven by the absolute 2D gradient (AbsGS), under a Gaussian budget.
+
+After every step the rasterizer's ``means2d_abs.grad`` (the sum of |dL/dmu_2d| over a Gaussian's
+pixels, the AbsGS statistic: it does not cancel where a Gaussian is pulled both ways) is
+accumulated per Gaussian over the steps where it is visible. Every ``densify_interval`` steps:
+
+- Gaussians whose mean statistic exceeds ``densify_grad`` are **cloned** (small ones: a copy at the
+  same place) or **split** (larger than ``split_scale`` x the scene extent: two Gaussians sampled
+  from the original, scales / 1.6), the largest statistics first while the budget allows;
+- Gaussians with opacity below ``prune_opacity`` or wider than a tenth of the scene extent are
+  **pruned**.
+
+The optimizer's moments follow every change (kept rows keep theirs, new rows start at zero), as
+in 3D Gaussian Splatting. Non-rigid nodes keep their Gaussians (their per-frame offsets are sized
+to them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from wcbench.reference_model.model.gaussians import PARAMETER_NAMES, GaussianParams
+from wcbench.reference_model.model.objects import quat_multiply_torch
+
+__all__ = ["DensifyStats", "NodeOptimizer", "densify_and_prune"]
+
+
+class NodeOptimizer:
+    """Adam over named parameter groups whose tensors can be replaced (densification).
+
+    Parameters
+    ----------
+    groups : list of (name, Parameter, lr)
+    """
+
+    def __init__(self, groups: list[tuple[str, torch.nn.Parameter, float]]):
+        self.adam = torch.optim.Adam([{"params": [p], "lr": lr, "name": name} for name, p, lr in groups],
+                                     eps=1e-15)
+
+    def zero_grad(self) -> None:
+        """Clear every gradient (set to None)."""
+        self.adam.zero_grad(set_to_none=True)
+
+    def step(self) -> None:
+        """One Adam step."""
+        self.adam.step()
+
+    def group(self, name: str) -> dict:
+        """The parameter group called ``name``."""
+        for g in self.adam.param_groups:
+            if g["name"] == name:
+                return g
+        raise KeyError(name)
+
+    def replace(self, name: str, new: torch.nn.Parameter, index: torch.Tensor) -> None:
+        """Swap the group's tensor for ``new``, whose row r was old row ``index[r]`` (-1: a new row).
+
+        Adam's moments are gathered the same way (zeros for new rows).
+        """
+        g = self.group(name)
+        old = g["params"][0]
+        state = self.adam.state.pop(old, None)
+        g["params"][0] = new
+        if state is None:
+            return
+        keep = index >= 0
+        for key in ("exp_avg", "exp_avg_sq"):
+            m = state[key]
+            out = torch.zeros((len(index), *m.shape[1:]), dtype=m.dtype)
+            out[keep] = m[index[keep]]
+            state[key] = out
+        self.adam.state[new] = state
+
+    def state_dict(self) -> dict:
+        """Adam's state (for checkpoints)."""
+        return self.adam.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore :meth:`state_dict`."""
+        self.adam.load_state_dict(state)
+
+
+@dataclass
+class DensifyStats:
+    """Accumulated AbsGS statistics of one node's Gaussians."""
+
+    grad: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
+    count: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
+
+    def ensure(self, n: int) -> None:
+        """Reset to ``n`` Gaussians if the size changed."""
+        if len(self.grad) != n:
+            self.grad, self.count = torch.zeros(n), torch.zeros(n)
+
+    def add(self, grad_norm: torch.Tensor, visible: torch.Tensor) -> None:
+        """Accumulate one step's |grad| [N] of the visible Gaussians [N] bool."""
+        self.grad[visible] += grad_norm[visible]
+        self.count[visible] += 1
+
+    def mean(self) -> torch.Tensor:
+        """[N] mean statistic over the steps each Gaussian was visible (0 if never)."""
+        return self.grad / self.count.clamp_min(1)
+
+
+def _split_samples(params: GaussianParams, idx: torch.Tensor, generator: torch.Generator) -> dict[str, torch.Tensor]:
+    """Two children per split Gaussian: positions sampled from it, scales / 1.6 (3DGS)."""
+    scales = params.scales()[idx].detach()
+    q = params.quats[idx].detach()
+    q = q / q.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    samples = torch.randn((2, len(idx), 3), generator=generator) * scales
+    # rotate the local samples: v' = q v q*
+    zero = torch.zeros((2, len(idx), 1))
+    v = torch.cat([zero, samples], -1)
+    conj = q * torch.tensor([1.0, -1.0, -1.0, -1.0])
+    rotated = quat_multiply_torch(quat_multiply_torch(q.expand(2, -1, -1), v), conj.expand(2, -1, -1))[..., 1:]
+    means = (params.means[idx].detach() + rotated).reshape(-1, 3)
+    return {
+        "means": means,
+        "log_scales": (params.log_scales[idx].detach() - torch.log(torch.tensor(1.6))).repeat(2, 1),
+        "quats": params.quats[idx].detach().repeat(2, 1),
+        "opacity_logits": params.opacity_logits[idx].detach().repeat(2),
+        "features": params.features[idx].detach().repeat(2, 1),
+    }
+
+
+def densify_and_prune(
+    name: str,
+    params: GaussianParams,
+    stats: DensifyStats,
+    optimizer: NodeOptimizer,
+    *,
+    grad_threshold: float,
+    split_scale_m: float,
+    max_scale_m: float,
+    prune_opacity: float,
+    room: int,
+    generator: torch.Generator,
+) -> dict[str, int]:
+    """Clone, split and prune one node's Gaussians (see the module docstring).
+
+    Parameters
+    ----------
+    name : str
+        The node's key: its optimizer groups are ``<name>.<parameter>``.
+    params : GaussianParams
+    stats : DensifyStats
+    optimizer : NodeOptimizer
+    grad_threshold : float
+    split_scale_m, max_scale_m : float
+        Clone below / split above ``split_scale_m``; prune wider than ``max_scale_m`` (m).
+    prune_opacity : float
+    room : int
+        How many Gaussians this node may add (the budget left).
+    generator : torch.Generator
+        Draws the split children (deterministic under the training seed).
+
+    Returns
+    -------
+    dict
+        Counts ``cloned``, ``split``, ``pruned``.
+    """
+    n = len(params)
+    if n == 0:
+        return {"cloned": 0, "split": 0, "pruned": 0}
+    stats.ensure(n)
+    score = stats.mean()
+    big = params.scales().detach().max(dim=1).values > split_scale_m
+    candidates = torch.nonzero(score > grad_threshold).flatten()
+    # largest statistic first; a split adds one Gaussian net (two children replace one), a clone one
+    candidates = candidates[torch.argsort(score[candidates], descending=True)][: max(room, 0)]
+    split_idx = candidates[big[candidates]]
+    clone_idx = candidates[~big[candidates]]
+    old = {k: v.detach() for k, v in params.tensors().items()}
+    children = _split_samples(params, split_idx, generator) if len(split_idx) else None
+    keep = torch.ones(n, dtype=torch.bool)
+    keep[split_idx] = False  # split parents are replaced by their children
+    opac = torch.sigmoid(old["opacity_logits"])
+    scale_max = torch.exp(old["log_scales"]).max(dim=1).values
+    prune = (opac < prune_opacity) | (scale_max > max_scale_m)
+    keep &= ~prune
+    kept = torch.nonzero(keep).flatten()
+    index = torch.cat([kept, clone_idx, torch.full((2 * len(split_idx),), -1, dtype=torch.long)])
+    new_values = {}
+    for key in PARAMETER_NAMES:
+        parts = [old[key][kept], old[key][clone_idx]]
+        if children is not None:
+            parts.append(children[key])
+        new_values[key] = torch.cat(parts)
+    params.replace(**new_values)
+    for key in PARAMETER_NAMES:
+        optimizer.replace(f"{name}.{key}", getattr(params, key), index)
+    stats.ensure(len(params))
+    return {"cloned": len(clone_idx), "split": len(split_idx), "pruned": int(prune.sum())}

@@ -1,0 +1,278 @@
+"""Multi-weather optimisation of a WeatherCity model (docs/design.md §7).
+
+Each step takes one training view (a fresh random order every epoch), renders the clear weather and,
+every ``weather_interval`` steps, every supervised weather in the **same** rasterization pass, and
+minimises
+
+    sum_w [(1 - 0.2) L1 + 0.2 (1 - SSIM)](I_w, target_w)          RGB, raw frame and every edit
+    + lambda_cc  L_cc(I_w, raw)      every ``content_interval`` steps, VGG16 features, sky masked
+    + lambda_depth |D - D_lidar|     where the frame's lidar landed
+    + lambda_opacity L_opacity(A, sky)
+    + lambda_deform (|delta|^2 + |delta_t+1 - delta_t|^2)           pedestrians' offsets
+
+with Adam (a learning rate per parameter kind), densification by the absolute 2D gradient under a
+Gaussian budget (:mod:`.densify`), and checkpoints from which a killed training resumes with the
+same next step (:mod:`.checkpoint`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from wcbench.reference_model.model.scene_model import BACKGROUND, WeatherCityModel
+from wcbench.reference_model.model.sky import view_directions
+from wcbench.reference_model.raster.rasterizer import rasterize
+from wcbench.reference_model.training.config import TrainConfig
+from wcbench.reference_model.training.densify import DensifyStats, NodeOptimizer, densify_and_prune
+from wcbench.reference_model.training.losses import (
+    ContentLoss,
+    depth_l1,
+    opacity_loss,
+    psnr,
+    rgb_loss,
+    weighted_sum,
+)
+from wcbench.reference_model.training.views import TrainingView
+
+__all__ = ["StepLog", "Trainer", "scene_extent"]
+
+
+def scene_extent(views: Sequence[TrainingView]) -> float:
+    """1.1 x the largest distance of a camera from the cameras' mean position (m), at least 1 m (3DGS)."""
+    centers = np.stack([v.center for v in views])
+    return max(1.0, 1.1 * float(np.linalg.norm(centers - centers.mean(0), axis=1).max()))
+
+
+@dataclass
+class StepLog:
+    """What one step measured."""
+
+    step: int
+    frame: int
+    loss: float
+    terms: dict[str, float]
+    psnr_clear: float
+    gaussians: int
+    seconds: float
+
+
+@dataclass
+class _ViewTensors:
+    """A view's fixed tensors, made once."""
+
+    targets: dict[str, torch.Tensor]
+    depth: torch.Tensor | None
+    sky: torch.Tensor | None
+    non_sky: torch.Tensor | None
+    grid: torch.Tensor
+
+
+@dataclass
+class Trainer:
+    """Trains ``model`` on ``views``.
+
+    Parameters
+    ----------
+    model : WeatherCityModel
+    views : sequence of TrainingView
+        Every view; those in ``config.holdout`` are not trained on.
+    config : TrainConfig
+    content : ContentLoss, optional
+        The content loss; ``None`` skips the term (no VGG16 weights, or the ablation).
+    rasterizer : callable
+        ``rasterize``-compatible (tests inject the pure-torch twin).
+    """
+
+    model: WeatherCityModel
+    views: Sequence[TrainingView]
+    config: TrainConfig
+    content: ContentLoss | None = None
+    rasterizer: Callable[..., Any] = rasterize
+    step_index: int = 0
+    history: list[StepLog] = field(default_factory=list)
+    densify_log: list[dict[str, Any]] = field(default_factory=list)
+    train_seconds: float = 0.0
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        self.train_views = [v for v in self.views if v.frame not in cfg.holdout]
+        if not self.train_views:
+            raise ValueError("no training view left after the holdout")
+        self.weathers = self.model.weathers
+        self.extent = scene_extent(self.train_views)
+        self._tensors = {v.frame: self._view_tensors(v) for v in self.train_views}
+        self.optimizer = self._make_optimizer()
+        self.stats = {name: DensifyStats() for name in self._densified_nodes()}
+        self.rng = np.random.default_rng(cfg.seed)
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+        self._order: list[int] = []
+
+    # -- set-up -------------------------------------------------------------------------------
+
+    def _view_tensors(self, v: TrainingView) -> _ViewTensors:
+        grid = self.model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+        missing = [w for w in self.weathers if w not in v.images]
+        if missing:
+            raise ValueError(f"view of frame {v.frame} lacks supervision for {missing}")
+        sky = None if v.sky is None else torch.from_numpy(v.sky)
+        return _ViewTensors(
+            targets={w: torch.from_numpy(v.images[w]) for w in self.weathers},
+            depth=None if v.depth is None else torch.from_numpy(v.depth),
+            sky=sky,
+            non_sky=None if sky is None else ~sky,
+            grid=grid,
+        )
+
+    def _densified_nodes(self) -> list[str]:
+        return [BACKGROUND] + [f"rigid:{o.track_id}" for o in self.model.rigid]
+
+    def _make_optimizer(self) -> NodeOptimizer:
+        lr = self.config.lr
+        groups: list[tuple[str, torch.nn.Parameter, float]] = []
+        for name, params in self.model.nodes().items():
+            for key, p in params.tensors().items():
+                rate = lr["means"] * self.extent if key == "means" else lr[key]
+                if key == "quats" and name != BACKGROUND:
+                    rate = lr["object_quats"]
+                groups.append((f"{name}.{key}", p, rate))
+        for _i, obj in enumerate(self.model.nonrigid):
+            groups.append((f"nonrigid:{obj.track_id}.offsets", obj.offsets, lr["offsets"]))
+        for pname, p in self.model.decoders.named_parameters():
+            groups.append((f"decoders.{pname}", p, lr["decoders"]))
+        groups.append(("sky.logits", self.model.sky.logits, lr["sky"]))
+        return NodeOptimizer(groups)
+
+    # -- one step ---------------------------------------------------------------------------
+
+    def _next_view(self) -> TrainingView:
+        if not self._order:
+            self._order = list(self.rng.permutation(len(self.train_views)))
+        return self.train_views[self._order.pop()]
+
+    def step(self) -> StepLog:
+        """One optimisation step (with densification and a checkpoint when they are due)."""
+        cfg = self.config
+        start = time.perf_counter()
+        it = self.step_index
+        v = self._next_view()
+        tv = self._tensors[v.frame]
+        all_weathers = len(self.weathers) > 1 and it % max(cfg.weather_interval, 1) == 0
+        weathers = self.weathers if all_weathers else ("clear",)
+        want_depth = cfg.depth_weight > 0 and tv.depth is not None
+        render = self.model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, weathers,
+                                   sky_grid=tv.grid, depth=want_depth, absgrad=True, rasterizer=self.rasterizer)
+        target = torch.cat([tv.targets[w] for w in weathers], -1)
+        per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
+        terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
+        logged: dict[str, float] = {f"rgb_{w}": float(x) for w, x in zip(weathers, per_weather.detach())}
+        if self.content is not None and cfg.content_weight > 0 and all_weathers and it % cfg.content_interval == 0:
+            cc = self.content(render.images[..., 3:], v.frame, tv.targets["clear"], tv.non_sky)
+            terms.append((cfg.content_weight, cc))
+            logged["content"] = float(cc.detach())
+        if want_depth:
+            assert render.depth is not None and tv.depth is not None
+            d = depth_l1(render.depth, tv.depth)
+            terms.append((cfg.depth_weight, d))
+            logged["depth"] = float(d.detach())
+        if cfg.opacity_weight > 0:
+            o = opacity_loss(render.alpha, tv.sky)
+            terms.append((cfg.opacity_weight, o))
+            logged["opacity"] = float(o.detach())
+        if self.model.nonrigid and cfg.deform_weight > 0:
+            pen = torch.stack([obj.deformation_penalty() for obj in self.model.nonrigid]).sum()
+            terms.append((cfg.deform_weight, pen))
+            logged["deform"] = float(pen.detach())
+        loss = weighted_sum(terms)
+        loss.backward()
+        self._accumulate(render)
+        self.optimizer.step()
+        self.optimizer.zero_grad()
+        self.step_index += 1
+        if cfg.densify_from <= self.step_index <= cfg.densify_until and self.step_index % cfg.densify_interval == 0:
+            self.densify()
+        with torch.no_grad():
+            quality = psnr(render.image("clear").detach(), tv.targets["clear"])
+        seconds = time.perf_counter() - start
+        self.train_seconds += seconds
+        log = StepLog(step=it, frame=v.frame, loss=float(loss.detach()), terms=logged, psnr_clear=quality,
+                      gaussians=self.model.counts()["total"], seconds=seconds)
+        self.history.append(log)
+        return log
+
+    def _accumulate(self, render: Any) -> None:
+        g = render.raster.means2d_abs
+        if g is None or g.grad is None:
+            return
+        norm = g.grad.norm(dim=1)
+        visible = (render.raster.radii > 0).all(dim=1)
+        nodes = self.model.nodes()
+        for key, start, stop in render.gaussians.segments:
+            if key in self.stats:
+                st = self.stats[key]
+                st.ensure(len(nodes[key]))
+                st.add(norm[start:stop], visible[start:stop])
+
+    def densify(self) -> dict[str, Any]:
+        """Clone, split and prune every densified node within the budget (see :mod:`.densify`)."""
+        cfg = self.config
+        nodes = self.model.nodes()
+        room = cfg.budget - self.model.counts()["total"]
+        record: dict[str, Any] = {"step": self.step_index}
+        for name in self._densified_nodes():
+            before = len(nodes[name])
+            share = room if name == BACKGROUND else max(room // 4, 0)
+            counts = densify_and_prune(
+                name, nodes[name], self.stats[name], self.optimizer, grad_threshold=cfg.densify_grad,
+                split_scale_m=cfg.split_scale * self.extent, max_scale_m=0.3 * self.extent,
+                prune_opacity=cfg.prune_opacity, room=share, generator=self.generator,
+            )
+            room -= len(nodes[name]) - before
+            self.stats[name] = DensifyStats()
+            if any(counts.values()):
+                record[name] = counts
+        record["total"] = self.model.counts()["total"]
+        self.densify_log.append(record)
+        return record
+
+    # -- the loop ---------------------------------------------------------------------------
+
+    def train(self, *, until: int | None = None, callback: Callable[[StepLog], None] | None = None,
+              checkpoint: Callable[[Trainer], None] | None = None) -> list[StepLog]:
+        """Step until ``until`` (default ``config.iterations``), calling ``callback`` after each step and
+        ``checkpoint`` every ``config.checkpoint_interval`` steps and at the end."""
+        stop = self.config.iterations if until is None else until
+        logs = []
+        while self.step_index < stop:
+            log = self.step()
+            logs.append(log)
+            if callback is not None:
+                callback(log)
+            if checkpoint is not None and (self.step_index % self.config.checkpoint_interval == 0
+                                           or self.step_index == stop):
+                checkpoint(self)
+        return logs
+
+
+def evaluate_views(model: WeatherCityModel, views: Sequence[TrainingView], *,
+                   rasterizer: Callable[..., Any] = rasterize) -> dict[str, Any]:
+    """PSNR (dB) of the clear renders of ``views``: each view, their mean, and inside moving objects."""
+    per_view, dynamic = {}, {}
+    with torch.no_grad():
+        for v in views:
+            grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+            r = model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, ("clear",), sky_grid=grid,
+                             depth=False, rasterizer=rasterizer)
+            target = torch.from_numpy(v.images["clear"])
+            per_view[v.frame] = psnr(r.images.clamp(0, 1), target)
+            if v.dynamic.any():
+                dynamic[v.frame] = psnr(r.images.clamp(0, 1), target, torch.from_numpy(v.dynamic))
+    finite = [p for p in per_view.values() if np.isfinite(p)]
+    dyn = [p for p in dynamic.values() if np.isfinite(p)]
+    return {"psnr": per_view, "mean_psnr": float(np.mean(finite)) if finite else float("nan"),
+            "dynamic_psnr": dynamic, "mean_dynamic_psnr": float(np.mean(dyn)) if dyn else float("nan")}

@@ -1,0 +1,268 @@
+"""Training views: a scene's frames at the training resolution with everything the losses compare to.
+
+A :class:`TrainingView` holds one frame's camera (scaled to the training size), its raw image and
+the edited images of each supervised weather, the sparse lidar depth, a sky mask and the pixels of
+moving objects (for reporting). :func:`build_views` makes them from a scene (any object with the
+attributes of :class:`wcbench.scenes.scene.Scene`: this library does not import the harness).
+
+Images are float32 RGB in [0, 1]. Resizing uses area averaging, so a training frame is the mean of
+the full-resolution pixels it covers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from wcbench.core.errors import InputError
+from wcbench.core.image_io import read_rgb8, to_float
+
+__all__ = [
+    "TrainingView",
+    "box_mask",
+    "build_views",
+    "derive_sky_mask",
+    "lidar_depth",
+    "moving_tracks",
+    "resize_float",
+]
+
+
+@dataclass
+class TrainingView:
+    """One frame at the training resolution.
+
+    Attributes
+    ----------
+    frame : int
+        Scene frame index.
+    time : float
+        Seconds since the scene's first frame.
+    camera_to_world, world_to_camera : ndarray [4, 4] float64
+        OpenCV axes.
+    K : ndarray [3, 3] float64
+        Intrinsics at ``width`` x ``height`` (pixel centers at +0.5).
+    width, height : int
+    images : dict of str to ndarray [H, W, 3] float32
+        ``"clear"``: the raw frame; other weathers: their edited frame (supervision).
+    depth : ndarray [H, W] float32 or None
+        Lidar z-depth of the frame's own sweep (m), 0 where no point lands; None without a sweep.
+    sky : ndarray [H, W] bool or None
+        Sky pixels, when known or derived.
+    dynamic : ndarray [H, W] bool
+        Pixels inside the projected boxes of moving objects.
+    """
+
+    frame: int
+    time: float
+    camera_to_world: np.ndarray
+    K: np.ndarray
+    width: int
+    height: int
+    images: dict[str, np.ndarray]
+    depth: np.ndarray | None = None
+    sky: np.ndarray | None = None
+    dynamic: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+
+    @property
+    def world_to_camera(self) -> np.ndarray:
+        """[4, 4] inverse of the pose."""
+        R, t = self.camera_to_world[:3, :3], self.camera_to_world[:3, 3]
+        out = np.eye(4)
+        out[:3, :3], out[:3, 3] = R.T, -R.T @ t
+        return out
+
+    @property
+    def center(self) -> np.ndarray:
+        """[3] camera position (m)."""
+        return np.asarray(self.camera_to_world[:3, 3], np.float64)
+
+
+def _read_mask(path: Any) -> np.ndarray:
+    """A mask image (8-bit, nonzero = set) as uint8 [H, W]."""
+    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise InputError(f"{path}: cannot read mask image (missing or corrupt); expected an 8-bit PNG")
+    return mask
+
+
+def resize_float(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Float RGB [H, W, 3] (or uint8, divided by 255) resized to (width, height) by area averaging."""
+    img = to_float(image) if image.dtype == np.uint8 else np.asarray(image, np.float32)
+    if (img.shape[1], img.shape[0]) == tuple(size):
+        return img
+    interp = cv2.INTER_AREA if size[0] * size[1] < img.shape[0] * img.shape[1] else cv2.INTER_LINEAR
+    return cv2.resize(img, tuple(size), interpolation=interp)
+
+
+def _project(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(points, np.float64) @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([p[:, 0] / z * K[0, 0] + K[0, 2], p[:, 1] / z * K[1, 1] + K[1, 2]], 1)
+    return uv, z
+
+
+def lidar_depth(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray, width: int,
+                height: int) -> np.ndarray:
+    """[H, W] float32 z-depth (m) of world points, the nearest per pixel; 0 where none lands."""
+    uv, z = _project(points, world_to_camera, K)
+    ij = np.floor(uv).astype(np.int64)
+    ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
+    ij, z = ij[ok], z[ok]
+    order = np.argsort(-z)  # far first: the nearest point is written last
+    depth = np.zeros((height, width), np.float32)
+    depth[ij[order, 1], ij[order, 0]] = z[order]
+    return depth
+
+
+def derive_sky_mask(points: np.ndarray, camera_to_world: np.ndarray, K: np.ndarray, width: int, height: int,
+                    *, up: np.ndarray, dilate_px: int = 3, boxes: np.ndarray | None = None) -> np.ndarray:
+    """Sky pixels of a view without a sky mask: above the horizon, no lidar return nearby, and
+    connected to the top of the image.
+
+    Parameters
+    ----------
+    points : ndarray [N, 3]
+        Lidar points of every sweep (world, m): a return anywhere near a pixel's ray marks it solid.
+    camera_to_world, K, width, height
+        The view.
+    up : ndarray [3]
+        The scene's up vector.
+    dilate_px : int
+        Pixels around each return counted as solid (lidar is sparser than the image).
+    boxes : ndarray [H, W] bool, optional
+        Pixels of objects (never sky).
+
+    Returns
+    -------
+    ndarray [H, W] bool
+    """
+    w2c = np.linalg.inv(np.asarray(camera_to_world, np.float64))
+    uv, z = _project(points, w2c, K)
+    ij = np.floor(uv).astype(np.int64)
+    ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
+    solid = np.zeros((height, width), np.uint8)
+    solid[ij[ok, 1], ij[ok, 0]] = 1
+    if dilate_px > 0:
+        solid = cv2.dilate(solid, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+    xs = (np.arange(width) + 0.5 - K[0, 2]) / K[0, 0]
+    ys = (np.arange(height) + 0.5 - K[1, 2]) / K[1, 1]
+    rays = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((height, width))), -1)
+    up_cam = np.asarray(camera_to_world, np.float64)[:3, :3].T @ (np.asarray(up, np.float64) / np.linalg.norm(up))
+    above = rays @ up_cam > 0.0
+    candidate = above & (solid == 0)
+    if boxes is not None:
+        candidate &= ~boxes
+    # keep the regions touching the top row: holes between buildings' lidar returns are not sky
+    n, labels = cv2.connectedComponents(candidate.astype(np.uint8), connectivity=4)
+    top = np.unique(labels[0][candidate[0]])
+    return np.isin(labels, top[top > 0]) if n > 1 else candidate
+
+
+def moving_tracks(scene: Any, threshold_m: float = 0.5) -> list[Any]:
+    """Tracks whose box center moves more than ``threshold_m`` over the sequence."""
+    out = []
+    for track in scene.tracks:
+        centers = np.asarray(track.object_to_world, np.float64)[:, :3, 3]
+        if len(centers) and np.linalg.norm(centers - centers[0], axis=1).max() > threshold_m:
+            out.append(track)
+    return out
+
+
+def box_mask(tracks: Sequence[Any], frame: int, world_to_camera: np.ndarray, K: np.ndarray, width: int,
+             height: int) -> np.ndarray:
+    """[H, W] bool: pixels inside the projected boxes of ``tracks`` at ``frame`` (boxes in front only)."""
+    mask = np.zeros((height, width), np.uint8)
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
+    for track in tracks:
+        hit = np.nonzero(np.asarray(track.frames) == frame)[0]
+        if hit.size == 0:
+            continue
+        k = int(hit[0])
+        T = np.asarray(track.object_to_world[k], np.float64)
+        corners = (signs * np.asarray(track.box_size[k], np.float64) / 2) @ T[:3, :3].T + T[:3, 3]
+        uv, z = _project(corners, world_to_camera, K)
+        if not np.all(z > 0.1):
+            continue  # partly behind the camera: its projection is not a box
+        hull = cv2.convexHull(np.round(uv).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 1)
+    return mask.astype(bool)
+
+
+def build_views(
+    scene: Any,
+    *,
+    size: tuple[int, int],
+    supervision: Mapping[str, Sequence[np.ndarray]] | None = None,
+    frames: Sequence[int] | None = None,
+    derive_sky: bool = True,
+    moving_threshold_m: float = 0.5,
+) -> tuple[list[TrainingView], dict[str, Any]]:
+    """The training views of a scene.
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+        Or any object with its attributes.
+    size : (int, int)
+        Training (width, height).
+    supervision : mapping of str to sequence of ndarray, optional
+        Edited frames per weather (uint8 or float RGB, any size, one per scene frame); resized to
+        ``size``.
+    frames : sequence of int, optional
+        Frames to build (default all).
+    derive_sky : bool
+        Derive sky masks from the lidar (:func:`derive_sky_mask`) when the scene ships none.
+    moving_threshold_m : float
+        Tracks moving more than this (m) make the ``dynamic`` masks.
+
+    Returns
+    -------
+    views : list of TrainingView
+    facts : dict
+        How the views were made (sky mask source, frames with lidar depth), for ``info.json``.
+    """
+    width, height = int(size[0]), int(size[1])
+    indices = list(range(len(scene.frames))) if frames is None else list(frames)
+    supervision = dict(supervision or {})
+    for weather, seq in supervision.items():
+        if len(seq) != len(scene.frames):
+            raise ValueError(f"supervision {weather!r}: {len(seq)} frames for a scene of {len(scene.frames)}")
+    t0 = float(scene.frames[0].timestamp)
+    tracks = moving_tracks(scene, moving_threshold_m)
+    shipped = all(scene.frames[k].sky_mask_path is not None for k in indices)
+    all_points = scene.all_lidar_points() if (derive_sky and not shipped) else None
+    views = []
+    for k in indices:
+        f = scene.frames[k]
+        cam = f.camera
+        sx, sy = width / cam.width, height / cam.height
+        K = np.diag([sx, sy, 1.0]) @ np.asarray(cam.K, np.float64)
+        c2w = np.asarray(cam.camera_to_world, np.float64)
+        w2c = np.linalg.inv(c2w)
+        images = {"clear": resize_float(read_rgb8(f.image_path), (width, height))}
+        for weather, seq in supervision.items():
+            images[weather] = resize_float(np.asarray(seq[k]), (width, height))
+        sweep = scene.lidar(f)
+        depth = None if sweep is None else lidar_depth(sweep.points, w2c, K, width, height)
+        dynamic = box_mask(tracks, k, w2c, K, width, height)
+        sky = None
+        if f.sky_mask_path is not None:
+            sky = cv2.resize(_read_mask(f.sky_mask_path), (width, height), interpolation=cv2.INTER_NEAREST) > 0
+        elif all_points is not None and len(all_points):
+            sky = derive_sky_mask(all_points, c2w, K, width, height, up=scene.up, boxes=dynamic)
+        views.append(TrainingView(frame=k, time=float(f.timestamp) - t0, camera_to_world=c2w, K=K, width=width,
+                                  height=height, images=images, depth=depth, sky=sky, dynamic=dynamic))
+    facts = {
+        "size": [width, height],
+        "sky_masks": "shipped" if shipped else ("derived: no lidar return, above the horizon, connected to the top"
+                                                if all_points is not None and len(all_points) else "none"),
+        "frames_with_lidar_depth": sum(v.depth is not None for v in views),
+        "moving_tracks": len(tracks),
+    }
+    return views, facts

@@ -1,0 +1,377 @@
+"""``weathercity``: the paper's method, trained on the scene, rendered under physics weather.
+
+For each scene the method (1) gets edited frames of every weather from a supervision method (the
+built-in ``filter2d`` grade by default, run without its streaks and flakes, since particles come
+from the physics; or another tool's frames read from a folder, ``READER:DIR``), (2) builds the
+weather Gaussian scene graph from the lidar and trains it on the raw frames and the edits
+(:mod:`wcbench.reference_model.training`), caching the trained model under a key over every input
+that changes it, (3) renders any frame under any weather at its training resolution: the decoded
+colors of that weather, the weather's sky, rain or snow particles rasterized with the scene, and
+exact Beer-Lambert fog (:mod:`wcbench.reference_model.weather`), optionally with object edits.
+
+It is scored at its training resolution: the scene's frames are resized to it once
+(:meth:`wcbench.units.WorkUnit.score`). ``info.json`` records the training time, the Gaussian
+counts per node, what the scene graph skipped, the supervision, and the whole-frame render FPS.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from wcbench.core.errors import InputError
+from wcbench.core.image_io import to_uint8
+from wcbench.core.models.store import ModelStore
+from wcbench.core.models.vgg16 import load_vgg16_features
+from wcbench.core.paths import cache_dir
+from wcbench.core.progress import progress
+from wcbench.core.storage import sha256_file, sha256_json
+from wcbench.core.weathers import WEATHERS
+from wcbench.methods import get_method
+from wcbench.methods.filter2d import Filter2DMethod
+from wcbench.methods.protocol import MethodInfo
+from wcbench.methods.runnable import FrameRenderer
+from wcbench.reference_model.editing.edits import parse_edits, placement_for
+from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
+from wcbench.reference_model.model.sky import view_directions
+from wcbench.reference_model.training.build import build_model
+from wcbench.reference_model.training.checkpoint import load_checkpoint, read_checkpoint_info, save_checkpoint
+from wcbench.reference_model.training.config import TrainConfig, make_config
+from wcbench.reference_model.training.losses import ContentLoss
+from wcbench.reference_model.training.trainer import Trainer, evaluate_views
+from wcbench.reference_model.training.views import TrainingView, build_views
+from wcbench.reference_model.weather.conditions import Weather
+from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
+from wcbench.scenes.scene import Scene
+
+__all__ = ["VERSION", "WeatherCityMethod", "train_scene"]
+
+#: Bumped whenever training or rendering changes what a cached model or a frame would be.
+VERSION = "1"
+#: VGG16 layer of the content loss ("relu4_1-level" features; docs/design.md §6).
+CONTENT_LAYERS = ("relu4_1",)
+
+
+def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitter: float,
+                        seed: int) -> tuple[dict[str, list[np.ndarray]], dict[str, Any]]:
+    """Edited frames per weather from ``spec`` (``filter2d`` or ``READER:DIR``) and a record of them."""
+    frames: dict[str, list[np.ndarray]] = {}
+    if spec == "filter2d":
+        f2d = Filter2DMethod(effects=False, jitter=jitter)
+        for w in weathers:
+            frames[w] = [f2d.render_frame(scene, w, k, seed=seed) for k in range(len(scene))]
+        record = {"method": "filter2d", "effects": False, "jitter": jitter, "seed": seed,
+                  "parameters": {w: f2d.parameters(w) for w in weathers}}
+        return frames, record
+    reader_name, sep, folder = spec.partition(":")
+    if not sep or not folder:
+        raise InputError(f"--supervision {spec!r}: expected 'filter2d' or READER:DIR (e.g. qwen-image:edits/)")
+    reader = get_method(reader_name)
+    root = Path(folder).expanduser()
+    if not root.is_dir():
+        raise InputError(f"--supervision {spec!r}: {root} is not a folder")
+    scene_root = root / scene.id if (root / scene.id).is_dir() else root
+    hashes: dict[str, list[str]] = {}
+    missing: dict[str, str] = {}
+    for w in weathers:
+        if w not in reader.info.weathers:
+            missing[w] = f"{reader_name} does not produce {w}"
+            continue
+        try:
+            seq = reader.open_predictions(scene, w, scene_root, resize=True)
+        except InputError as exc:
+            missing[w] = str(exc).splitlines()[0]
+            continue
+        if len(seq) != len(scene) or getattr(seq, "missing", None):
+            missing[w] = f"{len(seq)} frames for a scene of {len(scene)}"
+            continue
+        frames[w] = list(seq)
+        hashes[w] = seq.sha256s()
+    return frames, {"method": reader_name, "folder": str(scene_root.resolve()), "sha256": hashes,
+                    "not_supervised": missing}
+
+
+def _content_loss(config: TrainConfig, store: ModelStore | None) -> tuple[ContentLoss | None, str]:
+    """The content loss on the real VGG16 weights, or ``None`` and why it is skipped."""
+    if config.content_weight == 0:
+        return None, "off (no-content-loss ablation)"
+    store = store if store is not None else ModelStore()
+    if not store.available("vgg16"):
+        return None, f"skipped: {store.missing_message('vgg16')}"
+    features = load_vgg16_features(store=store, layers=CONTENT_LAYERS)
+    return ContentLoss(features, size=config.content_size), (
+        f"VGG16 {','.join(CONTENT_LAYERS)} at {config.content_size[0]}x{config.content_size[1]}, "
+        f"every {config.content_interval} steps (sha256 {store.sha256('vgg16')})"
+    )
+
+
+def train_scene(
+    scene: Scene,
+    config: TrainConfig,
+    *,
+    supervision: str = "filter2d",
+    jitter: float = 0.0,
+    weathers: tuple[str, ...] = ("rain", "snow", "fog"),
+    folder: Path | None = None,
+    store: ModelStore | None = None,
+    content: ContentLoss | str | None = "auto",
+    show_progress: bool = True,
+    log: Any = print,
+) -> tuple[WeatherCityModel, list[TrainingView], dict[str, Any]]:
+    """Train (or load the cached) WeatherCity model of ``scene``.
+
+    Parameters
+    ----------
+    scene : Scene
+    config : TrainConfig
+    supervision : str
+        ``"filter2d"`` or ``READER:DIR``.
+    jitter : float
+        Per-frame perturbation strength of the ``filter2d`` supervision.
+    weathers : tuple of str
+        Edited weathers to train (clear is always trained); those without supervision are not.
+    folder : Path, optional
+        Where the checkpoint goes; default the cache folder ``weathercity/<scene>-<key>``.
+    store : ModelStore, optional
+        Where the VGG16 weights of the content loss come from.
+    content : ContentLoss, None or "auto"
+        The content loss to use (tests inject a small network); ``"auto"``: the real VGG16 when
+        installed, else the term is skipped and the reason recorded.
+    show_progress : bool
+    log : callable
+        Where one-line phase messages go.
+
+    Returns
+    -------
+    model : WeatherCityModel
+    views : list of TrainingView
+        Every frame's view (held-out frames included).
+    facts : dict
+        What was built, skipped and measured (``info.json``).
+    """
+    start = time.perf_counter()
+    log(f"weathercity {scene.id}: supervision from {supervision}")
+    frames, sup_record = _supervision_frames(scene, supervision, weathers, jitter, config.seed)
+    trained = ("clear", *[w for w in weathers if w in frames])
+    sources = [sha256_file(f.image_path) for f in scene.frames]
+    content_loss, content_note = (_content_loss(config, store) if content == "auto"
+                                  else (content, "injected" if content is not None else "off"))
+    key = sha256_json({"version": VERSION, "scene": scene.id, "sources": sources, "config": config.to_json(),
+                       "supervision": sup_record, "trained": trained, "content": content_note,
+                       "lidar": [str(f.lidar_path) for f in scene.frames]})
+    folder = folder or cache_dir() / "weathercity" / f"{scene.id}-{key[:16]}"
+    size = config.size_for(scene.image_size)
+    log(f"weathercity {scene.id}: building {size[0]}x{size[1]} views and the scene graph")
+    views, view_facts = build_views(scene, size=size,
+                                    supervision={w: frames[w] for w in trained if w != "clear"})
+    train_views = [v for v in views if v.frame not in config.holdout]
+    model, graph_facts = build_model(scene, train_views, config, weathers=trained)
+
+    def make_trainer(m: WeatherCityModel) -> Trainer:
+        return Trainer(m, views, config, content=content_loss)
+
+    info = read_checkpoint_info(folder)
+    if info is not None and info.get("key") == key:
+        trainer = load_checkpoint(folder, model=model, views=views, make_trainer=make_trainer)
+        resumed = trainer.step_index
+    else:
+        trainer, resumed = make_trainer(model), 0
+    prep_s = time.perf_counter() - start
+    if trainer.step_index < config.iterations:
+        if resumed:
+            log(f"weathercity {scene.id}: resuming at step {resumed} of {config.iterations}")
+        bar = progress(range(trainer.step_index, config.iterations), desc=f"training {scene.id}",
+                       total=config.iterations - trainer.step_index, enabled=show_progress, unit="step")
+        steps = iter(bar)
+
+        def on_step(s: Any) -> None:
+            next(steps, None)
+            if hasattr(bar, "set_postfix") and s.step % 10 == 0:
+                bar.set_postfix(loss=f"{s.loss:.4f}", psnr=f"{s.psnr_clear:.2f}", gaussians=s.gaussians)
+
+        trainer.train(callback=on_step, checkpoint=lambda t: save_checkpoint(t, folder, extra={"key": key}))
+        if hasattr(bar, "close"):
+            bar.close()
+    held = [v for v in views if v.frame in config.holdout]
+    facts: dict[str, Any] = {
+        "version": VERSION,
+        "config": config.to_json(),
+        "key": key,
+        "checkpoint": str(folder),
+        "supervision": sup_record,
+        "trained_weathers": list(trained),
+        "not_trained": sorted(set(weathers) - set(trained)),
+        "content_loss": content_note,
+        "views": view_facts,
+        "scene_graph": graph_facts,
+        "gaussians": model.counts(),
+        "iterations": trainer.step_index,
+        "resumed_at": resumed,
+        "train_seconds": round(trainer.train_seconds, 3),
+        "prepare_seconds": round(prep_s, 3),
+        "densify": trainer.densify_log[-1] if trainer.densify_log else None,
+    }
+    if held:
+        facts["holdout"] = evaluate_views(model, held)
+    return model, views, facts
+
+
+class WeatherCityMethod(FrameRenderer):
+    """The WeatherCity method (see the module docstring).
+
+    Parameters
+    ----------
+    supervision : str
+        ``"filter2d"`` (default) or ``READER:DIR`` (another tool's edited frames).
+    jitter : float
+        Per-frame perturbation of the ``filter2d`` supervision, in [0, 1].
+    profile : str
+        Training profile (``"default"``, ``"quick"``).
+    ablation : str
+        ``""``, ``"no-wgs"`` or ``"no-content-loss"``.
+    settings : dict, optional
+        Training settings overriding the profile's (see :class:`TrainConfig`).
+    holdout : sequence of int
+        Frames left out of training (their held-out PSNR goes to info.json).
+    weathers : dict of str to Weather, optional
+        The physics weather per kind (default: each kind's default preset).
+    size : (int, int), optional
+        Render size; default the training size (and scored there).
+    edits : str or list, optional
+        Object edits (``"remove class=Car except ids=3,7"``, a JSON list...).
+    content : ContentLoss, None or "auto"
+        See :func:`train_scene`.
+    """
+
+    version = VERSION
+
+    def __init__(
+        self,
+        *,
+        supervision: str = "filter2d",
+        jitter: float = 0.0,
+        profile: str = "default",
+        ablation: str = "",
+        settings: dict[str, Any] | None = None,
+        holdout: tuple[int, ...] | list[int] = (),
+        weathers: dict[str, Weather] | None = None,
+        size: tuple[int, int] | None = None,
+        edits: str | list[Any] | None = None,
+        content: Any = "auto",
+    ):
+        try:
+            self.config = make_config(profile, ablation=ablation, holdout=tuple(int(h) for h in holdout),
+                                      **(settings or {}))
+            self.edits = [] if not edits else parse_edits(edits)
+        except ValueError as exc:
+            raise InputError(f"weathercity: {exc}") from None
+        if not 0.0 <= float(jitter) <= 1.0:
+            raise InputError(f"weathercity: jitter must be in [0, 1], got {jitter}")
+        self.supervision, self.jitter, self.content = supervision, float(jitter), content
+        self.weathers = dict(weathers or {})
+        self.size = None if size is None else (int(size[0]), int(size[1]))
+        self.info = MethodInfo(
+            name="weathercity",
+            description="WeatherCity: weather Gaussians trained on raw + edited frames, physics particles and fog",
+            kind="runnable",
+            weathers=WEATHERS,
+            layout="writes <out>/weathercity/<scene>/<weather>/{frame:03d}.png + info.json (training resolution)",
+        )
+        self._model: WeatherCityModel | None = None
+        self._scene_key: tuple[str, str] | None = None
+        self._facts: dict[str, Any] = {}
+        self._renderer: WeatherRenderer | None = None
+        self._colors: torch.Tensor | None = None
+        self._placement = Placement()
+
+    def weather_for(self, kind: str, seed: int) -> Weather:
+        """The physics weather of ``kind`` with ``seed`` (the given one, or the kind's default)."""
+        return replace(self.weathers.get(kind, Weather(kind=kind)), seed=seed)
+
+    def parameters(self, weather: str) -> dict[str, Any]:
+        """Training settings, supervision, edits and the weather's physics (seed recorded apart)."""
+        desc = self.weather_for(weather, 0).to_json()
+        desc.pop("seed", None)
+        return {"training": self.config.to_json(), "supervision": self.supervision, "jitter": self.jitter,
+                "edits": [e.to_json() for e in self.edits], "weather": desc}
+
+    def output_size(self, scene: Scene) -> tuple[int, int]:
+        """``size`` if given, else the training resolution."""
+        return self.size or self.config.size_for(scene.image_size)
+
+    def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
+        """Train (or load) the scene's model once, then set up the renderer of ``weather``."""
+        key = (scene.id, str(scene.root))
+        if self._scene_key != key:
+            self._model, _, self._facts = train_scene(
+                scene, self.config, supervision=self.supervision, jitter=self.jitter, content=self.content,
+            )
+            self._scene_key = key
+            self._centers = np.stack([f.camera.center for f in scene.frames])
+            self._times = np.array([f.timestamp for f in scene.frames], np.float64)
+            try:
+                self._placement = placement_for(self.edits, self._model.objects())
+            except ValueError as exc:
+                raise InputError(f"weathercity: {exc}") from None
+        model = self._model
+        assert model is not None
+        decoded = weather if weather in model.weathers else "clear"
+        self._decoded = decoded
+        with torch.no_grad():
+            g = model.frame_gaussians(0, self._placement)
+        # geometry placeholder; every frame passes its own Gaussians
+        first = scene.frames[0].camera
+        self._renderer = WeatherRenderer(
+            _FrameSet(g.means, g.quats, g.scales, g.opacities, torch.zeros(len(g), 3)),
+            self.weather_for(weather, seed), up=scene.up, heading=first.camera_to_world[:3, 2], anchor=first.center,
+        )
+        self._node_colors = self._decode_nodes(model, decoded)
+
+    @staticmethod
+    def _decode_nodes(model: WeatherCityModel, weather: str) -> dict[str, torch.Tensor]:
+        """Each node's colors under ``weather`` (features do not change while rendering: decoded once)."""
+        with torch.no_grad():
+            return {key: model.decoders(p.features, [weather]) for key, p in model.nodes().items()}
+
+    def describe(self) -> dict[str, Any]:
+        """Training facts (time, counts, skips, supervision) and the renderer's settings."""
+        out: dict[str, Any] = {"training": self._facts, "decoded_weather": getattr(self, "_decoded", None)}
+        if self._renderer is not None:
+            out["renderer"] = self._renderer.info()
+        return out
+
+    def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> tuple[np.ndarray, dict[str, Any]]:
+        """Frame ``index`` under ``weather``: decoded colors, sky, particles and fog."""
+        model, renderer = self._model, self._renderer
+        assert model is not None and renderer is not None, "prepare() runs before render_frame()"
+        start = time.perf_counter()
+        width, height = self.output_size(scene)
+        cam = scale_camera(scene.frames[index].camera, width, height)
+        with torch.no_grad():
+            g = model.frame_gaussians(index, self._placement)
+            colors = torch.cat([self._node_colors[key] for key, _, _ in g.segments]) if g.segments else \
+                torch.zeros(0, 3)
+            grid = model.sky.grid(torch.from_numpy(view_directions(cam.camera_to_world, cam.K, width, height)))
+            sky = model.sky(grid, [self._decoded]).numpy()
+        t_graph = time.perf_counter()
+        frame = renderer.render(
+            cam, float(self._times[index] - self._times[0]),
+            camera_velocity=camera_velocity(self._centers, self._times, index),
+            gaussians=_FrameSet(g.means, g.quats, g.scales, g.opacities, colors), background_image=sky,
+        )
+        timings = {**frame.timings_ms, "scene_graph": 1e3 * (t_graph - start),
+                   "total": 1e3 * (time.perf_counter() - start)}
+        return to_uint8(frame.image), {**frame.info, "timings_ms": timings}
+
+
+class _FrameSet:
+    """The five Gaussian arrays of a frame, as the weather renderer takes them."""
+
+    def __init__(self, means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                 colors: torch.Tensor):
+        self.means, self.quats, self.scales, self.opacities, self.colors = means, quats, scales, opacities, colors
