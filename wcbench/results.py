@@ -7,15 +7,20 @@
       "versions": {...}, "machine": {...},
       "config": {"method", "scenes", "scene_ids", "weathers", "metrics", "metric_config",
                  "predictions", "pattern", "resize", "fps"},
-      "inputs": {"sha256": hash of everything below,
+      "inputs": {"sha256": hash of "scenes" and "config",
                  "scenes": {scene: {weather: {"predictions": [sha256...], "source": [...],
-                                              "reference": [...] or null}}}},
+                                              "reference": [...] or null}}},
+                 "files": {scene: {"root", "size": [w, h], "source": [path...],
+                                   "weathers": {weather: {"predictions": [path...],
+                                                          "reference": [path...] or null}}}}},
       "results": {scene: {weather: {output: {"metric", "value", "variant", "reason",
                                              "higher_is_better", "per_frame", "extra"}}}},
       "skipped": [{"scene", "weather", "metric", "reason"}]
     }
 
-A ``value`` that is not a finite number is ``null`` with its ``reason``. ``results.csv`` has one row
+``inputs.files`` (optional: older files lack it; not part of the hash) says where the hashed files
+were, as paths relative to the results folder when inside it, else absolute. A ``value`` that is not
+a finite number is ``null`` with its ``reason``. ``results.csv`` has one row
 per (scene, weather, output): ``scene, weather, metric, output, value, status, reason, variant,
 higher_is_better, n_frames`` with status ``ok``, ``null`` or ``skipped``.
 """
