@@ -22,6 +22,7 @@ SUITES = {
     "metrics": "wcbench.metrics.bench_metrics:run",
     "raster": "wcbench.reference_model.bench_raster:run",
     "weather": "wcbench.reference_model.bench_weather:run",
+    "report": "wcbench.bench.report:run",
 }
 
 

@@ -47,4 +47,8 @@ def run(args: argparse.Namespace) -> int:
     render_predictions(method, scenes, weathers, cfg.predictions, seed=args.seed, overwrite=args.overwrite,
                        show_progress=not args.no_progress)
     report(evaluate(cfg))
+    if args.report:
+        from wcbench.cli.report import write_report
+
+        write_report([args.out], args.out / "report.html")
     return 0
