@@ -40,6 +40,8 @@ class Flag:
         Scope; ``None`` means all.
     means_only : bool
         Applies to mean-over-scenes cells only (a method scored on other scenes).
+    units : frozenset of (method, scene, output) or None
+        Finer scope: the numbers concerned.
     """
 
     kind: str
@@ -49,6 +51,7 @@ class Flag:
     scenes: frozenset[str] | None = None
     outputs: frozenset[str] | None = None
     means_only: bool = False
+    units: frozenset[tuple[str, str, str]] | None = None
 
     def applies(self, *, method: str, scenes: Iterable[str], output: str, is_mean: bool) -> bool:
         """Whether a cell of ``method`` and ``output`` over ``scenes`` lies in this flag's scope."""
@@ -57,6 +60,8 @@ class Flag:
         if self.methods is not None and method not in self.methods:
             return False
         if self.outputs is not None and output not in self.outputs:
+            return False
+        if self.units is not None and not any((method, s, output) in self.units for s in scenes):
             return False
         return self.scenes is None or bool(self.scenes & set(scenes))
 
@@ -98,26 +103,32 @@ def weights_status(metric_config: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def weight_flags(folders: list[ResultsFolder], outputs_of: dict[str, set[str]]) -> list[Flag]:
-    """A ``weights`` flag for every metric of every folder that used weights not verified as published."""
-    flags = []
+    """One ``weights`` flag per model whose weights are not verified as the published ones, on every
+    number a metric computed with it (in any folder)."""
+    groups: dict[tuple[str, str, bool | None], dict[str, Any]] = {}
     for f in folders:
-        scenes = frozenset(f.doc["results"])
         for metric, cfg in sorted(f.doc["config"].get("metric_config", {}).items()):
-            bad = [w for w in weights_status(cfg) if w["verified"] is not True]
-            if not bad:
-                continue
-            parts = [
-                f"{w['model']} (sha256 {str(w['sha256'])[:12]}...) "
-                + ("does not come from the published file (its source did not match the pinned sha256)"
-                   if w["verified"] is False else "has no record of coming from the published file")
-                for w in bad
-            ]
-            flags.append(Flag(
-                "weights", "weights",
-                f"{f.label}: {metric} computed with weights that are not verified as the published ones: "
-                + "; ".join(parts) + ". Its numbers are not comparable with published ones.",
-                methods=frozenset({f.label}), scenes=scenes, outputs=frozenset(outputs_of.get(metric, {metric})),
-            ))
+            for w in weights_status(cfg):
+                if w["verified"] is True:
+                    continue
+                g = groups.setdefault((w["model"], str(w["sha256"]), w["verified"]),
+                                      {"metrics": set(), "methods": set(), "units": set()})
+                g["metrics"].add(metric)
+                g["methods"].add(f.label)
+                g["units"].update((f.label, scene, output) for scene in f.doc["results"]
+                                  for output in outputs_of.get(metric, {metric}))
+    flags = []
+    for (model, sha, verified), g in sorted(groups.items(), key=lambda kv: str(kv[0])):
+        why = ("its source file did not match the pinned sha256 of the published file (e.g. a random-weight "
+               "test model or another checkpoint)" if verified is False
+               else "the results do not record whether it came from the published file")
+        flags.append(Flag(
+            "weights", "weights",
+            f"{model} (sha256 {sha[:12]}...) is not verified as the published weights: {why}. Used for "
+            f"{', '.join(sorted(g['metrics']))} of {', '.join(sorted(g['methods']))}; those numbers are not "
+            "comparable with published ones.",
+            units=frozenset(g["units"]),
+        ))
     return flags
 
 
