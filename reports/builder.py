@@ -391,7 +391,8 @@ def build_report(
     import jinja2
 
     env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(_TEMPLATES)), autoescape=True,
-                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+                             # a field older or foreign results lack renders empty instead of failing
+                             undefined=jinja2.ChainableUndefined, trim_blocks=True, lstrip_blocks=True)
     env.filters["json"] = lambda v: json.dumps(v, sort_keys=True, default=str)
     html = env.get_template("report.html.j2").render(
         title=title or f"wcbench report: {', '.join(tb.methods)} on {', '.join(tb.scenes)}",

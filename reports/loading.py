@@ -177,12 +177,31 @@ def load_results_folder(path: str | Path) -> ResultsFolder:
             f"{RESULTS_SCHEMA_VERSION} (re-score with this wcbench, or build the report with the wcbench that "
             "wrote them)"
         )
-    missing = [k for k in _REQUIRED if k not in doc]
-    if missing or not isinstance(doc["results"], dict) or not isinstance(doc["config"], dict):
-        raise InputError(f"{json_path}: results file lacks {missing or 'a results/config object'}")
+    problem = _structure_problem(doc)
+    if problem:
+        raise InputError(f"{json_path}: malformed results file: {problem}")
     table = _read_csv(folder / RESULTS_CSV)
     _check_agreement(json_path, doc, table)
     return ResultsFolder(path=folder, doc=doc, table=table)
+
+
+def _structure_problem(doc: dict[str, Any]) -> str:
+    """What in ``doc`` breaks the results.json layout (empty string: nothing)."""
+    missing = [k for k in _REQUIRED if k not in doc]
+    if missing:
+        return f"lacks {missing}"
+    for key, kind in (("config", dict), ("inputs", dict), ("results", dict), ("skipped", list)):
+        if not isinstance(doc[key], kind):
+            return f"{key!r} is not a JSON {'object' if kind is dict else 'array'}"
+    if not all(isinstance(v, dict) for v in doc["config"].get("metric_config", {}).values()):
+        return "config.metric_config holds a non-object"
+    for scene, weathers in doc["results"].items():
+        for weather, outputs in (weathers.items() if isinstance(weathers, dict) else [("?", None)]):
+            if not isinstance(outputs, dict) or not all(
+                isinstance(r, dict) and {"metric", "value", "higher_is_better"} <= set(r) for r in outputs.values()
+            ):
+                return f"results[{scene!r}][{weather!r}] is not {{output: {{metric, value, higher_is_better, ...}}}}"
+    return ""
 
 
 def _read_csv(path: Path) -> pd.DataFrame:

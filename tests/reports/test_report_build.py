@@ -8,6 +8,7 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from report_helpers import expected_text, parse_report, result_values, rewrite_results, skip_output
@@ -225,6 +226,9 @@ def test_real_run_with_report_flag_writes_a_report_beside_results(tmp_path, caps
     assert main(["run", "--method", "filter2d", "--scenes", "demo", "--out", str(out), "--weathers", "rain",
                  "clear", "--metrics", "temporal_flicker", "psnr", "fps", "--no-progress", "--report"]) == 0
     assert "report.html" in capsys.readouterr().out
+    files = json.loads((out / "results.json").read_text())["inputs"]["files"]["demo_street"]
+    assert files["weathers"]["rain"]["predictions"][0] == "filter2d/demo_street/rain/000.png"  # inside: relative
+    assert Path(files["source"][0]).is_absolute() and files["size"] == [320, 180]
     parsed = parse_report(out / "report.html")
     values = result_values([out])
     numeric = _numeric(parsed.cells)

@@ -30,7 +30,10 @@ def test_folder_without_results(tmp_path):
     ("{not json", "not a readable results file"),
     (json.dumps({"kind": "other"}), "not a wcbench results file"),
     (json.dumps({"kind": "wcbench-results", "schema_version": 99}), "results of schema version 99; this report reads"),
-    (json.dumps({"kind": "wcbench-results", "schema_version": 1, "results": {}}), "results file lacks"),
+    (json.dumps({"kind": "wcbench-results", "schema_version": 1, "results": {}}), "malformed results file: lacks"),
+    (json.dumps({"kind": "wcbench-results", "schema_version": 1, "created": "", "config": {}, "inputs": {},
+                 "skipped": [], "results": {"s": {"rain": {"clip_s": 0.5}}}}),
+     r"malformed results file: results\['s'\]\['rain'\] is not"),
 ])
 def test_corrupt_or_foreign_results_json(tmp_path, content, message):
     (tmp_path / "results.json").write_text(content)
