@@ -208,6 +208,30 @@ def _config_record(cfg: EvaluateConfig, method: Method, units: list[WorkUnit], m
     }
 
 
+def _portable_path(path: Path, out: Path) -> str:
+    """``path`` relative to ``out`` when inside it (a results folder stays whole when moved), else absolute."""
+    path, out = path.resolve(), out.resolve()
+    return path.relative_to(out).as_posix() if path.is_relative_to(out) else str(path)
+
+
+def _input_files(units: list[WorkUnit], out: Path) -> dict[str, Any]:
+    """Paths of the files ``inputs.scenes`` hashes, and each scene's frame size, so that reports can
+    show frames from the result files alone: ``{scene: {"root", "size": [w, h], "source": [...],
+    "weathers": {weather: {"predictions": [...], "reference": [...] or None}}}}``."""
+    files: dict[str, Any] = {}
+    for u in units:
+        assert u.predictions is not None
+        rec = files.setdefault(u.scene.id, {
+            "root": str(Path(u.scene.root).resolve()), "size": list(u.scene.image_size),
+            "source": [_portable_path(f.image_path, out) for f in u.scene.frames], "weathers": {},
+        })
+        rec["weathers"][u.weather] = {
+            "predictions": [_portable_path(p, out) for p in u.predictions.files],
+            "reference": None if u.reference_paths is None else [_portable_path(p, out) for p in u.reference_paths],
+        }
+    return files
+
+
 def check_out_folder(
     cfg: EvaluateConfig, *, method: Method | None = None
 ) -> tuple[Method, list[str], dict[str, Any] | None]:
@@ -280,6 +304,7 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None) -> EvaluateOu
     for u in units:
         inputs["scenes"].setdefault(u.scene.id, {})[u.weather] = u.inputs()
     inputs["sha256"] = sha256_json({"inputs": inputs["scenes"], "config": config})
+    inputs["files"] = _input_files(units, cfg.out)  # where the hashed files were (not part of the hash)
     if previous is not None:
         if previous.get("inputs", {}).get("sha256") == inputs["sha256"]:
             return EvaluateOutcome("up-to-date", results_path, previous, 0, len(units))

@@ -13,6 +13,9 @@
                  "scenes": {scene: {weather: {"predictions": [sha256...], "source": [...],
                                               "reference": [...] or null, "location", "layout",
                                               "frames": [scene frame of each prediction], "ignored"}}}},
+                 "files": {scene: {"root", "size": [w, h], "source": [path...],
+                                   "weathers": {weather: {"predictions": [path...],
+                                                          "reference": [path...] or null}}}}},
       "results": {scene: {weather: {output: {"metric", "value", "variant", "reason",
                                              "higher_is_better", "per_frame", "extra"}}}},
       "skipped": [{"scene", "weather", "metric", "reason"}],
@@ -22,14 +25,17 @@
       "warnings": [{"scene", "weather", "kind", "message", ...}]
     }
 
-A ``value`` that is not a finite number is ``null`` with its ``reason``. A *partial* (scene, weather)
+``inputs.files`` (optional: older files lack it; not part of the hash) says where the hashed files
+were, as paths relative to the results folder when inside it, else absolute. A ``value`` that is
+not a finite number is ``null`` with its ``reason``. A *partial* (scene, weather)
 was scored on the contiguous run of frames its tool wrote (a reader declares that its tool can end
 early); ``missing`` names the scene frames without a prediction. ``results.csv`` has one row per
 (scene, weather, output): ``scene, weather, metric, output, value, status, reason, variant,
 higher_is_better, n_frames, missing_frames`` with status ``ok``, ``null`` or ``skipped`` and
 ``missing_frames`` the missing scene frames of a partial sequence (``25-29``; empty when complete).
-The keys ``partial``, ``resized`` and ``warnings`` may be absent from files of earlier wcbench
-versions, which never scored partial sequences.
+``working_size`` lists the (scene, weather) units scored at a method's own resolution (the scene's
+frames resized to it). The keys ``partial``, ``resized``, ``warnings`` and ``working_size`` may be
+absent from files of earlier wcbench versions.
 """
 
 from __future__ import annotations

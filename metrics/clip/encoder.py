@@ -285,7 +285,7 @@ def load_clip_encoder(
         cache_dir=cache_dir,
         batch_size=batch_size,
         name=model,
-        info={"weights_sha256": sha},
+        info={"weights_sha256": sha, "weights_verified": store.source_verified(model)},
     )
 
 

@@ -224,6 +224,7 @@ class _ClipMetric(StoreBacked, Metric):
             "model": self.model,
             "backend": self.backend,
             "weights_sha256": self.store.sha256(self.model),
+            "weights_verified": self.store.source_verified(self.model),
             "preprocess": ClipPreprocess(crop=self.crop).config(),
         }
 

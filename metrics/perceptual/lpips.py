@@ -335,6 +335,7 @@ class LPIPS(StoreBacked, Metric):
             store = self.store
             if store.available(f"lpips-{self.net}"):
                 cfg["weights_sha256"] = store.sha256(f"lpips-{self.net}")
+                cfg["weights_verified"] = store.source_verified(f"lpips-{self.net}")
                 try:
                     info = json.loads(
                         (store.dir(f"lpips-{self.net}") / "info.json").read_text(encoding="utf-8")

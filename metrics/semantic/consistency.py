@@ -289,7 +289,9 @@ class SemanticConsistency(StoreBacked, Metric):
             if not store.available(self._model_name):
                 return {}
             with open(store.dir(self._model_name) / SPEC_FILE, encoding="utf-8") as fh:
-                return dict(json.load(fh))
+                record = dict(json.load(fh))
+            record["weights_verified"] = store.source_verified(self._model_name)
+            return record
         except (OSError, ValueError):
             return {}
 

@@ -19,14 +19,15 @@ else:  # pragma: no cover
 
 def test_help_imports_neither_torch_nor_onnxruntime():
     code = ("import sys; from wcbench.cli import build_parser; build_parser().format_help(); "
-            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'onnxruntime', 'cv2', 'pandas')))")
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'onnxruntime', 'cv2', 'pandas', "
+            "'matplotlib', 'PIL', 'jinja2')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=REPO.parent).stdout
     assert out.strip() == "[]"
 
 
 def test_every_verb_has_help_and_docs(capsys):
-    assert set(COMMANDS) == {"run", "evaluate", "render", "scenes", "methods", "metrics", "models", "bench"}
+    assert set(COMMANDS) == {"run", "evaluate", "render", "scenes", "methods", "metrics", "models", "report", "bench"}
     for verb in COMMANDS:
         with pytest.raises(SystemExit) as exc:
             main([verb, "--help"])
@@ -80,7 +81,9 @@ def test_built_wheel_installs_and_imports(tmp_path):
     for expected in ("wcbench/metrics/pixel/ssim.py", "wcbench/scenes/specs/waymo_5.toml",
                      "wcbench/methods/presets/controlnet.toml", "wcbench/reports/__init__.py",
                      "wcbench/metrics/models.toml", "wcbench/reference_model/models.toml",
-                     "wcbench/reference_model/weather/presets.toml", "wcbench/metrics/clip/weather_prompts.toml"):
+                     "wcbench/reference_model/weather/presets.toml", "wcbench/metrics/clip/weather_prompts.toml",
+                     "wcbench/reports/templates/report.html.j2", "wcbench/reports/display.toml",
+                     "wcbench/bench/report.py"):
         assert expected in names
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--target", str(target), str(wheel)],

@@ -10,4 +10,5 @@ SUITES = {
     "metrics": "wcbench.bench.metrics:run",
     "raster": "wcbench.bench.raster:run",
     "weather": "wcbench.bench.weather:run",
+    "report": "wcbench.bench.report:run",
 }

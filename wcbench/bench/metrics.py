@@ -82,7 +82,7 @@ def _flow_cases(quick: bool) -> list[BenchCase]:
     ref = values["deepflow"][1]
     return [
         BenchCase(name=f"flow_{k}", knob="flow", value=k, time_ms=ms, error=abs(v - ref) / ref,
-                  error_unit="rel", extra={"warp_error": v, "reference": "deepflow"})
+                  error_unit="rel", extra={"warp_error": v, "reference": "deepflow", "default": k == "dis"})
         for k, (ms, v) in values.items()
     ]
 

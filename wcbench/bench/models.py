@@ -320,7 +320,8 @@ def clip_cases(store: ModelStore, work: Path, src: np.ndarray, edit: np.ndarray,
             name=f"clip_{name}", knob="backend", value=name, time_ms=min(ms),
             error=float(np.abs(clip_s - ref_s).max()), error_unit="abs",
             extra={"reference": "torch", "ms_median": statistics.median(ms), "speedup_vs_torch": ref_ms / min(ms),
-                   "embed_max_abs_diff": float(np.abs(emb - ref_emb).max()), "arch": arch_name},
+                   "embed_max_abs_diff": float(np.abs(emb - ref_emb).max()), "arch": arch_name,
+                   "default": name == "onnx"},
         ))
     by_name = {c.value: c for c in cases}
     onnx = by_name["onnx"]

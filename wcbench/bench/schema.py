@@ -22,7 +22,8 @@ A benchmark file is::
     }
 
 ``time_ms`` and ``error`` may be ``null`` when a case measures only one of them. Reports chart any
-suite by (knob, value, time_ms, error) without knowing the suite.
+suite by (knob, value, time_ms, error) without knowing the suite; a case whose value is wcbench's
+default for its knob may say so with ``"default": true`` (the report marks it).
 """
 
 from __future__ import annotations

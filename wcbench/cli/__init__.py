@@ -24,6 +24,7 @@ COMMANDS = {
     "methods": "wcbench.cli.methods",
     "metrics": "wcbench.cli.metrics",
     "models": "wcbench.cli.models",
+    "report": "wcbench.cli.report",
     "bench": "wcbench.cli.bench",
 }
 

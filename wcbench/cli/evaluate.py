@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from wcbench.cli.common import add_progress_argument, add_scene_arguments, parse_metric_options, split_list
+from wcbench.cli.report import write_report
 
 HELP = "score a method's frames (results.json, results.csv)"
 
@@ -39,6 +40,7 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
                              "clip_s.backend=torch, flow_warping_error.flow=deepflow (VALUE is read as JSON "
                              "when it parses, else as text)")
     parser.add_argument("--overwrite", action="store_true", help="replace finished results of other inputs")
+    parser.add_argument("--report", action="store_true", help="also write OUT/report.html (see `wcbench report`)")
     add_progress_argument(parser)
 
 
@@ -94,4 +96,6 @@ def run(args: argparse.Namespace) -> int:
         show_progress=not args.no_progress, metric_options=parse_metric_options(args.metric_option),
     )
     report(evaluate(cfg))
+    if args.report:
+        write_report([args.out], args.out / "report.html")
     return 0

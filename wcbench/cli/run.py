@@ -23,6 +23,7 @@ from wcbench.cli.common import (
     split_list,
 )
 from wcbench.cli.evaluate import add_evaluate_options, report
+from wcbench.cli.report import write_report
 
 HELP = "render with a runnable method, then evaluate"
 
@@ -51,4 +52,6 @@ def run(args: argparse.Namespace) -> int:
         render=RenderSettings(seed=args.seed, overwrite=args.overwrite, show_progress=not args.no_progress),
     )
     report(evaluate(cfg, method=method))
+    if args.report:
+        write_report([args.out], args.out / "report.html")
     return 0

@@ -420,6 +420,17 @@ class ModelStore:
         value = man.get("files", {}).get(file if file is not None else self.entry(name).file)
         return str(value) if value is not None else None
 
+    def source_verified(self, name: str) -> bool | None:
+        """Whether the installed entry came from a file matching a pinned hash, i.e. the published
+        weights (``manifest.json`` ``source_verified``); ``None``: not installed or not recorded.
+
+        Recorded by metrics next to ``weights_sha256`` so that reports can flag numbers produced
+        with other weights (a random-weight test model, an unpinned checkpoint).
+        """
+        man = self.manifest(name)
+        value = None if man is None else man.get("source_verified")
+        return value if isinstance(value, bool) else None
+
     # -- installing -------------------------------------------------------------------------
 
     def _install(self, entry: ModelEntry, sources: Sequence[Path], provenance: dict[str, Any]) -> Path:

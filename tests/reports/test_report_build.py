@@ -1,0 +1,251 @@
+"""The report from result files: merged folders, flags, dashes, exports, frames, determinism."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from report_helpers import expected_text, parse_report, result_values, rewrite_results, skip_output
+
+from wcbench.cli import main
+from wcbench.reports import build_report
+
+
+def _numeric(cells):
+    return [c for c in cells if c["value"][:1].isdigit()]
+
+
+def test_merged_folders_give_one_table_with_every_method_and_correct_numbers(small, tmp_path):
+    out = tmp_path / "r.html"
+    outcome = build_report(list(small.values()), out)
+    parsed = parse_report(out)
+    main_cells = [c for c in parsed.cells if c["table"] == "t-paper"]
+    assert {c["data-method"] for c in main_cells} == set(small)
+    values = result_values(list(small.values()))
+    numeric = _numeric(parsed.cells)
+    assert len(numeric) > 100
+    for cell in numeric:
+        decimals = len(cell["value"].split(".")[1])
+        assert cell["value"] == expected_text(values, cell, decimals), cell
+    # the paper's metrics keep the paper's 3 decimals
+    assert all(len(c["value"].split(".")[1]) == 3 for c in _numeric(main_cells))
+    assert outcome.n_images > 0 and outcome.size_bytes == out.stat().st_size
+
+
+def test_best_bold_second_underlined_per_column(small, tmp_path):
+    out = tmp_path / "r.html"
+    build_report(list(small.values()), out)
+    cells = [c for c in parse_report(out).cells if c["table"] == "t-paper" and c["value"][:1].isdigit()]
+    columns: dict[tuple[str, str], list[dict]] = {}
+    for c in cells:
+        columns.setdefault((c["data-weather"], c["data-output"]), []).append(c)
+    assert columns
+    for col in columns.values():
+        order = sorted(col, key=lambda c: float(c["value"]), reverse=True)  # all paper metrics: higher is better
+        ranks = [re.search(r"\br([12])\b", c["class"]) for c in order]
+        assert ranks[0] and ranks[0].group(1) == "1"
+        assert ranks[1] and ranks[1].group(1) == "2"
+        assert all(r is None for r in ranks[2:])
+
+
+def test_skipped_cell_is_a_dash_with_its_reason_as_title(small, tmp_path):
+    reason = "weights for clip-vit-b32-openai not installed: run `wcbench models pull clip-vit-b32-openai`"
+    rewrite_results(small["haze"], lambda d: skip_output(d, "scene_a", "rain", "clip_s", reason))
+    out = tmp_path / "r.html"
+    build_report(list(small.values()), out)
+    cells = parse_report(out).cells
+    scene_cell = next(c for c in cells if (c["data-method"], c["data-scene"], c["data-weather"], c["data-output"])
+                      == ("haze", "scene_a", "rain", "clip_s"))
+    assert scene_cell["value"] == "\u2013" and scene_cell["title"] == f"skipped: {reason}"
+    mean_cell = next(c for c in cells if c["table"] == "t-paper" and (c["data-method"], c["data-weather"],
+                                                                       c["data-output"]) == ("haze", "rain", "clip_s"))
+    assert mean_cell["value"] == "\u2013" and reason in mean_cell["title"] and "scene_a" in mean_cell["title"]
+    # a null value (not skipped) shows its own reason
+    def null_psnr(doc):
+        doc["results"]["scene_b"]["clear"]["psnr"].update(value=None, reason="PSNR is infinite for identical images")
+    rewrite_results(small["tint"], null_psnr)
+    build_report(list(small.values()), out)
+    cell = next(c for c in parse_report(out).cells if (c["data-method"], c["data-scene"], c["data-output"])
+                == ("tint", "scene_b", "psnr"))
+    assert cell["value"] == "\u2013" and "identical images" in cell["title"]
+
+
+def test_exports_show_the_same_numbers_as_the_html(small, tmp_path):
+    out = tmp_path / "r.html"
+    outcome = build_report(list(small.values()), out, csv=True, latex=True)
+    assert outcome.csv == tmp_path / "r.csv" and outcome.latex == tmp_path / "r.tex"
+    html_cells = {(c["table"], c["data-method"], c["data-scene"], c["data-weather"], c["data-output"]): c
+                  for c in parse_report(out).cells}
+    rows = list(csv.DictReader(outcome.csv.open()))
+    assert len(rows) == len(html_cells)
+    for r in rows:
+        cell = html_cells[(r["table"], r["method"], r["scene"], r["weather"], r["output"])]
+        assert (r["value"] or "\u2013") == cell["value"]
+        assert (r["rank"] == "best") == (" r1" in cell["class"])
+    tex = outcome.latex.read_text()
+    assert tex.count(r"\begin{tabular}") == len({k[0] for k in html_cells})
+    assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
+    # every number of the HTML appears in the LaTeX, bold exactly where the HTML has the best
+    for cell in html_cells.values():
+        if cell["value"][:1].isdigit():
+            wrapped = rf"\textbf{{{cell['value']}}}" if " r1" in cell["class"] else cell["value"]
+            assert wrapped in tex
+    numbers_tex = re.findall(r"(?<![\w.])\d+\.\d+", tex)
+    numbers_html = [c["value"] for c in html_cells.values() if c["value"][:1].isdigit()]
+    assert sorted(numbers_tex) == sorted(numbers_html)
+
+
+def test_weights_not_published_are_flagged_red_next_to_every_number(small, tmp_path):
+    out = tmp_path / "r.html"
+    outcome = build_report(list(small.values()), out)
+    flagged = {f.topic for f in outcome.flags}
+    assert "weights" in flagged
+    for cell in _numeric(parse_report(out).cells):
+        # the synthetic results record random (unverified) CLIP and SegFormer weights, verified LPIPS
+        marked = "\u2020" in cell["markers"]
+        assert marked == (cell["data-output"].startswith(("clip", "sem_cs"))), cell
+    html = out.read_text()
+    assert "mk-weights" in html and "not verified" in html
+
+
+def test_mismatched_folders_are_flagged_not_mixed(small, tmp_path):
+    def other_frames_and_size(doc):
+        for weathers in doc["inputs"]["scenes"].values():
+            for rec in weathers.values():
+                rec["source"] = rec["source"][:-1]
+        for files in doc["inputs"]["files"].values():
+            files["size"] = [128, 72]
+        for weathers in doc["results"].values():
+            for outputs in weathers.values():
+                outputs["temporal_flicker"]["variant"] = "another definition"
+                outputs["fps"]["extra"]["resolution"] = [128, 72]
+        doc["config"]["metric_config"]["temporal_flicker"]["config"] = {"color": "luma"}
+
+    rewrite_results(small["grain"], other_frames_and_size)
+    out = tmp_path / "r.html"
+    outcome = build_report(list(small.values()), out)
+    topics = {f.topic for f in outcome.flags}
+    assert {"frames", "resolution", "variant", "settings"} <= topics
+    html = out.read_text()
+    assert "frame counts differ" in html and "frame sizes differ" in html and "different definitions" in html
+    cells = _numeric(parse_report(out).cells)
+    flicker = [c for c in cells if c["data-output"] == "temporal_flicker"]
+    assert flicker and all("\u2021" in c["markers"] for c in flicker)
+
+
+def test_scene_sets_that_differ_are_flagged_on_the_means(small, tmp_path):
+    def drop_scene_b(doc):
+        for key in ("results",):
+            doc[key].pop("scene_b")
+        doc["inputs"]["scenes"].pop("scene_b")
+        doc["skipped"] = [s for s in doc["skipped"] if s["scene"] != "scene_b"]
+
+    rewrite_results(small["haze"], drop_scene_b)
+    out = tmp_path / "r.html"
+    outcome = build_report(list(small.values()), out)
+    flag = next(f for f in outcome.flags if f.topic == "scenes")
+    assert "haze" in flag.message and "scene_b" in flag.message
+    cells = _numeric(parse_report(out).cells)
+    means = [c for c in cells if c["data-method"] == "haze" and c["data-scene"] == "mean"]
+    per_scene = [c for c in cells if c["data-method"] == "haze" and c["data-scene"] == "scene_a"]
+    assert means and all("\u2021" in c["markers"] for c in means)
+    assert per_scene and not any("\u2021" in c["markers"] for c in per_scene)
+    missing = next(c for c in parse_report(out).cells if (c["data-method"], c["data-scene"]) == ("haze", "scene_b"))
+    assert missing["value"] == "\u2013" and "not scored" in missing["title"]
+
+
+def test_same_method_in_two_folders_on_the_same_scenes_stays_two_rows(small, tmp_path):
+    twin = tmp_path / "tint_again"
+    shutil.copytree(small["tint"], twin)
+    out = tmp_path / "r.html"
+    outcome = build_report([small["tint"], twin], out)
+    methods = {c["data-method"] for c in parse_report(out).cells}
+    assert methods == {"tint (tint)", "tint (tint_again)"}
+    assert any(f.topic == "duplicate" for f in outcome.flags)
+
+
+def test_frames_are_shown_only_when_their_hash_matches(small, tmp_path):
+    out = tmp_path / "r.html"
+    build_report([small["tint"]], out, animation_frames=3)
+    images = parse_report(out).images
+    assert images and all(src.startswith("data:image/") for src in images)
+    assert any(src.startswith(("data:image/webp", "data:image/gif")) for src in images)
+    # replace one shown frame: it is no longer the scored one
+    frame = small["tint"] / "tint" / "scene_a" / "rain" / "002.png"
+    shutil.copy(small["tint"] / "tint" / "scene_a" / "rain" / "000.png", frame)
+    build_report([small["tint"]], out, animation_frames=3)
+    assert "002.png changed since it was scored" in out.read_text()
+    assert len(parse_report(out).images) < len(images)
+
+
+def test_moved_results_folder_still_finds_its_frames(small, tmp_path):
+    moved = tmp_path / "elsewhere" / "copy"
+    shutil.copytree(small["haze"], moved)
+    shutil.rmtree(small["haze"])
+    out = tmp_path / "r.html"
+    build_report([moved], out, animation_frames=2)
+    text = out.read_text()
+    assert "not found" not in text and "changed since" not in text
+
+
+def test_same_inputs_give_the_same_report_except_the_date(small, tmp_path):
+    a, b = tmp_path / "a.html", tmp_path / "b.html"
+    build_report(list(small.values()), a, animation_frames=3)
+    build_report(list(small.values()), b, animation_frames=3)
+    date = re.compile(r"Built \S+ ")
+    assert date.sub("", a.read_text()) == date.sub("", b.read_text())
+
+
+def test_benchmark_files_are_charted_with_the_default_marked(small, tmp_path):
+    from wcbench.bench.schema import BenchCase, BenchReport
+
+    bench = BenchReport("demo")
+    for value, ms, err in ((1, 10.0, 0.1), (2, 20.0, 0.01), (4, 45.0, 0.001)):
+        bench.cases.append(BenchCase(f"c{value}", "threads", value, ms, err, "abs", extra={"default": value == 2}))
+    bench.write(tmp_path / "b.json")
+    out = tmp_path / "r.html"
+    outcome = build_report([small["tint"]], out, bench=[tmp_path / "b.json"], frames=False)
+    text = out.read_text()
+    assert "knob: threads (default 2)" in text
+    assert outcome.n_images >= 2  # per-frame curves + the chart
+    (tmp_path / "bad.json").write_text(json.dumps({"schema": "other"}))
+    from wcbench.core.errors import InputError
+
+    with pytest.raises(InputError, match=r"bad\.json: not a wcbench-benchmark v1 file"):
+        build_report([small["tint"]], out, bench=[tmp_path / "bad.json"])
+
+
+def test_real_run_with_report_flag_writes_a_report_beside_results(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "--method", "filter2d", "--scenes", "demo", "--out", str(out), "--weathers", "rain",
+                 "clear", "--metrics", "temporal_flicker", "psnr", "fps", "--no-progress", "--report"]) == 0
+    assert "report.html" in capsys.readouterr().out
+    files = json.loads((out / "results.json").read_text())["inputs"]["files"]["demo_street"]
+    assert files["weathers"]["rain"]["predictions"][0] == "filter2d/demo_street/rain/000.png"  # inside: relative
+    assert Path(files["source"][0]).is_absolute() and files["size"] == [320, 180]
+    parsed = parse_report(out / "report.html")
+    values = result_values([out])
+    numeric = _numeric(parsed.cells)
+    assert numeric
+    for cell in numeric:
+        assert cell["value"] == expected_text(values, cell, len(cell["value"].split(".")[1]))
+    # raw frame, filter2d frame, and an animation of each, for both weathers
+    assert sum(src.startswith("data:image/jpeg") for src in parsed.images) == 4
+    assert sum(src.startswith(("data:image/webp", "data:image/gif")) for src in parsed.images) == 4
+    assert "weights" not in {f for f in re.findall(r"flagged \((\w+)\)", capsys.readouterr().out)}
+
+
+def test_report_cli_from_outside_the_source_tree(small, tmp_path):
+    """As a user would: the console entry point, relative paths, exports beside the HTML."""
+    res = subprocess.run([sys.executable, "-m", "wcbench", "report", "tint", "haze", "-o", "out/report.html",
+                          "--csv", "--latex", "--animation-frames", "2"], cwd=tmp_path, capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr
+    assert "wrote out/report.html" in res.stdout
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {"report.html", "report.csv", "report.tex"}
