@@ -254,8 +254,11 @@ def _train_seconds(info: dict[str, Any] | None) -> float | None:
 def _runtime_facts(folders: list[ResultsFolder], methods: list[str]) -> list[dict[str, Any]]:
     rows = []
     for m in methods:
-        res, machines, frame_ms, train, sources = set(), set(), [], [], set()
+        res, machines, sources = set(), set(), set()
+        frame_ms: list[float] = []
+        train: list[float] = []
         for f in (f for f in folders if f.label == m):
+            trained: dict[str, set[float]] = {}
             for scene, weathers in sorted(f.doc["results"].items()):
                 for weather, outputs in sorted(weathers.items()):
                     fps = outputs.get("fps")
@@ -271,7 +274,9 @@ def _runtime_facts(folders: list[ResultsFolder], methods: list[str]) -> list[dic
                         sources.add(str(fps.get("variant", "")))
                     t = _train_seconds(f.info(scene, weather))
                     if t is not None:
-                        train.append(t)
+                        trained.setdefault(scene, set()).add(t)
+            # one model serves every weather of a scene: each distinct training time counts once
+            train.extend(t for times in trained.values() for t in times)
         rows.append({
             "method": m,
             "frame_ms": f"{sorted(frame_ms)[len(frame_ms) // 2]:.1f}" if frame_ms else "",

@@ -95,11 +95,11 @@ class WeatherDecoders(nn.Module):
         Tensor [N, 3 len(weathers)]
             RGB in (0, 1), weather-major: channels 3k..3k+2 are weather k.
         """
-        idx = torch.tensor(self.index(weathers))
+        idx = self.index(weathers)
         d, hidden = len(idx), self.hidden
-        # one GEMM for every weather's first layer, then a batched product for the second
+        # one GEMM for every weather's first layer; the second layer as one GEMM with a
+        # block-diagonal matrix (a batched product with 3 outputs is slow on CPU, forward and back)
         w1 = self.w1[idx].reshape(d * hidden, -1)
         h = torch.relu(torch.addmm(self.b1[idx].reshape(-1), features, w1.T))  # [N, D*hidden]
-        h = h.view(-1, d, hidden).transpose(0, 1)  # [D, N, hidden]
-        out = torch.baddbmm(self.b2[idx][:, None, :], h, self.w2[idx].transpose(1, 2))  # [D, N, 3]
-        return torch.sigmoid(out).permute(1, 0, 2).reshape(features.shape[0], 3 * d)
+        w2 = self.w2[idx[0]] if d == 1 else torch.block_diag(*[self.w2[i] for i in idx])  # [3D, D*hidden]
+        return torch.sigmoid(torch.addmm(self.b2[idx].reshape(-1), h, w2.T))  # [N, 3D], weather-major

@@ -49,6 +49,11 @@ class RigidObject(nn.Module):
         Frames of the scene.
     """
 
+    present: torch.Tensor  # [n_frames] bool
+    rotation: torch.Tensor  # [n_frames, 3, 3]
+    position: torch.Tensor  # [n_frames, 3]
+    quat: torch.Tensor  # [n_frames, 4]
+
     def __init__(self, gaussians: GaussianParams, *, track_id: str, class_name: str, frames: np.ndarray,
                  object_to_world: np.ndarray, box_size: np.ndarray, n_frames: int):
         super().__init__()

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -56,18 +56,32 @@ class Placement:
 class FrameGaussians:
     """All Gaussians of a frame in world coordinates, concatenated node by node.
 
-    ``segments`` lists (node key, start, stop) of each node's rows (a copied node appears twice).
+    ``segments`` lists (node key, start, stop) of each node's rows (a copied node appears twice);
+    ``nodes`` maps each key to its parameters (features stay per node: decoded node by node, they
+    are never copied into one big tensor).
     """
 
     means: torch.Tensor  # [N, 3] m
     quats: torch.Tensor  # [N, 4]
     scales: torch.Tensor  # [N, 3] m
     opacities: torch.Tensor  # [N]
-    features: torch.Tensor  # [N, F]
     segments: list[tuple[str, int, int]]
+    nodes: dict[str, GaussianParams]
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
+
+    def colors(self, decode: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+        """``decode(features [n, F]) -> [n, C]`` of every node, in row order: [N, C]."""
+        done: dict[str, torch.Tensor] = {}
+        parts = []
+        for key, _, _ in self.segments:
+            if key not in done:
+                done[key] = decode(self.nodes[key].features)
+            parts.append(done[key])
+        if not parts:
+            return decode(next(iter(self.nodes.values())).features[:0]) if self.nodes else torch.zeros(0, 3)
+        return torch.cat(parts) if len(parts) > 1 else parts[0]
 
 
 @dataclass
@@ -128,10 +142,18 @@ class WeatherCityModel(nn.Module):
         """Weathers the decoders know."""
         return self.decoders.weathers
 
+    def rigid_objects(self) -> list[RigidObject]:
+        """The rigid nodes (typed view of the module list)."""
+        return [cast(RigidObject, o) for o in self.rigid]
+
+    def nonrigid_objects(self) -> list[NonRigidObject]:
+        """The non-rigid nodes (typed view of the module list)."""
+        return [cast(NonRigidObject, o) for o in self.nonrigid]
+
     def objects(self) -> dict[str, RigidObject]:
         """Every object node by key (``rigid:<id>`` / ``nonrigid:<id>``)."""
-        out: dict[str, RigidObject] = {f"rigid:{o.track_id}": o for o in self.rigid}
-        out.update({f"nonrigid:{o.track_id}": o for o in self.nonrigid})
+        out = {f"rigid:{o.track_id}": o for o in self.rigid_objects()}
+        out.update({f"nonrigid:{o.track_id}": o for o in self.nonrigid_objects()})
         return out
 
     def nodes(self) -> dict[str, GaussianParams]:
@@ -142,8 +164,8 @@ class WeatherCityModel(nn.Module):
 
     def counts(self) -> dict[str, int]:
         """Gaussians per node type: background, rigid, nonrigid, total."""
-        rigid = sum(len(o.gaussians) for o in self.rigid)
-        nonrigid = sum(len(o.gaussians) for o in self.nonrigid)
+        rigid = sum(len(o.gaussians) for o in self.rigid_objects())
+        nonrigid = sum(len(o.gaussians) for o in self.nonrigid_objects())
         return {"background": len(self.background), "rigid": rigid, "nonrigid": nonrigid,
                 "rigid_nodes": len(self.rigid), "nonrigid_nodes": len(self.nonrigid),
                 "total": len(self.background) + rigid + nonrigid}
@@ -181,16 +203,18 @@ class WeatherCityModel(nn.Module):
         for key, means, _, _ in parts:
             segments.append((key, start, start + int(means.shape[0])))
             start += int(means.shape[0])
+        nodes = {key: params for key, _, _, params in parts}
         if not parts:
             empty = GaussianParams.empty(self.background.feature_dim)
             parts.append((BACKGROUND, empty.means, empty.quats, empty))
+            nodes = {BACKGROUND: empty}
         return FrameGaussians(
             means=torch.cat([p[1] for p in parts]),
             quats=torch.cat([p[2] for p in parts]),
             scales=torch.cat([p[3].scales() for p in parts]),
             opacities=torch.cat([p[3].opacities() for p in parts]),
-            features=torch.cat([p[3].features for p in parts]),
             segments=segments,
+            nodes=nodes,
         )
 
     def render(
@@ -228,7 +252,7 @@ class WeatherCityModel(nn.Module):
             ``rasterize``-compatible (tests inject the pure-torch twin).
         """
         g = self.frame_gaussians(frame, placement)
-        colors = self.decoders(g.features, weathers)
+        colors = g.colors(lambda f: self.decoders(f, weathers))
         out = rasterizer(
             g.means, g.quats, g.scales, g.opacities, colors,
             torch.from_numpy(np.asarray(world_to_camera, np.float32)), torch.from_numpy(np.asarray(K, np.float32)),

@@ -58,6 +58,8 @@ class SkyModel(nn.Module):
         One map for every weather (the "w/o WGS" ablation).
     """
 
+    basis: torch.Tensor  # [3, 3] rows: forward, left, up
+
     def __init__(self, weathers: Sequence[str], *, up: np.ndarray, heading: np.ndarray, rows: int = 32,
                  cols: int = 128, min_elevation: float = -0.2, color: np.ndarray | None = None,
                  shared: bool = False):

@@ -126,7 +126,8 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
     """
     frames = [v.frame for v in views]
     graph = init_scene_from_lidar(scene, voxel_m=config.voxel_m, node_voxel_m=config.node_voxel_m,
-                                  frames=frames, opacity=config.init_opacity)
+                                  frames=frames, opacity=config.init_opacity,
+                                  moving_threshold_m=config.moving_threshold_m)
     clouds = [graph.static]
     n_far = 0
     if config.far_points:
@@ -134,11 +135,12 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         n_far = len(far)
         clouds.append(far)
     background = GaussianCloud.concatenate(clouds)
-    inside = in_any_frustum(background.means, views)
+    inside = in_any_frustum(background.means, views) if config.cull_frustum else np.ones(len(background), bool)
     dropped = int((~inside).sum())
     background = background.subset(inside)
     n_frames = len(scene.frames)
-    rigid, nonrigid = [], []
+    rigid: list[RigidObject] = []
+    nonrigid: list[NonRigidObject] = []
     tracks = {str(t.id): t for t in scene.tracks}
     empty_nodes = 0
     for i, node in enumerate(graph.nodes):
@@ -148,11 +150,12 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         track = tracks[node.track_id]
         size = np.asarray(track.box_size, np.float64).reshape(-1, 3).mean(0)
         params = GaussianParams.from_cloud(node.cloud, feature_dim=config.feature_dim, seed=config.seed + 1 + i)
-        kwargs = dict(track_id=node.track_id, class_name=node.class_name, frames=node.frames,
-                      object_to_world=node.object_to_world, box_size=size, n_frames=n_frames)
-        (nonrigid if is_nonrigid(node.class_name) else rigid).append(
-            NonRigidObject(params, **kwargs) if is_nonrigid(node.class_name) else RigidObject(params, **kwargs)
-        )
+        kwargs: dict[str, Any] = dict(track_id=node.track_id, class_name=node.class_name, frames=node.frames,
+                                      object_to_world=node.object_to_world, box_size=size, n_frames=n_frames)
+        if is_nonrigid(node.class_name):
+            nonrigid.append(NonRigidObject(params, **kwargs))
+        else:
+            rigid.append(RigidObject(params, **kwargs))
     decoders = WeatherDecoders(weathers, feature_dim=config.feature_dim, hidden=config.hidden,
                                shared=config.shared_decoder, seed=config.seed)
     first = views[0]

@@ -5,7 +5,7 @@ every ``weather_interval`` steps, every supervised weather in the **same** raste
 minimises
 
     sum_w [(1 - 0.2) L1 + 0.2 (1 - SSIM)](I_w, target_w)          RGB, raw frame and every edit
-    + lambda_cc  L_cc(I_w, raw)      every ``content_interval`` steps, VGG16 features, sky masked
+    + lambda_cc  L_cc(I_w, raw)      every ``content_interval``-th weather step, VGG16, sky masked
     + lambda_depth |D - D_lidar|     where the frame's lidar landed
     + lambda_opacity L_opacity(A, sky)
     + lambda_deform (|delta|^2 + |delta_t+1 - delta_t|^2)           pedestrians' offsets
@@ -130,7 +130,7 @@ class Trainer:
         )
 
     def _densified_nodes(self) -> list[str]:
-        return [BACKGROUND] + [f"rigid:{o.track_id}" for o in self.model.rigid]
+        return [BACKGROUND] + [f"rigid:{o.track_id}" for o in self.model.rigid_objects()]
 
     def _make_optimizer(self) -> NodeOptimizer:
         lr = self.config.lr
@@ -141,7 +141,7 @@ class Trainer:
                 if key == "quats" and name != BACKGROUND:
                     rate = lr["object_quats"]
                 groups.append((f"{name}.{key}", p, rate))
-        for _i, obj in enumerate(self.model.nonrigid):
+        for obj in self.model.nonrigid_objects():
             groups.append((f"nonrigid:{obj.track_id}.offsets", obj.offsets, lr["offsets"]))
         for pname, p in self.model.decoders.named_parameters():
             groups.append((f"decoders.{pname}", p, lr["decoders"]))
@@ -171,7 +171,8 @@ class Trainer:
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
         terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
         logged: dict[str, float] = {f"rgb_{w}": float(x) for w, x in zip(weathers, per_weather.detach())}
-        if self.content is not None and cfg.content_weight > 0 and all_weathers and it % cfg.content_interval == 0:
+        if self.content is not None and cfg.content_weight > 0 and all_weathers \
+                and (it // max(cfg.weather_interval, 1)) % max(cfg.content_interval, 1) == 0:
             cc = self.content(render.images[..., 3:], v.frame, tv.targets["clear"], tv.non_sky)
             terms.append((cfg.content_weight, cc))
             logged["content"] = float(cc.detach())
@@ -185,12 +186,12 @@ class Trainer:
             terms.append((cfg.opacity_weight, o))
             logged["opacity"] = float(o.detach())
         if self.model.nonrigid and cfg.deform_weight > 0:
-            pen = torch.stack([obj.deformation_penalty() for obj in self.model.nonrigid]).sum()
+            pen = torch.stack([obj.deformation_penalty() for obj in self.model.nonrigid_objects()]).sum()
             terms.append((cfg.deform_weight, pen))
             logged["deform"] = float(pen.detach())
         loss = weighted_sum(terms)
         loss.backward()
-        self._accumulate(render)
+        self._accumulate(render, v.width, v.height)
         self.optimizer.step()
         self.optimizer.zero_grad()
         self.step_index += 1
@@ -205,11 +206,13 @@ class Trainer:
         self.history.append(log)
         return log
 
-    def _accumulate(self, render: Any) -> None:
+    def _accumulate(self, render: Any, width: int, height: int) -> None:
         g = render.raster.means2d_abs
         if g is None or g.grad is None:
             return
-        norm = g.grad.norm(dim=1)
+        # gradients in normalised device coordinates (x 2/W per pixel), as the 3DGS / AbsGS
+        # thresholds are stated: the same threshold then holds at any resolution
+        norm = (g.grad * g.grad.new_tensor([0.5 * width, 0.5 * height])).norm(dim=1)
         visible = (render.raster.radii > 0).all(dim=1)
         nodes = self.model.nodes()
         for key, start, stop in render.gaussians.segments:
@@ -243,7 +246,7 @@ class Trainer:
     # -- the loop ---------------------------------------------------------------------------
 
     def train(self, *, until: int | None = None, callback: Callable[[StepLog], None] | None = None,
-              checkpoint: Callable[[Trainer], None] | None = None) -> list[StepLog]:
+              checkpoint: Callable[[Trainer], Any] | None = None) -> list[StepLog]:
         """Step until ``until`` (default ``config.iterations``), calling ``callback`` after each step and
         ``checkpoint`` every ``config.checkpoint_interval`` steps and at the end."""
         stop = self.config.iterations if until is None else until

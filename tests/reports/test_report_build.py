@@ -249,3 +249,16 @@ def test_report_cli_from_outside_the_source_tree(small, tmp_path):
     assert res.returncode == 0, res.stderr
     assert "wrote out/report.html" in res.stdout
     assert {p.name for p in (tmp_path / "out").iterdir()} == {"report.html", "report.csv", "report.tex"}
+
+
+def test_training_time_of_a_scene_counts_once_across_its_weathers(small, tmp_path):
+    # one model per scene serves every weather: each weather's info.json repeats the scene's time
+    for scene, seconds in (("scene_a", 100.0), ("scene_b", 50.0)):
+        for info_path in (small["tint"] / "tint" / scene).glob("*/info.json"):
+            info = json.loads(info_path.read_text())
+            info.setdefault("timings", {})["train_s"] = seconds
+            info_path.write_text(json.dumps(info))
+    out = tmp_path / "r.html"
+    build_report([small["tint"]], out, animation_frames=0)
+    html = out.read_text()
+    assert "150.0 s" in html and "450.0 s" not in html

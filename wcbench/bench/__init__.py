@@ -11,4 +11,5 @@ SUITES = {
     "raster": "wcbench.bench.raster:run",
     "weather": "wcbench.bench.weather:run",
     "report": "wcbench.bench.report:run",
+    "model": "wcbench.bench.model:run",
 }

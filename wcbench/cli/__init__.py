@@ -20,6 +20,7 @@ COMMANDS = {
     "run": "wcbench.cli.run",
     "evaluate": "wcbench.cli.evaluate",
     "render": "wcbench.cli.render",
+    "train": "wcbench.cli.train",
     "scenes": "wcbench.cli.scenes",
     "methods": "wcbench.cli.methods",
     "metrics": "wcbench.cli.metrics",

@@ -89,10 +89,24 @@ def method_options_from(args: argparse.Namespace) -> dict[str, Any]:
             out[name] = getattr(args, name)
     if getattr(args, "edit", None):
         out["edits"] = list(args.edit)
-    for item in getattr(args, "method_option", []) or []:
+    out.update(parse_key_values(getattr(args, "method_option", []) or [], option="--method-option",
+                                example="jitter=0.5"))
+    return out
+
+
+def parse_key_values(items: list[str], *, option: str, example: str) -> dict[str, Any]:
+    """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}``: values read as JSON when they parse, else text.
+
+    Raises
+    ------
+    InputError
+        On an item not of the form ``KEY=VALUE`` (naming ``option`` and showing ``example``).
+    """
+    out: dict[str, Any] = {}
+    for item in items:
         key, sep, raw = item.partition("=")
         if not (sep and key):
-            raise InputError(f"--method-option {item!r}: expected KEY=VALUE, e.g. jitter=0.5")
+            raise InputError(f"{option} {item!r}: expected KEY=VALUE, e.g. {example}")
         try:
             out[key] = json.loads(raw)
         except json.JSONDecodeError:

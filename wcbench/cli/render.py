@@ -11,9 +11,15 @@ Examples::
     wcbench render --scenes pandaset_002 --weather rain --preset heavy --out renders
     wcbench render --scenes ../shared/data/pandaset_002 --weather fog --visibility 60 --out renders
     wcbench render --scenes pandaset_002 --weather snow --wind 4,20,30 --frames 0-9 --out renders
+    wcbench render --method weathercity --scenes pandaset_002 --weather rain --preset heavy --scale 0.5 \
+        --edit "remove class=Car" --out renders
 
 A finished folder rendered with the same settings is left alone; one rendered with other settings
 is kept unless ``--overwrite``. A killed render resumes (frames are pure functions of the seed).
+
+With ``--method weathercity`` the scene is the trained WeatherCity model instead (trained first,
+or loaded from the cache; ``--profile``, ``--supervision``, ``--edit`` and ``--method-option`` as
+for ``run``), rendered at any size.
 
 ``render`` is a front of the units of work ``wcbench run`` renders through: the same method, seed,
 weather and size give the same frames either way (``run`` renders at the scene's size, ``render``
@@ -26,7 +32,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from wcbench.cli.common import add_progress_argument, add_scene_arguments
+from wcbench.cli.common import add_method_options, add_progress_argument, add_scene_arguments, method_options_from
 from wcbench.core.errors import InputError
 from wcbench.core.weathers import WEATHERS
 
@@ -89,6 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--overwrite", action="store_true", help="replace a folder rendered with other settings"
     )
     add_progress_argument(parser)
+    add_method_options(parser)
 
 
 def parse_frames(spec: str | None, n: int) -> list[int]:
@@ -194,7 +201,8 @@ def run(args: argparse.Namespace) -> int:
                      "show_progress": not args.no_progress}
     for ref in resolve_scenes(args.scenes, data_root=data_root_from(args.data_root)):
         scene = ref.load()
-        method = get_method(args.method, **_method_options(args, scene.image_size, len(scene)))
+        method = get_method(args.method, **_method_options(args, scene.image_size, len(scene)),
+                            **method_options_from(args))
         unit = WorkUnit(method, scene, weather.kind, Path(args.out) / method.info.name / scene.id)
         settings = RenderSettings(frames=tuple(parse_frames(args.frames, len(scene))), **settings_base)
         info = unit.render(settings)

@@ -65,6 +65,10 @@ class FrameRenderer(ABC):
         """Facts known after :meth:`prepare` (model sizes...), added to ``info.json`` parameters."""
         return {}
 
+    def setup_timings(self) -> dict[str, float]:
+        """Time spent before the frames (e.g. ``{"train_s": ...}``), added to ``info.json`` timings."""
+        return {}
+
     @abstractmethod
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> FrameOutput:
         """Frame ``index`` as uint8 RGB [H, W, 3] at :meth:`output_size`, optionally with a dict of
@@ -200,7 +204,7 @@ class FrameRenderer(ABC):
             "method": self.info.name, "version": self.version, "scene": scene.id, "weather": weather,
             "seed": seed, "key": key, "size": [width, height],
             "parameters": {**self.parameters(weather), **self.describe()},
-            "timings": timer.summary(width=width, height=height),
+            "timings": {**timer.summary(width=width, height=height), **self.setup_timings()},
             "frames": [
                 {"file": canonical_frame_path(out_dir, k).name, "index": k,
                  "sha256": state["frames"][str(k)]["sha256"], "info": state["frames"][str(k)].get("info", {})}

@@ -17,7 +17,7 @@ counts per node, what the scene graph skipped, the supervision, and the whole-fr
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +49,7 @@ from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
 from wcbench.scenes.scene import Scene
 
-__all__ = ["VERSION", "WeatherCityMethod", "train_scene"]
+__all__ = ["VERSION", "TrainingInputs", "WeatherCityMethod", "content_loss_for", "train_scene", "training_inputs"]
 
 #: Bumped whenever training or rendering changes what a cached model or a frame would be.
 VERSION = "1"
@@ -96,7 +96,7 @@ def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitt
                     "not_supervised": missing}
 
 
-def _content_loss(config: TrainConfig, store: ModelStore | None) -> tuple[ContentLoss | None, str]:
+def content_loss_for(config: TrainConfig, store: ModelStore | None) -> tuple[ContentLoss | None, str]:
     """The content loss on the real VGG16 weights, or ``None`` and why it is skipped."""
     if config.content_weight == 0:
         return None, "off (no-content-loss ablation)"
@@ -106,8 +106,51 @@ def _content_loss(config: TrainConfig, store: ModelStore | None) -> tuple[Conten
     features = load_vgg16_features(store=store, layers=CONTENT_LAYERS)
     return ContentLoss(features, size=config.content_size), (
         f"VGG16 {','.join(CONTENT_LAYERS)} at {config.content_size[0]}x{config.content_size[1]}, "
-        f"every {config.content_interval} steps (sha256 {store.sha256('vgg16')})"
+        f"every {config.content_interval * config.weather_interval} steps (sha256 {store.sha256('vgg16')})"
     )
+
+
+@dataclass
+class TrainingInputs:
+    """What a training of a scene is made from (see :func:`training_inputs`).
+
+    Attributes
+    ----------
+    views : list of TrainingView
+        Every frame's view at the training size (held-out frames included).
+    trained : tuple of str
+        ``"clear"`` and the supervised weathers (those the model gets decoders for).
+    supervision : dict
+        Record of the supervision (method, settings or folder and hashes, weathers missing).
+    view_facts : dict
+        How the views were made (:func:`build_views`).
+    sources : list of str
+        sha256 of the scene's frames.
+    """
+
+    views: list[TrainingView]
+    trained: tuple[str, ...]
+    supervision: dict[str, Any]
+    view_facts: dict[str, Any]
+    sources: list[str]
+
+
+def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = "filter2d", jitter: float = 0.0,
+                    weathers: tuple[str, ...] = ("rain", "snow", "fog")) -> TrainingInputs:
+    """The views (raw frames, edits of every supervised weather, lidar depth, sky and object masks)
+    of ``scene`` at ``config``'s training size.
+
+    Raises
+    ------
+    InputError
+        On a malformed ``supervision`` or a folder that does not exist.
+    """
+    frames, sup_record = _supervision_frames(scene, supervision, weathers, jitter, config.seed)
+    trained = ("clear", *[w for w in weathers if w in frames])
+    views, view_facts = build_views(scene, size=config.size_for(scene.image_size),
+                                    supervision={w: frames[w] for w in trained if w != "clear"})
+    return TrainingInputs(views=views, trained=trained, supervision=sup_record, view_facts=view_facts,
+                          sources=[sha256_file(f.image_path) for f in scene.frames])
 
 
 def train_scene(
@@ -155,20 +198,22 @@ def train_scene(
         What was built, skipped and measured (``info.json``).
     """
     start = time.perf_counter()
-    log(f"weathercity {scene.id}: supervision from {supervision}")
-    frames, sup_record = _supervision_frames(scene, supervision, weathers, jitter, config.seed)
-    trained = ("clear", *[w for w in weathers if w in frames])
-    sources = [sha256_file(f.image_path) for f in scene.frames]
-    content_loss, content_note = (_content_loss(config, store) if content == "auto"
-                                  else (content, "injected" if content is not None else "off"))
-    key = sha256_json({"version": VERSION, "scene": scene.id, "sources": sources, "config": config.to_json(),
-                       "supervision": sup_record, "trained": trained, "content": content_note,
+    size = config.size_for(scene.image_size)
+    log(f"weathercity {scene.id}: {size[0]}x{size[1]} views, supervision from {supervision}")
+    inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers)
+    views, trained = inputs.views, inputs.trained
+    content_loss: ContentLoss | None
+    if isinstance(content, str):
+        if content != "auto":
+            raise ValueError(f"content must be a ContentLoss, None or 'auto', got {content!r}")
+        content_loss, content_note = content_loss_for(config, store)
+    else:
+        content_loss, content_note = content, "injected" if content is not None else "off"
+    key = sha256_json({"version": VERSION, "scene": scene.id, "sources": inputs.sources, "config": config.to_json(),
+                       "supervision": inputs.supervision, "trained": trained, "content": content_note,
                        "lidar": [str(f.lidar_path) for f in scene.frames]})
     folder = folder or cache_dir() / "weathercity" / f"{scene.id}-{key[:16]}"
-    size = config.size_for(scene.image_size)
-    log(f"weathercity {scene.id}: building {size[0]}x{size[1]} views and the scene graph")
-    views, view_facts = build_views(scene, size=size,
-                                    supervision={w: frames[w] for w in trained if w != "clear"})
+    log(f"weathercity {scene.id}: building the scene graph")
     train_views = [v for v in views if v.frame not in config.holdout]
     model, graph_facts = build_model(scene, train_views, config, weathers=trained)
 
@@ -203,11 +248,11 @@ def train_scene(
         "config": config.to_json(),
         "key": key,
         "checkpoint": str(folder),
-        "supervision": sup_record,
+        "supervision": inputs.supervision,
         "trained_weathers": list(trained),
         "not_trained": sorted(set(weathers) - set(trained)),
         "content_loss": content_note,
-        "views": view_facts,
+        "views": inputs.view_facts,
         "scene_graph": graph_facts,
         "gaussians": model.counts(),
         "iterations": trainer.step_index,
@@ -238,8 +283,9 @@ class WeatherCityMethod(FrameRenderer):
         Training settings overriding the profile's (see :class:`TrainConfig`).
     holdout : sequence of int
         Frames left out of training (their held-out PSNR goes to info.json).
-    weathers : dict of str to Weather, optional
-        The physics weather per kind (default: each kind's default preset).
+    weathers : dict of str to Weather or dict, optional
+        The physics weather per kind (default: each kind's default preset); a dict gives the
+        :class:`Weather` fields (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
     size : (int, int), optional
         Render size; default the training size (and scored there).
     edits : str or list, optional
@@ -259,7 +305,7 @@ class WeatherCityMethod(FrameRenderer):
         ablation: str = "",
         settings: dict[str, Any] | None = None,
         holdout: tuple[int, ...] | list[int] = (),
-        weathers: dict[str, Weather] | None = None,
+        weathers: dict[str, Weather | dict[str, Any]] | None = None,
         size: tuple[int, int] | None = None,
         edits: str | list[Any] | None = None,
         content: Any = "auto",
@@ -273,7 +319,12 @@ class WeatherCityMethod(FrameRenderer):
         if not 0.0 <= float(jitter) <= 1.0:
             raise InputError(f"weathercity: jitter must be in [0, 1], got {jitter}")
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
-        self.weathers = dict(weathers or {})
+        self.weathers: dict[str, Weather] = {}
+        for kind, value in (weathers or {}).items():
+            try:
+                self.weathers[kind] = value if isinstance(value, Weather) else Weather(kind=kind, **dict(value))
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"weathercity: weathers[{kind!r}]: {exc}") from None
         self.size = None if size is None else (int(size[0]), int(size[1]))
         self.info = MethodInfo(
             name="weathercity",
@@ -306,18 +357,11 @@ class WeatherCityMethod(FrameRenderer):
 
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
         """Train (or load) the scene's model once, then set up the renderer of ``weather``."""
-        key = (scene.id, str(scene.root))
-        if self._scene_key != key:
-            self._model, _, self._facts = train_scene(
+        if self._scene_key != (scene.id, str(scene.root)):
+            trained, _, facts = train_scene(
                 scene, self.config, supervision=self.supervision, jitter=self.jitter, content=self.content,
             )
-            self._scene_key = key
-            self._centers = np.stack([f.camera.center for f in scene.frames])
-            self._times = np.array([f.timestamp for f in scene.frames], np.float64)
-            try:
-                self._placement = placement_for(self.edits, self._model.objects())
-            except ValueError as exc:
-                raise InputError(f"weathercity: {exc}") from None
+            self.use_model(scene, trained, facts)
         model = self._model
         assert model is not None
         decoded = weather if weather in model.weathers else "clear"
@@ -332,6 +376,20 @@ class WeatherCityMethod(FrameRenderer):
         )
         self._node_colors = self._decode_nodes(model, decoded)
 
+    def use_model(self, scene: Scene, model: WeatherCityModel, facts: dict[str, Any]) -> None:
+        """Render ``scene`` with an already trained ``model`` (``facts``: its training record).
+
+        :meth:`prepare` calls it after training; benchmarks hand in a model they trained themselves.
+        """
+        self._model, self._facts = model, facts
+        self._scene_key = (scene.id, str(scene.root))
+        self._centers = np.stack([f.camera.center for f in scene.frames])
+        self._times = np.array([f.timestamp for f in scene.frames], np.float64)
+        try:
+            self._placement = placement_for(self.edits, model.objects())
+        except ValueError as exc:
+            raise InputError(f"weathercity: {exc}") from None
+
     @staticmethod
     def _decode_nodes(model: WeatherCityModel, weather: str) -> dict[str, torch.Tensor]:
         """Each node's colors under ``weather`` (features do not change while rendering: decoded once)."""
@@ -345,6 +403,10 @@ class WeatherCityMethod(FrameRenderer):
             out["renderer"] = self._renderer.info()
         return out
 
+    def setup_timings(self) -> dict[str, float]:
+        """``train_s``: the training's own time (seconds; 0 steps when a cached model was loaded)."""
+        return {"train_s": float(self._facts["train_seconds"])} if self._facts else {}
+
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> tuple[np.ndarray, dict[str, Any]]:
         """Frame ``index`` under ``weather``: decoded colors, sky, particles and fog."""
         model, renderer = self._model, self._renderer
@@ -355,7 +417,7 @@ class WeatherCityMethod(FrameRenderer):
         with torch.no_grad():
             g = model.frame_gaussians(index, self._placement)
             colors = torch.cat([self._node_colors[key] for key, _, _ in g.segments]) if g.segments else \
-                torch.zeros(0, 3)
+                torch.zeros(len(g), 3)
             grid = model.sky.grid(torch.from_numpy(view_directions(cam.camera_to_world, cam.K, width, height)))
             sky = model.sky(grid, [self._decoded]).numpy()
         t_graph = time.perf_counter()

@@ -1,0 +1,99 @@
+"""The weathercity method end to end on the demo street (tiny settings), ``wcbench train``, and the
+``filter2d`` options its supervision uses."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from wcbench.cli import main
+from wcbench.methods import get_method
+from wcbench.methods.filter2d import Filter2DMethod
+
+#: Tiny training: 96x54, 24 steps, no far points (the demo street is fully covered by lidar).
+TINY = '{"width": 96, "iterations": 24, "voxel_m": 0.5, "densify_from": 8, "densify_until": 16, ' \
+       '"densify_interval": 8, "checkpoint_interval": 8}'
+
+
+@pytest.mark.model
+def test_run_weathercity_trains_renders_scores_at_its_resolution_and_records_training(tmp_path):
+    pytest.importorskip("torch")
+    out = tmp_path / "run"
+    args = ["run", "--method", "weathercity", "--scenes", "demo", "--profile", "quick", "--out", str(out),
+            "--weathers", "clear", "fog", "--metrics", "psnr", "fps", "--no-progress",
+            "--method-option", f"settings={TINY}", "--method-option", "holdout=[5]"]
+    assert main(args) == 0
+    info = json.loads((out / "weathercity" / "demo_street" / "fog" / "info.json").read_text())
+    assert info["size"] == [96, 54]
+    assert info["timings"]["train_s"] > 0
+    training = info["parameters"]["training"]
+    assert training["iterations"] == 24 and training["resumed_at"] == 0
+    assert training["trained_weathers"] == ["clear", "rain", "snow", "fog"]
+    assert "not built" in training["scene_graph"]["skipped"]["nonrigid_nodes"]
+    assert training["content_loss"].startswith("skipped:")  # no VGG16 in the test's model store
+    assert np.isfinite(training["holdout"]["mean_psnr"])
+    results = json.loads((out / "results.json").read_text())
+    clear = results["results"]["demo_street"]["clear"]
+    assert clear["psnr"]["value"] > 20.0  # the trained model against the raw frames, at 96x54
+    # a second run finds the finished frames: nothing is trained or rendered again
+    assert main(args) == 0
+    again = json.loads((out / "weathercity" / "demo_street" / "fog" / "info.json").read_text())
+    assert again["timings"]["train_s"] == info["timings"]["train_s"]
+    assert json.loads((out / "results.json").read_text())["results"] == results["results"]
+
+
+@pytest.mark.model
+def test_train_cli_writes_facts_and_a_second_call_loads_the_checkpoint(tmp_path, capsys):
+    pytest.importorskip("torch")
+    args = ["train", "--scenes", "demo", "--profile", "quick", "--out", str(tmp_path / "t"), "--no-progress",
+            "--checkpoint", str(tmp_path / "ckpt"), "--holdout", "5"]
+    args += [f"--setting={k}={json.dumps(v)}" for k, v in json.loads(TINY).items()]
+    assert main(args) == 0
+    facts = json.loads((tmp_path / "t" / "demo_street" / "training.json").read_text())
+    assert facts["iterations"] == 24 and facts["resumed_at"] == 0
+    assert (tmp_path / "ckpt" / "checkpoint.json").is_file()
+    assert "held-out PSNR" in capsys.readouterr().out
+    assert main(args) == 0
+    again = json.loads((tmp_path / "t" / "demo_street" / "training.json").read_text())
+    assert again["resumed_at"] == 24 and again["train_seconds"] == facts["train_seconds"]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--setting", "iterations"], "expected KEY=VALUE"),
+    (["--setting", "colour=1"], "unknown training settings"),
+    (["--profile", "fast"], "unknown training profile"),
+    (["--ablation", "no-sky"], "unknown ablation"),
+    (["--holdout", "40"], "has frames 0..11"),
+    (["--supervision", "nowhere"], "expected 'filter2d' or READER:DIR"),
+])
+@pytest.mark.model
+def test_train_cli_refuses_bad_options_by_name(tmp_path, capsys, args, message):
+    pytest.importorskip("torch")
+    assert main(["train", "--scenes", "demo", "--out", str(tmp_path), "--no-progress", *args]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_weathercity_method_refuses_bad_options():
+    pytest.importorskip("torch")
+    from wcbench.core.errors import InputError
+
+    with pytest.raises(InputError, match="jitter"):
+        get_method("weathercity", jitter=2.0)
+    with pytest.raises(InputError, match="unknown operation"):
+        get_method("weathercity", edits="explode id=3")
+
+
+def test_filter2d_jitter_is_seeded_per_frame_and_supervision_drops_streaks(demo_scene):
+    plain, drawn = Filter2DMethod(effects=False), Filter2DMethod()
+    a = plain.render_frame(demo_scene, "rain", 3, seed=0)
+    assert not np.array_equal(a, drawn.render_frame(demo_scene, "rain", 3, seed=0))  # streaks drawn or not
+    jit = Filter2DMethod(effects=False, jitter=0.5)
+    j1, j2 = jit.render_frame(demo_scene, "rain", 3, seed=0), jit.render_frame(demo_scene, "rain", 3, seed=0)
+    assert np.array_equal(j1, j2)  # deterministic under the seed
+    assert np.abs(j1.astype(int) - a).mean() > 1.0  # and perturbed
+    other = jit.render_frame(demo_scene, "rain", 4, seed=0).astype(int) - plain.render_frame(demo_scene, "rain", 4,
+                                                                                              seed=0)
+    assert not np.allclose(other.mean(), (j1.astype(int) - a).mean(), atol=0.05)  # each frame its own draw
+    assert Filter2DMethod().parameters("rain") == Filter2DMethod(effects=True, jitter=0.0).parameters("rain")

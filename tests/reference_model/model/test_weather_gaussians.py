@@ -1,0 +1,146 @@
+"""Weather Gaussians: decoders against their per-weather twin, one pass for every weather, edits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import weather_models as wm  # noqa: E402
+
+from wcbench.reference_model.editing.edits import parse_edits, placement_for  # noqa: E402
+from wcbench.reference_model.model.decoders import WeatherDecoders, color_logits  # noqa: E402
+from wcbench.reference_model.model.scene_model import Placement  # noqa: E402
+from wcbench.reference_model.raster.torch_twin import rasterize_torch  # noqa: E402
+
+pytestmark = pytest.mark.model
+
+
+def _decoder_twin(dec: WeatherDecoders, features: torch.Tensor, weathers: list[str]) -> torch.Tensor:
+    """The paper's MLP written plainly, one weather at a time: [N, 3 len(weathers)]."""
+    outs = []
+    for i in dec.index(weathers):
+        h = torch.relu(features @ dec.w1[i].T + dec.b1[i])
+        outs.append(torch.sigmoid(h @ dec.w2[i].T + dec.b2[i]))
+    return torch.cat(outs, 1)
+
+
+@pytest.mark.parametrize("weathers", [["clear"], ["clear", "rain", "snow", "fog"], ["fog", "clear"]])
+def test_batched_decoders_match_the_per_weather_twin(weathers):
+    dec = WeatherDecoders(("clear", "rain", "snow", "fog"), feature_dim=32, hidden=64, seed=4)
+    with torch.no_grad():
+        for p in dec.parameters():  # leave the identity initialisation: every weight matters here
+            p.add_(torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())) * 0.3)
+    f = torch.randn(500, 32, generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(dec(f, weathers), _decoder_twin(dec, f, weathers), atol=1e-6, rtol=1e-5)
+
+
+def test_decoders_start_as_the_identity_on_the_color_channels():
+    dec = WeatherDecoders(("clear", "snow"), feature_dim=32, hidden=64)
+    colors = torch.rand(100, 3, generator=torch.Generator().manual_seed(1)) * 0.9 + 0.05
+    f = torch.cat([color_logits(colors), torch.randn(100, 29)], 1)
+    out = dec(f, ["clear", "snow"])
+    # six hidden units pass the color logits through exactly; the others start small (second-layer
+    # weights ~0.01/sqrt(hidden)) and move the colors by well under 1e-3
+    torch.testing.assert_close(out[:, :3], colors, atol=1e-3, rtol=0)
+    torch.testing.assert_close(out[:, 3:], colors, atol=1e-3, rtol=0)
+
+
+def test_shared_decoder_gives_every_weather_the_same_colors_and_unknown_weathers_are_refused():
+    dec = WeatherDecoders(("clear", "rain"), feature_dim=8, hidden=16, shared=True)
+    f = torch.randn(10, 8)
+    out = dec(f, ["clear", "rain"])
+    assert torch.equal(out[:, :3], out[:, 3:])
+    with pytest.raises(KeyError, match="snow"):
+        dec(f, ["snow"])
+
+
+def _render(model, weathers, placement=None, frame=1):
+    return model.render(frame, wm.WORLD_TO_CAMERA, wm.K, wm.WIDTH, wm.HEIGHT, weathers,
+                        sky_grid=wm.sky_grid(model), depth=True, placement=placement)
+
+
+def test_depth_and_alpha_are_identical_across_weathers_and_one_pass_equals_separate_passes():
+    model = wm.make_model()
+    with torch.no_grad():  # make the weathers' decoders differ
+        model.decoders.b2[1] += 0.7
+        model.decoders.b2[2] -= 0.5
+        together = _render(model, ("clear", "rain", "fog"))
+        for w in ("clear", "rain", "fog"):
+            alone = _render(model, (w,))
+            assert torch.equal(alone.alpha, together.alpha)
+            assert torch.equal(alone.depth, together.depth)
+            torch.testing.assert_close(together.image(w), alone.images, atol=1e-5, rtol=0)
+            assert together.image(w).shape == (wm.HEIGHT, wm.WIDTH, 3)
+        assert (together.image("rain") - together.image("clear")).abs().max() > 0.05
+
+
+def test_the_model_renders_the_same_through_the_torch_twin():
+    model = wm.make_model()
+    with torch.no_grad():
+        fast = _render(model, ("clear", "rain"))
+        twin = model.render(1, wm.WORLD_TO_CAMERA, wm.K, wm.WIDTH, wm.HEIGHT, ("clear", "rain"),
+                            sky_grid=wm.sky_grid(model), depth=True, rasterizer=rasterize_torch)
+    torch.testing.assert_close(fast.images, twin.images, atol=2e-5, rtol=0)
+    torch.testing.assert_close(fast.alpha, twin.alpha, atol=2e-5, rtol=0)
+
+
+def _car_mask(model, placement=None, frame=1) -> np.ndarray:
+    """Pixels the car covers (alpha > 0.5 with everything else hidden)."""
+    hidden = Placement(hidden={"background"} | (placement.hidden if placement else set()),
+                       offsets=placement.offsets if placement else {},
+                       copies=placement.copies if placement else [])
+    with torch.no_grad():
+        return (_render(model, ("clear",), hidden, frame).alpha > 0.5).numpy()
+
+
+def test_removing_the_car_changes_its_pixels_only():
+    model = wm.make_model()
+    placement = placement_for(parse_edits("remove class=car"), model.objects())
+    with torch.no_grad():
+        before = _render(model, ("clear",)).images.numpy()
+        after = _render(model, ("clear",), placement).images.numpy()
+    car = _car_mask(model)
+    assert car.sum() > 50
+    changed = np.abs(after - before).max(-1) > 1e-3
+    assert changed[car].mean() > 0.9
+    # far from the car (its mask grown by 8 px) nothing changes at all
+    ys, xs = np.nonzero(car)
+    far = np.ones_like(car)
+    far[max(ys.min() - 8, 0):ys.max() + 9, max(xs.min() - 8, 0):xs.max() + 9] = False
+    assert np.array_equal(after[far], before[far])
+
+
+def test_translating_the_car_moves_its_projected_center_by_focal_times_shift_over_depth():
+    model = wm.make_model()
+    placement = placement_for(parse_edits("translate id=5 by=0.5,0,0"), model.objects())
+    a, b = _car_mask(model), _car_mask(model, placement)
+    shift = np.nonzero(b)[1].mean() - np.nonzero(a)[1].mean()
+    assert shift == pytest.approx(wm.FOCAL * 0.5 / wm.CAR_DEPTH, abs=0.5)
+    assert np.nonzero(b)[0].mean() == pytest.approx(np.nonzero(a)[0].mean(), abs=0.2)
+
+
+def test_inserting_a_copy_doubles_the_cars_pixels():
+    model = wm.make_model()
+    # at frame 0 the car is 1 m left of the axis; the copy 2.8 m to its right does not overlap it
+    placement = placement_for(parse_edits("insert id=5 by=2.8,0,0"), model.objects())
+    one, two = _car_mask(model, frame=0).sum(), _car_mask(model, placement, frame=0).sum()
+    assert two == pytest.approx(2 * one, rel=0.05)
+
+
+def test_keep_only_and_except_select_by_id_and_class():
+    model = wm.make_model()
+    assert placement_for(parse_edits("keep-only ids=5"), model.objects()).hidden == set()
+    assert placement_for(parse_edits('[{"op": "remove", "ids": ["5"]}]'), model.objects()).hidden == {"rigid:5"}
+    for spec in ("remove class=Truck", "remove class=Car except ids=5"):  # a selection of nothing is a typo
+        with pytest.raises(ValueError, match="selects no object"):
+            placement_for(parse_edits(spec), model.objects())
+
+
+def test_an_object_absent_at_a_frame_is_not_rendered():
+    model = wm.make_model()
+    model.rigid[0].present[2] = False
+    g = model.frame_gaussians(2)
+    assert [s[0] for s in g.segments] == ["background"]
+    assert len(g) == len(model.background)

@@ -1,0 +1,273 @@
+"""Benchmark suite ``model``: WeatherCity training time against held-out quality, and render speed.
+
+On ``pandaset_002`` at 480x270 (the demo street when the data is absent) with frames 5, 15 and 25
+held out, every case trains for a fixed **wall clock** (not a number of steps) and reports the
+held-out raw PSNR (mean of the held-out frames, dB) and the PSNR inside moving-object masks:
+
+plain                 the calibration baseline (:mod:`~wcbench.reference_model.training.plain`):
+                      Adam + L1 on the static Gaussians of the lidar initialisation, no densification
+weathercity           the ``default`` profile (all losses, all weathers every ``weather_interval``
+                      steps, densification under the budget); ``fps_rain_fog``: whole-frame renders
+                      of the trained model with ``paper`` rain and exact fog at 480x270 (scene graph,
+                      decoders, sky, particles, rasterizer, fog; median over frames)
+<knob>_<value>        the default with one setting changed (content loss interval and resolution,
+                      weather interval, densification threshold, Gaussian budget, far points), on a
+                      shorter clock, compared with the default at the same clock (``psnr_vs_default``)
+one_pass_vs_per_weather
+                      forward + backward of one training render of every weather as stacked channels
+                      against one pass per weather; ``error``: largest difference of the images
+skip_<what>           what a skip of the scene graph saves: the median time of a training step of a
+                      model built with the skip (``time_ms``) and without it (``without_ms``):
+                      dropping Gaussians outside every training frustum, keeping tracks that do not
+                      move in the background, and not training a weather without supervision
+
+Both the plain optimisation and the method get the same clock in the same run, one after the
+other; ``time_ms`` is the training's wall time. ``error`` is the held-out PSNR (dB, higher is
+better): this suite reports quality, not a deviation. Set ``WCBENCH_BENCH_MODEL_SECONDS`` to change
+the clock of the two headline cases (default 600 s; the knob cases get half), and
+``WCBENCH_BENCH_MODEL_GROUPS`` to run some of the groups ``headline,knobs,skips`` (default all).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from wcbench.bench.schema import BenchCase, BenchReport
+from wcbench.methods.weathercity import WeatherCityMethod, content_loss_for, training_inputs
+from wcbench.reference_model.model.sky import view_directions
+from wcbench.reference_model.scene_graph.lidar_init import estimate_sky_color, init_scene_from_lidar
+from wcbench.reference_model.training.build import build_model
+from wcbench.reference_model.training.config import TrainConfig, make_config
+from wcbench.reference_model.training.plain import PlainOptimisation
+from wcbench.reference_model.training.trainer import Trainer, evaluate_views
+from wcbench.reference_model.training.views import TrainingView
+from wcbench.reference_model.weather.conditions import Weather
+from wcbench.scenes.demo import ensure_demo_scene
+from wcbench.scenes.loaders import load_scene
+from wcbench.scenes.scene import Scene
+
+__all__ = ["run"]
+
+_SCENE_ID = "pandaset_002"
+_HOLDOUT = (5, 15, 25)
+#: (case name, knob, value, settings changed from the default profile)
+_KNOBS: list[tuple[str, str, Any, dict[str, Any]]] = [
+    ("content_interval_1", "content_interval", 1, {"content_interval": 1}),
+    ("content_interval_4", "content_interval", 4, {"content_interval": 4}),
+    ("content_size_120x68", "content_size", "120x68", {"content_size": (120, 68)}),
+    ("content_weight_1", "content_weight", 1.0, {"content_weight": 1.0}),
+    ("no_content_loss", "content_weight", 0.0, {"content_weight": 0.0}),
+    ("weather_interval_2", "weather_interval", 2, {"weather_interval": 2}),
+    ("weather_interval_8", "weather_interval", 8, {"weather_interval": 8}),
+    ("densify_grad_4e-4", "densify_grad", 4e-4, {"densify_grad": 4e-4}),
+    ("densify_grad_1.6e-3", "densify_grad", 1.6e-3, {"densify_grad": 1.6e-3}),
+    ("budget_150k", "budget", 150_000, {"budget": 150_000}),
+    ("no_far_points", "far_points", False, {"far_points": False}),
+]
+
+
+def _scene(data_root: Path | None) -> tuple[Scene, str]:
+    if data_root is not None and (data_root / _SCENE_ID).is_dir():
+        return load_scene(data_root / _SCENE_ID, scene_id=_SCENE_ID), _SCENE_ID
+    return load_scene(ensure_demo_scene() / "demo_street"), f"demo street ({_SCENE_ID} not found)"
+
+
+def _timed_training(step: Callable[[], Any], marks: list[float],
+                    evaluate: Callable[[], dict[str, Any]]) -> tuple[dict[float, dict[str, Any]], int, float]:
+    """Step until the last of ``marks`` (seconds of the training's own wall clock), evaluating (off
+    the clock) at each mark; returns the evaluations by mark, the steps and the seconds spent."""
+    out, steps, spent = {}, 0, 0.0
+    for mark in sorted(marks):
+        while spent < mark:
+            t = time.perf_counter()
+            step()
+            spent += time.perf_counter() - t
+            steps += 1
+        out[mark] = {**evaluate(), "steps": steps}
+    return out, steps, spent
+
+
+def _fps_rain_fog(scene: Scene, model: Any, config: TrainConfig, facts: dict[str, Any]) -> dict[str, Any]:
+    """Whole-frame render time of ``paper`` rain with exact fog (200 m visibility), median over frames."""
+    rain = Weather(kind="rain", preset="paper", visibility_m=200.0, fog_mode="exact")
+    method = WeatherCityMethod(weathers={"rain": rain})
+    method.config = config
+    method.use_model(scene, model, facts)
+    method.prepare(scene, "rain", seed=0)
+    times, stages = [], []
+    frames = list(range(0, len(scene), max(1, len(scene) // 10)))
+    method.render_frame(scene, "rain", frames[0], seed=0)  # warm-up (kernels compiled, caches filled)
+    for k in frames:
+        t = time.perf_counter()
+        _, info = method.render_frame(scene, "rain", k, seed=0)
+        times.append(time.perf_counter() - t)
+        stages.append(info.get("timings_ms", {}))
+    ms = 1e3 * statistics.median(times)
+    keys = sorted({k for s in stages for k in s})
+    return {"fps_rain_fog": round(1e3 / ms, 2), "frame_ms": round(ms, 1),
+            **{f"stage_{k}_ms": round(statistics.median(s.get(k, 0.0) for s in stages), 1) for k in keys}}
+
+
+def _one_pass_case(model: Any, views: list[TrainingView], repeats: int) -> BenchCase:
+    """Forward + backward of all weathers in one pass against one pass per weather."""
+    v = views[0]
+    grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+    weathers = model.weathers
+
+    def run(groups: list[tuple[str, ...]]) -> tuple[float, torch.Tensor]:
+        best, images = float("inf"), None
+        for _ in range(repeats):
+            model.zero_grad(set_to_none=True)
+            t = time.perf_counter()
+            outs = [model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, g, sky_grid=grid, depth=True)
+                    for g in groups]
+            img = torch.cat([o.images for o in outs], -1)
+            loss = img.mean() + sum(o.depth.mean() for o in outs if o.depth is not None)
+            loss.backward()
+            best = min(best, time.perf_counter() - t)
+            images = img.detach()
+        assert images is not None
+        return best, images
+
+    t_one, img_one = run([weathers])
+    t_sep, img_sep = run([(w,) for w in weathers])
+    model.zero_grad(set_to_none=True)
+    return BenchCase(
+        name="one_pass_vs_per_weather", knob="weathers_per_pass", value=len(weathers), time_ms=1e3 * t_one,
+        error=float((img_one - img_sep).abs().max()), error_unit="abs",
+        extra={"per_weather_ms": round(1e3 * t_sep, 1), "speedup": round(t_sep / t_one, 2),
+               "gaussians": model.counts()["total"], "default": True},
+    )
+
+
+def _plain_case(scene: Scene, base: TrainConfig, train_views: list[TrainingView], held: list[TrainingView],
+                seconds: float) -> BenchCase:
+    """The calibration baseline on the same lidar initialisation, for the same clock."""
+    graph = init_scene_from_lidar(scene, voxel_m=base.voxel_m, node_voxel_m=base.node_voxel_m,
+                                  frames=[v.frame for v in train_views], opacity=base.init_opacity)
+    plain = PlainOptimisation(graph, train_views, background=estimate_sky_color(scene))
+    evals, steps, spent = _timed_training(plain.step, [seconds / 2, seconds], lambda: plain.evaluate(held))
+    return BenchCase(
+        name="plain", knob="method", value="plain", time_ms=1e3 * spent, error=evals[seconds]["mean_psnr"],
+        error_unit="psnr_db", extra={
+            "psnr_half_clock": round(evals[seconds / 2]["mean_psnr"], 3),
+            "dynamic_psnr": round(evals[seconds]["mean_dynamic_psnr"], 3), "steps": steps,
+            "s_per_step": round(spent / steps, 3), "gaussians": len(graph)},
+    )
+
+
+def _step_ms(scene: Scene, train_views: list[TrainingView], views: list[TrainingView], config: TrainConfig,
+             weathers: tuple[str, ...], content: Any, *, steps: int) -> tuple[float, int]:
+    """Median ms of a training step (no densification) of a freshly built model, and its Gaussians."""
+    model, _ = build_model(scene, train_views, config, weathers=weathers)
+    trainer = Trainer(model, views, replace(config, densify_from=10**9), content=content)
+    for _ in range(2):  # warm-up, and step 0 renders every weather whatever the interval
+        trainer.step()
+    return 1e3 * statistics.median(trainer.step().seconds for _ in range(steps)), model.counts()["total"]
+
+
+def _skip_cases(scene: Scene, base: TrainConfig, train_views: list[TrainingView], views: list[TrainingView],
+                trained: tuple[str, ...], content: Any, *, steps: int) -> list[BenchCase]:
+    """What each skip saves per training step (see the module docstring)."""
+    clear_steps = replace(base, weather_interval=10**9)  # clear-only steps after the first
+    every_step = replace(base, weather_interval=1)
+    pairs = [
+        ("skip_frustum_cull", "cull_frustum", True, clear_steps, replace(clear_steps, cull_frustum=False), trained,
+         trained),
+        ("skip_static_tracks", "moving_threshold_m", base.moving_threshold_m, clear_steps,
+         replace(clear_steps, moving_threshold_m=0.0), trained, trained),
+        ("skip_unsupervised_weather", "weathers", len(trained) - 1, every_step, every_step, trained[:-1], trained),
+    ]
+    out = []
+    for name, knob, value, with_cfg, without_cfg, with_w, without_w in pairs:
+        t_with, n_with = _step_ms(scene, train_views, views, with_cfg, with_w, content, steps=steps)
+        t_without, n_without = _step_ms(scene, train_views, views, without_cfg, without_w, content, steps=steps)
+        out.append(BenchCase(
+            name=name, knob=knob, value=value, time_ms=t_with, error=None, error_unit="-",
+            extra={"without_ms": round(t_without, 1), "saving_pct": round(100 * (1 - t_with / t_without), 1),
+                   "gaussians": n_with, "gaussians_without": n_without, "default": True},
+        ))
+    return out
+
+
+def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
+    """Run the suite.
+
+    Parameters
+    ----------
+    data_root : Path or None
+        Folder holding ``pandaset_002`` (else the demo street, and a note says so).
+    quick : bool
+        A smoke run: the ``quick`` profile, 20 s clocks, two knob cases; not a measurement.
+
+    Returns
+    -------
+    BenchReport
+        Suite ``"model"`` (see the module docstring).
+    """
+    report = BenchReport(suite="model")
+    scene, source = _scene(data_root)
+    seconds = 20.0 if quick else float(os.environ.get("WCBENCH_BENCH_MODEL_SECONDS", "600"))
+    profile = "quick" if quick else "default"
+    holdout = tuple(h for h in _HOLDOUT if h < len(scene)) or (len(scene) // 2,)
+    base = make_config(profile, holdout=holdout, iterations=10**9, checkpoint_interval=10**9)
+    inputs = training_inputs(scene, base)
+    views = inputs.views
+    train_views = [v for v in views if v.frame not in holdout]
+    held = [v for v in views if v.frame in holdout]
+    width, height = base.size_for(scene.image_size)
+    report.notes.append(f"scene: {source}, {width}x{height}, held out {list(holdout)}; supervision filter2d "
+                        f"(no streaks or flakes); clocks: {seconds:.0f} s (headline), {seconds / 2:.0f} s (knobs)")
+    torch.manual_seed(0)
+    groups = set(os.environ.get("WCBENCH_BENCH_MODEL_GROUPS", "headline,knobs,skips").split(","))
+    content, content_note = content_loss_for(base, None)
+    report.notes.append(f"content loss: {content_note}")
+    if "skips" in groups:
+        report.cases += _skip_cases(scene, base, train_views, views, inputs.trained, content, steps=3 if quick else 8)
+    if not groups & {"headline", "knobs"}:
+        return report
+
+    report.cases.append(_plain_case(scene, base, train_views, held, seconds))
+
+    def train(config: TrainConfig, marks: list[float]) -> tuple[Any, dict[float, Any], int, float, dict[str, Any]]:
+        model, facts = build_model(scene, train_views, config, weathers=inputs.trained)
+        trainer = Trainer(model, views, config, content=content if config.content_weight > 0 else None)
+        evals, steps, spent = _timed_training(trainer.step, marks, lambda: evaluate_views(model, held))
+        return model, evals, steps, spent, {**facts, "gaussians": model.counts()}
+
+    model, evals, steps, spent, facts = train(base, [seconds / 2, seconds])
+    default_half = evals[seconds / 2]["mean_psnr"]
+    report.cases.append(BenchCase(
+        name="weathercity", knob="method", value="weathercity", time_ms=1e3 * spent,
+        error=evals[seconds]["mean_psnr"], error_unit="psnr_db", extra={
+            "psnr_half_clock": round(default_half, 3),
+            "dynamic_psnr": round(evals[seconds]["mean_dynamic_psnr"], 3), "steps": steps,
+            "s_per_step": round(spent / steps, 3), "gaussians": facts["gaussians"]["total"],
+            "vs_plain_db": round(evals[seconds]["mean_psnr"] - report.cases[0].error, 3),  # type: ignore[operator]
+            **_fps_rain_fog(scene, model, replace(base, iterations=steps), facts), "default": True},
+    ))
+    report.cases.append(_one_pass_case(model, train_views, repeats=2 if quick else 3))
+    skipped = facts["skipped"]
+    report.notes.append("skipped by the scene graph: " + ", ".join(f"{k}={v}" for k, v in skipped.items()
+                                                                    if v not in (None, 0)))
+    del model
+
+    for name, knob, value, settings in ((_KNOBS[:2] if quick else _KNOBS) if "knobs" in groups else []):
+        config = replace(base, **settings)
+        _, evals, steps, spent, facts = train(config, [seconds / 2])
+        psnr = evals[seconds / 2]["mean_psnr"]
+        report.cases.append(BenchCase(
+            name=name, knob=knob, value=value, time_ms=1e3 * spent, error=psnr, error_unit="psnr_db",
+            extra={"psnr_vs_default": round(psnr - default_half, 3), "steps": steps,
+                   "s_per_step": round(spent / steps, 3), "gaussians": facts["gaussians"]["total"],
+                   "dynamic_psnr": round(evals[seconds / 2]["mean_dynamic_psnr"], 3)},
+        ))
+    return report
