@@ -337,7 +337,7 @@ class WeatherCityMethod(FrameRenderer):
         self._scene_key: tuple[str, str] | None = None
         self._facts: dict[str, Any] = {}
         self._renderer: WeatherRenderer | None = None
-        self._colors: torch.Tensor | None = None
+        self._node_colors: dict[str, torch.Tensor] = {}
         self._placement = Placement()
 
     def weather_for(self, kind: str, seed: int) -> Weather:
