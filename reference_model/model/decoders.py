@@ -98,7 +98,8 @@ class WeatherDecoders(nn.Module):
         idx = self.index(weathers)
         d, hidden = len(idx), self.hidden
         # one GEMM for every weather's first layer; the second layer as one GEMM with a
-        # block-diagonal matrix (a batched product with 3 outputs is slow on CPU, forward and back)
+        # block-diagonal matrix: forward + backward of 4 weathers x 174k Gaussians take 351-380 ms
+        # against 632-664 ms with a batched product of 3 outputs (2-core CPU)
         w1 = self.w1[idx].reshape(d * hidden, -1)
         h = torch.relu(torch.addmm(self.b1[idx].reshape(-1), features, w1.T))  # [N, D*hidden]
         w2 = self.w2[idx[0]] if d == 1 else torch.block_diag(*[self.w2[i] for i in idx])  # [3D, D*hidden]

@@ -79,8 +79,8 @@ class FrameGaussians:
             if key not in done:
                 done[key] = decode(self.nodes[key].features)
             parts.append(done[key])
-        if not parts:
-            return decode(next(iter(self.nodes.values())).features[:0]) if self.nodes else torch.zeros(0, 3)
+        if not parts:  # nothing placed: frame_gaussians keeps an empty node to give the width
+            return decode(next(iter(self.nodes.values())).features)
         return torch.cat(parts) if len(parts) > 1 else parts[0]
 
 

@@ -32,7 +32,7 @@ class TrainConfig:
         lambda of the RGB loss (paper: 0.2).
     content_weight, content_interval : float, int
         Content loss weight (paper: 1.0; default 0.1, since on VGG16 ``relu4_1`` features the
-        paper's weight makes the term ten times the RGB terms and costs held-out quality, as
+        paper's weight makes the term 4-10x each weather's RGB term and costs held-out quality, as
         ``wcbench bench model`` measures) and its interval in weather steps (every
         ``content_interval``-th step that renders the edited weathers; 0 weight: off).
     content_size : (int, int)

@@ -19,8 +19,7 @@ import torch
 from wcbench.reference_model.model.decoders import color_logits
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
-from wcbench.reference_model.training.losses import psnr
-from wcbench.reference_model.training.trainer import scene_extent
+from wcbench.reference_model.training.trainer import evaluate_renders, scene_extent
 from wcbench.reference_model.training.views import TrainingView
 
 __all__ = ["PLAIN_LR", "PlainOptimisation"]
@@ -106,15 +105,5 @@ class PlainOptimisation:
         return float(loss.detach())
 
     def evaluate(self, views: Sequence[TrainingView]) -> dict[str, Any]:
-        """PSNR (dB) of the clear renders of ``views``: per frame, mean, and inside moving objects."""
-        per_view, dynamic = {}, {}
-        with torch.no_grad():
-            for v in views:
-                img = self.render(v).clamp(0, 1)
-                target = torch.from_numpy(v.images["clear"])
-                per_view[v.frame] = psnr(img, target)
-                if v.dynamic.any():
-                    dynamic[v.frame] = psnr(img, target, torch.from_numpy(v.dynamic))
-        return {"psnr": per_view, "mean_psnr": float(np.mean(list(per_view.values()))),
-                "dynamic_psnr": dynamic,
-                "mean_dynamic_psnr": float(np.mean(list(dynamic.values()))) if dynamic else float("nan")}
+        """PSNR (dB) of the clear renders of ``views`` (:func:`evaluate_renders`)."""
+        return evaluate_renders(self.render, views)

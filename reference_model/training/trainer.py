@@ -40,7 +40,7 @@ from wcbench.reference_model.training.losses import (
 )
 from wcbench.reference_model.training.views import TrainingView
 
-__all__ = ["StepLog", "Trainer", "scene_extent"]
+__all__ = ["StepLog", "Trainer", "evaluate_renders", "evaluate_views", "scene_extent"]
 
 
 def scene_extent(views: Sequence[TrainingView]) -> float:
@@ -262,20 +262,31 @@ class Trainer:
         return logs
 
 
-def evaluate_views(model: WeatherCityModel, views: Sequence[TrainingView], *,
-                   rasterizer: Callable[..., Any] = rasterize) -> dict[str, Any]:
-    """PSNR (dB) of the clear renders of ``views``: each view, their mean, and inside moving objects."""
+def evaluate_renders(render: Callable[[TrainingView], torch.Tensor],
+                     views: Sequence[TrainingView]) -> dict[str, Any]:
+    """PSNR (dB) of ``render(view)`` [H, W, 3] against each view's raw frame: per frame, their mean,
+    and inside moving objects (``nan`` where no view has one)."""
     per_view, dynamic = {}, {}
     with torch.no_grad():
         for v in views:
-            grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
-            r = model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, ("clear",), sky_grid=grid,
-                             depth=False, rasterizer=rasterizer)
+            img = render(v).clamp(0, 1)
             target = torch.from_numpy(v.images["clear"])
-            per_view[v.frame] = psnr(r.images.clamp(0, 1), target)
+            per_view[v.frame] = psnr(img, target)
             if v.dynamic.any():
-                dynamic[v.frame] = psnr(r.images.clamp(0, 1), target, torch.from_numpy(v.dynamic))
+                dynamic[v.frame] = psnr(img, target, torch.from_numpy(v.dynamic))
     finite = [p for p in per_view.values() if np.isfinite(p)]
     dyn = [p for p in dynamic.values() if np.isfinite(p)]
     return {"psnr": per_view, "mean_psnr": float(np.mean(finite)) if finite else float("nan"),
             "dynamic_psnr": dynamic, "mean_dynamic_psnr": float(np.mean(dyn)) if dyn else float("nan")}
+
+
+def evaluate_views(model: WeatherCityModel, views: Sequence[TrainingView], *,
+                   rasterizer: Callable[..., Any] = rasterize) -> dict[str, Any]:
+    """:func:`evaluate_renders` of the model's clear renders."""
+
+    def render(v: TrainingView) -> torch.Tensor:
+        grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+        return model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, ("clear",), sky_grid=grid,
+                            depth=False, rasterizer=rasterizer).images
+
+    return evaluate_renders(render, views)

@@ -95,3 +95,13 @@ def test_cli_parses_frames_and_rejects_bad_input() -> None:
     args = parser.parse_args(["--scenes", "x", "--out", "y", "--weather", "fog", "--visibility", "-3"])
     with pytest.raises(InputError, match="visibility_m"):
         _weather(args)
+
+
+def test_method_option_that_render_sets_itself_is_refused_by_name(tmp_path, capsys):
+    from wcbench.cli import main
+
+    code = main(["render", "--scenes", "demo", "--weather", "rain", "--out", str(tmp_path), "--no-progress",
+                 "--method-option", "size=[10,10]"])
+    assert code == 2
+    assert "--method-option size: set by render's own options" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

@@ -34,17 +34,12 @@ def parse_metric_options(items: list[str]) -> dict[str, dict[str, Any]]:
         On an item not of the form ``METRIC.KEY=VALUE``.
     """
     out: dict[str, dict[str, Any]] = {}
+    form, example = "METRIC.KEY=VALUE", "sem_cs.segmenter=segformer-b0-ade"
     for item in items:
-        key, sep, raw = item.partition("=")
+        [(key, value)] = parse_key_values([item], option="--metric-option", example=example, form=form).items()
         metric, dot, option = key.partition(".")
-        if not (sep and dot and metric and option):
-            raise InputError(
-                f"--metric-option {item!r}: expected METRIC.KEY=VALUE, e.g. sem_cs.segmenter=segformer-b0-ade"
-            )
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw
+        if not (dot and metric and option):
+            raise InputError(f"--metric-option {item!r}: expected {form}, e.g. {example}")
         out.setdefault(metric, {})[option] = value
     return out
 
@@ -94,19 +89,19 @@ def method_options_from(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def parse_key_values(items: list[str], *, option: str, example: str) -> dict[str, Any]:
+def parse_key_values(items: list[str], *, option: str, example: str, form: str = "KEY=VALUE") -> dict[str, Any]:
     """``["a=1", "b=x"]`` -> ``{"a": 1, "b": "x"}``: values read as JSON when they parse, else text.
 
     Raises
     ------
     InputError
-        On an item not of the form ``KEY=VALUE`` (naming ``option`` and showing ``example``).
+        On an item not of the form ``KEY=VALUE`` (naming ``option``, ``form`` and ``example``).
     """
     out: dict[str, Any] = {}
     for item in items:
         key, sep, raw = item.partition("=")
         if not (sep and key):
-            raise InputError(f"{option} {item!r}: expected KEY=VALUE, e.g. {example}")
+            raise InputError(f"{option} {item!r}: expected {form}, e.g. {example}")
         try:
             out[key] = json.loads(raw)
         except json.JSONDecodeError:

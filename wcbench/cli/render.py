@@ -201,8 +201,13 @@ def run(args: argparse.Namespace) -> int:
                      "show_progress": not args.no_progress}
     for ref in resolve_scenes(args.scenes, data_root=data_root_from(args.data_root)):
         scene = ref.load()
-        method = get_method(args.method, **_method_options(args, scene.image_size, len(scene)),
-                            **method_options_from(args))
+        options = _method_options(args, scene.image_size, len(scene))
+        given = method_options_from(args)
+        clash = sorted(set(options) & set(given))
+        if clash:
+            raise InputError(f"--method-option {', '.join(clash)}: set by render's own options "
+                             "(--weather/--preset..., --scale/--width/--height, --voxel, --init-frames)")
+        method = get_method(args.method, **options, **given)
         unit = WorkUnit(method, scene, weather.kind, Path(args.out) / method.info.name / scene.id)
         settings = RenderSettings(frames=tuple(parse_frames(args.frames, len(scene))), **settings_base)
         info = unit.render(settings)

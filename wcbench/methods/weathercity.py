@@ -404,7 +404,8 @@ class WeatherCityMethod(FrameRenderer):
         return out
 
     def setup_timings(self) -> dict[str, float]:
-        """``train_s``: the training's own time (seconds; 0 steps when a cached model was loaded)."""
+        """``train_s``: the seconds the model's training took (recorded in its checkpoint, so a model
+        loaded from the cache reports the training that made it)."""
         return {"train_s": float(self._facts["train_seconds"])} if self._facts else {}
 
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> tuple[np.ndarray, dict[str, Any]]:
