@@ -96,6 +96,10 @@ class WeatherDecoders(nn.Module):
             RGB in (0, 1), weather-major: channels 3k..3k+2 are weather k.
         """
         idx = self.index(weathers)
+        if self.shared and len(idx) > 1:
+            # one decoder: decode once and repeat, so every weather gets bit-identical colors
+            # (a block-diagonal product of equal blocks may round differently per block)
+            return self.forward(features, weathers[:1]).repeat(1, len(idx))
         d, hidden = len(idx), self.hidden
         # one GEMM for every weather's first layer; the second layer as one GEMM with a
         # block-diagonal matrix: forward + backward of 4 weathers x 174k Gaussians take 351-380 ms
