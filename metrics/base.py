@@ -161,6 +161,14 @@ class Metric(ABC):
         """Settings that change the numbers (part of the cache key and of results.json)."""
         return {}
 
+    def requires(self) -> tuple[str, ...]:
+        """What scoring needs besides the evaluation side: ``("torch",)`` for a torch backend.
+
+        A distributed run sends the units to workers that declare these resources, so a metric
+        is never skipped on one worker and computed on another.
+        """
+        return ("torch",) if self.config().get("backend") == "torch" else ()
+
     @abstractmethod
     def reset(self) -> None:
         """Forget all accumulated statistics."""

@@ -3,9 +3,9 @@
 :func:`evaluate` checks names and the output folder, plans one :class:`~wcbench.units.WorkUnit`
 per (scene, weather), renders the units of a runnable method when asked (``run``), opens and
 checks every prediction before any result is written, scores each unit or reuses its kept result
-(:func:`~wcbench.units.execute_unit`), then writes ``results.csv`` and ``results.json`` last,
-atomically. An existing ``results.json`` for other inputs is never replaced without
-``overwrite=True``.
+(through an executor, :mod:`wcbench.execution`: in this process or on a Dask cluster), then
+writes ``results.csv`` and ``results.json`` last, atomically. An existing ``results.json`` for
+other inputs is never replaced without ``overwrite=True``.
 
 Each scene's predictions folder is found by name (:func:`~wcbench.predictions.find_scene_folder`:
 the scene id, its data folder's name or an alias, and reader patterns such as ``{scene}_*``), and
@@ -30,6 +30,8 @@ from wcbench.core.errors import InputError, ResultsExistError, UnknownNameError
 from wcbench.core.image_io import to_float
 from wcbench.core.storage import atomic_write_json, atomic_write_text, json_safe, sha256_file, sha256_json
 from wcbench.core.weathers import WEATHERS
+from wcbench.execution import Executor
+from wcbench.execution.local import LocalExecutor
 from wcbench.methods import Method, get_method
 from wcbench.metrics.base import Metric
 from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric
@@ -42,7 +44,7 @@ from wcbench.predictions import (
 )
 from wcbench.results import RESULTS_CSV, RESULTS_JSON, SCHEMA_VERSION, read_results, to_csv
 from wcbench.scenes.sets import resolve_scenes
-from wcbench.units import RenderSettings, Scoring, UnitResult, WorkUnit, execute_unit, render_units
+from wcbench.units import RenderSettings, Scoring, UnitResult, WorkUnit
 
 
 @dataclass
@@ -150,7 +152,7 @@ def _plan_units(cfg: EvaluateConfig, method: Method, folders: dict[str, SceneFol
         scene = ref.load()
         root = cfg.predictions / scene.id if folders is None else folders[ref.id].path
         source_hashes = [sha256_file(f.image_path) for f in scene.frames]
-        plan.append([WorkUnit(method, scene, w, root, source_hashes,
+        plan.append([WorkUnit(method, scene, w, root, source_hashes, scene_ref=ref,
                               check_unedited=method.info.edits_source and w != "clear") for w in weathers])
     return plan
 
@@ -273,7 +275,7 @@ def check_out_folder(
     return method, metric_names, previous
 
 
-def evaluate(cfg: EvaluateConfig, *, method: Method | None = None) -> EvaluateOutcome:
+def evaluate(cfg: EvaluateConfig, *, method: Method | None = None, executor: Executor | None = None) -> EvaluateOutcome:
     """Score ``cfg.method``'s predictions (rendering them first when ``cfg.render`` is set) and write
     ``results.json`` and ``results.csv``.
 
@@ -283,21 +285,26 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None) -> EvaluateOu
     method : Method, optional
         The method object to use (e.g. a runnable method configured with options); default
         ``get_method(cfg.method)``.
+    executor : Executor, optional
+        Where the units render and score (:mod:`wcbench.execution`); default the local executor.
+        Every executor gives the same ``results.json`` numbers.
 
     Raises
     ------
     WcbenchError
         Any bad input (unknown names, missing or extra frames, corrupt images, wrong sizes...),
         before any result is written; :class:`ResultsExistError` when ``cfg.out`` holds finished
-        results of other inputs and ``cfg.overwrite`` is false.
+        results of other inputs and ``cfg.overwrite`` is false. A distributed executor reports the
+        units that failed (:class:`~wcbench.execution.UnitsFailedError`) after the others finish.
     """
+    executor = executor or LocalExecutor()
     method, metric_names, previous = check_out_folder(cfg, method=method)
     results_path = cfg.out / RESULTS_JSON
     metrics, metric_cfg = _metric_config(metric_names, cfg.metric_options)
     folders = None if cfg.render is not None else scene_folders(cfg, method)
     plan = _plan_units(cfg, method, folders)
     if cfg.render is not None:
-        render_units([u for scene_units in plan for u in scene_units], cfg.render)
+        executor.render(plan, cfg.render)
     units = _open_units(cfg, plan)
     config = _config_record(cfg, method, units, metric_cfg, folders)
     inputs: dict[str, Any] = {"scenes": {}}
@@ -313,11 +320,7 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None) -> EvaluateOu
             "pass --overwrite to replace them or choose another --out"
         )
     scoring = Scoring(cfg.out, metrics, metric_cfg, fps=cfg.fps, show_progress=cfg.show_progress)
-    keys = {id(u): u.key(metric_cfg) for u in units}
-    todo = [u for u in units if u.cached_result(cfg.out, keys[id(u)]) is None]
-    for u in todo:  # every frame decoded before any result is written: bad input fails first
-        u.validate(show_progress=cfg.show_progress)
-    outcomes = [execute_unit(u, scoring, key=keys[id(u)]) for u in units]
+    outcomes = executor.score(units, scoring, [u.key(metric_cfg) for u in units])
     computed = sum(o.computed for o in outcomes)
     doc = assemble_results(config, inputs, outcomes)
     atomic_write_text(cfg.out / RESULTS_CSV, to_csv(doc))

@@ -28,6 +28,7 @@ from wcbench.metrics.base import Metric, MetricContext
 from wcbench.predictions import RESIZE_INTERPOLATION, PredictionSequence
 from wcbench.results import SCHEMA_VERSION
 from wcbench.scenes.scene import Scene
+from wcbench.scenes.sets import SceneRef
 from wcbench.unedited import UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH, UneditedCheck
 
 #: How the scene's frames are resized for a method scored at its own resolution (see
@@ -84,6 +85,10 @@ class WorkUnit:
     check_unedited : bool
         Warn when every prediction equals its source frame (readers of editing tools; see
         :mod:`wcbench.unedited`).
+    scene_ref : SceneRef, optional
+        Where the scene was loaded from (another process loads it again from there).
+    open_options : dict, optional
+        The keyword arguments :meth:`open` was called with (another process opens it the same way).
     """
 
     method: Method
@@ -93,6 +98,8 @@ class WorkUnit:
     source_hashes: list[str] = field(default_factory=list)
     predictions: PredictionSequence | None = None
     check_unedited: bool = False
+    scene_ref: SceneRef | None = None
+    open_options: dict[str, Any] | None = None
 
     @property
     def label(self) -> str:
@@ -126,6 +133,8 @@ class WorkUnit:
     def open(self, *, pattern: str | None = None, resize: bool = False, frame_offset: int = 0,
              single_weather: bool = False) -> PredictionSequence:
         """Match the unit's prediction files to the scene's frames (see :meth:`Method.open_predictions`)."""
+        self.open_options = {"pattern": pattern, "resize": resize, "frame_offset": frame_offset,
+                             "single_weather": single_weather}
         self.predictions = self.method.open_predictions(
             self.scene, self.weather, self.root, pattern=pattern, resize=resize, frame_offset=frame_offset,
             single_weather=single_weather,

@@ -12,4 +12,5 @@ SUITES = {
     "weather": "wcbench.bench.weather:run",
     "report": "wcbench.bench.report:run",
     "model": "wcbench.bench.model:run",
+    "scale": "wcbench.bench.scale:run",
 }

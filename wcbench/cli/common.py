@@ -13,7 +13,8 @@ from wcbench.core.errors import InputError
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     """``--scenes`` and ``--data-root``."""
     parser.add_argument("--scenes", required=True,
-                        help="scene set name (see `wcbench scenes list`) or path to one processed scene folder")
+                        help="scene set name (see `wcbench scenes list`), path to one processed scene folder, "
+                             "or a comma-separated list of both")
     parser.add_argument("--data-root", type=Path, default=None,
                         help="folder holding the datasets (default: $WCBENCH_DATA)")
 
@@ -107,3 +108,35 @@ def parse_key_values(items: list[str], *, option: str, example: str, form: str =
         except json.JSONDecodeError:
             out[key] = raw
     return out
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--executor``, ``--scheduler`` and ``--workers`` (where the units of work run)."""
+    group = parser.add_argument_group("where units run")
+    group.add_argument("--executor", choices=("local", "dask"), default=None,
+                       help="local (default: this process) or dask (needs the [dask] extra; OUT, the "
+                            "predictions and the cache folder on a filesystem every worker shares)")
+    group.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="with --executor dask: a running scheduler, e.g. tcp://HOST:8786")
+    group.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="with --executor dask: start a local cluster of N worker processes "
+                            "(default: one per core)")
+
+
+def executor_from(args: argparse.Namespace) -> Any:
+    """The executor ``args`` ask for (a context manager that closes what it started).
+
+    Raises
+    ------
+    InputError
+        ``--scheduler`` or ``--workers`` without ``--executor dask``.
+    """
+    from wcbench.execution import make_executor
+
+    name = args.executor or "local"
+    if name != "dask" and (args.scheduler or args.workers is not None):
+        raise InputError("--scheduler and --workers go with --executor dask")
+    if name == "dask":
+        return make_executor("dask", scheduler=args.scheduler, workers=args.workers,
+                             show_progress=not args.no_progress)
+    return make_executor(name)

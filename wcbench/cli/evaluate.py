@@ -14,6 +14,8 @@ Examples::
         --out results/controlnet --weathers rain,snow --metrics temporal_flicker,fps --fps 0.4
     wcbench evaluate --method fresco --scenes pandaset_002 --data-root ../shared/data \\
         --predictions fresco_rain/ --weathers rain --out results/fresco    # FRESCO's save_path itself
+    wcbench evaluate --method controlnet --scenes waymo_5 --predictions controlnet_out/ \
+        --out results/controlnet --executor dask --scheduler tcp://HOST:8786   # on a Dask cluster
 """
 
 from __future__ import annotations
@@ -22,7 +24,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from wcbench.cli.common import add_progress_argument, add_scene_arguments, parse_metric_options, split_list
+from wcbench.cli.common import (
+    add_executor_arguments,
+    add_progress_argument,
+    add_scene_arguments,
+    executor_from,
+    parse_metric_options,
+    split_list,
+)
 from wcbench.cli.report import write_report
 
 HELP = "score a method's frames (results.json, results.csv)"
@@ -42,6 +51,7 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace finished results of other inputs")
     parser.add_argument("--report", action="store_true", help="also write OUT/report.html (see `wcbench report`)")
     add_progress_argument(parser)
+    add_executor_arguments(parser)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -95,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         show_progress=not args.no_progress, metric_options=parse_metric_options(args.metric_option),
     )
-    report(evaluate(cfg))
+    with executor_from(args) as executor:
+        outcome = evaluate(cfg, executor=executor)
+    report(outcome)
     if args.report:
         write_report([args.out], args.out / "report.html")
     return 0

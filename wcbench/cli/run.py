@@ -9,6 +9,7 @@ Examples::
     wcbench run --method identity --scenes pandaset_002 --data-root ../shared/data --out runs/id
     wcbench run --method weathercity --scenes pandaset_002 --data-root ../shared/data --out runs/wc
     wcbench run --method weathercity --scenes demo --profile quick --edit "remove class=Car" --out runs/edit
+    wcbench run --method weathercity --scenes waymo_5 --out runs/wc --executor dask --workers 2
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import argparse
 from wcbench.cli.common import (
     add_method_options,
     add_scene_arguments,
+    executor_from,
     method_options_from,
     parse_metric_options,
     split_list,
@@ -51,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
         metric_options=parse_metric_options(args.metric_option),
         render=RenderSettings(seed=args.seed, overwrite=args.overwrite, show_progress=not args.no_progress),
     )
-    report(evaluate(cfg, method=method))
+    with executor_from(args) as executor:
+        outcome = evaluate(cfg, method=method, executor=executor)
+    report(outcome)
     if args.report:
         write_report([args.out], args.out / "report.html")
     return 0

@@ -68,6 +68,7 @@ class LidarInitMethod(FrameRenderer):
             kind="runnable",
             weathers=WEATHERS,
             layout="writes <out>/lidar_init/<scene>/<weather>/{frame:03d}.png + info.json",
+            requires=("torch",),
         )
         self._scene_key: tuple[str, str] | None = None
         self._gaussians: Any = None

@@ -52,6 +52,9 @@ class MethodInfo:
     scene_folders : tuple of str
         Extra patterns for the folder of a scene, ``{scene}`` standing for any name the scene set
         gives it and ``*`` for any text (``"{scene}_*"`` for run folders named ``788_1_cam_000_029``).
+    requires : tuple of str
+        What rendering needs besides the evaluation side (``"torch"``: the ``[model]`` extra); a
+        distributed run only sends its render work to workers that declare these resources.
     """
 
     name: str
@@ -64,6 +67,7 @@ class MethodInfo:
     edits_source: bool = False
     unedited_hint: str = ""
     scene_folders: tuple[str, ...] = ()
+    requires: tuple[str, ...] = ()
 
 
 @runtime_checkable

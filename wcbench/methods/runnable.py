@@ -58,6 +58,14 @@ class FrameRenderer(ABC):
         """(width, height) of the rendered frames; the scene's own size unless a method says otherwise."""
         return scene.image_size
 
+    def setup_scene(self, scene: Scene, *, show_progress: bool = True) -> None:  # noqa: B027 - optional hook
+        """Scene-level work that every weather of ``scene`` shares (training a model), done once.
+
+        :meth:`prepare` must do it too when it has not been done in this process; what it makes
+        must be kept where a :meth:`prepare` in another process finds it (the cache folder), so a
+        distributed run does it as one unit on one worker before the scene's weathers render.
+        """
+
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:  # noqa: B027 - optional hook
         """Per-(scene, weather) set-up before the first frame (not part of frame timings)."""
 

@@ -331,6 +331,7 @@ class WeatherCityMethod(FrameRenderer):
             description="WeatherCity: weather Gaussians trained on raw + edited frames, physics particles and fog",
             kind="runnable",
             weathers=WEATHERS,
+            requires=("torch",),
             layout="writes <out>/weathercity/<scene>/<weather>/{frame:03d}.png + info.json (training resolution)",
         )
         self._model: WeatherCityModel | None = None
@@ -355,13 +356,18 @@ class WeatherCityMethod(FrameRenderer):
         """``size`` if given, else the training resolution."""
         return self.size or self.config.size_for(scene.image_size)
 
-    def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
-        """Train (or load) the scene's model once, then set up the renderer of ``weather``."""
+    def setup_scene(self, scene: Scene, *, show_progress: bool = True) -> None:
+        """Train the scene's model, or load it from its checkpoint in the cache folder (once per process)."""
         if self._scene_key != (scene.id, str(scene.root)):
             trained, _, facts = train_scene(
                 scene, self.config, supervision=self.supervision, jitter=self.jitter, content=self.content,
+                show_progress=show_progress,
             )
             self.use_model(scene, trained, facts)
+
+    def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
+        """Train (or load) the scene's model once, then set up the renderer of ``weather``."""
+        self.setup_scene(scene)
         model = self._model
         assert model is not None
         decoded = weather if weather in model.weathers else "clear"

@@ -152,11 +152,30 @@ def get_scene_set(name: str, *, data_root: str | os.PathLike[str] | None = None)
 def resolve_scenes(
     name_or_path: str | os.PathLike[str], *, data_root: str | os.PathLike[str] | None = None
 ) -> list[SceneRef]:
-    """Scenes of ``--scenes``: a set name, or a path to one processed scene folder.
+    """Scenes of ``--scenes``: a set name, a path to one processed scene folder, or a comma-separated
+    list of both (``demo,runs/demo_copy``).
 
     A path is recognised by containing a path separator or existing on disk.
+
+    Raises
+    ------
+    InputError
+        Two entries give scenes of the same id (their outputs would share folders).
     """
     text = str(name_or_path)
+    if "," in text and not Path(text).expanduser().is_dir():
+        refs = [r for part in text.split(",") if part.strip()
+                for r in resolve_scenes(part.strip(), data_root=data_root)]
+        ids = [r.id for r in refs]
+        twice = sorted({i for i in ids if ids.count(i) > 1})
+        if twice:
+            raise InputError(f"--scenes {text!r}: scene ids {twice} come up more than once "
+                             "(a scene folder's id is its folder name)")
+        return refs
+    return _resolve_one(text, data_root=data_root)
+
+
+def _resolve_one(text: str, *, data_root: str | os.PathLike[str] | None) -> list[SceneRef]:
     path = Path(text).expanduser()
     if os.sep in text or "/" in text or (path.is_dir() and text not in _specs()):
         if not path.is_dir():
