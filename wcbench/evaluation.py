@@ -19,7 +19,7 @@ editing tool that all equal their source frames raise a warning (``warnings``, s
 from __future__ import annotations
 
 import datetime as _dt
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,15 @@ import numpy as np
 from wcbench.core.environment import machine_info, package_versions
 from wcbench.core.errors import InputError, ResultsExistError, UnknownNameError
 from wcbench.core.image_io import to_float
-from wcbench.core.storage import atomic_write_json, atomic_write_text, json_safe, sha256_file, sha256_json
+from wcbench.core.locking import FolderLock
+from wcbench.core.storage import (
+    atomic_write_json,
+    atomic_write_text,
+    check_writable_folder,
+    json_safe,
+    sha256_file,
+    sha256_json,
+)
 from wcbench.core.weathers import WEATHERS
 from wcbench.execution import Executor
 from wcbench.execution.local import LocalExecutor
@@ -42,8 +50,16 @@ from wcbench.predictions import (
     SceneFolder,
     find_scene_folder,
 )
-from wcbench.results import RESULTS_CSV, RESULTS_JSON, SCHEMA_VERSION, read_results, to_csv
-from wcbench.scenes.sets import resolve_scenes
+from wcbench.results import (
+    RESULTS_CSV,
+    RESULTS_JSON,
+    SCHEMA_VERSION,
+    is_intact,
+    read_results,
+    results_checksum,
+    to_csv,
+)
+from wcbench.scenes.sets import normalized_scenes, resolve_scenes
 from wcbench.units import RenderSettings, Scoring, UnitResult, WorkUnit
 
 
@@ -298,6 +314,15 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None, executor: Exe
         units that failed (:class:`~wcbench.execution.UnitsFailedError`) after the others finish.
     """
     executor = executor or LocalExecutor()
+    # paths resolved once: the same folder given relative or absolute is the same input
+    cfg = replace(cfg, predictions=cfg.predictions.resolve(), out=cfg.out.resolve(),
+                  scenes=normalized_scenes(cfg.scenes))
+    check_writable_folder(cfg.out)
+    with FolderLock(cfg.out):  # one run per output folder; results are checked under the lock
+        return _evaluate_locked(cfg, method, executor)
+
+
+def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Executor) -> EvaluateOutcome:
     method, metric_names, previous = check_out_folder(cfg, method=method)
     results_path = cfg.out / RESULTS_JSON
     metrics, metric_cfg = _metric_config(metric_names, cfg.metric_options)
@@ -314,13 +339,16 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None, executor: Exe
     inputs["files"] = _input_files(units, cfg.out)  # where the hashed files were (not part of the hash)
     if previous is not None:
         if previous.get("inputs", {}).get("sha256") == inputs["sha256"]:
-            return EvaluateOutcome("up-to-date", results_path, previous, 0, len(units))
-        raise ResultsExistError(
-            f"{results_path}: finished results of other inputs or settings are there; "
-            "pass --overwrite to replace them or choose another --out"
-        )
+            if is_intact(previous):
+                return EvaluateOutcome("up-to-date", results_path, previous, 0, len(units))
+            # same inputs, but the file was edited after it was written: rebuilt from the unit files
+        else:
+            raise ResultsExistError(
+                f"{results_path}: finished results of other inputs or settings are there; "
+                "pass --overwrite to replace them or choose another --out"
+            )
     scoring = Scoring(cfg.out, metrics, metric_cfg, fps=cfg.fps, show_progress=cfg.show_progress)
-    outcomes = executor.score(units, scoring, [u.key(metric_cfg) for u in units])
+    outcomes = executor.score(units, scoring, [u.key(metric_cfg, fps=cfg.fps) for u in units])
     computed = sum(o.computed for o in outcomes)
     doc = assemble_results(config, inputs, outcomes)
     atomic_write_text(cfg.out / RESULTS_CSV, to_csv(doc))
@@ -351,6 +379,7 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
         "inputs": inputs, "results": results, "skipped": skipped, "partial": partial, "resized": resized,
         "warnings": warnings, "working_size": working,
     })
+    doc["checksum"] = results_checksum(doc)
     return doc
 
 

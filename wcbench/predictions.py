@@ -27,7 +27,6 @@ named in the results (never silently).
 from __future__ import annotations
 
 import fnmatch
-import json
 import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -47,6 +46,7 @@ from wcbench.core.image_io import (
     video_frame_count,
 )
 from wcbench.core.storage import sha256_file
+from wcbench.core.validation import expect_dict, expect_list, finite_number, read_json
 from wcbench.results import frames_text
 from wcbench.scenes.scene import Scene
 from wcbench.scenes.sets import SceneRef
@@ -301,6 +301,10 @@ def match_predictions(
         folder is empty, or a video is unreadable or of the wrong length.
     """
     layouts = [pattern] if isinstance(pattern, str) else list(pattern)
+    for lay in layouts:
+        if lay.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", lay) or ".." in lay.replace("\\", "/").split("/"):
+            raise InputError(f"--pattern {lay!r}: a pattern must stay inside the predictions folder "
+                             "(no absolute path, no '..')")
     names = _weather_names(weather, weather_names or {})
     n = len(scene.frames)
     chosen: tuple[str, Path, str] | None = None
@@ -337,6 +341,7 @@ def match_predictions(
             f"for scene {scene.id!r}"
         )
     layout, location, _ = chosen
+    _check_inside(location, root)
     last = layout.split("/")[-1]
     size = scene.image_size
     if _is_video_name(last):
@@ -373,9 +378,20 @@ def match_predictions(
     frames, missing = _check_frames(pairs, scene, where=where, partial_reason=partial_reason, video_count=None,
                                     unmatched=unmatched, stem_mode="stem" in used and "frame" not in used,
                                     frame_start=frame_start, frame_offset=frame_offset)
+    for p, _ in frames:
+        _check_inside(p, root)
     return PredictionSequence([p for p, _ in frames], size, [k for _, k in frames], resize=resize,
                               info=read_info(location), missing=missing, partial_reason=partial_reason,
                               layout=layout, location=location, ignored=ignored)
+
+
+def _check_inside(path: Path, root: Path) -> None:
+    """Refuse a prediction file or folder that resolves outside ``root`` (a symlink leading out):
+    a scored frame must be a file of the predictions folder it was found in."""
+    real, base = path.resolve(), root.resolve()
+    if not real.is_relative_to(base):
+        raise InputError(f"{path}: leads to {real}, outside the predictions folder {base}; "
+                         "symlinks out of the predictions folder are not followed")
 
 
 def _check_frames(
@@ -423,22 +439,52 @@ def _check_frames(
     if dupes:
         problems.append(f"several files for one frame {dupes}")
     if problems:
-        raise InputError(f"{where}: " + "; ".join(problems) + f"; the scene has {n} frames")
+        shift = f" (with --frame-offset {frame_offset}: the tool's frame i is scene frame i{frame_offset:+d})" \
+            if frame_offset else ""
+        raise InputError(f"{where}: " + "; ".join(problems) + f"; the scene has {n} frames{shift}")
     return [(by_frame[k][0], k) for k in present], missing
 
 
+#: Frame rates above this are not a timing but a typo (frames per second).
+MAX_FPS = 1e6
+
+
+def check_info(info: Any, path: Path) -> dict[str, Any]:
+    """``info`` (an ``info.json``) if the fields wcbench reads have the right types and ranges.
+
+    ``fps`` and ``timings.fps`` are finite and in (0, :data:`MAX_FPS`] (or ``null``), ``timings`` is
+    an object whose numbers are finite and >= 0, ``timings.frame_ms`` a list of them; other fields
+    are the tool's own.
+
+    Raises
+    ------
+    InputError
+        Naming ``path`` and the field.
+    """
+    info = expect_dict(info, path=path)
+    if info.get("fps") is not None:
+        finite_number(info["fps"], path=path, field="fps", positive=True, high=MAX_FPS)
+    timings = info.get("timings")
+    if timings is not None:
+        timings = expect_dict(timings, path=path, field="timings")
+        if timings.get("fps") is not None:
+            finite_number(timings["fps"], path=path, field="timings.fps", positive=True, high=MAX_FPS)
+        for key, value in timings.items():
+            if isinstance(value, (int, float)) and key != "fps":
+                finite_number(value, path=path, field=f"timings.{key}", low=0.0)
+        if timings.get("frame_ms") is not None:
+            for i, v in enumerate(expect_list(timings["frame_ms"], path=path, field="timings.frame_ms")):
+                finite_number(v, path=path, field=f"timings.frame_ms[{i}]", low=0.0)
+    return info
+
+
 def read_info(folder: Path) -> dict[str, Any] | None:
-    """The nearest ``info.json`` in ``folder`` or its two parents (weather, scene, method level)."""
+    """The nearest ``info.json`` in ``folder`` or its two parents (weather, scene, method level),
+    checked by :func:`check_info`."""
     for d in (folder, folder.parent, folder.parent.parent):
         path = d / INFO_FILE
         if path.is_file():
-            try:
-                info = json.loads(path.read_text(encoding="utf-8"))
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{path}: not valid JSON ({exc})") from None
-            if not isinstance(info, dict):
-                raise InputError(f"{path}: expected a JSON object")
-            return info
+            return check_info(read_json(path, what="info.json"), path)
     return None
 
 

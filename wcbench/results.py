@@ -22,7 +22,8 @@
       "partial": [{"scene", "weather", "n_scene_frames", "scored": [first, last], "missing": [...],
                    "reason"}],
       "resized": [{"scene", "weather", "from": [[w, h]...], "to": [w, h], "interpolation"}],
-      "warnings": [{"scene", "weather", "kind", "message", ...}]
+      "warnings": [{"scene", "weather", "kind", "message", ...}],
+      "checksum": sha256 of the document without this key (a hand-edited file is detected)
     }
 
 ``inputs.files`` (optional: older files lack it; not part of the hash) says where the hashed files
@@ -42,11 +43,12 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from pathlib import Path
 from typing import Any
 
 from wcbench.core.errors import InputError
+from wcbench.core.storage import sha256_json
+from wcbench.core.validation import expect_dict, read_json
 
 SCHEMA_VERSION = 1
 KIND = "wcbench-results"
@@ -66,18 +68,31 @@ def read_results(path: Path) -> dict[str, Any]:
     InputError
         If it is not valid JSON, not a wcbench results file, or of another schema version.
     """
-    try:
-        obj = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not a readable results file ({exc})") from None
+    obj = read_json(path, what="results")
     if not isinstance(obj, dict) or obj.get("kind") != KIND:
         raise InputError(f"{path}: not a wcbench results file (no \"kind\": \"{KIND}\")")
     if obj.get("schema_version") != SCHEMA_VERSION:
         raise InputError(
-            f"{path}: results of schema version {obj.get('schema_version')}, this wcbench reads and writes "
+            f"{path}: results of schema version {obj.get('schema_version')!r}, this wcbench reads and writes "
             f"version {SCHEMA_VERSION}; choose another --out or pass --overwrite to replace them"
         )
+    for key in ("config", "inputs", "results"):
+        expect_dict(obj.get(key), path=path, field=key)
+    for scene, weathers in obj["results"].items():
+        for weather, outputs in expect_dict(weathers, path=path, field=f"results.{scene}").items():
+            for name, rec in expect_dict(outputs, path=path, field=f"results.{scene}.{weather}").items():
+                expect_dict(rec, path=path, field=f"results.{scene}.{weather}.{name}")
     return obj
+
+
+def results_checksum(doc: dict[str, Any]) -> str:
+    """sha256 of a results document without its ``checksum`` key."""
+    return sha256_json({k: v for k, v in doc.items() if k != "checksum"})
+
+
+def is_intact(doc: dict[str, Any]) -> bool:
+    """Whether ``doc`` still has the checksum it was written with (``False`` once edited)."""
+    return doc.get("checksum") == results_checksum(doc)
 
 
 def frames_text(frames: list[int]) -> str:

@@ -163,14 +163,18 @@ class WorkUnit:
             ref_hashes = [sha256_file(p) for p in refs]
         p = self._opened()
         return {"predictions": p.sha256s(), "source": self.source_hashes, "reference": ref_hashes,
+                "info": None if p.info is None else sha256_json(p.info),
                 "location": str(p.location) if p.location else None, "layout": p.layout,
                 "frames": p.frame_indices, "ignored": p.ignored}
 
-    def key(self, metric_config: dict[str, Any]) -> str:
-        """Cache key of this unit's result: every input hash and the metric settings."""
+    def key(self, metric_config: dict[str, Any], *, fps: float | None = None) -> str:
+        """Cache key of this unit's result: every input that can change a number (each frame's
+        sha256, the predictions' ``info.json`` with its timings, the ``--fps`` given, the metric
+        settings and the results schema)."""
         inputs, p = self.inputs(), self._opened()
         return sha256_json({
             "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
+            "info": p.info, "fps": fps,
             "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
             "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
             "size": list(p.size),
@@ -183,15 +187,24 @@ class WorkUnit:
         return out / WORK_DIR / self.scene.id / f"{self.weather}.json"
 
     def cached_result(self, out: Path, key: str) -> dict[str, Any] | None:
-        """The finished result stored under ``key``, or ``None``."""
+        """The finished result stored under ``key``, or ``None``.
+
+        A unit file carries the sha256 of its result: a file that was edited, damaged or is not
+        a unit file at all is not served; the unit is computed again and the file replaced.
+        """
         path = self.work_path(out)
         if not path.is_file():
             return None
         try:
-            rec = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError:
-            return None  # never torn (atomic writes); a hand-edited file is simply recomputed
-        return rec["result"] if rec.get("key") == key else None
+            rec = json.loads(path.read_bytes().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+            return None  # never torn (atomic writes); a damaged file is simply recomputed
+        if not (isinstance(rec, dict) and rec.get("key") == key and isinstance(rec.get("result"), dict)):
+            return None
+        if rec.get("checksum") != sha256_json(rec["result"]):
+            return None
+        result: dict[str, Any] = rec["result"]
+        return result
 
     def validate(self, *, show_progress: bool = True) -> None:
         """Decode every prediction once (size, bit depth, video length), so bad input fails before work starts."""
@@ -346,12 +359,12 @@ def execute_unit(unit: WorkUnit, scoring: Scoring, *, key: str | None = None) ->
     key : str, optional
         The unit's key if already computed (:meth:`WorkUnit.key`).
     """
-    key = key or unit.key(scoring.metric_config)
+    key = key or unit.key(scoring.metric_config, fps=scoring.fps)
     cached = unit.cached_result(scoring.out, key)
     if cached is not None:
         return UnitResult(unit, key, cached, computed=False)
     result = unit.score(scoring.metrics, fps=scoring.fps, show_progress=scoring.show_progress)
-    atomic_write_json(unit.work_path(scoring.out), {"key": key, "result": result})
+    atomic_write_json(unit.work_path(scoring.out), {"key": key, "result": result, "checksum": sha256_json(result)})
     return UnitResult(unit, key, result, computed=True)
 
 

@@ -28,6 +28,9 @@ def load_segmenter(
 ) -> Callable[[np.ndarray], np.ndarray]:
     """A segmenter from a model-store name (``"segformer-b0-ade"``) or a converted folder.
 
+    The onnxruntime segmenter records in its ``config()`` whether its weights are verified (a
+    store entry whose source matched a pinned sha256; never a bare folder).
+
     Parameters
     ----------
     name_or_dir : str or path-like
@@ -52,14 +55,16 @@ def load_segmenter(
         raise ValueError(f"backend must be 'onnx' or 'torch', got {backend!r}")
     key = os.fspath(name_or_dir)
     if Path(key).is_dir():
-        model_dir, name = Path(key), Path(key).name
+        # a folder outside the store: nothing pinned its source (docs/design.md §6)
+        model_dir, name, verified = Path(key), Path(key).name, False
     else:
         if store is None:
             store = ModelStore()
         model_dir, name = Path(store.require(key)).parent, key  # require() gives the main file, model.onnx
+        verified = store.source_verified(key) is True
     if backend == "torch":
         # torch is optional: the evaluation side scores with onnxruntime and never imports it
         from wcbench.metrics.semantic.pytorch.backend import load_torch_segmenter
 
         return load_torch_segmenter(model_dir, name=name)
-    return OnnxSegmenter(model_dir, name=name, threads=threads)
+    return OnnxSegmenter(model_dir, name=name, threads=threads, weights_verified=verified)

@@ -309,6 +309,11 @@ class OnnxSegmenter(LogitsSegmenter):
         Recorded in :meth:`config` (default: the folder name).
     threads : int, optional
         onnxruntime intra-op threads (default: onnxruntime's choice, all cores).
+    weights_verified : bool
+        Whether the folder's weights came from a file matching a pinned sha256 (the model store's
+        ``source_verified``; :func:`~wcbench.metrics.semantic.loading.load_segmenter` passes it).
+        A folder outside the store is unverified. Recorded in :meth:`config`, so every Sem-CS
+        number made with unverified weights says so (docs/design.md §6).
 
     Raises
     ------
@@ -317,7 +322,12 @@ class OnnxSegmenter(LogitsSegmenter):
     """
 
     def __init__(
-        self, model_dir: str | os.PathLike[str], *, name: str | None = None, threads: int | None = None
+        self,
+        model_dir: str | os.PathLike[str],
+        *,
+        name: str | None = None,
+        threads: int | None = None,
+        weights_verified: bool = False,
     ):
         import onnxruntime as ort
 
@@ -328,6 +338,7 @@ class OnnxSegmenter(LogitsSegmenter):
         self.spec = SegmenterSpec.from_file(d / SPEC_FILE)
         self.name = name or d.name
         self.model_dir = d
+        self.weights_verified = bool(weights_verified)
         opts = ort.SessionOptions()
         if threads is not None:
             opts.intra_op_num_threads = int(threads)
@@ -346,5 +357,6 @@ class OnnxSegmenter(LogitsSegmenter):
             "segmenter": self.name,
             "backend": "onnxruntime",
             "onnx_sha256": self._onnx_sha256,
+            "weights_verified": self.weights_verified,
             **self.spec.to_json(),
         }

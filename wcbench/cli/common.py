@@ -4,10 +4,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 from wcbench.core.errors import InputError
+
+
+def frame_rate(text: str) -> float:
+    """argparse type of ``--fps``: a finite frame rate in (0, 1e6]."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0 < value <= 1e6):
+        raise argparse.ArgumentTypeError(f"expected a frame rate in frames per second, > 0 and finite, got {text!r}")
+    return value
 
 
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:

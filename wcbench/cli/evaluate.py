@@ -29,6 +29,7 @@ from wcbench.cli.common import (
     add_progress_argument,
     add_scene_arguments,
     executor_from,
+    frame_rate,
     parse_metric_options,
     split_list,
 )
@@ -43,7 +44,7 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--weathers", nargs="+", default=None,
                         help="weathers to score (default: every weather found / supported)")
     parser.add_argument("--metrics", nargs="+", default=None, help="metrics (default: see `wcbench metrics list`)")
-    parser.add_argument("--fps", type=float, default=None, help="frame rate to report if info.json has none")
+    parser.add_argument("--fps", type=frame_rate, default=None, help="frame rate to report if info.json has none")
     parser.add_argument("--metric-option", action="append", default=[], metavar="METRIC.KEY=VALUE",
                         help="option of one metric, repeatable, e.g. sem_cs.segmenter=segformer-b0-ade, "
                              "clip_s.backend=torch, flow_warping_error.flow=deepflow (VALUE is read as JSON "

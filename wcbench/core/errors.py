@@ -36,5 +36,13 @@ class UnknownNameError(WcbenchError, KeyError):
         return str(self.args[0])
 
 
+class OutputError(WcbenchError):
+    """An output file or folder cannot be written: read-only, full, or not a folder.
+
+    Raised before any work when it can be seen then, else at the write that failed; finished work
+    is kept either way (atomic writes).
+    """
+
+
 class ResultsExistError(WcbenchError):
     """An output folder holds finished results that a run would overwrite."""

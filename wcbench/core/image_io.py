@@ -8,14 +8,21 @@ conversion that would shift a metric.
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from wcbench.core.errors import InputError
 from wcbench.core.storage import atomic_path, atomic_write_bytes
+
+#: The largest image read: at most this many pixels a side and in all (8K UHD is 33 MP). Larger
+#: sizes are refused from the file's header, before anything is decoded (docs/design.md §9).
+MAX_IMAGE_SIDE = 16384
+MAX_IMAGE_PIXELS = 64_000_000
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm")
@@ -43,20 +50,66 @@ def _check_rgb8(img: np.ndarray | None, path: Path) -> np.ndarray:
     return img
 
 
-def read_rgb8(path: str | Path) -> np.ndarray:
-    """Read an image file as uint8 RGB [H, W, 3].
+def check_image_size(width: int, height: int, where: str | Path) -> None:
+    """Refuse a declared or decoded size of 0 or above :data:`MAX_IMAGE_SIDE` / :data:`MAX_IMAGE_PIXELS`.
 
     Raises
     ------
     InputError
-        If the file is missing, corrupt, grayscale, not 8-bit or has an alpha channel.
+        Naming ``where`` and the size.
+    """
+    too_big = width > MAX_IMAGE_SIDE or height > MAX_IMAGE_SIDE or width * height > MAX_IMAGE_PIXELS
+    if width < 1 or height < 1 or too_big:
+        raise InputError(
+            f"{where}: image of {width}x{height} pixels; expected 1 to {MAX_IMAGE_SIDE} a side and at most "
+            f"{MAX_IMAGE_PIXELS:,} pixels"
+        )
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) of an image file from its header, without decoding the pixels.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, its header unreadable, or the size out of range
+        (:func:`check_image_size`).
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: image file not found")
+        raise InputError(f"{path}: image file not found" + (" (it is a folder)" if path.is_dir() else ""))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # our own limit applies below
+            with Image.open(path) as im:
+                width, height = im.size
+    except Image.DecompressionBombError:
+        raise InputError(f"{path}: image header declares more than {MAX_IMAGE_PIXELS:,} pixels") from None
+    except (OSError, SyntaxError, ValueError) as exc:
+        raise InputError(f"{path}: cannot decode image (corrupt or not an image: {exc}); "
+                         "expected an 8-bit RGB image") from None
+    check_image_size(width, height, path)
+    return width, height
+
+
+def read_rgb8(path: str | Path) -> np.ndarray:
+    """Read an image file as uint8 RGB [H, W, 3].
+
+    The header is read first, so a file declaring a huge size is refused before it is decoded.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, corrupt, too large, grayscale, not 8-bit or has an alpha channel.
+    """
+    path = Path(path)
+    width, height = image_size(path)
     data = np.fromfile(path, dtype=np.uint8)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    return cv2.cvtColor(_check_rgb8(img, path), cv2.COLOR_BGR2RGB)
+    img = _check_rgb8(img, path)
+    if img.shape[:2] != (height, width):
+        raise InputError(f"{path}: decodes to {img.shape[1]}x{img.shape[0]}, its header says {width}x{height}")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def to_float(img: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
@@ -121,6 +174,7 @@ def iter_video_rgb8(path: str | Path) -> Iterator[np.ndarray]:
     try:
         if not cap.isOpened():
             raise InputError(f"{path}: cannot open video (corrupt or unsupported codec); expected an mp4/avi file")
+        check_image_size(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)), path)
         n = 0
         while True:
             ok, frame = cap.read()

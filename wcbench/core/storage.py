@@ -6,6 +6,7 @@ the target, so a killed process leaves either the old file or the new one, never
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -16,11 +17,24 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
+from wcbench.core.errors import InputError, OutputError
+
 _CHUNK = 1 << 20
 # mkstemp creates files readable by the owner only; results and frames should get the usual
 # permissions, so read the process umask once (setting it is the only way to read it).
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
+
+
+#: Write failures that are the output's fault, not a bug: full disk or quota, read-only
+#: filesystem, permissions, a file where a folder should be, a file-size limit.
+_OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR,
+                            errno.EISDIR, errno.EFBIG, errno.EEXIST})
+
+
+def _output_error(path: Path, exc: OSError) -> OutputError:
+    return OutputError(f"{path}: cannot write ({exc.strerror or exc}); finished work is kept: fix the folder "
+                       "(space, permissions) and run again to resume")
 
 
 @contextmanager
@@ -29,19 +43,36 @@ def atomic_path(path: str | os.PathLike[str], *, suffix: str = "") -> Iterator[P
 
     Use for writers that want a file name (``cv2.imwrite``, video writers). ``suffix`` keeps an
     extension that such writers look at.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be written (full, read-only, no permission, a file in the way); the old
+        file, if any, is left as it was.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=(suffix or ".tmp"), dir=path.parent)
-    os.fchmod(fd, 0o666 & ~_UMASK)
-    os.close(fd)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=(suffix or ".tmp"), dir=path.parent)
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        os.close(fd)
+    except OSError as exc:
+        if exc.errno in _OUTPUT_ERRNOS:
+            raise _output_error(path, exc) from exc
+        raise
     tmp_path = Path(tmp)
     try:
         yield tmp_path
         os.replace(tmp_path, path)
+    except OSError as exc:
+        if exc.errno in _OUTPUT_ERRNOS:
+            raise _output_error(path, exc) from exc
+        raise
     finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+        try:
+            tmp_path.unlink(missing_ok=True)
+        except OSError:
+            pass  # the folder went read-only meanwhile: the temporary name is all that is left
 
 
 def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], Any]) -> None:
@@ -50,6 +81,32 @@ def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], Any
         writer(fh)
         fh.flush()
         os.fsync(fh.fileno())
+
+
+def check_writable_folder(path: str | os.PathLike[str], *, what: str = "output folder") -> None:
+    """Check before any work that ``path`` is, or can be created as, a folder this process can write.
+
+    Raises
+    ------
+    InputError
+        ``path`` (or a parent) exists and is not a folder.
+    OutputError
+        The folder, or the parent it would be created in, is not writable (a read-only
+        filesystem or missing permissions; root passes permission checks).
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{p}: the {what} exists and is not a folder")
+    probe = p
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{p}: cannot be created: {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        where = "" if probe == p else f" (it would be created in {probe})"
+        raise OutputError(f"{p}: the {what} is not writable{where}; choose another --out or fix its permissions")
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:

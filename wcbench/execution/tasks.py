@@ -165,7 +165,7 @@ def score_task(data: bytes, digest: str, spec: UnitSpec) -> dict[str, Any]:
             raise RuntimeError("score_task of a run without a results folder")
         unit = _unit(shared, spec)
         unit.open(**(spec.open_options or {}))
-        key = unit.key(shared.metric_config)
+        key = unit.key(shared.metric_config, fps=shared.fps)
         if key != spec.key:
             raise InputError(f"{unit.label}: its files changed since the run was planned (or this worker sees "
                              f"other files under {spec.root}); run again")

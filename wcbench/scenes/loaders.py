@@ -21,15 +21,15 @@ camera sits at the origin (see :mod:`wcbench.scenes.scene`).
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from wcbench.core.errors import InputError
+from wcbench.core.image_io import image_size
+from wcbench.core.validation import expect_dict, finite_number, read_json
 from wcbench.scenes.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene, check_finite_matrix
 
 #: Maps OpenCV camera axes (x right, y down, z forward) to Waymo camera axes (x forward, y left,
@@ -40,6 +40,15 @@ OPENCV_TO_WAYMO = np.array(
 Z_UP = np.array([0.0, 0.0, 1.0])
 _FRAME_RATE_HZ = 10.0  # both drivestudio layouts are 10 Hz when no timestamps file exists
 _IMAGE_EXTS = (".jpg", ".jpeg", ".png")
+#: Bounds of plausible scene numbers (docs/design.md §9): focal lengths and principal points in
+#: pixels, distortion coefficients, translations in metres. Outside them a float32 cast or a
+#: projection would overflow or vanish (fx = 1e-300 becomes 0 in float32).
+_FOCAL_PX = (1e-3, 1e7)
+_PIXEL_BOUND = 1e7
+_DISTORTION_BOUND = 1e3
+_TRANSLATION_M = 1e8
+#: A pose's rotation block must be a rotation to this tolerance (|R^T R - I| and |det R - 1|).
+_ROTATION_TOL = 1e-3
 
 
 def read_matrix(path: Path, *, what: str, shape: tuple[int, ...] = (4, 4)) -> np.ndarray:
@@ -48,45 +57,77 @@ def read_matrix(path: Path, *, what: str, shape: tuple[int, ...] = (4, 4)) -> np
     Raises
     ------
     InputError
-        If the file is missing, unparsable, of the wrong size or holds NaN/Inf.
+        If the file is missing, unparsable (or not UTF-8), of the wrong size or holds NaN/Inf.
     """
     if not path.is_file():
         raise InputError(f"{path}: missing {what} file (expected {int(np.prod(shape))} numbers)")
     try:
         values = np.array(path.read_text(encoding="utf-8").split(), dtype=np.float64)
-    except ValueError as exc:
+    except (ValueError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: {what} is not a list of numbers ({exc})") from None
     if values.size != int(np.prod(shape)):
         raise InputError(f"{path}: expected {int(np.prod(shape))} numbers for {what}, found {values.size}")
     return check_finite_matrix(values.reshape(shape), what=what, path=path, shape=shape)
 
 
+def read_pose(path: Path, *, what: str) -> np.ndarray:
+    """Read a 4x4 rigid transform: a rotation block (orthonormal, det +1), a translation within
+    :data:`_TRANSLATION_M` metres and the last row ``0 0 0 1``.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_matrix`, or when the matrix is not a rigid transform.
+    """
+    m = read_matrix(path, what=what)
+    R = m[:3, :3]
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InputError(f"{path}: {what} must end with the row 0 0 0 1, got {m[3].tolist()}")
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if err > _ROTATION_TOL or abs(det - 1.0) > _ROTATION_TOL:
+        raise InputError(
+            f"{path}: {what} has a rotation block that is not a rotation (|R^T R - I| = {err:.3g}, det = {det:.3g}); "
+            "expected an orthonormal matrix with determinant +1"
+        )
+    if np.abs(m[:3, 3]).max() > _TRANSLATION_M:
+        raise InputError(f"{path}: {what} translation {m[:3, 3].tolist()} is beyond {_TRANSLATION_M:g} m")
+    return m
+
+
 def read_intrinsics(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read ``fx fy cx cy k1 k2 p1 p2 k3``; return K [3, 3] and distortion [5]."""
+    """Read ``fx fy cx cy k1 k2 p1 p2 k3``; return K [3, 3] and distortion [5].
+
+    Raises
+    ------
+    InputError
+        As :func:`read_matrix`, or when a focal length, principal point or distortion coefficient
+        is outside its plausible range (checked in float64, before any float32 cast).
+    """
     v = read_matrix(path, what="intrinsics (fx fy cx cy k1 k2 p1 p2 k3)", shape=(9,))
+    for name, x in zip(("fx", "fy"), v[:2]):
+        finite_number(x, path=path, field=f"focal length {name} (px)", low=_FOCAL_PX[0], high=_FOCAL_PX[1])
+    for name, x in zip(("cx", "cy"), v[2:4]):
+        finite_number(x, path=path, field=f"principal point {name} (px)", low=-_PIXEL_BOUND, high=_PIXEL_BOUND)
+    for name, x in zip(("k1", "k2", "p1", "p2", "k3"), v[4:9]):
+        finite_number(x, path=path, field=f"distortion {name}", low=-_DISTORTION_BOUND, high=_DISTORTION_BOUND)
     fx, fy, cx, cy = v[:4]
-    if fx <= 0 or fy <= 0:
-        raise InputError(f"{path}: focal lengths must be positive, got fx={fx}, fy={fy}")
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return K, v[4:9].copy()
 
 
-def _read_lidar(path: Path, columns: int) -> np.ndarray:
-    data = np.fromfile(path, dtype=np.float32)
-    if data.size % columns:
+def _read_lidar(path: Path, columns: int, *, finite: tuple[int, ...]) -> np.ndarray:
+    """The float32 [N, columns] points of a lidar file; the ``finite`` columns must be finite."""
+    if path.stat().st_size % (4 * columns):
         raise InputError(
-            f"{path}: lidar file holds {data.size} float32 values, not a multiple of {columns} columns"
+            f"{path}: lidar file of {path.stat().st_size} bytes is not a whole number of points of "
+            f"{columns} float32 values"
         )
-    pts = data.reshape(-1, columns)
+    pts = np.fromfile(path, dtype=np.float32).reshape(-1, columns)
+    bad = ~np.isfinite(pts[:, list(finite)]).all(axis=1)
+    if bad.any():
+        raise InputError(f"{path}: {int(bad.sum())} of {len(pts)} lidar points have NaN or Inf coordinates")
     return pts
-
-
-def _image_size(path: Path) -> tuple[int, int]:
-    try:
-        with Image.open(path) as im:
-            return im.size
-    except (OSError, SyntaxError) as exc:
-        raise InputError(f"{path}: cannot read image header ({exc})") from None
 
 
 def _find_frames(root: Path, camera: int) -> dict[int, Path]:
@@ -128,35 +169,42 @@ def _timestamps(root: Path, indices: list[int]) -> list[float]:
     path = root / "timestamps.json"
     if not path.is_file():
         return [t / _FRAME_RATE_HZ for t in indices]
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
-    values = raw if isinstance(raw, list) else [raw[str(t)] if str(t) in raw else raw[f"{t:03d}"] for t in indices]
-    try:
-        return [float(values[t]) for t in indices] if isinstance(raw, list) else [float(v) for v in values]
-    except (IndexError, KeyError, TypeError, ValueError):
-        raise InputError(f"{path}: expected one timestamp (seconds) per frame for frames {indices}") from None
+    raw = read_json(path, what="timestamps")
+    expected = f"one timestamp (seconds) per frame for frames {indices[0]}..{indices[-1]}: a list or {{frame: seconds}}"
+    if not isinstance(raw, (list, dict)):
+        raise InputError(f"{path}: expected {expected}")
+    values = []
+    for t in indices:
+        if isinstance(raw, list):
+            value = raw[t] if t < len(raw) else None
+        else:
+            value = raw.get(str(t), raw.get(f"{t:03d}"))
+        if value is None:
+            raise InputError(f"{path}: no timestamp for frame {t}; expected {expected}")
+        values.append(finite_number(value, path=path, field=f"timestamp of frame {t}"))
+    back = [t for t, a, b in zip(indices[1:], values, values[1:]) if b <= a]
+    if back:
+        raise InputError(f"{path}: timestamps must increase from frame to frame; they do not at frames {back}")
+    return values
 
 
 def _read_tracks(root: Path, index_map: dict[int, int], offset: np.ndarray) -> list[ObjectTrack]:
     path = root / "instances" / "instances_info.json"
     if not path.is_file():
         return []
-    try:
-        info = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    info = expect_dict(read_json(path, what="instances"), path=path, what="a JSON object {instance id: instance}")
     tracks = []
     for key, obj in info.items():
-        ann = obj.get("frame_annotations", {})
+        obj = expect_dict(obj, path=path, field=f"instance {key}")
+        ann = expect_dict(obj.get("frame_annotations"), path=path, field=f"instance {key} frame_annotations")
         try:
             frames = np.asarray(ann["frame_idx"], dtype=np.int64)
             poses = np.asarray(ann["obj_to_world"], dtype=np.float64).reshape(-1, 4, 4)
             sizes = np.asarray(ann["box_size"], dtype=np.float64).reshape(-1, 3)
-        except (KeyError, ValueError):
+        except (KeyError, ValueError, TypeError):
             raise InputError(
-                f"{path}: instance {key} lacks frame_annotations.frame_idx/obj_to_world/box_size"
+                f"{path}: instance {key} needs frame_annotations.frame_idx (integers), obj_to_world (4x4 "
+                "matrices) and box_size (3 numbers each)"
             ) from None
         if not (len(frames) == len(poses) == len(sizes)):
             raise InputError(f"{path}: instance {key} has mismatched annotation lengths")
@@ -165,6 +213,8 @@ def _read_tracks(root: Path, index_map: dict[int, int], offset: np.ndarray) -> l
             continue
         if not (np.all(np.isfinite(poses[keep])) and np.all(np.isfinite(sizes[keep]))):
             raise InputError(f"{path}: instance {key} has non-finite box poses or sizes")
+        if np.any(sizes[keep] <= 0) or np.abs(poses[keep][:, :3, 3]).max() > _TRANSLATION_M:
+            raise InputError(f"{path}: instance {key} has box sizes <= 0 or positions beyond {_TRANSLATION_M:g} m")
         poses = poses[keep].copy()
         poses[:, :3, 3] -= offset
         tracks.append(
@@ -183,10 +233,13 @@ def _class_names(root: Path) -> dict[int, str]:
     path = root / "classes.json"
     if not path.is_file():
         return {}
+    raw = expect_dict(read_json(path, what="class names"), path=path, what="a JSON object {class id: name}")
     try:
-        return {int(k): str(v) for k, v in json.loads(path.read_text(encoding="utf-8")).items()}
-    except (json.JSONDecodeError, ValueError, AttributeError):
-        raise InputError(f"{path}: expected a JSON object {{class id: name}}") from None
+        if not all(isinstance(v, str) for v in raw.values()):
+            raise ValueError
+        return {int(k): v for k, v in raw.items()}
+    except ValueError:
+        raise InputError(f"{path}: expected a JSON object {{class id (integer): name (string)}}") from None
 
 
 def _optional(path: Path) -> Path | None:
@@ -207,11 +260,11 @@ def _build_scene(
     lidar_reader: Callable[[Frame, np.ndarray], LidarSweep],
     camera: int,
 ) -> Scene:
-    width, height = _image_size(images[indices[0]])
+    width, height = image_size(images[indices[0]])
     for t in indices[1:]:
-        if _image_size(images[t]) != (width, height):
+        if image_size(images[t]) != (width, height):
             raise InputError(
-                f"{images[t]}: image is {_image_size(images[t])}, expected {(width, height)} like frame {indices[0]}"
+                f"{images[t]}: image is {image_size(images[t])}, expected {(width, height)} like frame {indices[0]}"
             )
     offset = c2w[0][:3, 3].copy()
     times = _timestamps(root, indices)
@@ -269,7 +322,7 @@ def load_nuscenes_layout(
     images = _find_frames(root, camera)
     indices = _select(images, start, count, root)
     K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
-    c2w = [read_matrix(root / "extrinsics" / f"{t:03d}_{camera}.txt", what="camera-to-world pose") for t in indices]
+    c2w = [read_pose(root / "extrinsics" / f"{t:03d}_{camera}.txt", what="camera-to-world pose") for t in indices]
     lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
     semseg = root / "lidar_semseg"
     orig = dict(zip(range(len(indices)), indices))
@@ -277,8 +330,8 @@ def load_nuscenes_layout(
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
         t = orig[frame.index]
-        pts = _read_lidar(frame.lidar_path, 4)
-        pose = read_matrix(root / "lidar_pose" / f"{t:03d}.txt", what="lidar-to-world pose")
+        pts = _read_lidar(frame.lidar_path, 4, finite=(0, 1, 2))
+        pose = read_pose(root / "lidar_pose" / f"{t:03d}.txt", what="lidar-to-world pose")
         world = pts[:, :3].astype(np.float64) @ pose[:3, :3].T + (pose[:3, 3] - offset)
         labels = None
         label_path = semseg / f"{t:03d}.bin"
@@ -306,14 +359,14 @@ def load_waymo_layout(
     images = _find_frames(root, camera)
     indices = _select(images, start, count, root)
     K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
-    cam_to_ego = read_matrix(root / "extrinsics" / f"{camera}.txt", what="camera-to-vehicle extrinsics")
-    ego = [read_matrix(root / "ego_pose" / f"{t:03d}.txt", what="vehicle-to-world pose") for t in indices]
+    cam_to_ego = read_pose(root / "extrinsics" / f"{camera}.txt", what="camera-to-vehicle extrinsics")
+    ego = [read_pose(root / "ego_pose" / f"{t:03d}.txt", what="vehicle-to-world pose") for t in indices]
     c2w = [e @ cam_to_ego @ OPENCV_TO_WAYMO for e in ego]
     lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
 
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
-        pts = _read_lidar(frame.lidar_path, 14).astype(np.float64)
+        pts = _read_lidar(frame.lidar_path, 14, finite=(0, 1, 2, 3, 4, 5)).astype(np.float64)
         pose = ego[frame.index]
         R, tr = pose[:3, :3], pose[:3, 3] - offset
         return LidarSweep(

@@ -175,9 +175,21 @@ def resolve_scenes(
     return _resolve_one(text, data_root=data_root)
 
 
+def _is_path(text: str) -> bool:
+    return os.sep in text or "/" in text or (Path(text).expanduser().is_dir() and text not in _specs())
+
+
+def normalized_scenes(name_or_path: str | os.PathLike[str]) -> str:
+    """``--scenes`` with every folder path made absolute, so the same scenes read the same
+    whether given relative or absolute (set names are left as they are)."""
+    text = str(name_or_path)
+    parts = [text] if Path(text).expanduser().is_dir() else text.split(",")
+    return ",".join(str(Path(p.strip()).expanduser().resolve()) if _is_path(p.strip()) else p.strip() for p in parts)
+
+
 def _resolve_one(text: str, *, data_root: str | os.PathLike[str] | None) -> list[SceneRef]:
     path = Path(text).expanduser()
-    if os.sep in text or "/" in text or (path.is_dir() and text not in _specs()):
+    if _is_path(text):
         if not path.is_dir():
             raise InputError(f"{path}: scene folder does not exist")
         return [SceneRef(id=path.resolve().name, format=detect_format(path), path=path)]

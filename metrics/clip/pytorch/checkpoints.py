@@ -3,7 +3,10 @@
 Formats read (detected from the file, not its name):
 
 - OpenAI ``.pt`` as released: a TorchScript archive (``torch.jit.load``; its state dict carries
-  three extra scalars ``input_resolution``, ``context_length``, ``vocab_size`` and float16 weights);
+  three extra scalars ``input_resolution``, ``context_length``, ``vocab_size`` and float16 weights).
+  Loading one runs the code it holds, so it is read only when the caller trusts it
+  (``trust_torchscript=True``, ``--trust-torchscript``; docs/design.md §6) and refused otherwise,
+  recognised from its zip listing without unpickling anything;
 - OpenAI/open_clip plain state dicts (``torch.load(weights_only=True)``), optionally wrapped as
   ``{"state_dict": ...}`` with DDP's ``module.`` prefix (open_clip training checkpoints), or as
   safetensors (``open_clip_model.safetensors``). open_clip's ``CLIP`` class keeps OpenAI's key
@@ -19,13 +22,13 @@ from __future__ import annotations
 
 import os
 import re
-import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from wcbench.core.models.store import check_torchscript
 from wcbench.core.storage import atomic_path
 from wcbench.metrics.clip.config import ClipArch
 
@@ -254,14 +257,6 @@ def _clean_openai(sd: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in sd.items() if k not in _NON_WEIGHTS and not k.endswith(".attn_mask")}
 
 
-def _is_torchscript(path: Path) -> bool:
-    # A TorchScript archive is a zip holding compiled code (``<root>/code/``) beside the data.
-    if not zipfile.is_zipfile(path):
-        return False
-    with zipfile.ZipFile(path) as zf:
-        return any("/code/" in n or n.startswith("code/") for n in zf.namelist())
-
-
 def _to_numpy(t: Any) -> np.ndarray:
     # float32 everywhere: OpenAI's archives hold float16 weights, some hubs bfloat16 (no numpy dtype).
     return t.detach().to(device="cpu").float().numpy().copy()
@@ -283,13 +278,19 @@ def _read_safetensors(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str]
     return tensors, dict(meta)
 
 
-def read_state_dict(path: str | os.PathLike[str]) -> tuple[StateDict, str]:
+def read_state_dict(path: str | os.PathLike[str], *, trust_torchscript: bool = False) -> tuple[StateDict, str]:
     """Read any supported CLIP checkpoint as a float32 numpy state dict with OpenAI keys.
 
     Parameters
     ----------
     path : path-like
         The checkpoint.
+    trust_torchscript : bool
+        Load a TorchScript archive (OpenAI's released ``.pt``) with ``torch.jit.load``, which runs
+        the code it holds: only for a file from a trusted source. A file the model store was told
+        to trust for the install running is trusted too
+        (:func:`~wcbench.core.models.store.check_torchscript`). Other ``.pt``/``.bin`` files are
+        read with ``torch.load(weights_only=True)``.
 
     Returns
     -------
@@ -303,6 +304,8 @@ def read_state_dict(path: str | os.PathLike[str]) -> tuple[StateDict, str]:
     ------
     CheckpointError
         If the file is none of these formats.
+    wcbench.core.models.store.UntrustedTorchScriptError
+        (an ``InputError``) If the file is a TorchScript archive nobody trusted; it is not loaded.
     """
     path = Path(path)
     with open(path, "rb") as fh:
@@ -314,13 +317,15 @@ def read_state_dict(path: str | os.PathLike[str]) -> tuple[StateDict, str]:
             return {k: np.asarray(v, np.float32) for k, v in raw.items()}, "wcbench"
         fmt = "safetensors"
     else:
+        # Decided from the zip listing before torch sees the file: nothing is unpickled or run.
+        torchscript = check_torchscript(path, trusted=trust_torchscript)
         try:
             import torch
         except ImportError as exc:
             raise CheckpointError(
                 f"{path}: reading .pt/.bin checkpoints needs torch (pip install 'wcbench[model]')"
             ) from exc
-        if _is_torchscript(path):
+        if torchscript:
             raw = {
                 k: _to_numpy(v) for k, v in torch.jit.load(str(path), map_location="cpu").state_dict().items()
             }

