@@ -36,6 +36,7 @@ from wcbench.core.storage import (
     json_safe,
     sha256_file,
     sha256_json,
+    sweep_temporary_files,
 )
 from wcbench.core.weathers import WEATHERS
 from wcbench.execution import Executor
@@ -319,6 +320,7 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None, executor: Exe
                   scenes=normalized_scenes(cfg.scenes))
     check_writable_folder(cfg.out)
     with FolderLock(cfg.out):  # one run per output folder; results are checked under the lock
+        sweep_temporary_files(cfg.out)  # what a killed run was writing when it died
         return _evaluate_locked(cfg, method, executor)
 
 

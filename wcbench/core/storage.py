@@ -11,6 +11,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -30,6 +31,10 @@ os.umask(_UMASK)
 #: filesystem, permissions, a file where a folder should be, a file-size limit.
 _OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR,
                             errno.EISDIR, errno.EFBIG, errno.EEXIST})
+
+
+#: Names :func:`atomic_path` gives its temporary files (mkstemp's random part is 8 characters).
+_TEMPORARY = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
 
 
 def _output_error(path: Path, exc: OSError) -> OutputError:
@@ -53,7 +58,7 @@ def atomic_path(path: str | os.PathLike[str], *, suffix: str = "") -> Iterator[P
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=(suffix or ".tmp"), dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + suffix, dir=path.parent)
         os.fchmod(fd, 0o666 & ~_UMASK)
         os.close(fd)
     except OSError as exc:
@@ -81,6 +86,21 @@ def atomic_write(path: str | os.PathLike[str], writer: Callable[[IO[bytes]], Any
         writer(fh)
         fh.flush()
         os.fsync(fh.fileno())
+
+
+def sweep_temporary_files(folder: str | os.PathLike[str]) -> int:
+    """Remove the temporary files of atomic writes that a killed process left in ``folder`` (and
+    below); the number removed. Call it only while no other process writes there
+    (:class:`~wcbench.core.locking.FolderLock`)."""
+    removed = 0
+    for p in Path(folder).rglob(".*.tmp*"):
+        if p.is_file() and _TEMPORARY.match(p.name):
+            try:
+                p.unlink()
+                removed += 1
+            except OSError:
+                pass  # read-only: the write that follows reports it
+    return removed
 
 
 def check_writable_folder(path: str | os.PathLike[str], *, what: str = "output folder") -> None:
