@@ -42,6 +42,7 @@ def test_render_refuses_a_method_without_physics_weather(tmp_path: Path, capsys:
 
 
 def test_method_options_are_checked_before_construction() -> None:
+    pytest.importorskip("torch")  # lidar_init is a reference-model method
     assert {"weathers", "size", "scale", "voxel_m", "init_frames"} <= set(method_options("lidar_init"))
     assert method_options("identity") == []
     with pytest.raises(InputError, match="takes no option voxel"):

@@ -33,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the suite, print its table, write the JSON."""
+    from wcbench.core.storage import check_writable_folder
     from wcbench.scenes.sets import data_root_from
 
     suites: LazyRegistry = LazyRegistry("benchmark", SUITES)  # entry points add suites of other packages
@@ -42,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.suite not in suites:
         raise UnknownNameError("benchmark suite", args.suite, suites.names())
+    if args.json:
+        check_writable_folder(args.json.parent, what="folder of the benchmark JSON")
     report = suites.get(args.suite)(data_root=data_root_from(args.data_root), quick=args.quick)
     print(report.format_table())
     if args.json:

@@ -22,12 +22,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the methods."""
-    from wcbench.methods import METHODS, get_method
+    from wcbench.methods import INSTALL_HINT, METHODS, MethodUnavailableError, get_method
 
     names = METHODS.names()
     width = max(len(n) for n in names)
     for name in names:
-        m = get_method(name)
+        try:
+            m = get_method(name)
+        except MethodUnavailableError as exc:
+            print(f"{name:{width}s} {'-':9s} {'-':22s} unavailable: needs {exc.package} ({INSTALL_HINT})")
+            continue
         print(f"{name:{width}s} {m.info.kind:9s} {','.join(m.info.weathers):22s} {m.info.description}")
         if args.verbose and m.info.layout:
             for line in m.info.layout.splitlines():

@@ -195,7 +195,10 @@ def run(args: argparse.Namespace) -> int:
     from wcbench.scenes.sets import data_root_from, resolve_scenes
     from wcbench.units import RenderSettings, WorkUnit
 
+    from wcbench.core.storage import check_writable_folder
+
     get_method(args.method)  # an unknown name fails before any scene is loaded
+    check_writable_folder(args.out)
     weather = _weather(args)
     settings_base = {"seed": weather.seed, "overwrite": args.overwrite, "video": not args.no_video,
                      "show_progress": not args.no_progress}

@@ -48,8 +48,10 @@ def add_report_options(parser: argparse.ArgumentParser) -> None:
 def write_report(results: list[Path], output: Path, *, title: str | None = None, bench: list[Path] | None = None,
                  csv: bool = False, latex: bool = False, animation_frames: int = 12, frames: bool = True) -> int:
     """Build the report (:func:`wcbench.reports.build_report`) and print what was written; returns 0."""
+    from wcbench.core.storage import check_writable_folder
     from wcbench.reports import build_report
 
+    check_writable_folder(output.parent, what="folder of the report")
     outcome = build_report(results, output, title=title, bench=bench or [], csv=csv, latex=latex,
                            animation_frames=animation_frames, frames=frames)
     extra = [str(p) for p in (outcome.csv, outcome.latex) if p is not None]

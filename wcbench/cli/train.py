@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Train every scene of the set; print and write what each training measured."""
-    from wcbench.core.storage import atomic_write_json
+    from wcbench.core.storage import atomic_write_json, check_writable_folder
     from wcbench.methods.weathercity import train_scene
     from wcbench.reference_model.training.config import make_config
     from wcbench.scenes.sets import resolve_scenes
@@ -60,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"train: {exc}") from None
     if not 0.0 <= args.jitter <= 1.0:
         raise InputError(f"--jitter must be in [0, 1], got {args.jitter}")
+    if args.out is not None:
+        check_writable_folder(args.out)
     refs = resolve_scenes(args.scenes, data_root=args.data_root)
     if args.checkpoint is not None and len(refs) > 1:
         raise InputError(f"--checkpoint names one folder, but {args.scenes} has {len(refs)} scenes")

@@ -38,7 +38,10 @@ _TEMPORARY = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
 
 
 def _output_error(path: Path, exc: OSError) -> OutputError:
-    return OutputError(f"{path}: cannot write ({exc.strerror or exc}); finished work is kept: fix the folder "
+    reason = exc.strerror or str(exc)
+    if exc.errno in (errno.EEXIST, errno.ENOTDIR):
+        reason = "a file is in the way of a folder on its path"
+    return OutputError(f"{path}: cannot write ({reason}); finished work is kept: fix the folder "
                        "(space, permissions) and run again to resume")
 
 
@@ -116,7 +119,7 @@ def check_writable_folder(path: str | os.PathLike[str], *, what: str = "output f
     """
     p = Path(path)
     if p.exists() and not p.is_dir():
-        raise InputError(f"{p}: the {what} exists and is not a folder")
+        raise InputError(f"{p}: is a file; expected the {what} (a folder, or a path where one can be created)")
     probe = p
     while not probe.exists():
         if probe.parent == probe:

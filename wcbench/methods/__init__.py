@@ -28,9 +28,34 @@ METHODS: LazyRegistry = LazyRegistry(
 )
 
 
+#: What to install for a method whose code needs a missing package.
+INSTALL_HINT = 'pip install "wcbench[model]"'
+
+
+class MethodUnavailableError(InputError):
+    """A registered method whose code needs a package that is not installed (``package``)."""
+
+    def __init__(self, name: str, package: str):
+        super().__init__(f"method {name!r} needs the package {package!r}, which is not installed "
+                         f"(the reference model's methods come with the [model] extra: {INSTALL_HINT})")
+        self.package = package
+
+
+def _factory(name: str) -> Any:
+    try:
+        return METHODS.get(name)
+    except ModuleNotFoundError as exc:
+        raise MethodUnavailableError(name, exc.name or str(exc)) from None
+
+
 def method_options(name: str) -> list[str]:
-    """The options the method registered as ``name`` takes (keyword arguments of its factory)."""
-    params = inspect.signature(METHODS.get(name)).parameters
+    """The options the method registered as ``name`` takes (keyword arguments of its factory).
+
+    Raises
+    ------
+    UnknownNameError, MethodUnavailableError
+    """
+    params = inspect.signature(_factory(name)).parameters
     return [p for p, v in params.items() if v.kind in (v.KEYWORD_ONLY, v.POSITIONAL_OR_KEYWORD)]
 
 
@@ -43,8 +68,10 @@ def get_method(name: str, **options: Any) -> Method:
         With close-name suggestions.
     InputError
         If the method does not take one of ``options`` (the message lists the ones it takes).
+    MethodUnavailableError
+        If its code needs a package that is not installed.
     """
-    factory = METHODS.get(name)
+    factory = _factory(name)
     unknown = sorted(set(options) - set(method_options(name)))
     if unknown:
         takes = ", ".join(method_options(name)) or "none"
@@ -61,5 +88,6 @@ def is_runnable(method: Method) -> bool:
 
 
 __all__ = [
-    "METHODS", "WEATHERS", "Method", "MethodInfo", "RunnableMethod", "get_method", "is_runnable", "method_options",
+    "METHODS", "WEATHERS", "Method", "MethodInfo", "MethodUnavailableError", "RunnableMethod", "get_method",
+    "is_runnable", "method_options",
 ]

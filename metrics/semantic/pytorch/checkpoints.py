@@ -62,10 +62,18 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
                 "in this folder"
             )
     if path.name.endswith(".index.json"):
-        shards = sorted(set(json.loads(path.read_text(encoding="utf-8"))["weight_map"].values()))
+        index = json.loads(path.read_text(encoding="utf-8"))
+        weight_map = index.get("weight_map") if isinstance(index, dict) else None
+        if not isinstance(weight_map, dict) or not all(isinstance(v, str) for v in weight_map.values()):
+            raise ValueError(f"{path}: expected {{\"weight_map\": {{tensor name: shard file name}}}}")
+        shards = sorted(set(weight_map.values()))
         out: dict[str, torch.Tensor] = {}
         for shard in shards:
-            out.update(load_file(str(path.parent / shard)))
+            # a shard is a file beside the index: a name that leads elsewhere is refused
+            target = (path.parent / shard).resolve()
+            if Path(shard).name != shard or target.parent != path.parent.resolve():
+                raise ValueError(f"{path}: shard {shard!r} is not a file name beside the index")
+            out.update(load_file(str(target)))
         return out
     if path.suffix == ".safetensors":
         return load_file(str(path))
