@@ -32,7 +32,8 @@ not a finite number is ``null`` with its ``reason``. A *partial* (scene, weather
 was scored on the contiguous run of frames its tool wrote (a reader declares that its tool can end
 early); ``missing`` names the scene frames without a prediction. ``results.csv`` has one row per
 (scene, weather, output): ``scene, weather, metric, output, value, status, reason, variant,
-higher_is_better, n_frames, missing_frames`` with status ``ok``, ``null`` or ``skipped`` and
+higher_is_better, n_frames, missing_frames`` (``n_frames``: the frames scored for that scene and
+weather) with status ``ok``, ``null`` or ``skipped`` and
 ``missing_frames`` the missing scene frames of a partial sequence (``25-29``; empty when complete).
 ``working_size`` lists the (scene, weather) units scored at a method's own resolution (the scene's
 frames resized to it). The keys ``partial``, ``resized``, ``warnings`` and ``working_size`` may be
@@ -111,6 +112,9 @@ def csv_rows(results: dict[str, Any]) -> list[dict[str, Any]]:
     """Tidy rows (see module docstring) from a results object."""
     rows = []
     missing = {(p["scene"], p["weather"]): frames_text(p["missing"]) for p in results.get("partial", [])}
+    # frames scored per (scene, weather), for every row: a ratio or an fps has no per-frame values
+    scored = {(s, w): len(rec.get("frames") or []) for s, ws in results.get("inputs", {}).get("scenes", {}).items()
+              for w, rec in ws.items() if isinstance(rec, dict)}
     for scene, weathers in results["results"].items():
         for weather, outputs in weathers.items():
             for output, r in outputs.items():
@@ -118,14 +122,16 @@ def csv_rows(results: dict[str, Any]) -> list[dict[str, Any]]:
                     "scene": scene, "weather": weather, "metric": r["metric"], "output": output,
                     "value": r["value"], "status": "ok" if r["value"] is not None else "null",
                     "reason": r.get("reason") or "", "variant": r.get("variant", ""),
-                    "higher_is_better": r["higher_is_better"], "n_frames": len(r.get("per_frame", [])),
+                    "higher_is_better": r["higher_is_better"],
+                    "n_frames": scored.get((scene, weather), len(r.get("per_frame") or [])),
                     "missing_frames": missing.get((scene, weather), ""),
                 })
     for s in results["skipped"]:
         rows.append({
             "scene": s["scene"], "weather": s["weather"], "metric": s["metric"], "output": s["metric"],
             "value": None, "status": "skipped", "reason": s["reason"], "variant": "",
-            "higher_is_better": "", "n_frames": 0, "missing_frames": missing.get((s["scene"], s["weather"]), ""),
+            "higher_is_better": "", "n_frames": scored.get((s["scene"], s["weather"]), 0),
+            "missing_frames": missing.get((s["scene"], s["weather"]), ""),
         })
     rows.sort(key=lambda r: (r["scene"], r["weather"], r["metric"], r["output"]))
     return rows
