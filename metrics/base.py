@@ -101,13 +101,16 @@ def as_float_images(x: Any, *, name: str) -> np.ndarray:
     Raises
     ------
     ValueError
-        On a wrong rank, a channel count other than 3, or float values outside [0, 1].
+        On a wrong rank, a channel count other than 3, an image without pixels (H or W = 0), or
+        float values outside [0, 1].
     """
     a = np.asarray(x)
     if a.ndim == 3:
         a = a[None]
     if a.ndim != 4 or a.shape[-1] != 3:
         raise ValueError(f"{name}: expected images [B, H, W, 3] or [H, W, 3], got shape {a.shape}")
+    if a.shape[1] == 0 or a.shape[2] == 0:  # every per-pixel mean would be 0 / 0
+        raise ValueError(f"{name}: images must be at least 1 x 1 px, got {a.shape[1]} x {a.shape[2]}")
     if a.dtype == np.uint8:
         return a.astype(np.float32) / 255.0
     if not np.issubdtype(a.dtype, np.floating):

@@ -9,15 +9,24 @@ from wcbench.metrics.base import PerFrameReferenceMetric, as_float_images, check
 _VARIANT = "mean over frames of 10 log10(1 / MSE), RGB in [0, 1], MSE over pixels and channels in float64"
 
 
-def _squared_errors(pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Per-frame mean squared error [B] in float64."""
+def _frame_psnr(pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Per-frame PSNR [B] in dB from the float64 mean squared error; ``inf`` only for identical frames.
+
+    Differences below ~1e-154 (float64 denormal inputs) square to 0: such a frame's error is
+    rescaled by its largest difference before squaring, so a frame that differs never reads as
+    identical (docs/design.md §9).
+    """
     d = pred.astype(np.float64) - reference.astype(np.float64)
-    return np.einsum("bhwc,bhwc->b", d, d) / np.prod(d.shape[1:])
-
-
-def _psnr_from_mse(mse: np.ndarray) -> np.ndarray:
+    n = np.prod(d.shape[1:])
+    mse = np.einsum("bhwc,bhwc->b", d, d) / n
     with np.errstate(divide="ignore"):
-        return 10.0 * np.log10(1.0 / mse)
+        out = 10.0 * np.log10(1.0 / mse)
+    for b in np.flatnonzero(mse == 0):
+        top = float(np.abs(d[b]).max())
+        if top > 0:  # differs, but the squares underflowed: mse = top^2 mean((d / top)^2)
+            scaled = d[b] / top
+            out[b] = -10.0 * (2.0 * np.log10(top) + np.log10(np.einsum("hwc,hwc->", scaled, scaled) / n))
+    return out
 
 
 def psnr(pred: np.ndarray, reference: np.ndarray) -> float:
@@ -32,10 +41,17 @@ def psnr(pred: np.ndarray, reference: np.ndarray) -> float:
     -------
     float
         Mean over frames of per-frame PSNR with data range 1; ``inf`` for identical images.
+
+    Raises
+    ------
+    ValueError
+        On images that are not finite RGB in [0, 1] (or uint8), shapes that differ, or no frames.
     """
     p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
     check_same_shape(p, r, names=("pred", "reference"))
-    return float(np.mean(_psnr_from_mse(_squared_errors(p, r))))
+    if not len(p):
+        raise ValueError("psnr: no frames")
+    return float(np.mean(_frame_psnr(p, r)))
 
 
 class PSNR(PerFrameReferenceMetric):
@@ -50,4 +66,4 @@ class PSNR(PerFrameReferenceMetric):
 
     def frame_values(self, pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """Per-frame PSNR [B] in dB (inf for identical frames)."""
-        return _psnr_from_mse(_squared_errors(pred, reference))
+        return _frame_psnr(pred, reference)

@@ -30,8 +30,9 @@ def gaussian_kernel_1d(sigma: float = SIGMA, radius: int = _RADIUS) -> np.ndarra
 
 def ssim_map_mean(a: np.ndarray, b: np.ndarray, *, data_range: float = 1.0) -> float:
     """SSIM of two images [H, W, C] (float64 math), mean over valid pixels and channels."""
-    if min(a.shape[:2]) < 2 * _RADIUS + 1:
-        raise ValueError(f"ssim: images must be at least {2 * _RADIUS + 1} px on each side, got {a.shape[:2]}")
+    if min(a.shape[:2]) < 2 * _RADIUS + 1:  # the 11 x 11 window, and OpenCV's reflection, need it
+        raise ValueError(f"ssim: images must be at least {2 * _RADIUS + 1} px on each side, "
+                         f"got {a.shape[0]} x {a.shape[1]} px")
     k = gaussian_kernel_1d()
     x, y = a.astype(np.float64), b.astype(np.float64)
 
@@ -61,9 +62,17 @@ def ssim(pred: np.ndarray, reference: np.ndarray) -> float:
     -------
     float
         In [-1, 1]; 1 for identical images.
+
+    Raises
+    ------
+    ValueError
+        On images that are not finite RGB in [0, 1] (or uint8), shapes that differ, no frames, or
+        frames under 11 px on a side (the Gaussian window).
     """
     p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
     check_same_shape(p, r, names=("pred", "reference"))
+    if not len(p):
+        raise ValueError("ssim: no frames")
     return float(np.mean([ssim_map_mean(a, b) for a, b in zip(p, r)]))
 
 

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from wcbench.core.image_io import to_uint8
-from wcbench.metrics.base import Metric, MetricValue, as_float_images, finite_or_none
+from wcbench.metrics.base import Metric, MetricValue, as_float_images, check_same_shape, finite_or_none
 
 FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -36,8 +36,24 @@ def _gray8(img: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(to_uint8(img), cv2.COLOR_RGB2GRAY)
 
 
+#: Smallest frames OpenCV's DIS (preset MEDIUM, 8 px patches) takes: (short side, long side) in px.
+DIS_MIN_SIDES = (8, 12)
+
+
 def dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Dense flow a -> b [H, W, 2] (pixels, x then y) with OpenCV DIS, preset MEDIUM."""
+    """Dense flow a -> b [H, W, 2] (pixels, x then y) with OpenCV DIS, preset MEDIUM.
+
+    Raises
+    ------
+    ValueError
+        If the frames are smaller than :data:`DIS_MIN_SIDES` (8 px on the short side and 12 px on
+        the long one): OpenCV would stop with its own size error.
+    """
+    h, w = a.shape[:2]
+    if min(h, w) < DIS_MIN_SIDES[0] or max(h, w) < DIS_MIN_SIDES[1]:
+        raise ValueError(f"dis flow needs frames of at least {DIS_MIN_SIDES[0]} px on the short side and "
+                         f"{DIS_MIN_SIDES[1]} px on the long side, got {h}x{w} px (use flow='farneback' "
+                         "for smaller frames)")
     dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     return dis.calc(_gray8(a), _gray8(b), None)
 
@@ -65,12 +81,15 @@ def warp(img: np.ndarray, flow: np.ndarray) -> np.ndarray:
 
 
 def _central_gradient(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """d/dy and d/dx of [H, W, C] like ``np.gradient`` (central inside, one-sided at the border)."""
-    gy, gx = np.empty_like(a), np.empty_like(a)
-    gy[1:-1] = (a[2:] - a[:-2]) * 0.5
-    gy[0], gy[-1] = a[1] - a[0], a[-1] - a[-2]
-    gx[:, 1:-1] = (a[:, 2:] - a[:, :-2]) * 0.5
-    gx[:, 0], gx[:, -1] = a[:, 1] - a[:, 0], a[:, -1] - a[:, -2]
+    """d/dy and d/dx of [H, W, C] like ``np.gradient`` (central inside, one-sided at the border);
+    0 along an axis one pixel long, where no difference exists."""
+    gy, gx = np.zeros_like(a), np.zeros_like(a)
+    if a.shape[0] > 1:
+        gy[1:-1] = (a[2:] - a[:-2]) * 0.5
+        gy[0], gy[-1] = a[1] - a[0], a[-1] - a[-2]
+    if a.shape[1] > 1:
+        gx[:, 1:-1] = (a[:, 2:] - a[:, :-2]) * 0.5
+        gx[:, 0], gx[:, -1] = a[:, 1] - a[:, 0], a[:, -1] - a[:, -2]
     return gy, gx
 
 
@@ -171,8 +190,8 @@ class _FlowCache:
             self._entries.move_to_end(key)
             return self._entries[key]
         self.misses += 1
-        fwd = np.asarray(flow(s0, s1), np.float32)
-        bwd = np.asarray(flow(s1, s0), np.float32)
+        fwd = _checked_flow(flow(s0, s1), s0.shape[:2])
+        bwd = _checked_flow(flow(s1, s0), s0.shape[:2])
         mask = consistency_mask(fwd, bwd)
         pair = SourcePair(fwd, mask, warp_error_pair(s0, s1, fwd, mask))
         if flow_name is not None:
@@ -186,6 +205,28 @@ class _FlowCache:
 FLOW_CACHE = _FlowCache()
 
 
+def _checked_flow(flow: Any, size: tuple[int, ...]) -> np.ndarray:
+    """A flow [H, W, 2] as float32, or a ValueError: a NaN flow would turn into NaN errors."""
+    f = np.asarray(flow, np.float32)
+    if f.shape != (*size, 2) or not np.all(np.isfinite(f)):
+        raise ValueError(f"the flow must return finite [H, W, 2] = [{size[0]}, {size[1]}, 2] pixel offsets, "
+                         f"got shape {f.shape}" + ("" if f.shape != (*size, 2) else " with non-finite values"))
+    return f
+
+
+def _check_frame_size(frame: np.ndarray, last: np.ndarray) -> None:
+    """A batch continues the sequence of the previous one: its frames must have the same size."""
+    if frame.shape != last.shape:
+        raise ValueError(f"frames of one sequence must share a size: this batch has {frame.shape[:2]}, "
+                         f"the previous frame {last.shape[:2]}")
+
+
+def _too_few_frames(n: int) -> str:
+    """The reason a temporal metric gives for a sequence too short for a frame pair (the wording of
+    :meth:`Metric.skip_reason <wcbench.metrics.base.Metric.skip_reason>` for ``min_frames``)."""
+    return f"needs at least 2 frames, got {n}"
+
+
 def _mean_abs_diff(a: np.ndarray, b: np.ndarray) -> float:
     """mean |a - b|: differences in the inputs' precision, the long sum in float64."""
     return float(np.abs(a - b).sum(dtype=np.float64) / a.size)
@@ -194,7 +235,7 @@ def _mean_abs_diff(a: np.ndarray, b: np.ndarray) -> float:
 def _sequence(frames: np.ndarray, name: str, what: str) -> np.ndarray:
     f = as_float_images(frames, name=name)
     if len(f) < 2:
-        raise ValueError(f"{what}: needs at least 2 frames, got {len(f)}")
+        raise ValueError(f"{what}: {_too_few_frames(len(f))}")
     return f
 
 
@@ -221,6 +262,13 @@ def temporal_flicker(frames: np.ndarray) -> float:
     ----------
     frames : ndarray [T, H, W, 3]
         T >= 2.
+
+    Raises
+    ------
+    ValueError
+        On fewer than 2 frames (the class reports such a sequence as a null value with the same
+        reason, and the evaluation skips it through ``min_frames``), or on frames that are not
+        finite RGB in [0, 1].
     """
     f = _sequence(frames, "frames", "temporal_flicker")
     return float(np.mean([_mean_abs_diff(f[k + 1], f[k]) for k in range(len(f) - 1)]))
@@ -232,6 +280,13 @@ def flow_warp_errors(edited: np.ndarray, source: np.ndarray | None = None, *,
 
     ``source`` defaults to ``edited`` itself (the error of a raw video). RGB in [0, 1]; NaN for a
     pair whose mask is empty.
+
+    Raises
+    ------
+    ValueError
+        On fewer than 2 frames (as :func:`temporal_flicker`), frames that are not finite RGB in
+        [0, 1], mismatched shapes, frames too small for DIS (:data:`DIS_MIN_SIDES`), or a flow that
+        is not finite [H, W, 2].
     """
     e = _sequence(edited, "edited", "flow_warp_error").astype(np.float32)
     s = e if source is None else _sequence(source, "source", "flow_warp_error").astype(np.float32)
@@ -250,7 +305,7 @@ def flow_warp_error(edited: np.ndarray, source: np.ndarray | None = None, *, flo
     """Flow warping error E_warp of ``edited`` [T, H, W, 3] with flow and mask from ``source``: the mean
     of :func:`flow_warp_errors` over pairs with valid pixels (NaN when none has any).
 
-    :class:`FlowWarpingError` accumulates the same per-pair values.
+    :class:`FlowWarpingError` accumulates the same per-pair values. Raises as :func:`flow_warp_errors`.
     """
     errors = flow_warp_errors(edited, source, flow=flow)
     return float(np.nanmean(errors)) if np.isfinite(errors).any() else float("nan")
@@ -274,12 +329,18 @@ class TemporalFlicker(Metric):
         self._pred: list[float] = []
         self._src: list[float] = []
         self._last: tuple[np.ndarray, np.ndarray | None] | None = None
+        self._frames = 0
 
     def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
                reference: np.ndarray | None = None) -> None:
         """Accumulate the frame differences of a batch of consecutive frames [B, H, W, 3]."""
         p = as_float_images(pred, name="pred")
         s = None if source is None else as_float_images(source, name="source")
+        if s is not None:
+            check_same_shape(p, s, names=("pred", "source"))
+        if len(p) and self._last is not None:
+            _check_frame_size(p[0], self._last[0])
+        self._frames += len(p)
         for k in range(len(p)):
             cur = (p[k], None if s is None else s[k])
             if self._last is not None:
@@ -291,15 +352,21 @@ class TemporalFlicker(Metric):
             self._last = (self._last[0].copy(), None if self._last[1] is None else self._last[1].copy())
 
     def compute(self) -> dict[str, MetricValue]:
-        """Mean flicker and edited/source ratio (null with a reason when the source is static)."""
+        """Mean flicker and edited/source ratio (null with a reason when the source is static or the
+        sequence has fewer than 2 frames)."""
         p, s = np.asarray(self._pred), np.asarray(self._src)
+        variant = "mean abs difference of consecutive frames, RGB [0, 1]"
+        if not p.size:
+            reason = _too_few_frames(self._frames)
+            return {"temporal_flicker": MetricValue(None, reason=reason, variant=variant),
+                    "temporal_flicker_ratio": MetricValue(None, reason=reason, variant="ratio")}
         out = {"temporal_flicker": MetricValue.from_number(
-            p.mean() if p.size else float("nan"), nonfinite_reason="fewer than 2 frames",
-            per_frame=finite_or_none(p), variant="mean abs difference of consecutive frames, RGB [0, 1]")}
+            p.mean(), nonfinite_reason="non-finite frame difference", per_frame=finite_or_none(p),
+            variant=variant)}
         if s.size and s.size == p.size:
             ratio = p.mean() / s.mean() if s.mean() > 0 else float("nan")
             out["temporal_flicker_ratio"] = MetricValue.from_number(
-                ratio, nonfinite_reason="the source sequence is static (zero flicker)",
+                ratio, nonfinite_reason="the source sequence is static (its flicker is zero or too small to divide by)",
                 variant="edited temporal_flicker / source temporal_flicker")
         else:
             out["temporal_flicker_ratio"] = MetricValue(None, reason="no source sequence", variant="ratio")
@@ -344,6 +411,7 @@ class FlowWarpingError(Metric):
         self._pred: list[float] = []
         self._src: list[float] = []
         self._last: tuple[np.ndarray, np.ndarray, bytes] | None = None
+        self._frames = 0
 
     def update(self, pred: np.ndarray, *, source: np.ndarray | None = None,
                reference: np.ndarray | None = None) -> None:
@@ -354,6 +422,9 @@ class FlowWarpingError(Metric):
         s = as_float_images(source, name="source").astype(np.float32)
         if p.shape != s.shape:
             raise ValueError(f"pred has shape {p.shape} but source has shape {s.shape}")
+        if len(p) and self._last is not None:
+            _check_frame_size(p[0], self._last[0])
+        self._frames += len(p)
         for k in range(len(p)):
             key = frame_digest(s[k])  # once per frame, not once per pair it belongs to
             if self._last is not None:
@@ -369,6 +440,11 @@ class FlowWarpingError(Metric):
         """Mean over frame pairs, and the edited/source ratio."""
         p, s = np.asarray(self._pred), np.asarray(self._src)
         variant = f"E_warp, {self.flow_name} flow + Ruder occlusion mask from source, RGB [0, 1], SSE over channels"
+        ratio_variant = "edited E_warp / source E_warp"
+        if not p.size:
+            reason = _too_few_frames(self._frames)
+            return {"flow_warping_error": MetricValue(None, reason=reason, variant=variant),
+                    "flow_warping_error_ratio": MetricValue(None, reason=reason, variant=ratio_variant)}
         pm = float(np.nanmean(p)) if p.size and np.isfinite(p).any() else float("nan")
         sm = float(np.nanmean(s)) if s.size and np.isfinite(s).any() else float("nan")
         return {
@@ -377,5 +453,5 @@ class FlowWarpingError(Metric):
                 per_frame=finite_or_none(p), variant=variant),
             "flow_warping_error_ratio": MetricValue.from_number(
                 pm / sm if sm > 0 else float("nan"),
-                nonfinite_reason="the source's own warping error is zero", variant="edited E_warp / source E_warp"),
+                nonfinite_reason="the source's own warping error is zero or undefined", variant=ratio_variant),
         }

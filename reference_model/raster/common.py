@@ -31,6 +31,11 @@ DEPTH_EPS = 1e-10
 QUAT_EPS2 = 1e-24
 #: Largest pixel half-extent we keep as a number (boxes are clipped to the image anyway).
 MAX_EXTENT = 1e7
+#: Largest |value| of a finite color, feature or background entry (docs/design.md §9). Gradients
+#: are linear in the colors and summed over up to millions of pixels in float32: 1e15 leaves ~20
+#: orders of magnitude of headroom below float32's 3.4e38 for the geometric factors; colors are
+#: RGB in [0, 1] or features of order 1.
+MAX_ABS_COLOR = 1e15
 
 #: Names of the per-Gaussian cull counters in ``RenderOutput.meta`` (see :func:`cull_counts`).
 CULL_NONFINITE, CULL_NEAR_FAR, CULL_DEGENERATE, CULL_TRANSPARENT, CULL_OFFSCREEN = 1, 2, 3, 4, 5
@@ -132,6 +137,17 @@ def check_inputs(
             raise ValueError(f"{name} must have shape {shape} (N = len(means)), got {tuple(t.shape)}")
     if colors.dim() != 2 or colors.shape[0] != n or colors.shape[1] < 1:
         raise ValueError(f"colors must have shape [N={n}, C >= 1], got {tuple(colors.shape)}")
+    if colors.numel():
+        # Non-finite colors cull their Gaussian (counted); finite ones beyond the bound are an error.
+        # One pass without temporaries in the usual case; the masked pass only if it finds NaN/Inf.
+        with torch.no_grad():
+            lo, hi = torch.aminmax(colors)
+            top = max(-float(lo), float(hi))
+            if not math.isfinite(top):
+                top = float(torch.where(torch.isfinite(colors), colors.abs(), 0.0).max())
+        if top > MAX_ABS_COLOR:
+            raise ValueError(f"colors must be within +-{MAX_ABS_COLOR:g} (float32 gradients would overflow), "
+                             f"got a finite value of magnitude {top:.3g}")
     dtypes = {t.dtype for t in (means, quats, scales, opacities, colors)}
     if len(dtypes) != 1:
         raise ValueError(f"means, quats, scales, opacities and colors must share one dtype, got {dtypes}")
@@ -146,16 +162,35 @@ def check_inputs(
         raise ValueError("viewmat and K must be finite")
     if float(K_t[0, 0]) <= 0 or float(K_t[1, 1]) <= 0:
         raise ValueError(f"K must have positive focal lengths, got fx={float(K_t[0, 0])}, fy={float(K_t[1, 1])}")
-    if int(width) != width or int(height) != height or width < 1 or height < 1:
+    if not (_positive_integer(width) and _positive_integer(height)):
         raise ValueError(f"width and height must be positive integers, got {width} x {height}")
     if not (0 < near < far):
         raise ValueError(f"need 0 < near < far, got near={near}, far={far}")
     bg = None
     if background is not None:
-        bg = torch.as_tensor(background, dtype=dtype)
+        try:
+            bg = torch.as_tensor(background, dtype=dtype)
+        except (TypeError, ValueError, RuntimeError) as exc:
+            raise ValueError(f"background must be [C] real numbers, got {background!r}") from exc
+        if bg.device.type != "cpu":
+            raise ValueError(f"background is on {bg.device}; this rasterizer runs on the CPU")
         if tuple(bg.shape) != (colors.shape[1],):
             raise ValueError(f"background must have shape [C={colors.shape[1]}], got {tuple(bg.shape)}")
+        # One background for every pixel: a NaN or Inf there would be in every output and gradient.
+        with torch.no_grad():
+            finite = bool(torch.isfinite(bg).all())
+            mag = float(bg.abs().max())
+        if not finite or mag > MAX_ABS_COLOR:
+            raise ValueError(f"background must be finite and within +-{MAX_ABS_COLOR:g}, got {bg.detach().tolist()}")
     return viewmat_t, K_t, bg
+
+
+def _positive_integer(v: Any) -> bool:
+    """An integer >= 1, as int or integral float (NaN, Inf and non-numbers are not)."""
+    try:
+        return float(v).is_integer() and v >= 1
+    except (TypeError, ValueError, OverflowError):
+        return False
 
 
 def empty_meta(backend: str, n: int) -> dict[str, Any]:

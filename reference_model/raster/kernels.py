@@ -3,7 +3,8 @@
 Pipeline (forward):
 
 1. ``_project_kernel`` (parallel over Gaussians, float64 arithmetic): cull (non-finite, near/far,
-   degenerate, transparent, off-screen), EWA projection, conic, per-axis pixel box.
+   degenerate, transparent, off-screen), EWA projection (the 2D determinant from the minors of
+   J V R diag(s), ``_cov2d``: needles keep it), conic, per-axis pixel box.
 2. Binning: one global depth sort (numpy's SIMD sort of ``depth_bits << 32 | index``), the
    compositing data packed into one 64-byte record per Gaussian in that order (``_gather_sorted``),
    then a stable counting sort into 16x16 tiles (``_tile_counts`` / ``_tile_fill``): every tile
@@ -19,7 +20,8 @@ ops, so every skip and stop decision is the forward's, bit for bit. Since the fo
 float64 sums, the light behind pair i is ``total - running sum up to i``: no back-to-front pass and
 no division chains. Per (tile, Gaussian) entry the gradients go to their own row of a buffer,
 summed per Gaussian afterwards (``_reduce_entries``): no atomics, and results do not depend on the
-thread count. ``_project_backward`` then chains to the 3D parameters.
+thread count. ``_project_backward`` then chains to the 3D parameters. Gradients beyond float32
+saturate at +-3.4e38 (``_sat``) instead of overflowing to Inf (docs/design.md §9).
 
 Vectorization notes (measured: a lane loop that LLVM leaves scalar is ~6x slower): indices are
 unsigned so that numba drops its negative-index wraparound; all per-tile state of a lane loop
@@ -78,6 +80,16 @@ _LN2_LO = F32(-2.12194440e-4)
 _P0, _P1, _P2 = F32(1.9875691500e-4), F32(1.3981999507e-3), F32(8.3334519073e-3)
 _P3, _P4, _P5 = F32(4.1665795894e-2), F32(1.6666665459e-1), F32(5.0000001201e-1)
 _EXP_LO, _EXP_HI = F32(-87.0), F32(88.0)
+#: Largest finite float32: gradients beyond it saturate there instead of becoming Inf (and NaN
+#: further down the chain); the twin does the same (docs/design.md §9).
+_GMAX = float(np.finfo(np.float32).max)
+_GMAX32 = F32(_GMAX)
+
+
+@njit(cache=True, inline="always")
+def _sat(x: float) -> float:
+    """``x`` clamped to the finite float32 range (a gradient too large for float32 saturates)."""
+    return min(max(x, -_GMAX), _GMAX)
 
 
 def _bits_to_f32_typer(typingctx: Any, bits: Any) -> Any:
@@ -184,10 +196,30 @@ def _tr(a: tuple) -> tuple:
 
 
 @njit(cache=True)
-def _cov_cam(R: tuple, sx: float, sy: float, sz: float, V: tuple) -> tuple:
-    """Camera-frame 3D covariance V M M^T V^T with M = R diag(s), and M (row-major 9-tuples)."""
-    M = (R[0] * sx, R[1] * sy, R[2] * sz, R[3] * sx, R[4] * sy, R[5] * sz, R[6] * sx, R[7] * sy, R[8] * sz)
-    return _mm(_mm(V, _mm(M, _tr(M))), _tr(V)), M
+def _cov2d(R: tuple, sx: float, sy: float, sz: float, V: tuple, j00: float, j02: float, j11: float,
+           j12: float) -> tuple:
+    """Dilated 2D covariance (a, b, c) and its determinant, from T = J V R diag(s) (float64).
+
+    cov2 = T T^T + EPS2D I. The determinant is not formed as a c - b^2, which for a needle
+    (scales like (1e-30, 1e30, 1)) is the difference of two ~1e120 numbers and keeps only rounding
+    noise of either sign; Cauchy-Binet gives det(T T^T) = sum of the squared 2x2 minors of T, and
+    minor (i, j) of T is that of A = J V R (unit-sized) times s_i s_j, so the determinant keeps its
+    relative precision and is positive: a needle is drawn as the line it projects to
+    (docs/design.md §9). The twin (:func:`.torch_twin._project`) uses the same construction.
+    """
+    VR = _mm(V, R)
+    a0, a1, a2 = j00 * VR[0] + j02 * VR[6], j00 * VR[1] + j02 * VR[7], j00 * VR[2] + j02 * VR[8]
+    b0, b1, b2 = j11 * VR[3] + j12 * VR[6], j11 * VR[4] + j12 * VR[7], j11 * VR[5] + j12 * VR[8]
+    t00, t01, t02 = a0 * sx, a1 * sy, a2 * sz
+    t10, t11, t12 = b0 * sx, b1 * sy, b2 * sz
+    a = t00 * t00 + t01 * t01 + t02 * t02
+    b = t00 * t10 + t01 * t11 + t02 * t12
+    c = t10 * t10 + t11 * t11 + t12 * t12
+    m01 = (a0 * b1 - a1 * b0) * (sx * sy)
+    m02 = (a0 * b2 - a2 * b0) * (sx * sz)
+    m12 = (a1 * b2 - a2 * b1) * (sy * sz)
+    det = (m01 * m01 + m02 * m02 + m12 * m12) + EPS2D * (a + c) + EPS2D * EPS2D
+    return a + EPS2D, b, c + EPS2D, det
 
 
 @njit(cache=True, inline="always")
@@ -274,17 +306,8 @@ def _project_kernel(
         j12 = -fy * uy / z
         _, _, R = _rotmat(np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
                           np.float64(quats[i, 3]))
-        c, _ = _cov_cam(R, np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2]), Vt)
-        # cov2 = J c J^T with J = [[j00, 0, j02], [0, j11, j12]]
-        t00 = j00 * c[0] + j02 * c[6]
-        t01 = j00 * c[1] + j02 * c[7]
-        t02 = j00 * c[2] + j02 * c[8]
-        t11 = j11 * c[4] + j12 * c[7]
-        t12 = j11 * c[5] + j12 * c[8]
-        a = t00 * j00 + t02 * j02 + EPS2D
-        b = t01 * j11 + t02 * j12
-        cc = t11 * j11 + t12 * j12 + EPS2D
-        det = a * cc - b * b
+        a, b, cc, det = _cov2d(R, np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2]),
+                               Vt, j00, j02, j11, j12)
         if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(cc) and np.isfinite(det) and det > _ZERO
                 and np.isfinite(mx) and np.isfinite(my)):
             reason[i] = CULL_DEGENERATE
@@ -367,49 +390,66 @@ def _project_backward(
         qn, qinv, R = _rotmat(np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
                               np.float64(quats[i, 3]))
         s0, s1, s2 = np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2])
-        c, M = _cov_cam(R, s0, s1, s2, Vt)
-        t00 = j00 * c[0] + j02 * c[6]
-        t01 = j00 * c[1] + j02 * c[7]
-        t02 = j00 * c[2] + j02 * c[8]
-        t11 = j11 * c[4] + j12 * c[7]
-        t12 = j11 * c[5] + j12 * c[8]
-        a = t00 * j00 + t02 * j02 + EPS2D
-        b = t01 * j11 + t02 * j12
-        cc = t11 * j11 + t12 * j12 + EPS2D
-        det = a * cc - b * b
+        a, b, cc, det = _cov2d(R, s0, s1, s2, Vt, j00, j02, j11, j12)  # the forward's conic, bit for bit
         Qa, Qb, Qc = cc / det, -b / det, a / det
-        # dL/dcov2 = -Q G Q with G = [[ga, gb/2], [gb/2, gc]] (symmetric-gradient convention).
-        ga, gb, gc = np.float64(g_con[i, 0]), 0.5 * np.float64(g_con[i, 1]), np.float64(g_con[i, 2])
-        m00 = Qa * ga + Qb * gb
-        m01 = Qa * gb + Qb * gc
-        m10 = Qb * ga + Qc * gb
-        m11 = Qb * gb + Qc * gc
-        G00 = -(m00 * Qa + m01 * Qb)
-        G01 = -(m00 * Qb + m01 * Qc)
-        G11 = -(m10 * Qb + m11 * Qc)
-        # cov2 = J C J^T with J = [[j00, 0, j02], [0, j11, j12]]: dC = J^T G J, dJ = 2 G J C.
-        A0, B0 = j00 * G00, j00 * G01
-        A1, B1 = j11 * G01, j11 * G11
-        A2, B2 = j02 * G00 + j12 * G01, j02 * G01 + j12 * G11
-        gC = (A0 * j00, B0 * j11, A0 * j02 + B0 * j12,
-              A1 * j00, B1 * j11, A1 * j02 + B1 * j12,
-              A2 * j00, B2 * j11, A2 * j02 + B2 * j12)
-        # G J rows: (G00 j00, G01 j11, G00 j02 + G01 j12), (G01 j00, G11 j11, G01 j02 + G11 j12)
-        h0, h1, h2 = G00 * j00, G01 * j11, G00 * j02 + G01 * j12
-        k0, k1, k2 = G01 * j00, G11 * j11, G01 * j02 + G11 * j12
-        gj00 = _TWO * (h0 * c[0] + h1 * c[3] + h2 * c[6])
-        gj02 = _TWO * (h0 * c[2] + h1 * c[5] + h2 * c[8])
-        gj11 = _TWO * (k0 * c[1] + k1 * c[4] + k2 * c[7])
-        gj12 = _TWO * (k0 * c[2] + k1 * c[5] + k2 * c[8])
-        # C = V cw V^T: dcw = V^T dC V; cw = M M^T: dM = 2 dcw M; M = R diag(s).
-        gcw = _mm(_mm(_tr(Vt), gC), Vt)
-        gM = _mm(gcw, M)
-        gR = (_TWO * gM[0] * s0, _TWO * gM[1] * s1, _TWO * gM[2] * s2,
-              _TWO * gM[3] * s0, _TWO * gM[4] * s1, _TWO * gM[5] * s2,
-              _TWO * gM[6] * s0, _TWO * gM[7] * s1, _TWO * gM[8] * s2)
-        g_scales[i, 0] = _TWO * (gM[0] * R[0] + gM[3] * R[3] + gM[6] * R[6])
-        g_scales[i, 1] = _TWO * (gM[1] * R[1] + gM[4] * R[4] + gM[7] * R[7])
-        g_scales[i, 2] = _TWO * (gM[2] * R[2] + gM[5] * R[5] + gM[8] * R[8])
+        # conic = (cc, -b, a) / det with a, b, cc and det built from T = A diag(s), A = J V R, as
+        # in _cov2d: differentiate that form (what autograd does in the twin). The textbook chain
+        # -Q dL Q through J V M M^T V^T J^T cancels catastrophically for a needle Gaussian.
+        g0, g1, g2 = np.float64(g_con[i, 0]), np.float64(g_con[i, 1]), np.float64(g_con[i, 2])
+        gD = -(g0 * Qa + g1 * Qb + g2 * Qc) / det  # dL/d det
+        gP = g2 / det + EPS2D * gD  # dL/d sum_k T0k^2 (directly and through det's dilation term)
+        gQ = -g1 / det  # dL/d sum_k T0k T1k
+        gS = g0 / det + EPS2D * gD  # dL/d sum_k T1k^2
+        VR = _mm(Vt, R)
+        A00, A01, A02 = j00 * VR[0] + j02 * VR[6], j00 * VR[1] + j02 * VR[7], j00 * VR[2] + j02 * VR[8]
+        A10, A11, A12 = j11 * VR[3] + j12 * VR[6], j11 * VR[4] + j12 * VR[7], j11 * VR[5] + j12 * VR[8]
+        # Through a, b, cc: dL/dT0k = 2 T0k gP + T1k gQ, dL/dT1k = 2 T1k gS + T0k gQ; T = A diag(s).
+        t00, t01, t02, t10, t11, t12 = A00 * s0, A01 * s1, A02 * s2, A10 * s0, A11 * s1, A12 * s2
+        d00, d01, d02 = _TWO * t00 * gP + t10 * gQ, _TWO * t01 * gP + t11 * gQ, _TWO * t02 * gP + t12 * gQ
+        d10, d11, d12 = _TWO * t10 * gS + t00 * gQ, _TWO * t11 * gS + t01 * gQ, _TWO * t12 * gS + t02 * gQ
+        gA00, gA01, gA02 = d00 * s0, d01 * s1, d02 * s2
+        gA10, gA11, gA12 = d10 * s0, d11 * s1, d12 * s2
+        gs0, gs1, gs2 = d00 * A00 + d10 * A10, d01 * A01 + d11 * A11, d02 * A02 + d12 * A12
+        # Through det's minors m_ij = u_ij s_i s_j, u_ij = A0i A1j - A0j A1i (dL/dm_ij = 2 m_ij gD).
+        u, ss = A00 * A11 - A01 * A10, s0 * s1
+        e = _TWO * (u * ss) * gD
+        gs0 += e * u * s1
+        gs1 += e * u * s0
+        du = e * ss
+        gA00 += du * A11
+        gA11 += du * A00
+        gA01 -= du * A10
+        gA10 -= du * A01
+        u, ss = A00 * A12 - A02 * A10, s0 * s2
+        e = _TWO * (u * ss) * gD
+        gs0 += e * u * s2
+        gs2 += e * u * s0
+        du = e * ss
+        gA00 += du * A12
+        gA12 += du * A00
+        gA02 -= du * A10
+        gA10 -= du * A02
+        u, ss = A01 * A12 - A02 * A11, s1 * s2
+        e = _TWO * (u * ss) * gD
+        gs1 += e * u * s2
+        gs2 += e * u * s1
+        du = e * ss
+        gA01 += du * A12
+        gA12 += du * A01
+        gA02 -= du * A11
+        gA11 -= du * A02
+        g_scales[i, 0] = _sat(gs0)
+        g_scales[i, 1] = _sat(gs1)
+        g_scales[i, 2] = _sat(gs2)
+        # A = J (V R) with J = [[j00, 0, j02], [0, j11, j12]].
+        gj00 = gA00 * VR[0] + gA01 * VR[1] + gA02 * VR[2]
+        gj02 = gA00 * VR[6] + gA01 * VR[7] + gA02 * VR[8]
+        gj11 = gA10 * VR[3] + gA11 * VR[4] + gA12 * VR[5]
+        gj12 = gA10 * VR[6] + gA11 * VR[7] + gA12 * VR[8]
+        gVR = (j00 * gA00, j00 * gA01, j00 * gA02,
+               j11 * gA10, j11 * gA11, j11 * gA12,
+               j02 * gA00 + j12 * gA10, j02 * gA01 + j12 * gA11, j02 * gA02 + j12 * gA12)
+        gR = _mm(_tr(Vt), gVR)
         w, qx, qy, qz = qn
         gw = _TWO * (-qz * gR[1] + qy * gR[2] + qz * gR[3] - qx * gR[5] - qy * gR[6] + qx * gR[7])
         gx = _TWO * (qy * gR[1] + qz * gR[2] + qy * gR[3] - _TWO * qx * gR[4] - w * gR[5] + qz * gR[6]
@@ -420,10 +460,10 @@ def _project_backward(
                      + qy * gR[5] + qx * gR[6] + qy * gR[7])
         # q_hat = q / |q|: dq = (dq_hat - q_hat (q_hat . dq_hat)) / |q|; zero for the identity fallback.
         dot = w * gw + qx * gx + qy * gy + qz * gz
-        g_quats[i, 0] = (gw - w * dot) * qinv
-        g_quats[i, 1] = (gx - qx * dot) * qinv
-        g_quats[i, 2] = (gy - qy * dot) * qinv
-        g_quats[i, 3] = (gz - qz * dot) * qinv
+        g_quats[i, 0] = _sat((gw - w * dot) * qinv)
+        g_quats[i, 1] = _sat((gx - qx * dot) * qinv)
+        g_quats[i, 2] = _sat((gy - qy * dot) * qinv)
+        g_quats[i, 3] = _sat((gz - qz * dot) * qinv)
         # J entries -> camera point; the clamp passes gradient only inside its range (as torch.clamp).
         gmx, gmy = np.float64(g_m2[i, 0]), np.float64(g_m2[i, 1])
         g_ux = -fx / z * gj02
@@ -440,7 +480,7 @@ def _project_backward(
             g_cy += g_uy / z
             g_cz -= g_uy * y / zz
         for k in range(3):
-            g_means[i, k] = V[0, k] * g_cx + V[1, k] * g_cy + V[2, k] * g_cz
+            g_means[i, k] = _sat(V[0, k] * g_cx + V[1, k] * g_cy + V[2, k] * g_cz)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -890,7 +930,7 @@ def _entry_sums(S: np.ndarray, rows: int, gy0: int, gy1: int, j0: int, nl: int, 
                     a5 += S[u + np.uint64(13)]
                     a6 += S[u + np.uint64(14)]
                     a7 += S[u + np.uint64(15)]
-        out[k, q] = ((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7))
+        out[k, q] = _sat(((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7)))
 
 
 def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
@@ -994,7 +1034,7 @@ def _reduce_entries(
                 _prefetch(entry_grads, entry_pos[e + 2 * _PREFETCH])
             row = entry_pos[e]
             for q in range(nq):
-                out[g, q] += entry_grads[row, q]
+                out[g, q] = min(max(out[g, q] + entry_grads[row, q], -_GMAX32), _GMAX32)  # saturate
 
 
 @njit(parallel=True, cache=True, error_model="numpy")

@@ -128,7 +128,8 @@ def rasterize(
     opacities : Tensor [N]
         Opacity in [0, 1] (after the sigmoid).
     colors : Tensor [N, C]
-        Per-Gaussian colors (float RGB in [0, 1]) or any C-channel features.
+        Per-Gaussian colors (float RGB in [0, 1]) or any C-channel features, within +-1e15
+        (:data:`~.common.MAX_ABS_COLOR`).
     viewmat : Tensor or ndarray [4, 4]
         World-to-camera transform, OpenCV camera axes.
     K : Tensor or ndarray [3, 3]
@@ -138,7 +139,8 @@ def rasterize(
     near, far : float, keyword-only
         Gaussians whose centre has camera z <= near or >= far are culled (metres).
     background : Tensor [C], optional
-        Composited behind the Gaussians with weight ``1 - alpha``; zeros when ``None``.
+        Composited behind the Gaussians with weight ``1 - alpha``; zeros when ``None``. Finite,
+        within +-1e15.
     render_depth : bool
         Compute the expected-depth image; ``False`` skips that channel (``depth`` is ``None``).
     absgrad : bool
@@ -157,14 +159,19 @@ def rasterize(
     Raises
     ------
     ValueError
-        On wrong shapes, dtypes, devices, non-positive sizes or ``near``/``far``, or an unknown
-        ``backend``; non-finite per-Gaussian values are not errors: those Gaussians are culled and
+        On wrong shapes, dtypes, devices, non-positive sizes or ``near``/``far``, an unknown
+        ``backend``, a background that is not finite or beyond +-1e15, or a finite color beyond
+        +-1e15; non-finite per-Gaussian values are not errors: those Gaussians are culled and
         counted in ``meta["culled_nonfinite"]``.
 
     Notes
     -----
     Gradients flow to ``means``, ``quats``, ``scales``, ``opacities``, ``colors`` and
     ``background``, not to ``viewmat`` or ``K``. Culled Gaussians get exactly zero gradient.
+    Numeric guards (docs/design.md §9), the same in both backends: a needle Gaussian (scales such
+    as (1e-30, 1e30, 1)) is drawn, its 2D determinant taken from the minors of J V R diag(s)
+    rather than as the rounding noise a c - b^2; a gradient whose exact value exceeds float32
+    saturates at +-3.4e38 instead of becoming Inf or NaN.
     """
     if backend not in _BACKENDS:
         raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")

@@ -44,6 +44,28 @@ from wcbench.reference_model.raster.common import (
 __all__ = ["project_torch", "rasterize_torch"]
 
 
+class _ToFloat64(torch.autograd.Function):
+    """``x.double()`` whose backward saturates the gradient at the finite range of ``x``'s dtype.
+
+    A gradient too large for float32 becomes +-3.4e38 instead of Inf (and NaN further on), as in
+    the fast path (docs/design.md §9).
+    """
+
+    @staticmethod
+    def forward(ctx: Any, x: torch.Tensor) -> torch.Tensor:
+        ctx.dtype = x.dtype
+        return x.double()
+
+    @staticmethod
+    def backward(ctx: Any, grad: torch.Tensor) -> torch.Tensor:
+        big = torch.finfo(ctx.dtype).max
+        return grad.clamp(-big, big).to(ctx.dtype)
+
+
+def _to64(x: torch.Tensor) -> torch.Tensor:
+    return _ToFloat64.apply(x)
+
+
 def _quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     """[N, 4] wxyz (any norm) -> [N, 3, 3]; a (near-)zero quaternion gives the identity."""
     sq = (quats * quats).sum(-1, keepdim=True)  # [N, 1]
@@ -70,8 +92,14 @@ def _project(
     K: torch.Tensor,  # [3, 3]
     width: int,
     height: int,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """EWA projection: 2D means [N, 2] (px), 2D covariances [N, 3] (a, b, c, dilated), camera z [N]."""
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """EWA projection: 2D means [N, 2] (px), 2D covariances [N, 3] (a, b, c, dilated), their
+    determinants [N] and camera z [N].
+
+    cov2 = T T^T + EPS2D I with T = J V R diag(s); the determinant is the sum of the squared 2x2
+    minors of T (Cauchy-Binet) plus the dilation terms, as in the fast path's ``_cov2d``: never the
+    rounding noise a c - b^2 leaves for a needle Gaussian (docs/design.md §9).
+    """
     Wr, tv = viewmat[:3, :3], viewmat[:3, 3]
     t = means @ Wr.T + tv  # [N, 3] camera coordinates
     x, y, z = t.unbind(-1)
@@ -87,12 +115,16 @@ def _project(
     zero = torch.zeros_like(z)
     J = torch.stack([fx / z, zero, -fx * ux / z, zero, fy / z, -fy * uy / z], -1).reshape(-1, 2, 3)
     R = _quat_to_rotmat(quats)
-    M = R * scales[:, None, :]  # [N, 3, 3] = R diag(s)
-    cov_w = M @ M.transpose(1, 2)
-    cov_c = Wr @ cov_w @ Wr.T
-    cov2 = J @ cov_c @ J.transpose(1, 2)  # [N, 2, 2]
-    cov = torch.stack([cov2[:, 0, 0] + EPS2D, cov2[:, 0, 1], cov2[:, 1, 1] + EPS2D], -1)
-    return torch.stack([mx, my], -1), cov, z
+    A = J @ (Wr @ R)  # [N, 2, 3], unit-sized; the fast path's association
+    T = A * scales[:, None, :]
+    a, b, c = (T[:, 0] * T[:, 0]).sum(-1), (T[:, 0] * T[:, 1]).sum(-1), (T[:, 1] * T[:, 1]).sum(-1)
+    s0, s1, s2 = scales.unbind(-1)
+    m01 = (A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]) * (s0 * s1)
+    m02 = (A[:, 0, 0] * A[:, 1, 2] - A[:, 0, 2] * A[:, 1, 0]) * (s0 * s2)
+    m12 = (A[:, 0, 1] * A[:, 1, 2] - A[:, 0, 2] * A[:, 1, 1]) * (s1 * s2)
+    det = (m01 * m01 + m02 * m02 + m12 * m12) + EPS2D * (a + c) + EPS2D * EPS2D
+    cov = torch.stack([a + EPS2D, b, c + EPS2D], -1)
+    return torch.stack([mx, my], -1), cov, det, z
 
 
 def _boxes(
@@ -134,11 +166,10 @@ def _cull(
               & torch.isfinite(opacities) & torch.isfinite(colors).all(-1))
     reason[~finite] = CULL_NONFINITE
     safe = _sanitize(means, quats, scales, opacities, colors, finite)
-    m2, cov, z = _project(safe[0].double(), safe[1].double(), safe[2].double(), viewmat.double(), K.double(),
-                          width, height)
+    m2, cov, det, z = _project(safe[0].double(), safe[1].double(), safe[2].double(), viewmat.double(),
+                               K.double(), width, height)
     near_far = ~((z > near) & (z < far))
     reason[(reason == 0) & near_far] = CULL_NEAR_FAR
-    det = cov[:, 0] * cov[:, 2] - cov[:, 1] * cov[:, 1]
     good = torch.isfinite(cov).all(-1) & torch.isfinite(m2).all(-1) & (det > 0) & torch.isfinite(det)
     reason[(reason == 0) & ~good] = CULL_DEGENERATE
     reason[(reason == 0) & ~(safe[3] >= ALPHA_MIN)] = CULL_TRANSPARENT
@@ -207,10 +238,10 @@ def project_torch(
     m, q, s, o, c = _sanitize(means, quats, scales, opacities, colors, ok)
     dtype = means.dtype
     # float64 per Gaussian (cheap): no float32 rounding of pixel coordinates in the 2D means.
-    m2, cov, z = _project(m.double(), q.double(), s.double(), viewmat.double(), K.double(), width, height)
+    m2, cov, det, z = _project(_to64(m), _to64(q), _to64(s), viewmat.double(), K.double(), width, height)
     # Culled Gaussians keep a unit covariance so that the inverse below stays finite.
     cov = torch.where(ok[:, None], cov, torch.tensor([1.0, 0.0, 1.0], dtype=cov.dtype))
-    det = cov[:, 0] * cov[:, 2] - cov[:, 1] * cov[:, 1]
+    det = torch.where(ok, det, 1.0)
     conics = torch.stack([cov[:, 2] / det, -cov[:, 1] / det, cov[:, 0] / det], -1).to(dtype)
     box, ext = _boxes(m2.detach(), cov.detach(), o.detach(), width, height)
     return {"reason": reason, "means2d": torch.where(ok[:, None], m2, 0.0), "conics": conics,
@@ -231,7 +262,8 @@ class _AbsTap(torch.autograd.Function):
     def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None, torch.Tensor]:
         (gid,) = ctx.saved_tensors
         absgrad = torch.zeros(ctx.n, 2, dtype=grad.dtype).index_add_(0, gid, grad.abs())
-        return grad, None, absgrad.to(ctx.dtype)
+        big = torch.finfo(ctx.dtype).max
+        return grad, None, absgrad.clamp_max(big).to(ctx.dtype)
 
 
 def _candidate_pairs(box: torch.Tensor, idx: torch.Tensor, width: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -315,7 +347,7 @@ def rasterize_torch(
     if grads_on:
         means2d.requires_grad_(True)
         # Value unchanged, but dL/dm2 now also lands in means2d.grad.
-        m2 = m2 + (means2d - means2d.detach()).to(m2.dtype)
+        m2 = m2 + _to64(means2d - means2d.detach())
         if absgrad:
             means2d_abs = means2d.detach().clone().requires_grad_(True)
 
@@ -370,7 +402,7 @@ def rasterize_torch(
     else:
         t_excl = log_t
     w = t_excl * alpha.to(torch.float64)  # [P] blending weights
-    col = proj["colors"][gid].to(torch.float64)
+    col = _to64(proj["colors"])[gid]
     color = torch.zeros(hw, n_ch, dtype=torch.float64).index_add(0, pix, w[:, None] * col)
     t_final = torch.exp(torch.zeros(hw, dtype=torch.float64).index_add(0, pix, log_t))
     alpha_img = (1.0 - t_final).to(dtype)
@@ -394,7 +426,10 @@ def _alpha_from_pairs(
     """Clamped alpha [P] and sigma = q / 2 [P] of pairs whose float64 2D means ``mp`` [P, 2] are gathered.
 
     dx = (px - a) + (0.5 - (mx - a)) with the integer anchor a = floor(mx): the same value as
-    px + 0.5 - mx, without the rounding of a large pixel coordinate to the conic's dtype.
+    px + 0.5 - mx, without the rounding of a large pixel coordinate to the conic's dtype. Alpha is
+    formed as exp(log o - sigma), the fast path's o exp(-sigma) up to rounding: autograd then never
+    forms dL/dalpha * o, which overflows float32 for opacities far above 1 (pairs exist only for
+    Gaussians with o >= 1/255, so the clamp inside the log changes nothing).
     """
     con = proj["conics"][gid]
     dtype = con.dtype
@@ -403,4 +438,7 @@ def _alpha_from_pairs(
     dx = ((pix % width) - anchor[:, 0]).to(dtype) + offset[:, 0]
     dy = (torch.div(pix, width, rounding_mode="floor") - anchor[:, 1]).to(dtype) + offset[:, 1]
     sigma = 0.5 * (con[:, 0] * dx * dx + con[:, 2] * dy * dy) + con[:, 1] * dx * dy
-    return torch.clamp(proj["opacities"][gid] * torch.exp(-sigma), max=ALPHA_MAX), sigma
+    log_o = torch.log(proj["opacities"].clamp_min(ALPHA_MIN))[gid]
+    # Exponents above 0 give alpha > 1, clamped to ALPHA_MAX anyway: capping them first keeps exp
+    # finite (o near float32's max at sigma ~ 0 would be Inf, and Inf * 0 = NaN in the backward).
+    return torch.clamp(torch.exp((log_o - sigma).clamp_max(0.0)), max=ALPHA_MAX), sigma

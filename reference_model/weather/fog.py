@@ -40,6 +40,11 @@ __all__ = [
 
 #: Koschmieder's constant: visibility V = -ln(0.05) / beta = 2.996 / beta (5 % contrast threshold).
 VISIBILITY_CONTRAST = -math.log(0.05)
+#: Largest |value| of a fog or background color: the rasterizer's ``MAX_ABS_COLOR`` (not imported:
+#: this module needs no torch); beyond it float32 sums could overflow (docs/design.md §9).
+MAX_ABS_COLOR = 1e15
+#: The math runs in float32: larger densities and offsets would round to Inf (and Inf * 0 = NaN).
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 def density_from_visibility(visibility_m: float) -> float:
@@ -48,15 +53,22 @@ def density_from_visibility(visibility_m: float) -> float:
     Raises
     ------
     ValueError
-        If ``visibility_m`` is not positive (``inf`` is allowed and gives 0).
+        If ``visibility_m`` is not positive (``inf`` is allowed and gives 0), or so small that beta
+        would exceed float32 (the fog math's precision).
     """
     if not visibility_m > 0:
         raise ValueError(f"visibility_m must be > 0 metres, got {visibility_m}")
-    return 0.0 if math.isinf(visibility_m) else VISIBILITY_CONTRAST / visibility_m
+    if math.isinf(visibility_m):
+        return 0.0
+    if not VISIBILITY_CONTRAST / _F32_MAX <= visibility_m:
+        raise ValueError(f"visibility_m must be at least {VISIBILITY_CONTRAST / _F32_MAX:.3g} m (beta within float32), "
+                         f"got {visibility_m}")
+    return VISIBILITY_CONTRAST / visibility_m
 
 
 def visibility_from_density(beta: float) -> float:
-    """Visibility V = 2.996 / beta (m); ``inf`` for beta = 0.
+    """Visibility V = 2.996 / beta (m); ``inf`` for beta = 0 (and for a beta below 2.996 / 1.8e308,
+    whose visibility exceeds float64).
 
     Raises
     ------
@@ -68,15 +80,21 @@ def visibility_from_density(beta: float) -> float:
 
 
 def _check_beta(beta: float) -> None:
-    if not (beta >= 0) or math.isinf(beta):
-        raise ValueError(f"beta (fog density) must be a finite value >= 0 m^-1, got {beta}")
+    if not (0 <= beta <= _F32_MAX):
+        raise ValueError(f"beta (fog density) must be a finite value >= 0 m^-1 (float32), got {beta}")
+
+
+def _check_offset(offset_m: float) -> None:
+    if not (0 <= offset_m <= _F32_MAX):
+        raise ValueError(f"offset_m must be a finite distance >= 0 metres (float32), got {offset_m}")
 
 
 def _check_color(color: np.ndarray, name: str) -> np.ndarray:
-    c = np.asarray(color, np.float32)
-    if c.shape[-1] != 3 or not np.all(np.isfinite(c)):
-        raise ValueError(f"{name} must be finite RGB with a last axis of 3, got shape {c.shape}")
-    return c
+    c = np.asarray(color, np.float64)
+    if c.ndim < 1 or c.shape[-1] != 3 or not np.all(np.isfinite(c)) or (c.size and np.abs(c).max() > MAX_ABS_COLOR):
+        raise ValueError(f"{name} must be finite RGB within +-{MAX_ABS_COLOR:g} with a last axis of 3, "
+                         f"got shape {c.shape}")
+    return c.astype(np.float32)
 
 
 def gaussian_transmittance(
@@ -106,19 +124,22 @@ def gaussian_transmittance(
         On a negative or non-finite ``beta`` or ``offset_m``, or a wrongly shaped input.
     """
     _check_beta(beta)
-    if not (offset_m >= 0) or math.isinf(offset_m):
-        raise ValueError(f"offset_m must be finite and >= 0 metres, got {offset_m}")
+    _check_offset(offset_m)
     m = np.asarray(means)
     if m.ndim != 2 or m.shape[1] != 3:
         raise ValueError(f"means must have shape [N, 3], got {m.shape}")
+    if np.float32(beta) == 0:  # no fog: t = 1 even where the float32 distance overflows (0 * Inf)
+        return np.ones(m.shape[0], np.float32)
     # float32 is enough: at 1 km a distance is off by 0.1 mm, t by beta * 1e-4 of itself. It runs
     # on every Gaussian of every fogged frame, single-threaded numpy (robust on a loaded machine).
-    diff = m.astype(np.float32, copy=False) - np.asarray(camera_center, np.float32).reshape(3)
-    d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-    d -= np.float32(offset_m)
-    np.maximum(d, 0.0, out=d)
-    d *= np.float32(-beta)
-    return np.exp(d, out=d)
+    # A distance beyond float32 is Inf (t = 0); a Gaussian with non-finite values gets NaN (culled).
+    with np.errstate(over="ignore", invalid="ignore"):
+        diff = m.astype(np.float32, copy=False) - np.asarray(camera_center, np.float32).reshape(3)
+        d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        d -= np.float32(offset_m)
+        np.maximum(d, 0.0, out=d)
+        d *= np.float32(-beta)
+        return np.exp(d, out=d)
 
 
 def transmitted_channels(
@@ -161,8 +182,7 @@ def transmitted_channels(
         As :func:`gaussian_transmittance`; or if ``colors`` or ``out`` do not match ``means``.
     """
     _check_beta(beta)
-    if not (offset_m >= 0) or math.isinf(offset_m):
-        raise ValueError(f"offset_m must be finite and >= 0 metres, got {offset_m}")
+    _check_offset(offset_m)
     m = np.asarray(means, np.float32)
     c = np.asarray(colors, np.float32)
     if m.ndim != 2 or m.shape[1] != 3 or c.ndim != 2 or c.shape[0] != m.shape[0]:
@@ -175,7 +195,8 @@ def transmitted_channels(
     kernels = load_numba_kernels("weather.fog_kernels") if fast else None
     if kernels is None:
         t = gaussian_transmittance(m, camera_center, beta, offset_m=offset_m)
-        np.multiply(c, t[:, None], out=out[:, :-1])
+        with np.errstate(invalid="ignore"):  # Inf * 0 on a non-finite Gaussian: NaN, culled downstream
+            np.multiply(c, t[:, None], out=out[:, :-1])
         out[:, -1] = t
         return out
     center = np.asarray(camera_center, np.float32).reshape(3)
@@ -264,17 +285,26 @@ def ray_distance(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray [H, W] float32
-        Metres.
+        Metres; Inf where the ray length exceeds float32.
+
+    Raises
+    ------
+    ValueError
+        If ``depth`` is not [H, W] or ``K`` is not finite with positive focal lengths.
     """
     depth = np.asarray(depth, np.float32)
     if depth.ndim != 2:
         raise ValueError(f"depth must have shape [H, W], got {depth.shape}")
     h, w = depth.shape
     K = np.asarray(K, np.float64)
-    xn = ((np.arange(w) + 0.5 - K[0, 2]) / K[0, 0]).astype(np.float32)
-    yn = ((np.arange(h) + 0.5 - K[1, 2]) / K[1, 1]).astype(np.float32)
-    stretch = np.sqrt(1.0 + xn[None, :] ** 2 + yn[:, None] ** 2)
-    return depth * stretch
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"K must be finite [3, 3] intrinsics with positive focal lengths, got {K.tolist()}")
+    # A ray too long for float32 (extreme intrinsics or depths) comes out as Inf, not as a warning.
+    with np.errstate(over="ignore"):
+        xn = ((np.arange(w) + 0.5 - K[0, 2]) / K[0, 0]).astype(np.float32)
+        yn = ((np.arange(h) + 0.5 - K[1, 2]) / K[1, 1]).astype(np.float32)
+        stretch = np.sqrt(1.0 + xn[None, :] ** 2 + yn[:, None] ** 2)
+        return depth * stretch
 
 
 def fog_postprocess(
@@ -318,14 +348,17 @@ def fog_postprocess(
     ndarray [H, W, 3] float32
     """
     _check_beta(beta)
+    _check_offset(offset_m)
     c_fog = _check_color(fog_color, "fog_color")
     a = np.asarray(alpha, np.float32)[..., None]
     if color.shape[:-1] != alpha.shape or depth.shape != alpha.shape:
         raise ValueError(f"color {color.shape}, depth {depth.shape} and alpha {alpha.shape} must share [H, W]")
     bg = np.zeros(3, np.float32) if background is None else _check_color(background, "background")
-    # Non-finite depth only occurs where nothing was drawn; its weight A is 0 there.
-    l_ray = np.nan_to_num(ray_distance(depth, K), nan=0.0, posinf=0.0, neginf=0.0)
-    t = np.exp(-beta * np.maximum(l_ray - offset_m, 0.0))[..., None]
+    # Non-finite depth only occurs where nothing was drawn (its weight A is 0 there); a finite depth
+    # whose ray length overflows float32 is as far as float32 goes (t = 0 in any fog).
+    l_ray = np.nan_to_num(ray_distance(depth, K), nan=0.0, posinf=_F32_MAX, neginf=0.0)
+    with np.errstate(over="ignore"):  # beta l beyond float32 is -Inf: t = 0
+        t = np.exp(-beta * np.maximum(l_ray - offset_m, 0.0))[..., None]
     surface = np.asarray(color, np.float32) - (1.0 - a) * bg
     t_bg = background_transmittance(beta)
     out = t * surface + c_fog * a * (1.0 - t) + (1.0 - a) * (bg * t_bg + c_fog * (1.0 - t_bg))

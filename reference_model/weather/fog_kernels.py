@@ -33,7 +33,8 @@ def transmitted_channels_kernel(means, colors, center, neg_beta, offset, out):  
             dy = means[i, 1] - center[1]
             dz = means[i, 2] - center[2]
             d = np.float32(math.sqrt(dx * dx + dy * dy + dz * dz)) - offset
-            t = np.float32(math.exp(max(d, np.float32(0.0)) * neg_beta))
+            # No fog: t = 1 even where the float32 distance overflows (0 * Inf), as the reference.
+            t = np.float32(1.0) if neg_beta == 0 else np.float32(math.exp(max(d, np.float32(0.0)) * neg_beta))
             for k in range(n_ch):
                 out[i, k] = colors[i, k] * t
             out[i, n_ch] = t

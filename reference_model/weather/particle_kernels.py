@@ -216,11 +216,14 @@ def _dilation_factor(mx, my, mz, qw, qx, qy, qz, sx, sy, sz, W, fx, fy, eps2d): 
     t11 = (b0 * R01 + b1 * R11 + b2 * R21) * sy
     t12 = (b0 * R02 + b1 * R12 + b2 * R22) * sz
     c00 = t00 * t00 + t01 * t01 + t02 * t02
-    c01 = t00 * t10 + t01 * t11 + t02 * t12
     c11 = t10 * t10 + t11 * t11 + t12 * t12
-    det = c00 * c11 - c01 * c01
-    det_d = (c00 + eps2d) * (c11 + eps2d) - c01 * c01
-    factor = math.sqrt(max(det, 0.0) / max(det_d, 1e-30))
+    # Cauchy-Binet, as the reference: c00 c11 - c01^2 is rounding noise for a long thin streak.
+    m01 = t00 * t11 - t01 * t10
+    m02 = t00 * t12 - t02 * t10
+    m12 = t01 * t12 - t02 * t11
+    det = m01 * m01 + m02 * m02 + m12 * m12
+    det_d = det + eps2d * (c00 + c11) + eps2d * eps2d
+    factor = math.sqrt(det / max(det_d, 1e-30))
     if not math.isfinite(factor):
         return 1.0
     return min(max(factor, 0.0), 1.0)

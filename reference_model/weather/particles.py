@@ -61,6 +61,16 @@ _TURB_MODES = 3  # sinusoids per axis of the snow flutter
 _TURB_FREQ_HZ = (0.2, 1.0)  # flutter frequencies of falling aggregates
 _SHORT_OVER_LONG = 0.625  # the paper flake's axis ratio, 0.004 / 0.0064
 _MAX_SINGLE_OPACITY = 0.99  # the rasterizer's clamp; (1 - a)^k needs a < 1
+#: Largest magnitude of a position, speed or length written to the float32 Gaussians (an eighth of
+#: float32's range: sums of a few such terms stay finite; docs/design.md §9).
+_MAX_F32_MAGNITUDE = 4e37
+#: Largest |omega t| of the flutter and spin phases: the fast path's sine is exact for |x| < 1e7.
+_MAX_PHASE_RAD = 1e6
+#: Vertical wrap counts are exact integers up to 2^52 box heights (float64), then int64.
+_MAX_WRAPS = 2.0**52
+#: Shortest standard deviation of a particle Gaussian (m): normal in float32, and a streak's
+#: length stays > 0 (its opacity is scaled by width / length).
+_MIN_SIGMA_M = 1e-30
 #: (N0, exponent of R in N0, Lambda coefficient, exponent of R in Lambda): Marshall-Palmer (1948)
 #: for rain, Gunn-Marshall (1958) for snow (melted diameters).
 _DSD_DEFAULTS = {"rain": (8000.0, 0.0, 4.1, -0.21), "snow": (3800.0, -0.87, 2.55, -0.48)}
@@ -104,7 +114,14 @@ def size_distribution(kind: str, rate_mm_h: float, spec: ParticleSpec | None = N
     )
     if rate_mm_h == 0:
         return 0.0, math.inf
-    return float(a0 * rate_mm_h**b0), float(a1 * rate_mm_h**b1)
+    try:
+        n0, lam = float(a0 * rate_mm_h**b0), float(a1 * rate_mm_h**b1)
+    except OverflowError:
+        n0 = lam = math.inf
+    if not (0 <= n0 < math.inf and 0 < lam < math.inf):
+        raise ValueError(f"the {kind} size distribution at {rate_mm_h} mm/h is not representable: N0 = {n0}, "
+                         f"Lambda = {lam} (coefficients {a0}, {b0}, {a1}, {b1})")
+    return n0, lam
 
 
 def number_density(n0: float, lam: float, d_min_mm: float, d_max_mm: float = math.inf) -> float:
@@ -206,7 +223,8 @@ def extinction_coefficient(n0: float, lam: float, *, size_ratio: float = 1.0) ->
     """
     if n0 <= 0 or not math.isfinite(lam):
         return 0.0
-    return float(math.pi * size_ratio**2 * n0 / lam**3 * 1e-6)  # mm^2 -> m^2
+    # Products and quotients, not powers: a power that overflows raises instead of giving Inf.
+    return float(math.pi * size_ratio * size_ratio * n0 / lam / lam / lam * 1e-6)  # mm^2 -> m^2
 
 
 # --------------------------------------------------------------------------------------------
@@ -235,8 +253,9 @@ def horizontal_basis(up: np.ndarray, heading: np.ndarray | None = None) -> np.nd
         If ``up`` is not a finite non-zero 3-vector.
     """
     u = np.asarray(up, np.float64).reshape(-1)
-    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) < 1e-9:
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u / max(np.abs(u).max(), 1e-300)) < 1e-9:
         raise ValueError(f"up must be a finite non-zero 3-vector, got {up!r}")
+    u = u / np.abs(u).max()  # first to ~1: the norm of a huge vector would overflow
     u = u / np.linalg.norm(u)
     candidates = [] if heading is None else [np.asarray(heading, np.float64).reshape(3)]
     candidates.append(np.eye(3)[int(np.argmin(np.abs(u)))])
@@ -344,10 +363,15 @@ def particle_dilation_compensation(
     J[:, 1, 1], J[:, 1, 2] = fy / z, -fy * y / z**2
     M = quat_to_matrix(quats) * np.asarray(scales, np.float64)[:, None, :]
     T = J @ W[:3, :3] @ M
-    cov = T @ T.transpose(0, 2, 1)
-    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
-    det_d = (cov[:, 0, 0] + eps2d) * (cov[:, 1, 1] + eps2d) - cov[:, 0, 1] ** 2
-    factor = np.sqrt(np.clip(det, 0.0, None) / np.maximum(det_d, 1e-30))
+    c00 = np.einsum("ij,ij->i", T[:, 0], T[:, 0])
+    c11 = np.einsum("ij,ij->i", T[:, 1], T[:, 1])
+    # det(T T^T) as the sum of the squared 2x2 minors of T (Cauchy-Binet), not c00 c11 - c01^2:
+    # for a long thin streak that difference is rounding noise of either sign (docs/design.md §9).
+    det = ((T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0]) ** 2
+           + (T[:, 0, 0] * T[:, 1, 2] - T[:, 0, 2] * T[:, 1, 0]) ** 2
+           + (T[:, 0, 1] * T[:, 1, 2] - T[:, 0, 2] * T[:, 1, 1]) ** 2)
+    det_d = det + eps2d * (c00 + c11) + eps2d * eps2d
+    factor = np.sqrt(det / np.maximum(det_d, 1e-30))
     return np.where(np.isfinite(factor), np.clip(factor, 0.0, 1.0), 1.0).astype(np.float32)
 
 
@@ -379,8 +403,8 @@ class Wind:
         for name in ("speed_m_s", "tilt_deg", "azimuth_deg"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"wind {name} must be finite, got {getattr(self, name)}")
-        if self.speed_m_s < 0:
-            raise ValueError(f"wind speed_m_s must be >= 0, got {self.speed_m_s}")
+        if not 0 <= self.speed_m_s <= _MAX_F32_MAGNITUDE:
+            raise ValueError(f"wind speed_m_s must be in [0, {_MAX_F32_MAGNITUDE:g}], got {self.speed_m_s}")
         if not -90.0 <= self.tilt_deg <= 90.0:
             raise ValueError(f"wind tilt_deg must be in [-90, 90], got {self.tilt_deg}")
 
@@ -438,25 +462,51 @@ class ParticleSpec:
             raise ValueError(f"count must be >= 0, got {self.count}")
         if self.max_particles < 0:
             raise ValueError(f"max_particles must be >= 0, got {self.max_particles}")
+        # Every number finite (NaN fails every comparison below): docs/design.md §9.
+        for name in ("min_diameter_mm", "max_diameter_mm", "flake_ratio", "dsd_n0", "dsd_lambda_a"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be finite and > 0, got {getattr(self, name)}")
+        # Lengths of the box are float32 positions and are squared in float64.
         for name in ("radius_m", "below_m", "above_m"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        if self.below_m + self.above_m <= 0 or self.fade_m < 0 or self.min_distance_m < 0:
-            raise ValueError("fade_m and min_distance_m must be >= 0")
+            if not 0 < getattr(self, name) <= _MAX_F32_MAGNITUDE:
+                raise ValueError(f"{name} must be in (0, {_MAX_F32_MAGNITUDE:g}] m, got {getattr(self, name)}")
+        for name in ("fade_m", "min_distance_m"):
+            if not 0 <= getattr(self, name) <= _MAX_F32_MAGNITUDE:
+                raise ValueError(f"{name} must be in [0, {_MAX_F32_MAGNITUDE:g}] m, got {getattr(self, name)}")
+        for name in ("turbulence_m_s", "spin_rad_s"):
+            if not 0 <= getattr(self, name) <= _MAX_F32_MAGNITUDE:
+                raise ValueError(f"{name} must be in [0, {_MAX_F32_MAGNITUDE:g}], got {getattr(self, name)}")
+        for name in ("dsd_n0_b", "dsd_lambda_b"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
         if not 0.0 <= self.opacity <= 1.0:
             raise ValueError(f"opacity must be in [0, 1], got {self.opacity}")
-        if not 0 < self.min_diameter_mm < self.max_diameter_mm:
+        if not self.min_diameter_mm < self.max_diameter_mm:
             raise ValueError(
                 f"need 0 < min_diameter_mm < max_diameter_mm, got {self.min_diameter_mm}, {self.max_diameter_mm}"
             )
-        if self.scale_m is not None and (len(self.scale_m) != 3 or min(self.scale_m) <= 0):
-            raise ValueError(f"scale_m must be three positive lengths (m), got {self.scale_m}")
+        for name in ("color", "haze_color"):
+            rgb = getattr(self, name)
+            if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
+                raise ValueError(f"{name} must be RGB in [0, 1], got {rgb}")
+        if self.scale_m is not None and (len(self.scale_m) != 3 or not all(_MIN_SIGMA_M <= v <= _MAX_F32_MAGNITUDE
+                                                                          for v in self.scale_m)):
+            raise ValueError(f"scale_m must be three lengths in [{_MIN_SIGMA_M:g}, {_MAX_F32_MAGNITUDE:g}] m "
+                             f"(float32), got {self.scale_m}")
+        if self.count is None:  # sizes from the drop-size distribution: sigma = D / 4 (times the flake ratio)
+            ratio = self.flake_ratio if self.kind == "snow" else 1.0
+            short = _SHORT_OVER_LONG if self.kind == "snow" else 1.0
+            lo = self.min_diameter_mm * 1e-3 / 4.0 * ratio * short
+            hi = self.max_diameter_mm * 1e-3 / 4.0 * ratio
+            if not (_MIN_SIGMA_M <= lo and hi <= _MAX_F32_MAGNITUDE):
+                raise ValueError(f"diameters in [{self.min_diameter_mm}, {self.max_diameter_mm}] mm give particle "
+                                 f"sizes in [{lo:.3g}, {hi:.3g}] m, outside [{_MIN_SIGMA_M:g}, "
+                                 f"{_MAX_F32_MAGNITUDE:g}] m (float32)")
         if self.count is not None and (self.scale_m is None or self.fall_speed_m_s is None):
             raise ValueError("a fixed-count spec needs scale_m and fall_speed_m_s")
-        if self.fall_speed_m_s is not None and not (math.isfinite(self.fall_speed_m_s)):
-            raise ValueError(f"fall_speed_m_s must be finite, got {self.fall_speed_m_s}")
-        if self.turbulence_m_s < 0 or self.spin_rad_s < 0:
-            raise ValueError("turbulence_m_s and spin_rad_s must be >= 0")
+        if self.fall_speed_m_s is not None and not abs(self.fall_speed_m_s) <= _MAX_F32_MAGNITUDE:
+            raise ValueError(f"fall_speed_m_s must be finite, within +-{_MAX_F32_MAGNITUDE:g} m/s, "
+                             f"got {self.fall_speed_m_s}")
 
     @classmethod
     def from_mapping(cls, kind: str, values: Mapping[str, Any]) -> ParticleSpec:
@@ -608,12 +658,17 @@ class ParticleField:
         spec = self.spec
         self.basis = horizontal_basis(self.up, self.heading)
         self.anchor_ = np.zeros(3) if self.anchor is None else np.asarray(self.anchor, np.float64).reshape(3)
-        volume = float(np.prod(spec.box_size))
+        if not np.all(np.abs(self.anchor_) <= _MAX_F32_MAGNITUDE):
+            raise ValueError(f"anchor must be a finite position within +-{_MAX_F32_MAGNITUDE:g} m, got {self.anchor!r}")
+        volume = math.prod(spec.box_size.tolist())
         if spec.physical:
             assert spec.rate_mm_h is not None
             self.n0, self.lam = size_distribution(spec.kind, spec.rate_mm_h, spec)
             self.density_per_m3 = number_density(self.n0, self.lam, spec.min_diameter_mm, spec.max_diameter_mm)
             self.physical_count = self.density_per_m3 * volume
+            if not math.isfinite(self.physical_count):
+                raise ValueError(f"{spec.kind} at {spec.rate_mm_h} mm/h in a {volume:.3g} m^3 box has no finite "
+                                 f"drop count (density {self.density_per_m3} m^-3)")
             n = int(min(round(self.physical_count), spec.max_particles))
         else:
             assert spec.count is not None
@@ -653,9 +708,51 @@ class ParticleField:
         self._speed_max = (
             float(np.sqrt(np.einsum("ij,ij->i", self.velocity_box, self.velocity_box)).max()) if n else 0.0
         )
+        # Bounds used by the guards of every frame (_check_frame): the flutter's largest speed and
+        # displacement, and the fastest phase of the flutter and spin sines.
+        self._flutter_speed = spec.turbulence_m_s * math.sqrt(2.0 * _TURB_MODES) * math.sqrt(2.25)
+        self._flutter_reach = float(2.0 * np.abs(self.turb_amp).sum(-1).max()) if n else 0.0
+        if not math.isfinite(self.haze_density()):
+            raise ValueError(f"the haze of {spec.kind} at {spec.rate_mm_h} mm/h has no finite extinction coefficient")
+        speed_bound = self._speed_max + self._flutter_speed
+        if not speed_bound <= _MAX_F32_MAGNITUDE:
+            raise ValueError(f"particle speeds up to {speed_bound:.3g} m/s (wind, fall and flutter) exceed "
+                             f"{_MAX_F32_MAGNITUDE:g} m/s, beyond float32")
         # Flake orientation: random rotation, then spin about its normal (local z).
         self.orientation = _random_quaternions(rng.random((n, 3)))
         self.spin_rate = spec.spin_rad_s * rng.standard_normal(n)
+        self._phase_rate = max(float(np.abs(self.spin_rate).max()) if n else 0.0,
+                               float(freq.max()) if n and spec.turbulence_m_s > 0 else 0.0)
+
+    def _check_frame(self, t: float, c: np.ndarray) -> None:
+        """Refuse a time and camera center the float64 kinematics cannot represent exactly.
+
+        Both paths (numpy and numba) call this, so they accept and refuse the same frames
+        (docs/design.md §9): the sines of the flutter and spin need |omega t| <= 1e6 rad (the fast
+        sine is exact below 1e7), vertical wrap counts must stay exact integers (at most 2^52 box
+        heights of travel from the anchor), and positions must fit float32.
+
+        Raises
+        ------
+        ValueError
+            Naming ``t`` or ``camera_center`` and the bound.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"t must be finite seconds, got {t}")
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise ValueError(f"camera_center must be a finite [3] position, got {c!r}")
+        if abs(t) * self._phase_rate > _MAX_PHASE_RAD:
+            raise ValueError(f"t = {t} s is too far from the field's time origin: the flutter and spin phases "
+                             f"reach {abs(t) * self._phase_rate:.3g} rad, more than {_MAX_PHASE_RAD:g}")
+        spec = self.spec
+        extent = float(np.abs(spec.box_size).max())
+        if not float(np.abs(c).max()) + extent <= _MAX_F32_MAGNITUDE:
+            raise ValueError(f"camera_center {c.tolist()} is beyond +-{_MAX_F32_MAGNITUDE:g} m (float32 positions)")
+        travel = float(np.linalg.norm(c - self.anchor_)) + self._speed_max * abs(t) + self._flutter_reach + extent
+        if not travel <= _MAX_WRAPS * spec.box_size[2]:
+            raise ValueError(f"t = {t} s and camera_center put the particles {travel:.3g} m from the field's anchor, "
+                             f"more than 2^52 box heights ({_MAX_WRAPS * spec.box_size[2]:.3g} m): wrap counts "
+                             "would not be exact")
 
     # ---- kinematics -----------------------------------------------------------------------
 
@@ -710,13 +807,11 @@ class ParticleField:
         Raises
         ------
         ValueError
-            If ``t`` or ``camera_center`` is not finite.
+            If ``t`` or ``camera_center`` is not finite, or beyond the range where the
+            kinematics are exact (see :meth:`_check_frame`).
         """
-        if not math.isfinite(t):
-            raise ValueError(f"t must be finite seconds, got {t}")
         c = np.asarray(camera_center, np.float64).reshape(-1)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise ValueError(f"camera_center must be a finite [3] position, got {camera_center!r}")
+        self._check_frame(t, c)
         lo, size = self.spec.box_low, self.spec.box_size
         cam = (c - self.anchor_) @ self.basis.T  # camera in box coordinates
         # Box-relative coordinates before wrapping; shifting by -lo makes the wrap a plain modulo.
@@ -793,10 +888,7 @@ class ParticleField:
         """The numba twin of the reference branch of :meth:`visible`: ([N, 3] positions of all
         particles, kept indices)."""
         spec = self.spec
-        if not math.isfinite(t):
-            raise ValueError(f"t must be finite seconds, got {t}")
-        if not np.all(np.isfinite(c)):
-            raise ValueError(f"camera_center must be a finite [3] position, got {c!r}")
+        self._check_frame(t, c)
         shift = (c - self.anchor_) @ self.basis.T + spec.box_low
         if view is None:
             W, kparams, size_px, near_, reach = np.eye(4), np.ones(4), np.zeros(2), -np.inf, 0.0
@@ -821,7 +913,7 @@ class ParticleField:
             shift,
             spec.box_size,
             spec.box_low,
-            np.uint64(self.seed),
+            np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF),  # the reference's _hash_uniform takes these bits
             self.basis,
             c,
             spec.radius_m**2,
@@ -853,7 +945,7 @@ class ParticleField:
         # The flutter's speed never exceeds sum(a_k) = sqrt(2 K) times its RMS per axis.
         flutter = spec.turbulence_m_s * math.sqrt(2.0 * _TURB_MODES) * math.sqrt(2.25)
         speed = self._speed_max + flutter + camera_speed
-        return float(math.sqrt(base**2 + (speed * exposure_s) ** 2 / 12.0))
+        return float(math.hypot(base, speed * exposure_s / math.sqrt(12.0)))  # no overflow of the squares
 
     def _in_view(
         self,
@@ -871,13 +963,16 @@ class ParticleField:
         z = cam[:, 2]
         ok = z > near
         zs = np.where(ok, z, 1.0)
-        reach = 3.0 * self.max_extent(exposure_s=exposure_s, camera_speed=camera_speed) / zs
-        # Compare in normalised coordinates: |x/z - x_edge| within the extent (+ 3 px of dilation).
-        xn, yn = cam[:, 0] / zs, cam[:, 1] / zs
-        pad_x, pad_y = reach + 3.0 / K[0, 0], reach + 3.0 / K[1, 1]
-        x_lo, x_hi = -K[0, 2] / K[0, 0], (width - K[0, 2]) / K[0, 0]
-        y_lo, y_hi = -K[1, 2] / K[1, 1], (height - K[1, 2]) / K[1, 1]
-        return ok & (xn > x_lo - pad_x) & (xn < x_hi + pad_x) & (yn > y_lo - pad_y) & (yn < y_hi + pad_y)
+        # A focal length near 0 (or z near 0) gives unbounded normalised coordinates: they compare
+        # as +-Inf, and a NaN bound culls, as in the kernel.
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            reach = 3.0 * self.max_extent(exposure_s=exposure_s, camera_speed=camera_speed) / zs
+            # Compare in normalised coordinates: |x/z - x_edge| within the extent (+ 3 px of dilation).
+            xn, yn = cam[:, 0] / zs, cam[:, 1] / zs
+            pad_x, pad_y = reach + 3.0 / K[0, 0], reach + 3.0 / K[1, 1]
+            x_lo, x_hi = -K[0, 2] / K[0, 0], (width - K[0, 2]) / K[0, 0]
+            y_lo, y_hi = -K[1, 2] / K[1, 1], (height - K[1, 2]) / K[1, 1]
+            return ok & (xn > x_lo - pad_x) & (xn < x_hi + pad_x) & (yn > y_lo - pad_y) & (yn < y_hi + pad_y)
 
     def gaussians(
         self,
@@ -932,18 +1027,35 @@ class ParticleField:
         ------
         ValueError
             If ``exposure_s`` is negative or not finite, ``dilation_eps2d`` is given without
-            ``view``, or ``out`` is too small.
+            ``view`` or is negative or not finite, ``out`` is too small, the view is not finite (K
+            with positive focal lengths, positive integer sizes), or ``t``, ``camera_center``,
+            ``camera_velocity`` and ``exposure_s`` give positions, speeds or streak lengths beyond
+            what float32 Gaussians hold (see :meth:`_check_frame`; docs/design.md §9).
         """
         if not math.isfinite(exposure_s) or exposure_s < 0:
             raise ValueError(f"exposure_s must be finite and >= 0 seconds, got {exposure_s}")
         if dilation_eps2d is not None and view is None:
             raise ValueError("dilation_eps2d needs the view it compensates for")
+        if dilation_eps2d is not None and not 0 <= dilation_eps2d < math.inf:
+            raise ValueError(f"dilation_eps2d must be finite and >= 0 px^2, got {dilation_eps2d}")
         if out is not None and len(out) < self.max_gaussians:
             raise ValueError(f"out holds {len(out)} Gaussians, this field needs up to {self.max_gaussians}")
+        if view is not None:
+            _check_view(view, near)
+        c = np.asarray(camera_center, np.float64).reshape(-1)
+        self._check_frame(t, c)
+        cam_vel = np.zeros(3) if camera_velocity is None else np.asarray(camera_velocity, np.float64).reshape(-1)
+        if cam_vel.shape != (3,) or not np.all(np.abs(cam_vel) <= _MAX_F32_MAGNITUDE):
+            raise ValueError(f"camera_velocity must be a finite [3] velocity within +-{_MAX_F32_MAGNITUDE:g} m/s, "
+                             f"got {camera_velocity!r}")
+        cam_speed = float(np.linalg.norm(cam_vel))
+        reach = self.max_extent(exposure_s=exposure_s, camera_speed=cam_speed)
+        if not (self._speed_max + self._flutter_speed + cam_speed <= _MAX_F32_MAGNITUDE
+                and reach <= _MAX_F32_MAGNITUDE):
+            raise ValueError(f"streaks of {reach:.3g} m (speeds up to {self._speed_max + cam_speed:.3g} m/s over "
+                             f"{exposure_s} s) are beyond float32")
         if self.count == 0:
             return ParticleGaussians.empty()
-        c = np.asarray(camera_center, np.float64).reshape(3)
-        cam_vel = np.zeros(3) if camera_velocity is None else np.asarray(camera_velocity, np.float64).reshape(3)
         kernels = _numba_kernels() if fast else None
         if kernels is not None:
             return self._gaussians_fast(kernels, t, c, exposure_s, cam_vel, view, near, dilation_eps2d, out)
@@ -1061,10 +1173,11 @@ class ParticleField:
         )
         dist = np.sqrt(np.einsum("ij,ij->i", pos - c, pos - c))
         fade = np.ones(keep.size)
-        if spec.fade_m > 0:
-            fade *= np.clip((spec.radius_m - dist) / spec.fade_m, 0.0, 1.0)
-        if spec.min_distance_m > 0:
-            fade *= np.clip((dist - spec.min_distance_m) / spec.min_distance_m, 0.0, 1.0)
+        with np.errstate(over="ignore"):  # a denormal fade length: the ramp is a step (Inf clips to 1)
+            if spec.fade_m > 0:
+                fade *= np.clip((spec.radius_m - dist) / spec.fade_m, 0.0, 1.0)
+            if spec.min_distance_m > 0:
+                fade *= np.clip((dist - spec.min_distance_m) / spec.min_distance_m, 0.0, 1.0)
         vel = apply_linear(self._velocity_box(t, keep), self.basis)
         rel_vel = vel - cam_vel
 
@@ -1151,6 +1264,21 @@ class ParticleField:
             "mean_fall_speed_m_s": float(self.fall_speed.mean()) if self.count else None,
             "seed": int(self.seed),
         }
+
+
+def _check_view(view: tuple[np.ndarray, np.ndarray, int, int], near: float) -> None:
+    """A view is a finite world-to-camera matrix, finite intrinsics with positive focal lengths and
+    a positive integer size; ``near`` is finite (docs/design.md §9)."""
+    W, K, width, height = view
+    Wm, Km = np.asarray(W, np.float64), np.asarray(K, np.float64)
+    if Wm.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(Wm)):
+        raise ValueError(f"view: the world-to-camera matrix must be finite [4, 4], got shape {Wm.shape}")
+    if Km.shape != (3, 3) or not np.all(np.isfinite(Km)) or not (Km[0, 0] > 0 and Km[1, 1] > 0):
+        raise ValueError(f"view: K must be finite [3, 3] intrinsics with positive focal lengths, got {Km.tolist()}")
+    if int(width) != width or int(height) != height or width < 1 or height < 1:
+        raise ValueError(f"view: width and height must be positive integers, got {width} x {height}")
+    if not math.isfinite(near):
+        raise ValueError(f"near must be finite metres, got {near}")
 
 
 # --------------------------------------------------------------------------------------------

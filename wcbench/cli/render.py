@@ -191,11 +191,10 @@ def _method_options(args: argparse.Namespace, scene_size: tuple[int, int], n_fra
 
 def run(args: argparse.Namespace) -> int:
     """Render every selected scene through the units of work ``run`` uses; return 0."""
+    from wcbench.core.storage import check_writable_folder
     from wcbench.methods import get_method
     from wcbench.scenes.sets import data_root_from, resolve_scenes
     from wcbench.units import RenderSettings, WorkUnit
-
-    from wcbench.core.storage import check_writable_folder
 
     get_method(args.method)  # an unknown name fails before any scene is loaded
     check_writable_folder(args.out)

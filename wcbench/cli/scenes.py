@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{scene.id}: {len(scene)} frames {w}x{h}, {scene.duration:.1f} s, format {scene.source_format}")
         print(f"  folder       {scene.root}")
         print(f"  lidar        {with_lidar}/{len(scene)} frames")
-        print(f"  up vector    {scene.up.tolist()}  (world re-based by {[round(float(v), 3) for v in scene.world_offset]})")
+        offset = [round(float(v), 3) for v in scene.world_offset]
+        print(f"  up vector    {scene.up.tolist()}  (world re-based by {offset})")
         print(f"  tracks       {len(scene.tracks)} " + ", ".join(f"{k}: {v}" for k, v in sorted(classes.items())))
         print(f"  sky masks    {sum(f.sky_mask_path is not None for f in scene.frames)} frames")
     return 0

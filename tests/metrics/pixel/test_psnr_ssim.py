@@ -51,3 +51,32 @@ def test_psnr_matches_skimage_and_closed_form(rng):
 def test_shape_mismatch_names_both_shapes(rng):
     with pytest.raises(ValueError, match=r"\(1, 4, 4, 3\).*\(1, 5, 4, 3\)"):
         psnr(rng.random((4, 4, 3)), rng.random((5, 4, 3)))
+
+
+# ---- numeric guards (docs/design.md §9) -------------------------------------------------------
+
+
+def test_psnr_of_denormal_differences_is_finite_and_only_identical_frames_are_infinite():
+    from wcbench.metrics.pixel.psnr import PSNR
+
+    a = np.zeros((2, 4, 4, 3))
+    b = a.copy()
+    b[0, 1, 2, 0] = 5e-324  # its square underflows float64
+    value = psnr(a[0], b[0])
+    # 10 log10(1 / mse), mse = (5e-324)^2 / 48, from logarithms
+    assert value == pytest.approx(-10 * (2 * np.log10(5e-324) - np.log10(48)), rel=1e-12)
+    m = PSNR()
+    m.update(a, reference=b)
+    out = m.compute()["psnr"]
+    assert out.value is None and "identical" in out.reason  # frame 1 is identical: PSNR inf
+    assert out.per_frame[0] == pytest.approx(value) and out.per_frame[1] is None
+
+
+def test_empty_inputs_are_refused_with_the_reason():
+    with pytest.raises(ValueError, match="at least 1 x 1 px, got 0 x 4"):
+        psnr(np.zeros((0, 4, 3)), np.zeros((0, 4, 3)))
+    for fn in (psnr, ssim):
+        with pytest.raises(ValueError, match="no frames"):
+            fn(np.zeros((0, 16, 16, 3)), np.zeros((0, 16, 16, 3)))
+    with pytest.raises(ValueError, match=r"at least 11 px on each side, got 10 x 30 px"):
+        ssim(np.zeros((10, 30, 3)), np.zeros((10, 30, 3)))

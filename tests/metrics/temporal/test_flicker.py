@@ -103,3 +103,69 @@ def test_source_flow_is_computed_once_across_weathers():
         m = FlowWarpingError()
         m.update(edit, source=seq)
     assert FLOW_CACHE.misses - before == 2  # two frame pairs, flowed once each
+
+
+# ---- numeric guards (docs/design.md §9) -------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [0, 1])
+def test_fewer_than_two_frames_one_rule_for_both_metrics(n):
+    from wcbench.metrics.base import MetricContext
+    from wcbench.metrics.temporal.flicker import TemporalFlicker
+
+    seq = np.zeros((n, 16, 16, 3))
+    for fn in (temporal_flicker, flow_warp_error):
+        with pytest.raises(ValueError, match=f"needs at least 2 frames, got {n}"):
+            fn(seq)
+    ctx = MetricContext(weather="rain", n_frames=n, has_reference=False)
+    for metric in (TemporalFlicker(), FlowWarpingError()):
+        assert "needs at least 2 frames" in metric.skip_reason(ctx)
+        metric.update(seq, source=seq)
+        for name, value in metric.compute().items():
+            assert value.value is None and value.reason == f"needs at least 2 frames, got {n}", name
+
+
+def test_dis_flow_names_the_size_it_needs():
+    rng = np.random.default_rng(0)
+    for h, w in ((11, 11), (5, 40), (40, 7)):
+        seq = rng.random((2, h, w, 3)).astype(np.float32)
+        with pytest.raises(ValueError, match=rf"8 px on the short side and 12 px on the long side, got {h}x{w}"):
+            flow_warp_error(seq)
+        m = FlowWarpingError()
+        with pytest.raises(ValueError, match="dis flow needs frames"):
+            m.update(seq, source=seq)
+        # Farneback takes any size, down to one pixel (no gradient across a 1-px axis): a static
+        # smooth sequence has zero error there
+        ramp = np.linspace(0.2, 0.8, h * w).reshape(1, h, w, 1) * np.ones((3, 1, 1, 3))
+        assert flow_warp_error(ramp, flow="farneback") == pytest.approx(0.0, abs=1e-6)  # float32 flow noise
+    one = np.linspace(0.2, 0.8, 9).reshape(1, 1, 9, 1) * np.ones((3, 1, 1, 3))
+    assert flow_warp_error(one, flow="farneback") == pytest.approx(0.0, abs=1e-6)
+    m = FlowWarpingError(flow="farneback")
+    m.update(one, source=one)
+    assert m.compute()["flow_warping_error"].value == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_flow_callable_must_return_finite_offsets_of_the_frame_size():
+    seq = translated_sequence(n=2, size=(20, 24))
+
+    def nan_flow(a, b):
+        return np.full((*a.shape[:2], 2), np.nan, np.float32)
+
+    def small_flow(a, b):
+        return np.zeros((4, 4, 2), np.float32)
+
+    for flow, what in ((nan_flow, "non-finite"), (small_flow, r"shape \(4, 4, 2\)")):
+        with pytest.raises(ValueError, match=f"finite .H, W, 2. = .20, 24, 2. pixel offsets, got .*{what}"):
+            flow_warp_error(seq, flow=flow)
+
+
+def test_a_sequence_keeps_one_frame_size_across_batches():
+    from wcbench.metrics.temporal.flicker import TemporalFlicker
+
+    a, b = np.zeros((2, 16, 16, 3)), np.zeros((2, 16, 20, 3))
+    for metric in (TemporalFlicker(), FlowWarpingError(flow="farneback")):
+        metric.update(a, source=a)
+        with pytest.raises(ValueError, match="frames of one sequence must share a size"):
+            metric.update(b, source=b)
+    with pytest.raises(ValueError, match="pred has shape"):
+        TemporalFlicker().update(a, source=a[:1])

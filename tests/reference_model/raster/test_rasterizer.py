@@ -291,3 +291,91 @@ def test_missing_numba_falls_back_to_the_twin_with_one_warning(monkeypatch: pyte
     assert len([w for w in caught if "numba backend unavailable" in str(w.message)]) == 1
     with pytest.raises(ValueError, match="numba is unavailable"):
         rasterize(*args(params), V, K, W, H, backend="numba")
+
+
+# ---- numeric guards (docs/design.md §9) -------------------------------------------------------
+
+#: Needles: one axis 1e30 times another. Their 2D covariance determinant a c - b^2 is a difference
+#: of ~1e120 numbers; both backends form it from the minors of J V R diag(s) instead.
+NEEDLE_SCALES = [(1e-30, 1e30, 1.0), (1e30, 1e-30, 1.0), (1e-30, 1e-30, 1e30), (0.0, 1e10, 0.0), (0.05, 1e19, 0.02),
+                 (1e30, 1e30, 1e-30)]
+
+
+def _needle_scene() -> list[Tensor]:
+    g = torch.Generator().manual_seed(5)
+    n = len(NEEDLE_SCALES)
+    means = torch.rand(n, 3, generator=g) * torch.tensor([1.0, 0.6, 3.0]) + torch.tensor([-0.5, -0.3, 2.0])
+    params = [means, torch.randn(n, 4, generator=g), torch.tensor(NEEDLE_SCALES),
+              torch.rand(n, generator=g) * 0.5 + 0.2, torch.rand(n, 3, generator=g)]
+    return [p.requires_grad_(True) for p in params]
+
+
+def test_needle_gaussians_are_drawn_by_both_backends_alike() -> None:
+    from wcbench.reference_model.raster.torch_twin import _project
+
+    params = _needle_scene()
+    w, h, K_n = 32, 24, pinhole(32, 24, 30.0)
+    # The test can fail: a c - b^2 of these covariances is rounding noise, <= 0 for some of them.
+    with torch.no_grad():
+        _, cov, det, _ = _project(*[p.double() for p in params[:3]], V.double(), K_n.double(), w, h)
+        naive = cov[:, 0] * cov[:, 2] - cov[:, 1] * cov[:, 1]
+    assert bool((naive <= 0).any()) and bool((det > 0).all())
+    outs = {b: rasterize(*params, V, K_n, w, h, backend=b) for b in ("numba", "torch")}
+    fast, ref = outs["numba"], outs["torch"]
+    assert fast.meta["n_visible"] == ref.meta["n_visible"] == len(NEEDLE_SCALES)
+    torch.testing.assert_close(fast.color, ref.color, atol=FWD_ATOL, rtol=0)
+    torch.testing.assert_close(fast.alpha, ref.alpha, atol=FWD_ATOL, rtol=0)
+    names = ["means", "quats", "scales", "opacities", "colors", "means2d", "means2d_abs"]
+    _assert_grads_close(_grads(fast, params), _grads(ref, params), names)
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_background_must_be_finite_and_within_the_color_bound(backend: str) -> None:
+    from wcbench.reference_model.raster.common import MAX_ABS_COLOR
+
+    p = args(random_scene(5, seed=0))
+    for bad in ([math.nan, 0.0, 0.0], [0.0, math.inf, 0.0], [0.0, 0.0, 1e30]):
+        with pytest.raises(ValueError, match="background must be finite"):
+            rasterize(*p, V, K, W, H, background=torch.tensor(bad), backend=backend)
+    with pytest.raises(ValueError, match="background must be"):
+        rasterize(*p, V, K, W, H, background=["a", "b", "c"], backend=backend)
+    out = rasterize(*p, V, K, W, H, background=torch.full((3,), MAX_ABS_COLOR), backend=backend)
+    assert bool(torch.isfinite(out.color).all())
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_huge_colors_are_refused_and_nonfinite_ones_culled(backend: str) -> None:
+    p = args(random_scene(6, seed=2))
+    huge = p[4].detach().clone()
+    huge[3, 1] = 3e38
+    with pytest.raises(ValueError, match=r"colors must be within \+-1e\+15"):
+        rasterize(*p[:4], huge, V, K, W, H, backend=backend)
+    nan = p[4].detach().clone()
+    nan[3, 1] = math.nan
+    out = rasterize(*p[:4], nan.requires_grad_(True), V, K, W, H, backend=backend)
+    assert out.meta["culled_nonfinite"] == 1 and bool(torch.isfinite(out.color).all())
+    with pytest.raises(ValueError, match="width and height"):
+        rasterize(*p, V, K, math.nan, H, backend=backend)
+
+
+def test_gradients_beyond_float32_saturate_alike_in_both_backends() -> None:
+    """A Gaussian 3.4e38 m long seen almost end-on: its exact gradients exceed float32 (the float64
+    twin shows them); both backends give +-3.4e38 there instead of Inf or NaN, the rest as usual."""
+    f32_max = float(torch.finfo(torch.float32).max)
+    g = [((0.0, 0.0, 1.02139), (-1.0, 0.0, 1e-30, 0.01), (1e-38, 1.0, 3.4028234e38), 1.02139, (0.0, -1.0, -1e15))]
+    K_s = torch.tensor([[0.5, 0.0, 4.5], [0.0, 0.5, 7.5], [0.0, 0.0, 1.0]])
+    grads = {}
+    for dtype, backend in ((torch.float32, "numba"), (torch.float32, "torch"), (torch.float64, "torch")):
+        p = [torch.tensor(c, dtype=dtype).requires_grad_(True) for c in zip(*g)]
+        out = rasterize(*p, V.to(dtype), K_s.to(dtype), 9, 15, far=10.0, background=torch.zeros(3, dtype=dtype),
+                        backend=backend)
+        assert out.depth is not None
+        loss = out.color.sum() - out.alpha.sum() + out.depth.sum()
+        grads[(dtype, backend)] = torch.autograd.grad(loss, p)
+    exact = grads[(torch.float64, "torch")]
+    assert max(float(e.abs().max()) for e in exact) > f32_max  # the test can fail: there is an overflow
+    for key in ((torch.float32, "numba"), (torch.float32, "torch")):
+        for got, e in zip(grads[key], exact):
+            assert bool(torch.isfinite(got).all()), key
+            over = e.abs() > f32_max
+            assert torch.equal(got[over].double(), torch.sign(e[over]) * f32_max), key

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import pytest
@@ -32,6 +33,18 @@ OP = st.sampled_from([0.0, 1e-3, 1 / 255, 0.5, 0.99, 1.0, 1.5, -0.2, NAN])
 C = st.sampled_from([0.0, 0.5, 1.0, -1.0, 10.0, NAN])
 
 gaussian = st.tuples(st.tuples(XY, XY, Z), st.tuples(Q, Q, Q, Q), st.tuples(S, S, S), OP, st.tuples(C, C, C))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_numba_thread() -> Iterator[None]:
+    """One tile and a handful of Gaussians per render: waking the thread pool costs more than the
+    work, and on a busy machine its barrier stalls (10x slower). Results do not depend on the
+    thread count (test_rasterizer.py checks that)."""
+    numba = pytest.importorskip("numba")
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(n)
 
 
 def _tensors(gs: list) -> list[Tensor]:

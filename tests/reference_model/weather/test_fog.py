@@ -232,3 +232,51 @@ def test_zero_density_fog_equals_clear_and_huge_density_is_finite() -> None:
     dense = WeatherRenderer(plane, Weather(kind="fog", fog_density=1e3), up=up, background=bg).render(_camera(), 0.0)
     assert np.all(np.isfinite(dense.image))
     np.testing.assert_allclose(dense.image, np.broadcast_to(FOG, dense.image.shape), atol=1e-5)
+
+
+# ---- numeric guards (docs/design.md §9) -------------------------------------------------------
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_no_fog_is_transmittance_one_even_for_overflowing_distances(fast: bool) -> None:
+    means = np.array([[3e38, 3e38, 0.0], [1.0, 2.0, 3.0], [-3e38, 0.0, 3e38]], np.float32)
+    colors = np.array([[0.2, 0.4, 0.6]] * 3, np.float32)
+    # beta = 0, and a beta that rounds to 0 in float32: 0 * Inf would be NaN
+    for beta in (0.0, 1e-46):
+        out = transmitted_channels(means, colors, np.zeros(3), beta, fast=fast)
+        np.testing.assert_array_equal(out[:, -1], 1.0)
+        np.testing.assert_array_equal(out[:, :-1], colors)
+    fogged = transmitted_channels(means, colors, np.zeros(3), 0.01, fast=fast)
+    assert np.all(np.isfinite(fogged)) and fogged[0, -1] == 0.0 and fogged[2, -1] == 0.0
+
+
+def test_fog_parameters_beyond_float32_or_the_color_bound_are_refused() -> None:
+    means, colors = np.zeros((2, 3), np.float32), np.ones((2, 3), np.float32)
+    with pytest.raises(ValueError, match="beta"):
+        transmitted_channels(means, colors, np.zeros(3), 1e39)
+    with pytest.raises(ValueError, match="offset_m"):
+        gaussian_transmittance(means, np.zeros(3), 0.1, offset_m=1e300)
+    with pytest.raises(ValueError, match="visibility_m must be at least"):
+        density_from_visibility(1e-300)
+    a = np.full((4, 5), 0.5, np.float32)
+    for bad in (np.array([np.nan, 0.5, 0.5]), np.array([1e16, 0.0, 0.0]), np.array([0.5, 0.5])):
+        with pytest.raises(ValueError, match="fog_color must be finite RGB"):
+            compose_exact(np.zeros((4, 5, 3), np.float32), a * 0.5, a, beta=0.1, fog_color=bad)
+    with pytest.raises(ValueError, match="background must be finite RGB"):
+        compose_exact(np.zeros((4, 5, 3), np.float32), a * 0.5, a, beta=0.1, fog_color=FOG,
+                      background=np.full((4, 5, 3), np.inf))
+    with pytest.raises(ValueError, match="K must be finite"):
+        ray_distance(np.ones((4, 5), np.float32), np.zeros((3, 3)))
+
+
+def test_postprocess_of_rays_too_long_for_float32_is_finite() -> None:
+    depth = np.full((4, 6), 3e38, np.float32)
+    K = pinhole(6, 4, 1e-300)  # every off-axis ray is longer than float32 holds
+    assert np.all(np.isinf(ray_distance(depth, K)))
+    color = np.full((4, 6, 3), 0.3, np.float32)
+    alpha = np.ones((4, 6), np.float32)
+    for beta in (0.0, 0.02, 3e38):
+        out = fog_postprocess(color, depth, alpha, K, beta=beta, fog_color=FOG)
+        assert np.all(np.isfinite(out))
+        # no fog keeps the color; any fog at an unbounded distance is the fog color
+        np.testing.assert_allclose(out, color if beta == 0 else np.broadcast_to(FOG, out.shape), atol=F32_TOL)

@@ -403,3 +403,88 @@ def test_bad_parameters_raise_value_errors_naming_them() -> None:
         ParticleSpec.from_mapping("rain", {"rate_mm_h": 1.0, "colour": [1, 1, 1]})
     with pytest.raises(ValueError, match="t must be finite"):
         field().positions(math.nan, np.zeros(3))
+
+
+# ---- numeric guards (docs/design.md §9) -------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("setting", "value"),
+    [("turbulence_m_s", math.nan), ("spin_rad_s", math.inf), ("radius_m", math.inf), ("fade_m", math.nan),
+     ("flake_ratio", -1.0), ("dsd_n0_b", math.nan), ("color", (0.5, 2.0, 0.5)), ("haze_color", (math.nan, 0, 0)),
+     ("above_m", 1e38), ("fall_speed_m_s", 1e300), ("scale_m", (0.01, 0.01, 1e-40)), ("min_diameter_mm", 1e-40)],
+)
+def test_spec_refuses_numbers_without_a_meaning(setting: str, value: object) -> None:
+    # lengths must be float32 positions (above_m) or normal float32 sizes (scale_m, diameters)
+    name = "diameters" if setting == "min_diameter_mm" else setting
+    with pytest.raises(ValueError, match=name):
+        if setting == "scale_m":
+            ParticleSpec(kind="snow", count=10, fall_speed_m_s=1.0, scale_m=value)  # type: ignore[arg-type]
+        else:
+            ParticleSpec(kind="snow", rate_mm_h=2.0, **{setting: value})  # type: ignore[arg-type]
+
+
+def test_size_distribution_and_counts_that_overflow_are_refused() -> None:
+    spec = ParticleSpec(kind="snow", rate_mm_h=1e-300, dsd_n0_b=-5.0)  # N0 = 3800 R^-5 overflows
+    with pytest.raises(ValueError, match="not representable"):
+        size_distribution("snow", 1e-300, spec)
+    with pytest.raises(ValueError, match="not representable"):
+        ParticleField(spec)
+
+
+def test_frames_beyond_exact_kinematics_are_refused_by_both_paths() -> None:
+    from dataclasses import replace
+
+    _numba_kernels_or_skip()
+    f = ParticleField(replace(field("snow", "heavy").spec, turbulence_m_s=0.5))  # flutter up to 2 pi rad/s
+    for fast in (True, False):
+        f.gaussians(1e5, np.zeros(3), fast=fast)  # phases ~6e5 rad: still exact
+        with pytest.raises(ValueError, match="flutter and spin phases"):
+            f.gaussians(1e6, np.zeros(3), fast=fast)
+        with pytest.raises(ValueError, match="camera_center"):
+            f.gaussians(0.0, np.array([1e38, 0.0, 0.0]), fast=fast)
+        with pytest.raises(ValueError, match="camera_velocity"):
+            f.gaussians(0.0, np.zeros(3), camera_velocity=np.array([np.nan, 0, 0]), fast=fast)
+        with pytest.raises(ValueError, match="K must be finite"):
+            f.gaussians(0.0, np.zeros(3), view=(np.eye(4), np.zeros((3, 3)), 64, 48), fast=fast)
+    rain = field("rain", "heavy")
+    with pytest.raises(ValueError, match="beyond float32"):
+        rain.gaussians(0.0, np.zeros(3), exposure_s=1e38)  # streaks of ~1e38 m
+
+
+def test_seeds_beyond_64_bits_give_the_same_particles_on_both_paths() -> None:
+    _numba_kernels_or_skip()
+    f = field("rain", "heavy", seed=2**64 + 7)
+    c = np.array([0.0, 0.0, 0.0])
+    t = 40.0  # late enough that particles have wrapped (the hash of the seed re-draws them)
+    p_fast, i_fast = f.visible(t, c, fast=True)
+    p_ref, i_ref = f.visible(t, c, fast=False)
+    np.testing.assert_array_equal(i_fast, i_ref)
+    np.testing.assert_allclose(p_fast, p_ref, atol=POS_TOL)
+
+
+def test_long_thin_streaks_get_the_same_dilation_factor_on_both_paths() -> None:
+    """Streaks 1e6 times longer than wide: det(Sigma) from the minors (Cauchy-Binet), not
+    c00 c11 - c01^2, which is rounding noise there; fast and numpy paths agree."""
+    from wcbench.reference_model.weather.particles import particle_dilation_compensation
+
+    _numba_kernels_or_skip()
+    K = np.array([[250.0, 0, 160], [0, 250.0, 90], [0, 0, 1]])
+    w2c = np.eye(4)
+    w2c[:3, :3] = [[0, -1, 0], [0, 0, -1], [1, 0, 0]]
+    view = (w2c, K, 320, 180)
+    f = field("rain", "heavy", wind=Wind(9.0, 20.0, 60.0))
+    kw = dict(exposure_s=3.0, view=view, near=0.05, dilation_eps2d=0.3)
+    fast = f.gaussians(5.0, np.zeros(3), fast=True, **kw)  # type: ignore[arg-type]
+    ref = f.gaussians(5.0, np.zeros(3), fast=False, **kw)  # type: ignore[arg-type]
+    assert len(ref) > 20 and float((ref.scales[:, 2] / ref.scales[:, 0]).max()) > 1e4
+    np.testing.assert_allclose(fast.opacities, ref.opacities, rtol=1e-5, atol=1e-7)
+    # The factor itself against a float64 closed form for one streak along the image x axis: a
+    # Gaussian with sigmas (s, s, L) projected at depth z has det ~ (f s / z)^2 (f L / z)^2.
+    means = np.array([[10.0, 0.0, 0.0]])
+    quats = np.array([[np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]])  # local z -> world -y (image x)
+    scales = np.array([[1e-4, 1e-4, 1e2]])
+    got = particle_dilation_compensation(means, quats, scales, w2c, K, eps2d=0.3)
+    a, b = (250.0 * 1e-4 / 10.0) ** 2, (250.0 * 1e2 / 10.0) ** 2
+    expected = math.sqrt(a * b / ((a + 0.3) * (b + 0.3)))
+    assert got[0] == pytest.approx(expected, rel=1e-5)
