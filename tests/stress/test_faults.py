@@ -131,16 +131,34 @@ def test_two_runs_into_one_folder_never_lose_results(scene, tmp_path, case_count
     assert sorted(doc["config"]["weathers"]) in (["clear", "rain"], ["clear", "snow"])
 
 
-def _as_nobody() -> list[str] | None:
-    """A command prefix that runs as an unprivileged user, or ``None`` when that cannot be done."""
+@pytest.fixture
+def as_nobody():
+    """A command prefix that runs as an unprivileged user (empty when not root); skips when that
+    user cannot run this interpreter. Folders on the way to the environment that others may not
+    enter (tox makes ``.tox`` private) are opened for traversal (o+x only) during the test."""
     if os.geteuid() != 0:
-        return []
+        yield []
+        return
     if shutil.which("setpriv") is None:
-        return None
+        pytest.skip("running as root without setpriv: permissions cannot be tested")
+    import wcbench
+
+    opened: list[tuple[Path, int]] = []
+    for top in {Path(sys.prefix), Path(wcbench.__file__).parent}:
+        for d in [top, *top.parents]:
+            mode = d.stat().st_mode
+            if d.is_dir() and not mode & stat.S_IXOTH:
+                d.chmod(mode | stat.S_IXOTH)
+                opened.append((d, mode))
     prefix = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", "--"]
-    # the interpreter itself may live where that user cannot load it from (a private home)
-    probe = subprocess.run([*prefix, sys.executable, "-c", "import wcbench"], capture_output=True, cwd="/")
-    return prefix if probe.returncode == 0 else None
+    try:
+        probe = subprocess.run([*prefix, sys.executable, "-c", "import wcbench"], capture_output=True, cwd="/")
+        if probe.returncode != 0:
+            pytest.skip(f"an unprivileged user cannot run this interpreter: {probe.stderr.decode()[-200:]}")
+        yield prefix
+    finally:
+        for d, mode in reversed(opened):
+            d.chmod(mode)
 
 
 @pytest.fixture
@@ -154,11 +172,8 @@ def shared_tmp():
 
 @pytest.mark.parametrize("kind", ["read-only folder", "read-only parent", "read-only results file"])
 def test_read_only_output_fails_clearly_before_work_as_a_non_root_user(kind, scene, reference, shared_tmp,
-                                                                        case_counter):
-    prefix = _as_nobody()
-    if prefix is None:
-        pytest.skip("running as root, and no unprivileged user can run this interpreter (setpriv missing or "
-                    "the interpreter in a private folder): permissions cannot be tested")
+                                                                        as_nobody, case_counter):
+    prefix = as_nobody
     shutil.copytree(scene, shared_tmp / "scene")
     shutil.copytree(reference / "filter2d", shared_tmp / "preds")
     out = shared_tmp / ("parent/out" if kind == "read-only parent" else "out")
