@@ -22,7 +22,6 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 from wcbench.bench.schema import BenchCase, BenchReport
 from wcbench.evaluation import EvaluateConfig, evaluate
@@ -119,7 +118,9 @@ def run(*, data_root: Path | None = None, quick: bool = False) -> BenchReport:
                     {"units": units, "speedup_vs_local": local_s / seconds, "start_ms": start_ms},
                 ))
                 assert hasattr(executor, "run_empty")
-                specs = [_empty_spec(i) for i in range(n_empty)]
+                demo = resolve_scenes("demo")[0]
+                specs = [UnitSpec(label=f"empty {i}", scene=demo, weather="clear", root=demo.path, source_hashes=(),
+                                  check_unedited=False, key=str(i)) for i in range(n_empty)]
                 executor.run_empty(specs[: min(10, n_empty)])  # warm the path
                 t0 = time.perf_counter()
                 executor.run_empty(specs)
@@ -131,9 +132,3 @@ def run(*, data_root: Path | None = None, quick: bool = False) -> BenchReport:
     local_unit_ms = local_s * 1e3 / units
     report.notes.append(f"local: {local_unit_ms:.0f} ms per unit of this job")
     return report
-
-
-def _empty_spec(i: int) -> Any:
-    ref = resolve_scenes("demo")[0]
-    return UnitSpec(label=f"empty {i}", scene=ref, weather="clear", root=ref.path, source_hashes=(),
-                    check_unedited=False, key=str(i))

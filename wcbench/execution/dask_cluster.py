@@ -59,6 +59,11 @@ def threads_per_worker(cores: int, workers_on_host: int) -> int:
     return max(1, cores // max(1, workers_on_host))
 
 
+def _host(address: str) -> str:
+    """``tcp://10.0.0.5:41234`` -> ``10.0.0.5``."""
+    return address.split("://")[-1].rsplit(":", 1)[0]
+
+
 def thread_env(threads: int) -> dict[str, str]:
     """The environment that limits a new worker process to ``threads`` threads."""
     return {name: str(threads) for name in THREAD_VARIABLES}
@@ -81,7 +86,7 @@ class ThreadLimits(WorkerPlugin):
         """Set the thread variables, and the pools of numba and torch when already imported."""
         import sys
 
-        n = self.threads_by_host.get(worker.address.split("://")[-1].rsplit(":", 1)[0])
+        n = self.threads_by_host.get(_host(worker.address))
         n = n or threads_per_worker(os.cpu_count() or 1, worker.state.nthreads)
         os.environ.update(thread_env(n))
         if "torch" in sys.modules:
@@ -145,8 +150,7 @@ class DaskExecutor(Executor):
     def _limit_threads(self) -> None:
         per_host: dict[str, int] = {}
         for address, w in self.client.scheduler_info().get("workers", {}).items():
-            host = address.split("://")[-1].rsplit(":", 1)[0]
-            per_host[host] = per_host.get(host, 0) + int(w.get("nthreads", 1))
+            per_host[_host(address)] = per_host.get(_host(address), 0) + int(w.get("nthreads", 1))
         cores = os.cpu_count() or 1  # the client's; hosts of another size fall back in the plugin
         self.client.register_plugin(ThreadLimits({h: threads_per_worker(cores, n) for h, n in per_host.items()}),
                                     name="wcbench-thread-limits")
