@@ -25,6 +25,19 @@ def _numbers(path: Path) -> dict:
     return {k: doc[k] for k in ("results", "skipped", "inputs", "config", "schema_version")}
 
 
+def test_skipped_metrics_are_said_once_per_reason_most_rows_first():
+    from wcbench.evaluation import skipped_causes
+
+    weights = "weights not installed: run `wcbench models pull clip-vit-b32-openai`"
+    doc = {"skipped": [
+        *({"scene": s, "weather": w, "metric": m, "reason": weights}
+          for s in ("demo", "pandaset_002") for w in ("rain", "snow") for m in ("clip_s", "clip_ds")),
+        {"scene": "demo", "weather": "clear", "metric": "fps", "reason": "no timing"},
+    ]}
+    assert skipped_causes(doc) == [(weights, ["clip_ds", "clip_s"], 8), ("no timing", ["fps"], 1)]
+    assert skipped_causes({"skipped": []}) == []
+
+
 def _darken(img, k, weather):
     return (img * 0.8).astype(np.uint8)
 
@@ -51,8 +64,10 @@ def test_folder_evaluate_on_real_scene_writes_both_files(pandaset_root, tmp_path
     df = pd.read_csv(out / "results.csv")
     assert tuple(df.columns) == CSV_COLUMNS
     assert set(df["status"]) == {"ok", "skipped"}
+    printed = capsys.readouterr().out
+    assert "skipped fps (1 row): no timing: the predictions have no info.json" in printed
+    assert "  pandaset_002     clear  psnr" in printed
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
-    capsys.readouterr()
     assert main(args) == 0
     assert "up to date" in capsys.readouterr().out
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before

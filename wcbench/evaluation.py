@@ -386,16 +386,28 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
 
 
 def summarize(results: dict[str, Any]) -> list[tuple[str, str, str, str]]:
-    """(scene, weather, output, value text) rows for the terminal, skipped ones with their reason."""
+    """(scene, weather, output, value text) rows for the terminal, of every output computed (the
+    skipped metrics are summarised by :func:`skipped_causes`)."""
     rows = []
     for scene, weathers in results["results"].items():
         for weather, outputs in weathers.items():
             for name, r in sorted(outputs.items()):
                 text = f"{r['value']:.6g}" if r["value"] is not None else f"null ({r['reason']})"
                 rows.append((scene, weather, name, text))
-    for s in results["skipped"]:
-        rows.append((s["scene"], s["weather"], s["metric"], f"skipped: {s['reason']}"))
     return sorted(rows)
+
+
+def skipped_causes(results: dict[str, Any]) -> list[tuple[str, list[str], int]]:
+    """The skipped metrics grouped by reason: (reason, metric names, rows skipped for it), most rows
+    first. One reason (missing weights, say, naming the command that installs them) is said once,
+    not once per scene and weather."""
+    groups: dict[str, tuple[set[str], list[int]]] = {}
+    for s in results["skipped"]:
+        names, count = groups.setdefault(s["reason"], (set(), [0]))
+        names.add(s["metric"])
+        count[0] += 1
+    causes = [(reason, sorted(names), count[0]) for reason, (names, count) in groups.items()]
+    return sorted(causes, key=lambda c: (-c[2], c[0]))
 
 
 def frames_as_array(seq: PredictionSequence) -> np.ndarray:

@@ -170,7 +170,8 @@ class WeatherCityModel(nn.Module):
                 "rigid_nodes": len(self.rigid), "nonrigid_nodes": len(self.nonrigid),
                 "total": len(self.background) + rigid + nonrigid}
 
-    def frame_gaussians(self, frame: int, placement: Placement | None = None) -> FrameGaussians:
+    def frame_gaussians(self, frame: int, placement: Placement | None = None, *,
+                        activated: dict[str, tuple[torch.Tensor, torch.Tensor]] | None = None) -> FrameGaussians:
         """Every node's Gaussians placed at ``frame`` (world coordinates), concatenated.
 
         Parameters
@@ -179,6 +180,9 @@ class WeatherCityModel(nn.Module):
             Scene frame; objects not annotated there are absent.
         placement : Placement, optional
             Hidden, moved and copied nodes (object editing).
+        activated : dict of str to (Tensor [n, 3], Tensor [n]), optional
+            Each node's scales (m) and opacities computed once (:meth:`activated`): rendering a
+            trained model needs no exp and sigmoid of every Gaussian per frame.
         """
         place = placement or Placement()
         parts: list[tuple[str, torch.Tensor, torch.Tensor, GaussianParams]] = []
@@ -208,14 +212,23 @@ class WeatherCityModel(nn.Module):
             empty = GaussianParams.empty(self.background.feature_dim)
             parts.append((BACKGROUND, empty.means, empty.quats, empty))
             nodes = {BACKGROUND: empty}
+            activated = None
+        keys = [key for key, _, _, _ in parts]
+        if activated is None or not all(key in activated for key in keys):
+            activated = {key: (params.scales(), params.opacities()) for key, _, _, params in parts}
         return FrameGaussians(
             means=torch.cat([p[1] for p in parts]),
             quats=torch.cat([p[2] for p in parts]),
-            scales=torch.cat([p[3].scales() for p in parts]),
-            opacities=torch.cat([p[3].opacities() for p in parts]),
+            scales=torch.cat([activated[key][0] for key in keys]),
+            opacities=torch.cat([activated[key][1] for key in keys]),
             segments=segments,
             nodes=nodes,
         )
+
+    def activated(self) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+        """Each node's scales [n, 3] (m) and opacities [n], detached (for :meth:`frame_gaussians`)."""
+        with torch.no_grad():
+            return {key: (p.scales(), p.opacities()) for key, p in self.nodes().items()}
 
     def render(
         self,

@@ -3,7 +3,9 @@
 The map is equirectangular in the scene's own frame (azimuth around ``up`` from a heading, and
 elevation above the horizon), so it is independent of where the camera is: the sky is at infinite
 distance. Rays below ``min_elevation`` read the map's lowest row (the sky is rarely seen there;
-Gaussians cover the ground). Colors are sigmoid(logits), RGB in (0, 1).
+Gaussians cover the ground). Colors are sigmoid(logits), RGB in (0, 1). A map may span only a
+window of directions (what the training cameras saw, :func:`sky_window`), which puts all its
+texels where the sky is ever seen.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["SkyModel", "view_directions"]
+__all__ = ["SkyModel", "camera_rays", "sky_window", "view_directions"]
 
 
 def view_directions(camera_to_world: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -37,6 +39,34 @@ def view_directions(camera_to_world: np.ndarray, K: np.ndarray, width: int, heig
     return (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
 
 
+def camera_rays(K: np.ndarray, width: int, height: int) -> torch.Tensor:
+    """Unit camera-frame directions [H, W, 3] (float32, OpenCV axes) of the rays through every pixel
+    center: the same for every frame of a camera, so a renderer makes them once and turns them by
+    each frame's rotation (:meth:`SkyModel.grid_from_rays`)."""
+    return torch.from_numpy(view_directions(np.eye(4), K, width, height))
+
+
+def sky_window(sky: SkyModel, directions: Sequence[torch.Tensor], *, margin: float = 0.1,
+               min_span: float = 0.05) -> tuple[float, float, float, float]:
+    """The (azimuth, elevation) window of a sky map that covers ``directions`` (world rays [H, W, 3]
+    of the training views), widened by ``margin`` of each span on both sides; the whole sphere's
+    azimuths when the rays go round more than 300 degrees. Radians."""
+    az_lo = el_lo = math.inf
+    az_hi = el_hi = -math.inf
+    for d in directions:
+        el, az = sky.angles(d)
+        az_lo, az_hi = min(az_lo, float(az.min())), max(az_hi, float(az.max()))
+        el_lo, el_hi = min(el_lo, float(el.min())), max(el_hi, float(el.max()))
+    if not math.isfinite(az_lo):
+        raise ValueError("sky_window needs at least one direction")
+    pad_a = max(margin * (az_hi - az_lo), min_span)
+    pad_e = max(margin * (el_hi - el_lo), min_span)
+    if az_hi - az_lo > math.radians(300):
+        az_lo, az_hi, pad_a = -math.pi, math.pi, 0.0
+    return (max(az_lo - pad_a, -math.pi), min(az_hi + pad_a, math.pi),
+            max(el_lo - pad_e, -math.pi / 2), min(el_hi + pad_e, math.pi / 2))
+
+
 class SkyModel(nn.Module):
     """Environment maps [D, 3, rows, cols] over (elevation, azimuth), one per weather.
 
@@ -52,6 +82,11 @@ class SkyModel(nn.Module):
         Resolution of each map in elevation and azimuth.
     min_elevation : float
         Lowest elevation covered (radians, negative: below the horizon).
+    window : (float, float, float, float), optional
+        (azimuth from, to, elevation from, to) in radians that the map spans, e.g. what the
+        training cameras see (:func:`sky_window`): the same texels then resolve the sky far finer
+        than over the whole sphere. Default: every azimuth, ``min_elevation`` to the zenith. Rays
+        outside take the nearest border texel.
     color : ndarray [3], optional
         Initial color of every map (RGB in (0, 1)); mid grey when omitted.
     shared : bool
@@ -60,9 +95,11 @@ class SkyModel(nn.Module):
 
     basis: torch.Tensor  # [3, 3] rows: forward, left, up
 
+    window: torch.Tensor  # [4] azimuth from, to, elevation from, to (radians)
+
     def __init__(self, weathers: Sequence[str], *, up: np.ndarray, heading: np.ndarray, rows: int = 32,
                  cols: int = 128, min_elevation: float = -0.2, color: np.ndarray | None = None,
-                 shared: bool = False):
+                 shared: bool = False, window: tuple[float, float, float, float] | None = None):
         super().__init__()
         self.weathers = tuple(weathers)
         self.shared = shared
@@ -75,6 +112,10 @@ class SkyModel(nn.Module):
         e1 = e1 / np.linalg.norm(e1)
         self.register_buffer("basis", torch.tensor(np.stack([e1, np.cross(u, e1), u]), dtype=torch.float32))
         self.min_elevation = float(min_elevation)
+        win = (-math.pi, math.pi, self.min_elevation, math.pi / 2) if window is None else tuple(map(float, window))
+        if not (len(win) == 4 and win[0] < win[1] and win[2] < win[3] and all(map(math.isfinite, win))):
+            raise ValueError(f"window must be (azimuth from < to, elevation from < to), finite, got {window}")
+        self.register_buffer("window", torch.tensor(win, dtype=torch.float64))
         c = np.full(3, 0.5) if color is None else np.clip(np.asarray(color, np.float64), 0.02, 0.98)
         logit = torch.tensor(np.log(c / (1 - c)), dtype=torch.float32)
         n = 1 if shared else len(self.weathers)
@@ -82,13 +123,22 @@ class SkyModel(nn.Module):
 
     def grid(self, directions: torch.Tensor) -> torch.Tensor:
         """Sampling grid [1, H, W, 2] in [-1, 1] of world directions [H, W, 3] (see ``grid_sample``)."""
+        elevation, azimuth = self.angles(directions)
+        a0, a1, e0, e1 = self.window.tolist()
+        x = (2.0 * (azimuth - a0) / (a1 - a0) - 1.0).clamp(-1.0, 1.0)
+        y = (1.0 - 2.0 * (elevation - e0) / (e1 - e0)).clamp(-1.0, 1.0)  # row 0 at the top of the window
+        return torch.stack([x, y], -1)[None]
+
+    def angles(self, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Elevation and azimuth (radians) of world directions [..., 3] in the map's frame."""
         local = directions @ self.basis.T  # (forward, left, up) components
-        elevation = torch.asin(local[..., 2].clamp(-1.0, 1.0))
-        azimuth = torch.atan2(local[..., 1], local[..., 0])
-        x = azimuth / math.pi
-        span = math.pi / 2 - self.min_elevation
-        y = 1.0 - 2.0 * (elevation - self.min_elevation) / span  # row 0 at the zenith
-        return torch.stack([x, y.clamp(-1.0, 1.0)], -1)[None]
+        return torch.asin(local[..., 2].clamp(-1.0, 1.0)), torch.atan2(local[..., 1], local[..., 0])
+
+    def grid_from_rays(self, rays: torch.Tensor, camera_to_world: np.ndarray) -> torch.Tensor:
+        """:meth:`grid` of the world directions of camera rays [H, W, 3] (:func:`camera_rays`) seen
+        from ``camera_to_world`` [4, 4]: one 3 x 3 product per pixel instead of building the rays."""
+        rotation = torch.from_numpy(np.asarray(camera_to_world, np.float64)[:3, :3].astype(np.float32))
+        return self.grid(rays @ rotation.T)
 
     def forward(self, grid: torch.Tensor, weathers: Sequence[str]) -> torch.Tensor:
         """Sky colors [H, W, 3 len(weathers)] (weather-major) at a grid from :meth:`grid`."""

@@ -497,6 +497,42 @@ _AX, _AY, _HX, _HY, _CA, _CB, _CC, _OP, _Z, _BX, _COL = 0, 1, 2, 3, 4, 5, 6, 7, 
 _NPRM = 16
 
 
+_RADIX_BITS = 11
+_RADIX = 1 << _RADIX_BITS
+
+
+@njit(cache=True, error_model="numpy")
+def depth_order(bits: np.ndarray) -> np.ndarray:
+    """Stable ascending order [M] (int64 positions) of uint32 keys [M]: an LSD radix sort in three
+    11-bit passes.
+
+    Positive float32 depths sort like their bits, and a stable sort keeps ties in index order, so
+    ``vis[depth_order(depths[vis].view(uint32))]`` is the (depth, index) order a sort of packed 64-bit
+    keys gives, in about a third of the time (2-core CPU, 150k Gaussians).
+    """
+    n = bits.shape[0]
+    keys = bits.copy()
+    idx = np.arange(n, dtype=np.int64)
+    keys_out = np.empty(n, np.uint32)
+    idx_out = np.empty(n, np.int64)
+    for p in range(3):
+        shift = np.uint32(p * _RADIX_BITS)
+        start = np.zeros(_RADIX + 1, np.int64)
+        for i in range(n):
+            start[((keys[i] >> shift) & np.uint32(_RADIX - 1)) + 1] += 1
+        for b in range(_RADIX):
+            start[b + 1] += start[b]
+        for i in range(n):
+            d = (keys[i] >> shift) & np.uint32(_RADIX - 1)
+            pos = start[d]
+            start[d] = pos + 1
+            keys_out[pos] = keys[i]
+            idx_out[pos] = idx[i]
+        keys, keys_out = keys_out, keys
+        idx, idx_out = idx_out, idx
+    return idx
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def _gather_sorted(
     order: np.ndarray,  # [M] i64 Gaussian index per sorted position
@@ -1177,9 +1213,7 @@ class RenderJob:
         n_tiles = self.tiles_x * self.tiles_y
         vis = np.flatnonzero(self.reason == 0)
         # One global front-to-back sort (ties by index): positive float32 bits sort like the floats.
-        keys = (self.depths[vis].view(np.uint32).astype(np.uint64) << np.uint64(32)) | vis.astype(np.uint64)
-        keys.sort()
-        self.order = (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
+        self.order = vis[depth_order(np.ascontiguousarray(self.depths[vis]).view(np.uint32))].astype(np.int64)
         m = len(self.order)
         self.prm = _aligned_empty((m, _NPRM), np.float32)
         self.pbox = np.empty((m, 4), np.int32)

@@ -15,12 +15,14 @@ If numba cannot be imported the twin is used and one warning says so.
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 import torch
 
+from wcbench.core.progress import announce
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
 from wcbench.reference_model.raster.common import DEPTH_EPS, RenderOutput, check_inputs
 from wcbench.reference_model.raster.torch_twin import rasterize_torch
@@ -29,6 +31,7 @@ __all__ = ["RenderOutput", "numba_available", "rasterize"]
 
 _BACKENDS = ("auto", "numba", "torch")
 _warned = False
+_compile_checked = False
 
 
 def _load_numba() -> ModuleType | None:
@@ -40,6 +43,19 @@ def _load_numba() -> ModuleType | None:
         warnings.warn(f"wcbench rasterizer: numba backend unavailable ({numba_error('raster.kernels')}); "
                       "using the slow pure-torch twin", RuntimeWarning, stacklevel=3)
     return module
+
+
+def _announce_compile(module: ModuleType) -> None:
+    """Say once per process that the kernels compile now when numba has no cache of them beside their
+    source (the first render of a fresh install waits about 20 s, silently otherwise)."""
+    global _compile_checked
+    if _compile_checked:
+        return
+    _compile_checked = True
+    folder = Path(module.__file__ or "").parent / "__pycache__"
+    stem = Path(module.__file__ or "").stem
+    if not any(folder.glob(f"{stem}.*.nbi")):
+        announce("compiling the rasterizer kernels (first run only: numba caches them)")
 
 
 def numba_available() -> bool:
@@ -187,6 +203,7 @@ def rasterize(
         return rasterize_torch(means, quats, scales, opacities, colors, viewmat_t, K_t, width, height,
                                near=near, far=far, background=bg, render_depth=render_depth, absgrad=absgrad)
 
+    _announce_compile(mod)
     job = mod.RenderJob(means, quats, scales, opacities, colors, viewmat_t, K_t, int(width), int(height),
                         near=float(near), far=float(far), render_depth=render_depth)
     means2d = torch.from_numpy(job.means2d.astype(np.float32))

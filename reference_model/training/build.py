@@ -24,7 +24,7 @@ from wcbench.reference_model.model.decoders import WeatherDecoders
 from wcbench.reference_model.model.gaussians import GaussianParams
 from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
 from wcbench.reference_model.model.scene_model import WeatherCityModel
-from wcbench.reference_model.model.sky import SkyModel, view_directions
+from wcbench.reference_model.model.sky import SkyModel, sky_window, view_directions
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import init_scene_from_lidar, sample_image
 from wcbench.reference_model.training.config import TrainConfig
@@ -159,12 +159,17 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
     decoders = WeatherDecoders(weathers, feature_dim=config.feature_dim, hidden=config.hidden,
                                shared=config.shared_decoder, seed=config.seed)
     first = views[0]
-    sky = SkyModel(weathers, up=np.asarray(scene.up, np.float64), heading=first.camera_to_world[:3, 2],
-                   shared=config.shared_decoder)
+    up, heading = np.asarray(scene.up, np.float64), first.camera_to_world[:3, 2]
+    rays = {v.frame: torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)) for v in views}
+    window = None
+    if config.sky_window:
+        window = sky_window(SkyModel(weathers[:1], up=up, heading=heading), list(rays.values()))
+    sky = SkyModel(weathers, up=up, heading=heading, rows=config.sky_map[0], cols=config.sky_map[1],
+                   shared=config.shared_decoder, window=window)
     for v in views:
         if v.sky is None or not v.sky.any():
             continue
-        grid = sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+        grid = sky.grid(rays[v.frame])
         for w in weathers:
             if w in v.images:
                 sky.fill_from(w, grid, torch.from_numpy(v.images[w]), torch.from_numpy(v.sky))

@@ -10,7 +10,8 @@ minimises
     + lambda_opacity L_opacity(A, sky)
     + lambda_deform (|delta|^2 + |delta_t+1 - delta_t|^2)           pedestrians' offsets
 
-with Adam (a learning rate per parameter kind), densification by the absolute 2D gradient under a
+with Adam (a learning rate per parameter kind; the centres' decays exponentially over the iterations,
+as in 3DGS), densification by the absolute 2D gradient under a
 Gaussian budget (:mod:`.densify`), and checkpoints from which a killed training resumes with the
 same next step (:mod:`.checkpoint`).
 """
@@ -108,6 +109,7 @@ class Trainer:
         self.extent = scene_extent(self.train_views)
         self._tensors = {v.frame: self._view_tensors(v) for v in self.train_views}
         self.optimizer = self._make_optimizer()
+        self._means_lr = {name: rate for name, _, rate in self._groups() if name.endswith(".means")}
         self.stats = {name: DensifyStats() for name in self._densified_nodes()}
         self.rng = np.random.default_rng(cfg.seed)
         self.generator = torch.Generator().manual_seed(cfg.seed)
@@ -133,6 +135,9 @@ class Trainer:
         return [BACKGROUND] + [f"rigid:{o.track_id}" for o in self.model.rigid_objects()]
 
     def _make_optimizer(self) -> NodeOptimizer:
+        return NodeOptimizer(self._groups())
+
+    def _groups(self) -> list[tuple[str, torch.nn.Parameter, float]]:
         lr = self.config.lr
         groups: list[tuple[str, torch.nn.Parameter, float]] = []
         for name, params in self.model.nodes().items():
@@ -146,7 +151,17 @@ class Trainer:
         for pname, p in self.model.decoders.named_parameters():
             groups.append((f"decoders.{pname}", p, lr["decoders"]))
         groups.append(("sky.logits", self.model.sky.logits, lr["sky"]))
-        return NodeOptimizer(groups)
+        return groups
+
+    def _decay_means_lr(self) -> None:
+        # 3DGS's exponential decay of the centres' rate: large moves early, fine placement late.
+        # A function of the step alone, so a resumed training continues the same schedule.
+        cfg = self.config
+        factor = cfg.means_lr_final ** min(self.step_index / max(cfg.iterations, 1), 1.0)
+        for group in self.optimizer.adam.param_groups:
+            base = self._means_lr.get(group["name"])
+            if base is not None:
+                group["lr"] = base * factor
 
     # -- one step ---------------------------------------------------------------------------
 
@@ -192,6 +207,7 @@ class Trainer:
         loss = weighted_sum(terms)
         loss.backward()
         self._accumulate(render, v.width, v.height)
+        self._decay_means_lr()
         self.optimizer.step()
         self.optimizer.zero_grad()
         self.step_index += 1

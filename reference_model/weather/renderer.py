@@ -241,6 +241,13 @@ class WeatherRenderer:
         self._buffers: _CombinedBuffers | None = None
         self._channels: np.ndarray | None = None
 
+    @property
+    def background_visible(self) -> bool:
+        """Whether a ``background_image`` can show in this weather's frames. Under fog (either mode)
+        the background is at infinite distance, seen through a transmittance of 0: it contributes
+        nothing, so a caller need not compute one (a sky lookup per pixel, ~4 ms at 480x270)."""
+        return not self.beta > 0
+
     def info(self) -> dict[str, Any]:
         """The resolved parameters of this renderer (JSON-ready), for ``info.json``."""
         out: dict[str, Any] = {

@@ -17,11 +17,20 @@ def test_bench_model_quick_runs_and_reports_every_case() -> None:
     obj = run(data_root=None, quick=True).to_json()
     validate_benchmark(obj)
     cases = {c["name"]: c for c in obj["cases"]}
-    assert {"plain", "weathercity", "one_pass_vs_per_weather", "skip_frustum_cull", "skip_static_tracks",
-            "skip_unsupervised_weather", "content_interval_1", "content_interval_4"} <= set(cases)
-    for name in ("plain", "weathercity", "content_interval_1"):
+    assert {"plain", "weathercity", "weathercity_half", "one_pass_vs_per_weather", "skip_frustum_cull",
+            "skip_static_tracks", "skip_unsupervised_weather", "content_interval_2", "content_interval_8"} <= set(cases)
+    for name in ("plain", "weathercity", "weathercity_half", "content_interval_2"):
         assert 15.0 < cases[name]["error"] < 60.0 and cases[name]["steps"] > 0
+    # the baseline gets the method's wall clock (it steps until the clock has passed)
+    assert cases["plain"]["time_ms"] >= cases["weathercity"]["time_ms"]
+    assert cases["weathercity"]["steps"] == 2 * cases["weathercity_half"]["steps"]
     assert cases["weathercity"]["fps_rain_fog"] > 0 and math.isfinite(cases["weathercity"]["vs_plain_db"])
+    half_rows = [c for c in cases.values() if c["name"] == "weathercity_half" or "psnr_vs_default" in c]
+    assert any(c["pareto"] for c in half_rows) and all(isinstance(c["pareto"], bool) for c in half_rows)
     assert cases["one_pass_vs_per_weather"]["error"] < 1e-4  # the same images either way
     assert cases["skip_unsupervised_weather"]["gaussians"] == cases["skip_unsupervised_weather"]["gaussians_without"]
     assert any("demo street" in n for n in obj["notes"])
+    temporal = [c for c in obj["cases"] if c["name"].startswith("temporal_")]
+    assert {c["name"] for c in temporal} == {"temporal_rain", "temporal_snow", "temporal_fog"}
+    for c in temporal:
+        assert 0.0 < c["raw_error"] and 0.0 < c["error"] and 0.0 < c["supervision_error"]

@@ -34,8 +34,10 @@ def _assert_refused(code, err, out, *needles):
 
 
 def test_unknown_method_suggests(capsys, preds, tmp_path):
-    code, err = _evaluate(capsys, predictions=preds, out=tmp_path / "o", method="contrlnet")
-    _assert_refused(code, err, tmp_path / "o", "unknown method 'contrlnet'", "Did you mean 'controlnet'")
+    with pytest.raises(SystemExit) as exc:  # refused as the argument is parsed
+        _evaluate(capsys, predictions=preds, out=tmp_path / "o", method="contrlnet")
+    _assert_refused(exc.value.code, capsys.readouterr().err, tmp_path / "o", "unknown method 'contrlnet'",
+                    "Did you mean 'controlnet'")
 
 
 def test_unknown_scene_set_suggests(capsys, preds, tmp_path):
@@ -190,3 +192,12 @@ def test_metric_option_reaches_the_metric(preds, tmp_path):
     doc = json.loads((out / "results.json").read_text())
     assert doc["config"]["metric_config"]["flow_warping_error"]["config"] == {"flow": "farneback"}
     assert "farneback" in doc["results"]["demo_street"]["rain"]["flow_warping_error"]["variant"]
+
+
+def test_an_unknown_method_is_reported_before_a_missing_out(capsys):
+    # the method name is checked as it is parsed: a typo is the first thing the user hears of
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--method", "contrlnet", "--scenes", "demo"])
+    last = capsys.readouterr().err.strip().splitlines()[-1]  # the error line, under the usage
+    assert exc.value.code == 2
+    assert "unknown method 'contrlnet'" in last and "Did you mean 'controlnet'" in last

@@ -52,6 +52,10 @@ def test_listing_commands(capsys):
         assert name in out
     assert main(["metrics", "list"]) == 0
     assert "ssim" in capsys.readouterr().out
+    assert main(["models", "list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].split() == ["name", "kind", "state", "source", "description"]  # a header under the store line
+    assert any(line.startswith("clip-bpe-vocab") for line in lines[2:])
 
 
 def test_scenes_show_real_scene(pandaset_root, capsys):

@@ -321,6 +321,7 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
         name = f"b_synthetic_street_{n_b // 1000}k"
         report.notes.append(f"case b: pandaset_002 unavailable ({why}); a generated street-like scene with the same "
                             "Gaussian count, sigma, opacity and log-normal depth distribution stands in")
+        report.stand_ins.append(f"case b: pandaset_002 unavailable ({why}); a generated street stood in")
     else:
         n_b = len(spec["params"][0])
         name = f"b_pandaset_{n_b // 1000}k"

@@ -82,11 +82,16 @@ class BenchCase:
 
 @dataclass
 class BenchReport:
-    """A suite's cases plus free-text notes (substitutions, skipped cases)."""
+    """A suite's cases plus free-text notes (substitutions, skipped cases).
+
+    ``stand_ins`` says what data was missing and what stood in for it (the CLI prints each as a
+    warning: numbers on stand-in data are not the documented ones).
+    """
 
     suite: str
     cases: list[BenchCase] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    stand_ins: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """The whole report in the benchmark schema (see module docstring)."""
@@ -101,6 +106,7 @@ class BenchReport:
             "machine": machine_info(),
             "versions": package_versions(),
             "notes": list(self.notes),
+            "stand_ins": list(self.stand_ins),
             "cases": [c.to_json() for c in self.cases],
         }
 
@@ -108,15 +114,36 @@ class BenchReport:
         """Write the report atomically as JSON."""
         atomic_write_json(path, self.to_json())
 
-    def format_table(self) -> str:
-        """A plain-text table of the cases for the terminal."""
+    def format_table(self, *, width: int | None = 120) -> str:
+        """A plain-text table of the cases for the terminal, at most ``width`` characters wide.
+
+        The required fields come first, then the suite's own fields that most cases fill, as many
+        as fit; a last line says how many more the JSON holds. ``width=None``: every field.
+        """
         keys: list[str] = list(_REQUIRED)
+        extra: list[str] = []
         for case in self.cases:
-            keys += [k for k in case.extra if k not in keys]
-        rows = [[_fmt(c.to_json().get(k)) for k in keys] for c in self.cases]
-        widths = [max(len(k), *(len(r[i]) for r in rows)) if rows else len(k) for i, k in enumerate(keys)]
-        lines = ["  ".join(k.ljust(w) for k, w in zip(keys, widths))]
-        lines += ["  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in rows]
+            extra += [k for k in case.extra if k not in extra]
+        filled = {k: sum(c.extra.get(k) is not None for c in self.cases) for k in extra}
+        objs = [c.to_json() for c in self.cases]
+
+        def column_width(k: str) -> int:
+            return max(len(k), *(len(_fmt(o.get(k))) for o in objs)) if objs else len(k)
+
+        used = sum(column_width(k) + 2 for k in keys)
+        left_out = 0
+        for k in sorted(extra, key=lambda k: (-filled[k], extra.index(k))):
+            if width is None or used + column_width(k) + 2 <= width:
+                keys.append(k)
+                used += column_width(k) + 2
+            else:
+                left_out += 1
+        rows = [[_fmt(o.get(k)) for k in keys] for o in objs]
+        widths = [column_width(k) for k in keys]
+        lines = ["  ".join(k.ljust(w) for k, w in zip(keys, widths)).rstrip()]
+        lines += ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in rows]
+        if left_out:
+            lines.append(f"({left_out} more field{'' if left_out == 1 else 's'} per case in the JSON: --json FILE)")
         lines += [f"note: {n}" for n in self.notes]
         return "\n".join(lines)
 

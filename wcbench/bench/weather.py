@@ -216,6 +216,7 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
         cloud, camera, up = _synthetic_scene(n_gaussians)
         background = np.array([0.7, 0.75, 0.85], np.float32)
         source = f"procedural street of {len(cloud)} Gaussians ({_SCENE_ID} not found)"
+        report.stand_ins.append(f"{_SCENE_ID} not found: a procedural street of {len(cloud)} Gaussians stood in")
         t_frame = 1.0
     report.notes.append(
         f"scene: {source}; {width}x{height}; whole-frame times (particles, cull, raster, fog)"

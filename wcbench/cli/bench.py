@@ -13,6 +13,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from wcbench.bench import SUITES
@@ -50,4 +51,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         report.write(args.json)
         print(f"wrote {args.json}")
+    sys.stdout.flush()
+    for what in report.stand_ins:
+        print(f"WARNING: stand-in data: {what} (these numbers are not the documented ones; "
+              "give --data-root or set WCBENCH_DATA)", file=sys.stderr)
     return 0

@@ -8,7 +8,16 @@ import math
 from pathlib import Path
 from typing import Any
 
-from wcbench.core.errors import InputError
+from wcbench.core.errors import InputError, UnknownNameError
+from wcbench.methods import METHODS
+
+
+def method_name(text: str) -> str:
+    """argparse type of ``--method``: a registered method name. Checked as it is parsed, so an unknown
+    method is reported before any missing option (the registry lists names without importing them)."""
+    if text not in METHODS:
+        raise argparse.ArgumentTypeError(str(UnknownNameError("method", text, METHODS.names())))
+    return text
 
 
 def frame_rate(text: str) -> float:

@@ -30,6 +30,7 @@ from wcbench.cli.common import (
     add_scene_arguments,
     executor_from,
     frame_rate,
+    method_name,
     parse_metric_options,
     split_list,
 )
@@ -57,7 +58,7 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``wcbench evaluate``."""
-    parser.add_argument("--method", required=True, help="method adapter (see `wcbench methods list`)")
+    parser.add_argument("--method", required=True, type=method_name, help="method adapter (see `wcbench methods list`)")
     add_scene_arguments(parser)
     parser.add_argument("--predictions", type=Path, required=True, help="folder with the method's frames")
     parser.add_argument("--pattern", default=None, help="file pattern, e.g. '{weather}/{frame}.png' or '{weather}.mp4'")
@@ -71,7 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def report(outcome: object) -> None:
     """Print where results went and a short table."""
-    from wcbench.evaluation import EvaluateOutcome, summarize
+    from wcbench.evaluation import EvaluateOutcome, skipped_causes, summarize
     from wcbench.results import frames_text
 
     assert isinstance(outcome, EvaluateOutcome)
@@ -92,6 +93,8 @@ def report(outcome: object) -> None:
               f"{p['n_scene_frames']}, missing {frames_text(p['missing'])} ({p['reason']})")
     for scene, weather, name, text in summarize(outcome.results):
         print(f"  {scene:16s} {weather:6s} {name:26s} {text}")
+    for reason, names, count in skipped_causes(outcome.results):
+        print(f"skipped {', '.join(names)} ({count} row{'' if count == 1 else 's'}): {reason}")
     sys.stdout.flush()
 
 

@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "list":
         width = max((len(n) for n in store.entries), default=4)
         print(f"store: {store.root}")
+        print(f"{'name':{width}s}  {'kind':10s} {'state':10s}  {'source':6s}  description")
         for name, entry in store.entries.items():
             if not store.available(name):
                 state = "-"

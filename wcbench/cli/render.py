@@ -32,7 +32,13 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from wcbench.cli.common import add_method_options, add_progress_argument, add_scene_arguments, method_options_from
+from wcbench.cli.common import (
+    add_method_options,
+    add_progress_argument,
+    add_scene_arguments,
+    method_name,
+    method_options_from,
+)
 from wcbench.core.errors import InputError
 from wcbench.core.weathers import WEATHERS
 
@@ -87,7 +93,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--init-frames", default=None, help="frames whose lidar sweeps build the scene (default: all)"
     )
     parser.add_argument(
-        "--method", default="lidar_init",
+        "--method", default="lidar_init", type=method_name,
         help="runnable method drawing physics weather on a reconstructed scene (default: lidar_init)",
     )
     parser.add_argument("--no-video", action="store_true", help="do not write the mp4")

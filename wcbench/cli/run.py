@@ -20,6 +20,7 @@ from wcbench.cli.common import (
     add_method_options,
     add_scene_arguments,
     executor_from,
+    method_name,
     method_options_from,
     parse_metric_options,
     split_list,
@@ -32,7 +33,8 @@ HELP = "render with a runnable method, then evaluate"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``wcbench run``."""
-    parser.add_argument("--method", required=True, help="runnable method (see `wcbench methods list`)")
+    parser.add_argument("--method", required=True, type=method_name,
+                        help="runnable method (see `wcbench methods list`)")
     add_scene_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="random seed of the method")
     add_evaluate_options(parser)

@@ -16,6 +16,7 @@ import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import to_uint8
+from wcbench.core.progress import phase
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
@@ -98,7 +99,8 @@ class LidarInitMethod(FrameRenderer):
         key = (scene.id, str(scene.root))
         if self._scene_key != key:
             try:
-                self._gaussians = init_scene_from_lidar(scene, voxel_m=self.voxel_m, frames=self.init_frames)
+                with phase(f"lidar_init {scene.id}: Gaussians from {len(scene)} lidar sweeps"):
+                    self._gaussians = init_scene_from_lidar(scene, voxel_m=self.voxel_m, frames=self.init_frames)
             except ValueError as exc:
                 raise InputError(f"{scene.root}: cannot initialise Gaussians from lidar: {exc}") from None
             self._background = estimate_sky_color(scene)

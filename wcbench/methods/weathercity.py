@@ -38,7 +38,7 @@ from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
-from wcbench.reference_model.model.sky import view_directions
+from wcbench.reference_model.model.sky import camera_rays
 from wcbench.reference_model.training.build import build_model
 from wcbench.reference_model.training.checkpoint import load_checkpoint, read_checkpoint_info, save_checkpoint
 from wcbench.reference_model.training.config import TrainConfig, make_config
@@ -233,6 +233,7 @@ def train_scene(
         bar = progress(range(trainer.step_index, config.iterations), desc=f"training {scene.id}",
                        total=config.iterations - trainer.step_index, enabled=show_progress, unit="step")
         steps = iter(bar)
+        next(steps, None)  # the bar counts a step each time the next one is asked for
 
         def on_step(s: Any) -> None:
             next(steps, None)
@@ -339,6 +340,8 @@ class WeatherCityMethod(FrameRenderer):
         self._facts: dict[str, Any] = {}
         self._renderer: WeatherRenderer | None = None
         self._node_colors: dict[str, torch.Tensor] = {}
+        self._activated: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._rays: dict[tuple[bytes, int, int], torch.Tensor] = {}
         self._placement = Placement()
 
     def weather_for(self, kind: str, seed: int) -> Weather:
@@ -381,6 +384,7 @@ class WeatherCityMethod(FrameRenderer):
             self.weather_for(weather, seed), up=scene.up, heading=first.camera_to_world[:3, 2], anchor=first.center,
         )
         self._node_colors = self._decode_nodes(model, decoded)
+        self._activated = model.activated()
 
     def use_model(self, scene: Scene, model: WeatherCityModel, facts: dict[str, Any]) -> None:
         """Render ``scene`` with an already trained ``model`` (``facts``: its training record).
@@ -414,6 +418,13 @@ class WeatherCityMethod(FrameRenderer):
         loaded from the cache reports the training that made it)."""
         return {"train_s": float(self._facts["train_seconds"])} if self._facts else {}
 
+    def _rays_for(self, K: np.ndarray, width: int, height: int) -> torch.Tensor:
+        """The camera's unit rays, made once per intrinsics and size (every frame turns them)."""
+        key = (np.asarray(K, np.float64).tobytes(), width, height)
+        if key not in self._rays:
+            self._rays = {key: camera_rays(K, width, height)}
+        return self._rays[key]
+
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> tuple[np.ndarray, dict[str, Any]]:
         """Frame ``index`` under ``weather``: decoded colors, sky, particles and fog."""
         model, renderer = self._model, self._renderer
@@ -422,11 +433,13 @@ class WeatherCityMethod(FrameRenderer):
         width, height = self.output_size(scene)
         cam = scale_camera(scene.frames[index].camera, width, height)
         with torch.no_grad():
-            g = model.frame_gaussians(index, self._placement)
+            g = model.frame_gaussians(index, self._placement, activated=self._activated)
             colors = torch.cat([self._node_colors[key] for key, _, _ in g.segments]) if g.segments else \
                 torch.zeros(len(g), 3)
-            grid = model.sky.grid(torch.from_numpy(view_directions(cam.camera_to_world, cam.K, width, height)))
-            sky = model.sky(grid, [self._decoded]).numpy()
+            sky = None
+            if renderer.background_visible:  # under fog the sky is never seen: not looked up
+                grid = model.sky.grid_from_rays(self._rays_for(cam.K, width, height), cam.camera_to_world)
+                sky = model.sky(grid, [self._decoded]).numpy()
         t_graph = time.perf_counter()
         frame = renderer.render(
             cam, float(self._times[index] - self._times[0]),

@@ -369,7 +369,7 @@ def test_cli_verify_names_unverified_entries(
     assert lines[0].split()[:2] == ["pinned", "ok"] and lines[1].split()[:2] == ["thing", "unverified"]
     assert "1 entry unverified (thing)" in lines[-1] and "weights_verified: false" in lines[-1]
     assert cli(["--root", str(root), "list"]) == 0
-    listing = {ln.split()[0]: ln.split()[2] for ln in capsys.readouterr().out.splitlines()[1:]}
+    listing = {ln.split()[0]: ln.split()[2] for ln in capsys.readouterr().out.splitlines()[2:]}  # store, header
     assert listing == {"pinned": "installed", "thing": "unverified"}
 
 

@@ -144,3 +144,70 @@ def test_an_object_absent_at_a_frame_is_not_rendered():
     g = model.frame_gaussians(2)
     assert [s[0] for s in g.segments] == ["background"]
     assert len(g) == len(model.background)
+
+
+@pytest.mark.parametrize("placement", [None, Placement(hidden={"background"}),
+                                       Placement(copies=[("rigid:5", np.array([0.0, 2.0, 0.0]))])])
+def test_precomputed_scales_and_opacities_place_the_same_gaussians(placement):
+    # rendering a trained model takes each node's activations once; the frame must not change
+    model = wm.make_model()
+    with torch.no_grad():
+        model.background.opacity_logits += torch.linspace(-1, 1, len(model.background))
+        direct = model.frame_gaussians(1, placement)
+        cached = model.frame_gaussians(1, placement, activated=model.activated())
+    for name in ("means", "quats", "scales", "opacities"):
+        assert torch.equal(getattr(direct, name), getattr(cached, name)), name
+    assert direct.segments == cached.segments
+
+
+def test_the_sky_grid_from_cached_camera_rays_equals_the_grid_of_each_frames_rays():
+    from wcbench.reference_model.model.sky import camera_rays, view_directions
+    from wcbench.reference_model.transforms import quat_to_matrix
+
+    model = wm.make_model()
+    rays = camera_rays(wm.K, wm.WIDTH, wm.HEIGHT)
+    for q in ([1.0, 0.0, 0.0, 0.0], [0.9, 0.1, -0.3, 0.2], [0.2, 0.7, 0.1, -0.6]):
+        c2w = np.eye(4)
+        c2w[:3, :3] = quat_to_matrix(np.asarray(q) / np.linalg.norm(q))
+        c2w[:3, 3] = [3.0, -1.0, 2.0]
+        want = model.sky.grid(torch.from_numpy(view_directions(c2w, wm.K, wm.WIDTH, wm.HEIGHT)))
+        got = model.sky.grid_from_rays(rays, c2w)
+        # float32 rays turned in float32 against rays built in float64: rounding only (grid units)
+        torch.testing.assert_close(got, want, atol=2e-6, rtol=0)
+
+
+def test_a_sky_window_covers_the_cameras_rays_with_a_margin_and_goes_round_when_they_do():
+    from wcbench.reference_model.model.sky import SkyModel, sky_window, view_directions
+
+    frame = {"up": np.array([0.0, -1.0, 0.0]), "heading": np.array([0.0, 0.0, 1.0])}
+    rays = torch.from_numpy(view_directions(np.linalg.inv(wm.WORLD_TO_CAMERA), wm.K, wm.WIDTH, wm.HEIGHT))
+    window = sky_window(SkyModel(["clear"], **frame), [rays])
+    sky = SkyModel(["clear"], **frame, rows=8, cols=16, window=window)
+    grid = sky.grid(rays)
+    # every ray inside the map, none at its border (10 % margin), and the map mostly used
+    assert float(grid.abs().max()) < 0.95 and float(grid[..., 0].max() - grid[..., 0].min()) > 1.5
+    # a camera turned all the way round sees every azimuth: the window is the whole circle
+    turned = [rays @ torch.tensor([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]],
+                                  dtype=torch.float32).T for a in np.linspace(0, 2 * np.pi, 9)]
+    a0, a1, _, _ = sky_window(SkyModel(["clear"], **frame), turned)
+    assert (a0, a1) == (-np.pi, np.pi)
+    with pytest.raises(ValueError, match="window"):
+        SkyModel(["clear"], **frame, window=(1.0, 0.0, 0.0, 1.0))
+
+
+def test_left_multiplication_matrices_equal_the_hamilton_product_and_follow_a_loaded_state():
+    from wcbench.reference_model.model.objects import quat_left_matrix, quat_multiply_torch
+
+    gen = torch.Generator().manual_seed(3)
+    q, r = torch.randn(50, 4, generator=gen, dtype=torch.float64), torch.randn(50, 4, generator=gen,
+                                                                               dtype=torch.float64)
+    got = (r[:, None, :] @ quat_left_matrix(q).transpose(-1, -2))[:, 0]
+    torch.testing.assert_close(got, quat_multiply_torch(q, r), rtol=0, atol=1e-14)
+    # a node placed from a loaded state uses the loaded poses
+    model, other = wm.make_model(), wm.make_model()
+    with torch.no_grad():
+        other.rigid[0].quat[1] = torch.tensor([0.0, 0.0, 1.0, 0.0])
+    model.load_state_dict(other.state_dict())
+    _, quats = model.rigid[0].world(1)
+    torch.testing.assert_close(quats, quat_multiply_torch(model.rigid[0].quat[1].expand_as(quats),
+                                                          model.rigid[0].gaussians.quats))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pytest
 
 if TYPE_CHECKING:
@@ -87,6 +88,25 @@ def test_fast_path_matches_twin_forward_and_gradients(
         assert fast.meta[key] == ref.meta[key], key
     names = ["means", "quats", "scales", "opacities", "colors", "means2d", "means2d_abs"]
     _assert_grads_close(_grads(fast, args(params)), _grads(ref, args(params)), names)
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 5000])
+def test_the_radix_depth_order_is_a_stable_sort_of_the_depth_bits(n) -> None:
+    pytest.importorskip("numba")
+    from wcbench.reference_model.raster.kernels import depth_order
+
+    rng = np.random.default_rng(n)
+    depths = rng.choice(np.float32([0.01, 1.0, 2.5, 1e3, 3.4e38]), n) if n < 10 else \
+        np.concatenate([rng.uniform(0.01, 80.0, n - 40).astype(np.float32), np.full(40, 7.0, np.float32)])
+    depths = rng.permutation(depths).astype(np.float32)
+    bits = depths.view(np.uint32)
+    got = depth_order(bits)
+    # the twin: numpy's stable sort; ties keep index order, so the order equals sorting (depth, index)
+    np.testing.assert_array_equal(got, np.argsort(bits, kind="stable"))
+    keys = (bits.astype(np.uint64) << np.uint64(32)) | np.arange(n, dtype=np.uint64)
+    np.testing.assert_array_equal(got, (np.sort(keys) & np.uint64(0xFFFFFFFF)).astype(np.int64))
+    edge = np.array([0xFFFFFFFF, 0, 0x80000000, 0x7FF, 0x800, 0], np.uint32)  # every 11-bit digit boundary
+    np.testing.assert_array_equal(depth_order(edge), np.argsort(edge, kind="stable"))
 
 
 def test_fast_path_is_deterministic_and_thread_count_independent() -> None:

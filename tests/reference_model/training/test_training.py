@@ -107,6 +107,29 @@ def test_resuming_from_a_checkpoint_gives_the_same_next_step_loss(demo, demo_vie
     np.testing.assert_allclose(got, expected, rtol=1e-5)
 
 
+def test_the_centres_learning_rate_decays_exponentially_to_its_final_fraction(demo, demo_views):
+    trainer = _trainer(demo, demo_views, iterations=8, means_lr_final=0.01, densify_from=10**6)
+    group = trainer.optimizer.group("background.means")
+    start = trainer.config.lr["means"] * trainer.extent
+    rates = []
+    for _ in range(8):
+        trainer.step()
+        rates.append(group["lr"])
+    # the rate used at step k is start * 0.01 ** (k / 8)
+    np.testing.assert_allclose(rates, [start * 0.01 ** (k / 8) for k in range(8)], rtol=1e-12)
+    assert trainer.optimizer.group("background.features")["lr"] == trainer.config.lr["features"]
+
+
+def test_a_scaled_config_scales_the_iterations_and_the_densification_schedule():
+    config = make_config("default")
+    half = config.scaled(0.5)
+    assert (half.iterations, half.densify_from, half.densify_until, half.densify_interval) == (
+        config.iterations // 2, config.densify_from // 2, config.densify_until // 2, config.densify_interval // 2)
+    assert half.lr == config.lr and half.budget == config.budget
+    with pytest.raises(ValueError, match="fraction"):
+        config.scaled(0)
+
+
 def test_a_scene_without_pedestrians_builds_no_nonrigid_node_and_runs_no_deformation(demo, demo_views, monkeypatch):
     config = make_config("quick", **TINY)
     model, facts = build_model(demo, demo_views, config, weathers=("clear", "fog"))

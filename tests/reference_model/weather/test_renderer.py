@@ -72,6 +72,29 @@ def test_clear_and_fog_build_no_particles_and_depth_only_for_the_postprocess() -
         assert (frame.depth is not None) == has_depth
 
 
+@pytest.mark.parametrize("weather", [
+    Weather(kind="fog", visibility_m=30.0),
+    Weather(kind="fog", visibility_m=30.0, fog_mode="postprocess"),
+    Weather(kind="rain", preset="paper", visibility_m=200.0, fog_mode="exact"),
+    Weather(),
+])
+def test_a_background_image_shows_exactly_when_the_renderer_says_it_can(weather) -> None:
+    # a wall with a hole: the background shows through it unless fog hides it at infinity
+    cloud = wall(5.0, half=6.0, spacing=0.05)
+    keep = (np.abs(cloud.means[:, 0]) > 1.0) | (np.abs(cloud.means[:, 1]) > 1.0)
+    cloud = GaussianCloud(**{k: getattr(cloud, k)[keep] for k in ("means", "quats", "scales", "opacities",
+                                                                   "colors")})
+    r = WeatherRenderer(cloud, weather, up=UP)
+    cam = camera()
+    sky = np.random.default_rng(0).uniform(0, 1, (cam.height, cam.width, 3)).astype(np.float32)
+    with_sky = r.render(cam, 0.5, background_image=sky).image
+    without = r.render(cam, 0.5, background_image=np.zeros_like(sky)).image
+    if r.background_visible:
+        assert np.abs(with_sky - without)[24, 32].max() > 0.1
+    else:
+        np.testing.assert_allclose(with_sky, without, rtol=0, atol=1e-6)
+
+
 def test_particles_outside_the_frustum_are_dropped_before_rasterizing() -> None:
     cam = camera(80, 60, 50.0)
     r = WeatherRenderer(wall(9.0), Weather(kind="rain", preset="paper", wind=Wind(3.0, 0.0, 45.0)), up=UP)
