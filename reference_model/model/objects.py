@@ -43,6 +43,10 @@ def quat_left_matrix(q: torch.Tensor) -> torch.Tensor:
     ], -2)
 
 
+def _refresh_after_load(module: nn.Module, _incompatible: object) -> None:
+    module.refresh_poses()  # type: ignore[operator]
+
+
 class RigidObject(nn.Module):
     """A moving object's Gaussians in its box frame and its poses per scene frame.
 
@@ -86,7 +90,7 @@ class RigidObject(nn.Module):
         self.register_buffer("quat", torch.from_numpy(quat))
         self.register_buffer("quat_left", quat_left_matrix(self.quat), persistent=False)
         # a loaded state brings its own poses: derive the matrices again from them
-        self.register_load_state_dict_post_hook(lambda module, _keys: module.refresh_poses())
+        self.register_load_state_dict_post_hook(_refresh_after_load)  # a named function: picklable
         self.box_size = np.asarray(box_size, np.float64).reshape(3)
 
     def refresh_poses(self) -> None:

@@ -56,6 +56,7 @@ import numpy as np
 import torch
 
 from wcbench.bench.schema import BenchCase, BenchReport
+from wcbench.core.errors import InputError
 from wcbench.methods.weathercity import WeatherCityMethod, content_loss_for, training_inputs
 from wcbench.metrics.temporal.flicker import flow_warp_error
 from wcbench.reference_model.model.sky import view_directions
@@ -279,6 +280,20 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
     BenchReport
         Suite ``"model"`` (see the module docstring).
     """
+    groups = set(os.environ.get("WCBENCH_BENCH_MODEL_GROUPS", "headline,temporal,knobs,skips").split(","))
+    bad_groups = groups - {"headline", "temporal", "knobs", "skips"}
+    if bad_groups:
+        raise InputError(f"WCBENCH_BENCH_MODEL_GROUPS: unknown groups {sorted(bad_groups)}; "
+                         "known: headline, temporal, knobs, skips")
+    chosen = os.environ.get("WCBENCH_BENCH_MODEL_KNOBS")
+    knobs = _KNOBS[:2] if quick else _KNOBS
+    if chosen:  # checked before any work
+        picked = chosen.split(",")
+        unknown = sorted(set(picked) - {k[0] for k in _KNOBS})
+        if unknown:
+            raise InputError(f"WCBENCH_BENCH_MODEL_KNOBS: unknown knob cases {unknown}; known: "
+                             f"{', '.join(k[0] for k in _KNOBS)}")
+        knobs = [k for k in _KNOBS if k[0] in picked]
     report = BenchReport(suite="model")
     scene, source = _scene(data_root)
     if source != _SCENE_ID:
@@ -295,11 +310,6 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
                         f"(no streaks or flakes); profile {profile}: {base.iterations} iterations "
                         f"(knobs: {base.scaled(0.5).iterations})")
     torch.manual_seed(0)
-    groups = set(os.environ.get("WCBENCH_BENCH_MODEL_GROUPS", "headline,temporal,knobs,skips").split(","))
-    unknown = groups - {"headline", "temporal", "knobs", "skips"}
-    if unknown:
-        raise ValueError(f"WCBENCH_BENCH_MODEL_GROUPS: unknown groups {sorted(unknown)}; "
-                         "known: headline, temporal, knobs, skips")
     content, content_note = content_loss_for(base, None)
     report.notes.append(f"content loss: {content_note}")
     if "skips" in groups:
@@ -346,15 +356,6 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
     default_half = evals[half.iterations]["mean_psnr"]
     knob_cases = [BenchCase(name="weathercity_half", knob="iterations", value=half.iterations, time_ms=1e3 * spent,
                             error=default_half, error_unit="psnr_db", extra={**row, "default": True})]
-    chosen = os.environ.get("WCBENCH_BENCH_MODEL_KNOBS")
-    knobs = _KNOBS[:2] if quick else _KNOBS
-    if chosen:
-        names = chosen.split(",")
-        unknown = sorted(set(names) - {k[0] for k in _KNOBS})
-        if unknown:
-            raise ValueError(f"WCBENCH_BENCH_MODEL_KNOBS: unknown knob cases {unknown}; known: "
-                             f"{', '.join(k[0] for k in _KNOBS)}")
-        knobs = [k for k in _KNOBS if k[0] in names]
     for name, knob, value, settings in knobs:
         config = replace(base, **settings).scaled(0.5)
         evals, spent, row = train(config)

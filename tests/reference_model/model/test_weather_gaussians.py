@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -208,6 +210,7 @@ def test_left_multiplication_matrices_equal_the_hamilton_product_and_follow_a_lo
     with torch.no_grad():
         other.rigid[0].quat[1] = torch.tensor([0.0, 0.0, 1.0, 0.0])
     model.load_state_dict(other.state_dict())
+    model = pickle.loads(pickle.dumps(model))  # the model still pickles (workers receive methods)
     _, quats = model.rigid[0].world(1)
     torch.testing.assert_close(quats, quat_multiply_torch(model.rigid[0].quat[1].expand_as(quats),
                                                           model.rigid[0].gaussians.quats))
