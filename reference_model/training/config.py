@@ -52,7 +52,8 @@ class TrainConfig:
         (rows, columns) of each weather's sky environment map over elevation and azimuth.
     sky_window : bool
         The sky map spans the directions the training cameras see (plus a margin) rather than
-        the whole sphere: the same texels resolve the sky about 8x finer on a street sequence.
+        the whole sphere (``wcbench bench model``: a 256 x 512 window matched a whole-sphere
+        512 x 2048 map, 27.79 against 27.81 dB held-out in 600-step runs).
     voxel_m, node_voxel_m : float
         Voxel of the lidar initialisation: background and objects (m).
     init_opacity : float

@@ -109,7 +109,7 @@ class Trainer:
         self.extent = scene_extent(self.train_views)
         self._tensors = {v.frame: self._view_tensors(v) for v in self.train_views}
         self.optimizer = self._make_optimizer()
-        self._means_lr = {name: rate for name, _, rate in self._groups() if name.endswith(".means")}
+        self._means_lr = {g["name"]: g["lr"] for g in self.optimizer.adam.param_groups if g["name"].endswith(".means")}
         self.stats = {name: DensifyStats() for name in self._densified_nodes()}
         self.rng = np.random.default_rng(cfg.seed)
         self.generator = torch.Generator().manual_seed(cfg.seed)
@@ -135,9 +135,6 @@ class Trainer:
         return [BACKGROUND] + [f"rigid:{o.track_id}" for o in self.model.rigid_objects()]
 
     def _make_optimizer(self) -> NodeOptimizer:
-        return NodeOptimizer(self._groups())
-
-    def _groups(self) -> list[tuple[str, torch.nn.Parameter, float]]:
         lr = self.config.lr
         groups: list[tuple[str, torch.nn.Parameter, float]] = []
         for name, params in self.model.nodes().items():
@@ -151,7 +148,7 @@ class Trainer:
         for pname, p in self.model.decoders.named_parameters():
             groups.append((f"decoders.{pname}", p, lr["decoders"]))
         groups.append(("sky.logits", self.model.sky.logits, lr["sky"]))
-        return groups
+        return NodeOptimizer(groups)
 
     def _decay_means_lr(self) -> None:
         # 3DGS's exponential decay of the centres' rate: large moves early, fine placement late.
