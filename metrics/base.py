@@ -146,6 +146,8 @@ class Metric(ABC):
     compares_content: ClassVar[bool] = False
     #: Needs at least this many frames (temporal metrics need 2).
     min_frames: ClassVar[int] = 1
+    #: Reads the frames (FPS does not): scored at the metric working resolution.
+    reads_frames: ClassVar[bool] = True
 
     def skip_reason(self, ctx: MetricContext) -> str | None:
         """Why this metric cannot run on ``ctx`` (``None``: it can)."""

@@ -16,6 +16,7 @@ class FPS(Metric):
     description = "frames per second: median whole-frame time from info.json, or --fps"
     outputs = ("fps",)
     higher_is_better = True
+    reads_frames = False
 
     def __init__(self) -> None:
         self._ctx: MetricContext | None = None

@@ -197,8 +197,10 @@ def per_frame_figure(
     return _png(fig)
 
 
-def bench_figure(cases: list[dict[str, Any]], *, knob: str, suite: str) -> Picture | None:
-    """Time (ms) against error of the cases of one knob; cases with ``"default": true`` starred.
+def bench_figure(cases: list[dict[str, Any]], *, knob: str, suite: str,
+                 front: Sequence[bool] | None = None) -> Picture | None:
+    """Time (ms) against error of the cases of one knob; cases with ``"default": true`` starred, and
+    the cases flagged in ``front`` (one flag per case with a time and an error) joined by a line.
 
     Returns ``None`` when no case has both a time and an error.
     """
@@ -213,6 +215,12 @@ def bench_figure(cases: list[dict[str, Any]], *, knob: str, suite: str) -> Pictu
     xs = [float(c["time_ms"]) for c in pts]
     ys = [float(c["error"]) for c in pts]
     ax.scatter(xs, ys, color=_COLORS[0], s=28, zorder=3)
+    if front is not None:
+        line = sorted((x, y) for x, y, f in zip(xs, ys, front) if f)
+        if len(line) > 1:
+            ax.plot([p[0] for p in line], [p[1] for p in line], color=_COLORS[0], alpha=0.5, lw=1, zorder=2,
+                    label="Pareto front")
+            ax.legend(fontsize=7, frameon=False)
     for c, x, y in zip(pts, xs, ys):
         default = c.get("default") is True
         if default:

@@ -161,3 +161,27 @@ def test_identity_method_is_perfect_on_content(tmp_path):
     res = json.loads((out / "results.json").read_text())["results"]["demo_street"]
     assert res["clear"]["ssim"]["value"] == 1.0
     assert res["rain"]["temporal_flicker_ratio"]["value"] == 1.0
+
+
+def test_metric_resolution_scores_downscaled_frames_and_says_so(pandaset_root, tmp_path, capsys):
+    from wcbench.scenes.loaders import load_scene
+
+    scene = load_scene(pandaset_root)
+    preds = write_prediction_folder(scene, tmp_path / "preds", ["clear"], transform=_darken)
+    base = ["evaluate", "--method", "folder", "--scenes", str(pandaset_root), "--predictions", str(preds),
+            "--metrics", "psnr", "temporal_flicker", "--no-progress"]
+    assert main([*base, "--out", str(tmp_path / "default")]) == 0
+    assert main([*base, "--out", str(tmp_path / "native"), "--metric-resolution", "native"]) == 0
+    small, full = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("default", "native"))
+    assert small["config"]["metric_resolution"] == 960 and full["config"]["metric_resolution"] is None
+    [record] = small["working_size"]
+    assert (record["from"], record["to"], record["metric_resolution"]) == ([1920, 1080], [960, 540], 960)
+    assert full["working_size"] == []
+    p_small, p_full = (d["results"]["pandaset_002"]["clear"]["psnr"] for d in (small, full))
+    assert p_small["variant"].endswith("; scored at 960x540") and "scored at" not in p_full["variant"]
+    # a uniform darkening commutes with area downscaling up to rounding: the same PSNR, near enough
+    assert p_small["value"] == pytest.approx(p_full["value"], abs=0.2)
+    assert p_small["value"] != p_full["value"]
+    with pytest.raises(SystemExit) as exc:  # argparse refuses it before any work
+        main([*base, "--out", str(tmp_path / "bad"), "--metric-resolution", "12"])
+    assert exc.value.code == 2 and "'native' or the longer side in pixels" in capsys.readouterr().err

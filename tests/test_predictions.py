@@ -162,3 +162,31 @@ def test_weather_level_may_be_left_out_for_one_weather(demo_scene, tmp_path):
         match_predictions(demo_scene, "rain", tmp_path)
     seq = match_predictions(demo_scene, "rain", tmp_path, weather_level_optional=True)
     assert seq.location == tmp_path and seq.layout == "{frame}"
+
+
+def test_a_frame_selection_reads_only_those_frames(demo_scene, tmp_path):
+    root = write_prediction_folder(demo_scene, tmp_path / "p", ["rain"])
+    seq = match_predictions(demo_scene, "rain", root, frames=[2, 3, 4, 5])
+    assert seq.frame_indices == [2, 3, 4, 5] and [p.name for p in seq.files] == ["002.png", "003.png", "004.png",
+                                                                                  "005.png"]
+    for k in (0, 1, 8, 11):  # the other frames' files may be absent
+        (root / "rain" / f"{k:03d}.png").unlink()
+    assert len(list(match_predictions(demo_scene, "rain", root, frames=range(2, 6)))) == 4
+    (root / "rain" / "003.png").unlink()
+    with pytest.raises(InputError, match=r"missing frames \[3\]"):
+        match_predictions(demo_scene, "rain", root, frames=[2, 3, 4, 5])
+    with pytest.raises(InputError, match="one contiguous run of frames"):
+        match_predictions(demo_scene, "rain", root, frames=[2, 4, 5])
+    with pytest.raises(InputError, match="frames 10-12: outside scene"):
+        match_predictions(demo_scene, "rain", root, frames=[10, 11, 12])
+
+
+def test_a_frame_selection_of_a_video(demo_scene, tmp_path):
+    frames = [_rgb(f.image_path) for f in demo_scene.frames]
+    write_mp4(tmp_path / "rain" / "blend.mp4", frames)
+    seq = get_method("fresco").open_predictions(demo_scene, "rain", tmp_path, frames=[3, 4, 5])
+    decoded = list(seq)
+    assert seq.frame_indices == [3, 4, 5] and len(decoded) == 3
+    for d, k in zip(decoded, (3, 4, 5)):  # the selected frames, not the first three
+        errs = [np.abs(d.astype(float) - f).mean() for f in frames]
+        assert int(np.argmin(errs)) == k

@@ -39,6 +39,7 @@ from wcbench.core.storage import (
     sweep_temporary_files,
 )
 from wcbench.core.weathers import WEATHERS
+from wcbench.core.working_size import METRIC_RESOLUTION, SizeRequest
 from wcbench.execution import Executor
 from wcbench.execution.local import LocalExecutor
 from wcbench.methods import Method, get_method
@@ -91,6 +92,18 @@ class EvaluateConfig:
     render : RenderSettings or None
         Render the units first with the (runnable) method into ``predictions/<scene>/<weather>/``
         (``wcbench run``); ``None`` reads existing files (``wcbench evaluate``).
+    metric_resolution : int or None
+        Frames whose longer side exceeds this many pixels are scored area-downscaled to it
+        (:func:`~wcbench.core.working_size.working_size`); ``None`` scores at the predictions' own size.
+    score_size : SizeRequest, optional
+        Score at this size (``--scale`` or ``--width/--height``): predictions and scene frames are
+        area-resized to it, and the working resolution does not apply.
+    frames : tuple of int, optional
+        Score only these scene frames (a contiguous run; ``--frames``); default every frame (a
+        runnable method's render of some frames is scored on the frames it lists).
+    prefetch_frames, share_sources : bool
+        Decode frames in a background thread; keep decoded raw frames for the scene's other units
+        (:meth:`~wcbench.units.WorkUnit.score`; off only to measure what they save).
     """
 
     method: str
@@ -108,6 +121,11 @@ class EvaluateConfig:
     metric_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     frame_offset: int = 0
     render: RenderSettings | None = None
+    metric_resolution: int | None = METRIC_RESOLUTION
+    frames: tuple[int, ...] | None = None
+    score_size: SizeRequest | None = None
+    prefetch_frames: bool = True
+    share_sources: bool = True
 
 
 @dataclass
@@ -191,7 +209,7 @@ def _open_units(cfg: EvaluateConfig, plan: list[list[WorkUnit]]) -> list[WorkUni
         for u in scene_units:
             try:
                 opened[u.weather] = u.open(pattern=cfg.pattern, resize=cfg.resize, frame_offset=cfg.frame_offset,
-                                           single_weather=single_weather)
+                                           single_weather=single_weather, frames=cfg.frames)
             except PredictionsMissingError as exc:
                 if cfg.weathers:  # asked for explicitly: its absence is an error
                     errors[u.weather] = exc
@@ -222,6 +240,8 @@ def _config_record(cfg: EvaluateConfig, method: Method, units: list[WorkUnit], m
         "metrics": sorted(metric_cfg), "metric_config": metric_cfg, "predictions": str(cfg.predictions),
         "pattern": cfg.pattern, "resize": cfg.resize, "resize_interpolation": RESIZE_INTERPOLATION,
         "frame_offset": cfg.frame_offset, "fps": cfg.fps, "reader": method.info.defaults,
+        "metric_resolution": cfg.metric_resolution, "frames": None if cfg.frames is None else list(cfg.frames),
+        "score_size": None if cfg.score_size is None else cfg.score_size.to_json(),
         "unedited_check": method.info.edits_source,
         "scene_folders": {sid: f.record() for sid, f in sorted((folders or {}).items())},
     }
@@ -349,8 +369,10 @@ def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Execu
                 f"{results_path}: finished results of other inputs or settings are there; "
                 "pass --overwrite to replace them or choose another --out"
             )
-    scoring = Scoring(cfg.out, metrics, metric_cfg, fps=cfg.fps, show_progress=cfg.show_progress)
-    outcomes = executor.score(units, scoring, [u.key(metric_cfg, fps=cfg.fps) for u in units])
+    scoring = Scoring(cfg.out, metrics, metric_cfg, fps=cfg.fps, resolution=cfg.metric_resolution,
+                      score_size=cfg.score_size, prefetch_frames=cfg.prefetch_frames, share_sources=cfg.share_sources,
+                      show_progress=cfg.show_progress)
+    outcomes = executor.score(units, scoring, [scoring.key(u) for u in units])
     computed = sum(o.computed for o in outcomes)
     doc = assemble_results(config, inputs, outcomes)
     atomic_write_text(cfg.out / RESULTS_CSV, to_csv(doc))

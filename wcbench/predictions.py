@@ -96,6 +96,9 @@ class PredictionSequence:
         Sibling files left out by a reader's ignore rule (depth maps...).
     native_sizes : set of (int, int)
         (width, height) of every frame seen so far that had to be resized.
+    video_positions : list of int or None
+        For a video scored on some of its frames (``--frames``): the position in the video of
+        each prediction; ``None``: every frame of the video, in order.
     """
 
     files: list[Path]
@@ -110,6 +113,7 @@ class PredictionSequence:
     location: Path | None = None
     ignored: list[str] = field(default_factory=list)
     native_sizes: set[tuple[int, int]] = field(default_factory=set)
+    video_positions: list[int] | None = None
     _hashes: list[str] | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
@@ -135,15 +139,18 @@ class PredictionSequence:
     def __iter__(self) -> Iterator[np.ndarray]:
         """uint8 RGB frames [H, W, 3] in order, at the scene's size."""
         if self.is_video:
+            wanted = list(range(self.n_frames)) if self.video_positions is None else self.video_positions
+            keep, last = set(wanted), (wanted[-1] if wanted else -1)
             count = 0
             for img in iter_video_rgb8(self.files[0]):
                 count += 1
-                if count > self.n_frames:
+                if count - 1 in keep:
+                    yield self._fit(img, f"{self.files[0]} frame {count - 1}")
+                if count - 1 >= last:
                     break
-                yield self._fit(img, f"{self.files[0]} frame {count - 1}")
-            if count != self.n_frames:
+            if count != last + 1:
                 raise InputError(
-                    f"{self.files[0]}: video has {count} frames, expected {self.n_frames} (one per scene frame)"
+                    f"{self.files[0]}: video has {count} frames, expected {last + 1} (one per scene frame)"
                 )
         else:
             for p in self.files:
@@ -259,6 +266,7 @@ def match_predictions(
     partial_reason: str | None = None,
     hints: Mapping[str, str] | None = None,
     weather_level_optional: bool = False,
+    frames: Sequence[int] | None = None,
 ) -> PredictionSequence:
     """Find one prediction per scene frame under ``root`` following ``pattern``.
 
@@ -291,6 +299,9 @@ def match_predictions(
         matches but such a folder exists, the error says what it holds.
     weather_level_optional : bool
         One weather is scored: its ``{weather}`` folder level may be left out when it is absent.
+    frames : sequence of int, optional
+        Only these scene frames are scored (``--frames``; a contiguous run): predictions of other
+        frames are left alone, not reported as extra, and only these may be missing.
 
     Raises
     ------
@@ -300,6 +311,14 @@ def match_predictions(
         If files are missing (every one named) or extra, several folders match a wildcard, the
         folder is empty, or a video is unreadable or of the wrong length.
     """
+    if frames is not None:
+        selected = sorted(set(frames))
+        if not selected or selected != list(range(selected[0], selected[-1] + 1)):
+            raise InputError(f"frames {frames_text(list(frames))}: scoring needs one contiguous run of frames "
+                             "(temporal metrics compare neighbours), e.g. 0-9")
+        if selected[0] < 0 or selected[-1] >= len(scene.frames):
+            raise InputError(f"frames {frames_text(selected)}: outside scene {scene.id!r}'s frames "
+                             f"0-{len(scene.frames) - 1}")
     layouts = [pattern] if isinstance(pattern, str) else list(pattern)
     for lay in layouts:
         if lay.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", lay) or ".." in lay.replace("\\", "/").split("/"):
@@ -347,12 +366,13 @@ def match_predictions(
     if _is_video_name(last):
         count = video_frame_count(location)
         pairs = [(location, frame_offset + i) for i in range(count)]
-        frames, missing = _check_frames(pairs, scene, where=f"{location}", partial_reason=partial_reason,
-                                        video_count=count, unmatched=[], stem_mode=False,
-                                        frame_start=frame_start, frame_offset=frame_offset)
-        return PredictionSequence([location], size, [k for _, k in frames], resize=resize,
+        found, missing = _check_frames(pairs, scene, where=f"{location}", partial_reason=partial_reason,
+                                       video_count=count, unmatched=[], stem_mode=False,
+                                       frame_start=frame_start, frame_offset=frame_offset, selection=frames)
+        return PredictionSequence([location], size, [k for _, k in found], resize=resize,
                                   info=read_info(location.parent), is_video=True, missing=missing,
-                                  partial_reason=partial_reason, layout=layout, location=location)
+                                  partial_reason=partial_reason, layout=layout, location=location,
+                                  video_positions=None if frames is None else [k - frame_offset for _, k in found])
     where = f"{location} (pattern {layout!r}, weather {weather!r})"
     body, used = _part_regex(last, weather=chosen[2], scene_id=scene.id, pattern=layout, file_name=True)
     if Path(_TOKEN.sub("x", last)).suffix.lower() not in IMAGE_EXTENSIONS:
@@ -375,12 +395,12 @@ def match_predictions(
         pairs = [(p, stems.get(m.group("stem"), -1)) for p, m in matched]
     else:
         pairs = [(p, frame_offset + i) for i, (p, _) in enumerate(matched)]
-    frames, missing = _check_frames(pairs, scene, where=where, partial_reason=partial_reason, video_count=None,
-                                    unmatched=unmatched, stem_mode="stem" in used and "frame" not in used,
-                                    frame_start=frame_start, frame_offset=frame_offset)
-    for p, _ in frames:
+    found, missing = _check_frames(pairs, scene, where=where, partial_reason=partial_reason, video_count=None,
+                                   unmatched=unmatched, stem_mode="stem" in used and "frame" not in used,
+                                   frame_start=frame_start, frame_offset=frame_offset, selection=frames)
+    for p, _ in found:
         _check_inside(p, root)
-    return PredictionSequence([p for p, _ in frames], size, [k for _, k in frames], resize=resize,
+    return PredictionSequence([p for p, _ in found], size, [k for _, k in found], resize=resize,
                               info=read_info(location), missing=missing, partial_reason=partial_reason,
                               layout=layout, location=location, ignored=ignored)
 
@@ -397,9 +417,11 @@ def _check_inside(path: Path, root: Path) -> None:
 def _check_frames(
     pairs: list[tuple[Path, int]], scene: Scene, *, where: str, partial_reason: str | None, video_count: int | None,
     unmatched: list[str], stem_mode: bool, frame_start: int, frame_offset: int,
+    selection: Sequence[int] | None = None,
 ) -> tuple[list[tuple[Path, int]], list[int]]:
     """Check (file, scene frame) pairs against the scene; return the pairs in frame order and the
-    missing frames (allowed only as a missing head or tail when ``partial_reason`` is set)."""
+    missing frames (allowed only as a missing head or tail when ``partial_reason`` is set). With a
+    ``selection``, only those scene frames are expected; the others' files are left alone."""
     n = len(scene.frames)
     by_frame: dict[int, list[Path]] = {}
     extra = list(unmatched)
@@ -408,7 +430,11 @@ def _check_frames(
             by_frame.setdefault(k, []).append(p)
         elif video_count is None:
             extra.append(p.name)
-    missing = [k for k in range(n) if k not in by_frame]
+    if selection is not None:
+        chosen = set(selection)
+        by_frame = {k: v for k, v in by_frame.items() if k in chosen}
+    wanted = range(n) if selection is None else sorted(set(selection))
+    missing = [k for k in wanted if k not in by_frame]
     if video_count is not None:
         outside = [i for i, (_, k) in enumerate(pairs) if not 0 <= k < n]
         if (missing and partial_reason is None) or outside:
@@ -418,7 +444,7 @@ def _check_frames(
                              f"{detail}" + (f"; missing scene frames {missing}" if missing and frame_offset else ""))
     dupes = {k: [p.name for p in v] for k, v in by_frame.items() if len(v) > 1}
     present = sorted(by_frame)
-    holes = [k for k in range(present[0], present[-1] + 1) if k not in by_frame] if present else []
+    holes = [k for k in wanted if present[0] <= k <= present[-1] and k not in by_frame] if present else []
     problems = []
     if missing and (partial_reason is None or holes or not present):
         only_holes = partial_reason is not None and bool(present)

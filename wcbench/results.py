@@ -35,9 +35,12 @@ early); ``missing`` names the scene frames without a prediction. ``results.csv``
 higher_is_better, n_frames, missing_frames`` (``n_frames``: the frames scored for that scene and
 weather) with status ``ok``, ``null`` or ``skipped`` and
 ``missing_frames`` the missing scene frames of a partial sequence (``25-29``; empty when complete).
-``working_size`` lists the (scene, weather) units scored at a method's own resolution (the scene's
-frames resized to it). The keys ``partial``, ``resized``, ``warnings`` and ``working_size`` may be
-absent from files of earlier wcbench versions.
+``working_size`` lists the (scene, weather) units scored at another size than the scene's: a
+method's own resolution, or the metric working resolution (``config.metric_resolution``: frames
+whose longer side exceeds it are area-downscaled to it; ``null`` is the native protocol), with
+the scene's frames resized to it; each output's ``variant`` then ends with ``scored at WxH``. The
+keys ``partial``, ``resized``, ``warnings`` and ``working_size`` may be absent from files of
+earlier wcbench versions.
 """
 
 from __future__ import annotations

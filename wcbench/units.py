@@ -12,7 +12,10 @@ any order or place and assembled afterwards (docs/design.md §1, §9).
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+import queue
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +26,7 @@ from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, resize_rgb8, to_float
 from wcbench.core.progress import progress
 from wcbench.core.storage import atomic_write_json, json_safe, sha256_file, sha256_json
+from wcbench.core.working_size import SizeRequest, working_size
 from wcbench.methods import Method, is_runnable
 from wcbench.metrics.base import Metric, MetricContext
 from wcbench.predictions import RESIZE_INTERPOLATION, PredictionSequence
@@ -39,6 +43,87 @@ WORK_DIR = ".work"
 #: Frames handed to metrics per update: model metrics batch their inference; 8 frames of 1080p
 #: in three float32 streams stay under 0.6 GB.
 FRAME_BATCH = 8
+#: Bytes of decoded source frames kept in memory across the units of a process: the other weathers
+#: and methods of a scene read the raw frames once.
+SOURCE_CACHE_BYTES = 1 << 30
+
+
+class _SourceCache:
+    """Decoded (and resized) raw frames by (sha256, size), least recently used dropped beyond a budget."""
+
+    def __init__(self, budget_bytes: int):
+        self.budget = budget_bytes
+        self._items: OrderedDict[tuple[str, tuple[int, int]], np.ndarray] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def clear(self) -> None:
+        """Forget every frame (benchmarks start cold)."""
+        with self._lock:
+            self._items.clear()
+            self._bytes = 0
+
+    def get(self, key: tuple[str, tuple[int, int]], load: Callable[[], np.ndarray]) -> np.ndarray:
+        """The frame under ``key``, loaded by ``load()`` on a miss (kept if it fits the budget)."""
+        with self._lock:
+            hit = self._items.get(key)
+            if hit is not None:
+                self._items.move_to_end(key)
+                return hit
+        img = load()
+        img.setflags(write=False)  # shared by units: nobody may change it
+        with self._lock:
+            if key not in self._items and img.nbytes <= self.budget:
+                self._items[key] = img
+                self._bytes += img.nbytes
+                while self._bytes > self.budget:
+                    _, old = self._items.popitem(last=False)
+                    self._bytes -= old.nbytes
+        return img
+
+
+SOURCE_CACHE = _SourceCache(SOURCE_CACHE_BYTES)
+
+
+def prefetch(items: Iterable[Any], depth: int) -> Iterator[Any]:
+    """``items`` produced by a background thread, up to ``depth`` ahead, in order (decoding and
+    resizing release the GIL, so frames are read while the metrics run). An exception of the
+    producer is raised here, at its place in the sequence."""
+    q: queue.Queue[tuple[bool, Any]] = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                while not stop.is_set():
+                    try:
+                        q.put((True, item), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put((False, None))
+        except BaseException as exc:  # handed to the consumer, raised there
+            q.put((False, exc))
+
+    thread = threading.Thread(target=produce, name="wcbench-prefetch", daemon=True)
+    thread.start()
+    try:
+        while True:
+            ok, item = q.get()
+            if not ok:
+                if item is not None:
+                    raise item
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():  # unblock a producer waiting on a full queue
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                thread.join(0.05)
 
 
 @dataclass(frozen=True)
@@ -131,13 +216,14 @@ class WorkUnit:
         )
 
     def open(self, *, pattern: str | None = None, resize: bool = False, frame_offset: int = 0,
-             single_weather: bool = False) -> PredictionSequence:
-        """Match the unit's prediction files to the scene's frames (see :meth:`Method.open_predictions`)."""
+             single_weather: bool = False, frames: Sequence[int] | None = None) -> PredictionSequence:
+        """Match the unit's prediction files to the scene's frames (see :meth:`Method.open_predictions`);
+        ``frames``: only these scene frames (a contiguous run) are scored."""
         self.open_options = {"pattern": pattern, "resize": resize, "frame_offset": frame_offset,
-                             "single_weather": single_weather}
+                             "single_weather": single_weather, "frames": None if frames is None else list(frames)}
         self.predictions = self.method.open_predictions(
             self.scene, self.weather, self.root, pattern=pattern, resize=resize, frame_offset=frame_offset,
-            single_weather=single_weather,
+            single_weather=single_weather, frames=frames,
         )
         return self.predictions
 
@@ -167,14 +253,22 @@ class WorkUnit:
                 "location": str(p.location) if p.location else None, "layout": p.layout,
                 "frames": p.frame_indices, "ignored": p.ignored}
 
-    def key(self, metric_config: dict[str, Any], *, fps: float | None = None) -> str:
+    def scored_size(self, resolution: int | None, score_size: SizeRequest | None = None) -> tuple[int, int]:
+        """(width, height) the frames are scored at: ``score_size`` when given, else the predictions'
+        size within the working ``resolution``."""
+        if score_size is not None:
+            return score_size.resolve(self.scene.image_size)
+        return working_size(self._opened().size, resolution)
+
+    def key(self, metric_config: dict[str, Any], *, fps: float | None = None, resolution: int | None = None,
+            score_size: SizeRequest | None = None) -> str:
         """Cache key of this unit's result: every input that can change a number (each frame's
         sha256, the predictions' ``info.json`` with its timings, the ``--fps`` given, the metric
-        settings and the results schema)."""
+        settings, the size scored at and the results schema)."""
         inputs, p = self.inputs(), self._opened()
         return sha256_json({
             "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
-            "info": p.info, "fps": fps,
+            "info": p.info, "fps": fps, "working_size": list(self.scored_size(resolution, score_size)),
             "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
             "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
             "size": list(p.size),
@@ -213,9 +307,25 @@ class WorkUnit:
                           enabled=show_progress):
             pass
 
-    def score(self, metrics: dict[str, Metric], *, fps: float | None = None,
+    def score(self, metrics: dict[str, Metric], *, fps: float | None = None, resolution: int | None = None,
+              score_size: SizeRequest | None = None, prefetch_frames: bool = True, share_sources: bool = True,
               show_progress: bool = True) -> dict[str, Any]:
         """Run every metric over the unit's frames.
+
+        Parameters
+        ----------
+        metrics : dict of str to Metric
+        fps : float, optional
+            Frame rate to report when the predictions carry no timings.
+        resolution : int, optional
+            Metric working resolution (:func:`working_size`): frames are area-downscaled so that
+            their longer side is at most this many pixels; ``None`` scores at the predictions' size.
+        score_size : SizeRequest, optional
+            Score at this size instead (predictions and scene frames area-resized to it).
+        prefetch_frames : bool
+            Decode (and resize) frames in a background thread while the metrics run.
+        share_sources : bool
+            Keep the decoded raw frames in memory (:data:`SOURCE_CACHE`) for the scene's other units.
 
         Returns
         -------
@@ -239,21 +349,42 @@ class WorkUnit:
                 m.reset()
                 active[name] = m
         needs_ref = refs is not None and any(m.needs_reference for m in active.values())
-        # the scene frames of a partial sequence are one contiguous run: consecutive predictions are
-        # consecutive scene frames, as temporal metrics assume
-        frames = progress(zip(preds.frame_indices, preds), desc=f"{scene.id} {self.weather}", total=len(preds),
-                          enabled=show_progress)
+        reads_frames = any(m.reads_frames for m in active.values())
+        # A method that renders at its own resolution is scored there, and frames larger than the
+        # working resolution are scored downscaled: the scene's frames (and any ground truth) are
+        # resized to that size as they are read.
+        w, h = self.scored_size(resolution, score_size)
+        shrink_preds = (w, h) != preds.size
+
+        def source_frame(k: int) -> np.ndarray:
+            def load() -> np.ndarray:
+                img = read_rgb8(scene.frames[k].image_path)
+                return img if img.shape[1::-1] == (w, h) else resize_rgb8(img, (w, h))
+
+            if share_sources and k < len(self.source_hashes):  # decoded once per process for every unit
+                return SOURCE_CACHE.get((self.source_hashes[k], (w, h)), load)
+            return load()
+
+        def reference_frame(k: int) -> np.ndarray:
+            assert refs is not None
+            img = read_rgb8(refs[k])
+            return img if img.shape[1::-1] == (w, h) else resize_rgb8(img, (w, h))
+
+        def frames_read() -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray | None]]:
+            # the scene frames of a partial sequence are one contiguous run: consecutive predictions are
+            # consecutive scene frames, as temporal metrics assume
+            for k, pred8 in zip(preds.frame_indices, preds):
+                if shrink_preds:
+                    pred8 = resize_rgb8(pred8, (w, h))
+                ref8 = None
+                if needs_ref and self.weather != "clear":
+                    ref8 = reference_frame(k)
+                yield k, pred8, source_frame(k), ref8
+
+        frames = progress(prefetch(frames_read(), FRAME_BATCH) if reads_frames and prefetch_frames else frames_read(),
+                          desc=f"{scene.id} {self.weather}", total=len(preds), enabled=show_progress)
         check = UneditedCheck() if self.check_unedited else None
-        # frames are converted straight into reused float32 batch buffers (no per-batch stacking).
-        # A method that renders at its own resolution is scored there: the scene's frames (and any
-        # ground truth) are resized to it as they are read.
-        w, h = preds.size
-        rescale = (w, h) != scene.image_size
-
-        def read_source(path: Path) -> np.ndarray:
-            img = read_rgb8(path)
-            return resize_rgb8(img, (w, h)) if rescale else img
-
+        # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
         streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
         buffers = {name: np.empty((FRAME_BATCH, h, w, 3), np.float32) for name in streams}
         filled = 0
@@ -265,28 +396,28 @@ class WorkUnit:
             for m in active.values():
                 m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
 
-        for k, pred8 in frames:
-            src8 = read_source(scene.frames[k].image_path)
+        for _, pred8, src8, ref8 in frames:
             to_float(pred8, out=buffers["pred"][filled])
             to_float(src8, out=buffers["source"][filled])
             if check is not None:
                 check.update(pred8, src8)
             if needs_ref:
-                assert refs is not None
-                if self.weather == "clear":
+                if ref8 is None:  # clear: the raw frames are the truth
                     buffers["reference"][filled] = buffers["source"][filled]
                 else:
-                    to_float(read_source(refs[k]), out=buffers["reference"][filled])
+                    to_float(ref8, out=buffers["reference"][filled])
             filled += 1
             if filled == FRAME_BATCH:
                 flush(filled)
                 filled = 0
         flush(filled)
         outputs: dict[str, Any] = {}
+        at = f"; scored at {w}x{h}" if (w, h) != scene.image_size and reads_frames else ""
         for name, m in active.items():
             for out_name, value in m.compute().items():
+                variant = value.variant + (at if m.reads_frames else "")
                 outputs[out_name] = {
-                    "metric": name, "value": value.value, "variant": value.variant, "reason": value.reason,
+                    "metric": name, "value": value.value, "variant": variant, "reason": value.reason,
                     "higher_is_better": m.higher_is_better, "per_frame": value.per_frame, "extra": value.extra,
                 }
         result: dict[str, Any] = {"outputs": outputs, "skipped": skipped, "warnings": []}
@@ -301,9 +432,10 @@ class WorkUnit:
                 "scored": [preds.frame_indices[0], preds.frame_indices[-1]], "missing": preds.missing,
                 "reason": preds.partial_reason,
             }
-        if rescale:
+        if (w, h) != scene.image_size and reads_frames:
             result["working_size"] = {
                 "scene": scene.id, "weather": self.weather, "from": list(scene.image_size), "to": [w, h],
+                "predictions": list(preds.size), "metric_resolution": resolution,
                 "interpolation": SOURCE_INTERPOLATION,
             }
         if preds.native_sizes:
@@ -328,6 +460,12 @@ class Scoring:
         Class and settings of every metric (part of each unit's key and of results.json).
     fps : float, optional
         Frame rate to report when the predictions carry no timings (``--fps``).
+    resolution : int, optional
+        Metric working resolution (:func:`~wcbench.core.working_size.working_size`); ``None``: native.
+    score_size : SizeRequest, optional
+        Score at this size instead (``evaluate --scale``).
+    prefetch_frames, share_sources : bool
+        As :meth:`WorkUnit.score` (off only to measure what they save).
     show_progress : bool
     """
 
@@ -335,7 +473,15 @@ class Scoring:
     metrics: dict[str, Metric]
     metric_config: dict[str, Any]
     fps: float | None = None
+    resolution: int | None = None
+    score_size: SizeRequest | None = None
+    prefetch_frames: bool = True
+    share_sources: bool = True
     show_progress: bool = True
+
+    def key(self, unit: WorkUnit) -> str:
+        """``unit``'s cache key under these settings (:meth:`WorkUnit.key`)."""
+        return unit.key(self.metric_config, fps=self.fps, resolution=self.resolution, score_size=self.score_size)
 
 
 @dataclass
@@ -359,11 +505,13 @@ def execute_unit(unit: WorkUnit, scoring: Scoring, *, key: str | None = None) ->
     key : str, optional
         The unit's key if already computed (:meth:`WorkUnit.key`).
     """
-    key = key or unit.key(scoring.metric_config, fps=scoring.fps)
+    key = key or scoring.key(unit)
     cached = unit.cached_result(scoring.out, key)
     if cached is not None:
         return UnitResult(unit, key, cached, computed=False)
-    result = unit.score(scoring.metrics, fps=scoring.fps, show_progress=scoring.show_progress)
+    result = unit.score(scoring.metrics, fps=scoring.fps, resolution=scoring.resolution, score_size=scoring.score_size,
+                        prefetch_frames=scoring.prefetch_frames, share_sources=scoring.share_sources,
+                        show_progress=scoring.show_progress)
     atomic_write_json(unit.work_path(scoring.out), {"key": key, "result": result, "checksum": sha256_json(result)})
     return UnitResult(unit, key, result, computed=True)
 

@@ -182,6 +182,12 @@ class _FlowCache:
         self._bytes = 0
         self.misses = 0
 
+    def clear(self) -> None:
+        """Forget every entry (benchmarks start cold)."""
+        self._entries.clear()
+        self._bytes = 0
+        self.misses = 0
+
     def get(self, flow_name: str | None, flow: FlowFn, s0: np.ndarray, s1: np.ndarray,
             keys: tuple[bytes, bytes]) -> SourcePair:
         """The pair (s0, s1) with digests ``keys``; ``flow_name=None`` for an uncacheable flow."""

@@ -1,7 +1,8 @@
-"""Per-weather color decoders: Linear(F, 64) - ReLU - Linear(64, 3) - Sigmoid on the shared feature.
+"""Per-weather color decoders: Linear(F, H) - ReLU - Linear(H, 3) - Sigmoid on the shared feature.
 
-The paper's decoder (docs/design.md §7). All weathers are decoded in one batched product, so a
-frame's colors for every weather cost one pass over the features. ``shared=True`` is the paper's
+The paper's decoder (docs/design.md §7; H = 64 in the paper, 32 in the released code). All weathers
+are decoded in one batched product, so a frame's colors for every weather cost one pass over the
+features. ``shared=True`` is the paper's
 "w/o WGS" ablation: one decoder serves every weather, so all weathers get the same colors.
 
 The decoders start as the identity on the first three feature channels for every weather:
@@ -36,14 +37,14 @@ class WeatherDecoders(nn.Module):
     feature_dim : int
         Size F of the shared feature (32 in the paper).
     hidden : int
-        Hidden width (64 in the paper; the released code uses 32).
+        Hidden width H (64 in the paper; the released code and the training default use 32).
     shared : bool
         One decoder for every weather (the "w/o WGS" ablation).
     seed : int
         Seed of the small random part of the initialisation.
     """
 
-    def __init__(self, weathers: Sequence[str], *, feature_dim: int = 32, hidden: int = 64, shared: bool = False,
+    def __init__(self, weathers: Sequence[str], *, feature_dim: int = 32, hidden: int = 32, shared: bool = False,
                  seed: int = 0):
         super().__init__()
         if feature_dim < 3 or hidden < 6:

@@ -10,8 +10,8 @@ minimises
     + lambda_opacity L_opacity(A, sky)
     + lambda_deform (|delta|^2 + |delta_t+1 - delta_t|^2)           pedestrians' offsets
 
-with Adam (a learning rate per parameter kind; the centres' decays exponentially over the iterations,
-as in 3DGS), densification by the absolute 2D gradient under a
+with Adam (a learning rate per parameter kind; the centres' may decay exponentially over the
+iterations, as in 3DGS: ``means_lr_final``), densification by the absolute 2D gradient under a
 Gaussian budget (:mod:`.densify`), and checkpoints from which a killed training resumes with the
 same next step (:mod:`.checkpoint`).
 """

@@ -20,7 +20,7 @@ from wcbench.cli import main
 EXPECTED = {
     "ssim_320x180", "flow_deepflow", "flow_dis", "flow_farneback",
     "clip_torch", "clip_onnx", "clip_onnx_int8", "segformer_b0_torch", "segformer_b0_onnx",
-    "evaluate_scene", "evaluate_scene_warm",
+    "evaluate_scene", "evaluate_scene_warm", "resolution_native", "resolution_160", "two_weathers",
 }
 #: ONNX fp32 vs torch fp32 CLIP-S: the issue's target tolerance (measured ~1e-9 on the quick model).
 CLIP_S_FP32_TOL = 1e-5
@@ -87,6 +87,17 @@ def test_evaluate_scene_scores_every_metric(quick_run) -> None:
         assert vocab_missing or "clip_ds:3/3" in scored
         assert case["other_s"] >= 0
     assert any(n.startswith("target: one method") for n in report["notes"])
+
+
+def test_scoring_cases_compare_against_native(quick_run) -> None:
+    cases = _cases(quick_run[0])
+    native, small = cases["resolution_native"], cases["resolution_160"]
+    assert native["error"] == 0.0 and native["errors"]  # every output against itself
+    assert set(small["errors"]) == set(native["errors"]) and small["default"] is True
+    assert 0.0 < small["error"] < 1.0  # downscaled frames change the numbers, but not beyond recognition
+    two = cases["two_weathers"]
+    assert two["old_ms"] > 0 and two["speedup"] > 0
+    assert {k.split("/")[0] for k in two["errors"]} == {"rain", "snow"}
 
 
 def test_leaves_no_files_in_cache_or_store(quick_run) -> None:

@@ -46,3 +46,13 @@ def test_quick_run_without_data_root(tmp_path: Path) -> None:
     report.write(path)
     validate_benchmark(json.loads(path.read_text()))
     assert "note:" in report.format_table()
+
+
+@pytest.mark.slow
+def test_start_cases_time_a_cold_and_a_warm_process() -> None:
+    from wcbench.bench.raster import _start_cases
+
+    cold, warm = (c.to_json() for c in _start_cases())
+    assert (cold["name"], warm["name"]) == ("start_cold", "start_warm")
+    assert cold["time_ms"] > 0 and warm["time_ms"] > 0 and warm["default"] is True
+    assert warm["cold_over_warm"] == round(cold["time_ms"] / warm["time_ms"], 2)

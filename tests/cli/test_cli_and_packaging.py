@@ -28,7 +28,7 @@ def test_help_imports_neither_torch_nor_onnxruntime():
 
 def test_every_verb_has_help_and_docs(capsys):
     assert set(COMMANDS) == {"run", "evaluate", "render", "train", "scenes", "methods", "metrics", "models", "report",
-                             "bench"}
+                             "bench", "compile"}
     for verb in COMMANDS:
         with pytest.raises(SystemExit) as exc:
             main([verb, "--help"])

@@ -74,14 +74,17 @@ def test_cli_render_smoke_on_pandaset(tmp_path: Path) -> None:
 
 
 def test_cli_parses_frames_and_rejects_bad_input() -> None:
+    from wcbench.cli.common import parse_frame_spec
     from wcbench.cli.render import _weather, parse_frames
     from wcbench.core.errors import InputError
 
-    assert parse_frames("0-2,7", 10) == [0, 1, 2, 7]
+    assert parse_frames(tuple(parse_frame_spec("0-2,7")), 10) == [0, 1, 2, 7]
     assert parse_frames(None, 3) == [0, 1, 2]
-    for bad in ("5-2", "x", "12"):
+    for bad in ("5-2", "x", ","):
         with pytest.raises(InputError):
-            parse_frames(bad, 10)
+            parse_frame_spec(bad)
+    with pytest.raises(InputError, match=r"\[12\] outside the scene's frames 0-9"):
+        parse_frames((12,), 10)
     parser = argparse.ArgumentParser()
     from wcbench.cli import render
 
@@ -101,7 +104,33 @@ def test_method_option_that_render_sets_itself_is_refused_by_name(tmp_path, caps
     from wcbench.cli import main
 
     code = main(["render", "--scenes", "demo", "--weather", "rain", "--out", str(tmp_path), "--no-progress",
-                 "--method-option", "size=[10,10]"])
+                 "--method-option", "weathers={}"])
     assert code == 2
-    assert "--method-option size: set by render's own options" in capsys.readouterr().err
+    assert "--method-option weathers: set by render's own options" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_a_render_of_some_frames_is_evaluated_as_is(tmp_path: Path, capsys) -> None:
+    from wcbench.cli import main
+
+    out = tmp_path / "renders"
+    assert main(["render", "--scenes", "demo", "--weather", "fog", "--visibility", "40", "--frames", "2-5",
+                 "--scale", "0.5", "--no-video", "--out", str(out)]) == 0
+    results = tmp_path / "results"
+    # no --frames and no --resize: the render's info.json says which frames and what size
+    assert main(["evaluate", "--method", "lidar_init", "--scenes", "demo", "--predictions", str(out / "lidar_init"),
+                 "--metrics", "temporal_flicker", "--out", str(results)]) == 0
+    doc = json.loads((results / "results.json").read_text())
+    [scene] = doc["results"]
+    assert doc["inputs"]["scenes"][scene]["fog"]["frames"] == [2, 3, 4, 5]
+    assert len(doc["results"][scene]["fog"]["temporal_flicker"]["per_frame"]) == 3
+    assert doc["working_size"][0]["to"] == [160, 90]
+    # and run takes the same --frames
+    assert main(["run", "--method", "identity", "--scenes", "demo", "--frames", "0-3", "--weathers", "clear",
+                 "--metrics", "psnr", "--out", str(tmp_path / "run")]) == 0
+    run = json.loads((tmp_path / "run" / "results.json").read_text())
+    assert run["config"]["frames"] == [0, 1, 2, 3]
+    assert len(run["results"][scene]["clear"]["psnr"]["per_frame"]) == 4
+    assert main(["run", "--method", "identity", "--scenes", "demo", "--frames", "0,2", "--out",
+                 str(tmp_path / "bad")]) == 2
+    assert "one contiguous run of frames" in capsys.readouterr().err

@@ -18,7 +18,8 @@ def test_render_and_run_give_identical_frames(tmp_path: Path, capsys: pytest.Cap
     run_out, render_out = tmp_path / "run", tmp_path / "render"
     assert main(["run", "--method", "lidar_init", "--scenes", "demo", "--out", str(run_out), "--weathers", "rain",
                  "--metrics", "temporal_flicker", "--no-progress"]) == 0
-    assert main(["render", "--scenes", "demo", "--weather", "rain", "--scale", "1", "--out", str(render_out),
+    # no size given to either: the method's own size (lidar_init: a quarter of the scene's)
+    assert main(["render", "--scenes", "demo", "--weather", "rain", "--out", str(render_out),
                  "--no-video", "--no-progress"]) == 0
     capsys.readouterr()
     a = run_out / "lidar_init" / "demo_street" / "rain"
@@ -30,14 +31,14 @@ def test_render_and_run_give_identical_frames(tmp_path: Path, capsys: pytest.Cap
     info_a, info_b = (json.loads((d / "info.json").read_text()) for d in (a, b))
     # same settings, recorded the same way (the key covers method, weather, seed, size and sources)
     assert info_a["key"] == info_b["key"] and info_a["parameters"] == info_b["parameters"]
-    assert info_a["timings"]["resolution"] == [320, 180]
+    assert info_a["timings"]["resolution"] == [80, 45]
 
 
 def test_render_refuses_a_method_without_physics_weather(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["render", "--method", "filter2d", "--scenes", "demo", "--weather", "rain", "--out", str(tmp_path)])
     assert code == 2
     err = capsys.readouterr().err
-    assert "method 'filter2d' takes no option size, weathers" in err
+    assert "method 'filter2d' takes no option weathers" in err
     assert not any(tmp_path.iterdir())
 
 
@@ -47,3 +48,16 @@ def test_method_options_are_checked_before_construction() -> None:
     assert method_options("identity") == []
     with pytest.raises(InputError, match="takes no option voxel"):
         get_method("filter2d", voxel=0.1)
+
+
+def test_run_sizes_a_two_dimensional_method_too(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert main(["run", "--method", "filter2d", "--scenes", "demo", "--weathers", "rain", "--scale", "0.5",
+                 "--frames", "0-3", "--metrics", "temporal_flicker", "--out", str(out), "--no-progress"]) == 0
+    info = json.loads((out / "filter2d" / "demo_street" / "rain" / "info.json").read_text())
+    assert info["size"] == [160, 90] and [f["index"] for f in info["frames"]] == [0, 1, 2, 3]
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["working_size"][0]["to"] == [160, 90]
+    assert main(["run", "--method", "filter2d", "--scenes", "demo", "--width", "100",
+                 "--out", str(tmp_path / "x")]) == 2
+    assert "--width and --height go together" in capsys.readouterr().err

@@ -7,12 +7,17 @@ ssim_<WxH>      our SSIM (OpenCV separable float64 filter) vs scikit-image's, sa
 flow_<method>   optical flow for the flow warping error (DIS, Farneback, DeepFlow) on the demo
                 scene's frames: ms per frame pair and the relative deviation of the resulting
                 warping error (of the filter2d rain baseline) from the DeepFlow value.
+resolution_<px>, identity_run, two_weathers
+                the metric working resolution against the native size, and the scoring path
+                before and after its speed-ups, in one run (:mod:`wcbench.bench.scoring`; uses
+                the models installed in the user's store, read only).
 clip_<backend>, segformer_b0_<backend>, evaluate_scene, evaluate_scene_warm
                 CLIP and SegFormer backends (torch, ONNX, ONNX int8) and scoring one method on a
                 whole scene; see :mod:`wcbench.bench.models`. Need the ``[model]`` extra.
 
-The suite runs with ``WCBENCH_CACHE`` and ``WCBENCH_MODELS`` pointed into a temporary folder, so
-it leaves nothing in the user's cache or model store.
+The suite runs with ``WCBENCH_CACHE`` and (but for the scoring cases, which read the installed
+models) ``WCBENCH_MODELS`` pointed into a temporary folder, so it leaves nothing in the user's
+cache or model store.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import numpy as np
 
 from wcbench.bench.models import private_caches, run_model_cases
 from wcbench.bench.schema import BenchCase, BenchReport
+from wcbench.bench.scoring import scoring_cases
 from wcbench.core.models.store import ModelStore
 from wcbench.methods.filter2d import Filter2DMethod
 from wcbench.metrics.clip.tokenizer import VOCAB_ENTRY
@@ -105,6 +111,11 @@ def run(*, data_root: Path | None = None, quick: bool = False) -> BenchReport:
     """
     report = BenchReport("metrics")
     vocab = _user_vocab()  # looked up before the cache and store are redirected
+    with private_caches(store=False):  # the scoring cases read the user's installed models (LPIPS...)
+        cases, notes, stand_ins = scoring_cases(data_root=data_root, quick=quick)
+    report.cases += cases
+    report.notes += notes
+    report.stand_ins += stand_ins
     with private_caches() as work:
         report.cases += _ssim_cases(quick)
         try:

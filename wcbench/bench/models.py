@@ -103,15 +103,19 @@ def _environ(**values: str) -> Iterator[None]:
 
 
 @contextmanager
-def private_caches() -> Iterator[Path]:
-    """Point ``WCBENCH_CACHE`` and ``WCBENCH_MODELS`` into a temporary folder for the block.
+def private_caches(*, store: bool = True) -> Iterator[Path]:
+    """Point ``WCBENCH_CACHE`` and (unless ``store`` is false: the user's installed models are read)
+    ``WCBENCH_MODELS`` into a temporary folder for the block.
 
     Yields the folder; it is removed afterwards, with the memoised CLIP encoders that refer to it.
     """
     with tempfile.TemporaryDirectory(prefix="wcbench-bench-") as tmp:
         root = Path(tmp)
+        folders = {"WCBENCH_CACHE": str(root / "cache")}
+        if store:
+            folders["WCBENCH_MODELS"] = str(root / "models")
         try:
-            with _environ(WCBENCH_CACHE=str(root / "cache"), WCBENCH_MODELS=str(root / "models")):
+            with _environ(**folders):
                 yield root
         finally:
             clear_shared_encoders()

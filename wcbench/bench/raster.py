@@ -8,7 +8,11 @@ b. the real workload: the lidar of ``pandaset_002`` (every sweep, voxelised at 0
    rendered from frame 0's camera at 480x270 (K scaled from 1920x1080); a generated scene with
    the same count and depth statistics when the data is absent;
 c. 40k rain streaks (scale [0.0025, 0.0025, 0.075] m, opacity 0.13) within 10 m, at 480x270;
-d. 1M Gaussians at 1920x1080, forward only, fast path only, with peak memory.
+d. 1M Gaussians at 1920x1080, forward only, fast path only, with peak memory;
+start_cold, start_warm: a new process that imports wcbench and runs every numba kernel once
+   (:func:`~wcbench.reference_model.kernel_warmup.compile_kernels`, what ``wcbench compile`` does)
+   with an empty numba cache, then again with the cache the first run wrote: what a fresh
+   install's first render waits for, and what every later process pays.
 
 Per case: forward and backward wall time of the fast path (median over repeats after a warm-up)
 and of the pure-torch twin (one run), the Gaussian-pixel pairs evaluated, ns per pair, the
@@ -24,6 +28,9 @@ import os
 import pathlib
 import resource
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 import tracemalloc
 from collections.abc import Callable
@@ -274,6 +281,22 @@ def _case_memory(name: str, spec: dict[str, Any], *, repeats: int) -> BenchCase:
                      error_unit="abs", extra=extra)
 
 
+def _start_cases() -> list[BenchCase]:
+    """A cold and a warm process start of the kernels (the numba cache in a fresh temporary folder)."""
+    code = "from wcbench.reference_model.kernel_warmup import compile_kernels; compile_kernels()"
+    times = []
+    with tempfile.TemporaryDirectory(prefix="wcbench-numba-") as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        for _ in range(2):
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-c", code], env=env, check=True, capture_output=True)
+            times.append(1e3 * (time.perf_counter() - t))
+    cold, warm = times
+    return [BenchCase("start_cold", "numba_cache", "empty", cold, None, "none", {"default": False}),
+            BenchCase("start_warm", "numba_cache", "filled", warm, None, "none",
+                      {"default": True, "cold_over_warm": round(cold / warm, 2)})]
+
+
 def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
     """Run the rasterizer benchmark.
 
@@ -335,4 +358,10 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
     n_c, size_c = (4_000, (240, 135)) if quick else (40_000, REAL_SIZE)
     report.cases.append(_case(f"c_rain_{n_c // 1000}k", _rain(n_c, *size_c, seed=2), repeats=repeats,
                               with_twin=True))
+    if quick:
+        report.notes.append("start_cold / start_warm: not run by --quick (a cold start compiles for about a minute)")
+        return report
+    report.cases += _start_cases()
+    report.notes.append("start_cold / start_warm: wall time of a new Python process importing wcbench and running "
+                        "every numba kernel once, with an empty numba cache and then with the one it wrote")
     return report

@@ -27,6 +27,7 @@ COMMANDS = {
     "models": "wcbench.cli.models",
     "report": "wcbench.cli.report",
     "bench": "wcbench.cli.bench",
+    "compile": "wcbench.cli.compile",
 }
 
 

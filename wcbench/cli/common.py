@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from wcbench.core.errors import InputError, UnknownNameError
+from wcbench.core.working_size import METRIC_RESOLUTION, SizeRequest, parse_metric_resolution
 from wcbench.methods import METHODS
 
 
@@ -29,6 +30,89 @@ def frame_rate(text: str) -> float:
     if not (math.isfinite(value) and 0 < value <= 1e6):
         raise argparse.ArgumentTypeError(f"expected a frame rate in frames per second, > 0 and finite, got {text!r}")
     return value
+
+
+def metric_resolution(text: str) -> int | None:
+    """argparse type of ``--metric-resolution``: ``native`` (``None``) or the longer side in pixels."""
+    try:
+        return parse_metric_resolution(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+#: Help of ``--metric-resolution`` (run, evaluate).
+METRIC_RESOLUTION_HELP = (f"score frames whose longer side exceeds PX pixels area-downscaled to it (default "
+                          f"{METRIC_RESOLUTION}, from the time-versus-error table of `wcbench bench metrics`); "
+                          "native: the exact protocol at the frames' own size")
+
+
+#: Help of ``--frames`` (run, render, evaluate).
+FRAMES_HELP = "frames: 17, 0-9, 0,5,10 (ranges inclusive; default: all; run and evaluate score one contiguous run)"
+
+
+def parse_frame_spec(spec: str) -> list[int]:
+    """Frame indices of ``--frames`` (``17``, ``0-9``, ``0,5,10``; ranges inclusive), sorted, unchecked
+    against any scene.
+
+    Raises
+    ------
+    InputError
+        On a malformed spec or one that selects no frame.
+    """
+    out: set[int] = set()
+    for part in spec.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if "-" in part[1:]:
+                a, b = part.split("-", 1)
+                lo, hi = int(a), int(b)
+                if hi < lo:
+                    raise ValueError
+                out.update(range(lo, hi + 1))
+            else:
+                out.add(int(part))
+        except ValueError:
+            raise InputError(f"--frames: cannot parse {part!r}; use e.g. 17, 0-9 or 0,5,10") from None
+    if not out:
+        raise InputError(f"--frames: {spec!r} selects no frame")
+    return sorted(out)
+
+
+def frames_option(text: str) -> tuple[int, ...]:
+    """argparse type of ``--frames`` on run and evaluate."""
+    try:
+        return tuple(parse_frame_spec(text))
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_frame_and_size_arguments(parser: argparse.ArgumentParser, *, size_help: str) -> None:
+    """``--frames`` and ``--scale`` | ``--width/--height``: one vocabulary for run, render and evaluate.
+
+    ``size_help`` says what the size is of (rendered frames, scored frames) and its default.
+    """
+    parser.add_argument("--frames", type=frames_option, default=None, help=FRAMES_HELP)
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--scale", type=float, default=None, help=f"{size_help} as a fraction of the scene's size")
+    group.add_argument("--width", type=int, default=None, help="width in px (with --height)")
+    parser.add_argument("--height", type=int, default=None, help="height in px (with --width)")
+
+
+def size_request_from(args: argparse.Namespace) -> SizeRequest | None:
+    """The size ``--scale`` or ``--width/--height`` ask for; ``None`` when neither is given.
+
+    Raises
+    ------
+    InputError
+        ``--width`` without ``--height`` (or the reverse), or sizes that are not positive.
+    """
+    if args.width is not None or args.height is not None:
+        if args.width is None or args.height is None:
+            raise InputError("--width and --height go together")
+        return SizeRequest(size=(int(args.width), int(args.height)))
+    return None if args.scale is None else SizeRequest(scale=float(args.scale))
 
 
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:

@@ -14,8 +14,15 @@ Examples::
         --out results/controlnet --weathers rain,snow --metrics temporal_flicker,fps --fps 0.4
     wcbench evaluate --method fresco --scenes pandaset_002 --data-root ../shared/data \\
         --predictions fresco_rain/ --weathers rain --out results/fresco    # FRESCO's save_path itself
-    wcbench evaluate --method controlnet --scenes waymo_5 --predictions controlnet_out/ \
+    wcbench evaluate --method controlnet --scenes waymo_5 --predictions controlnet_out/ \\
         --out results/controlnet --executor dask --scheduler tcp://HOST:8786   # on a Dask cluster
+    wcbench evaluate --method lidar_init --scenes pandaset_002 --data-root ../shared/data \\
+        --predictions renders/lidar_init --out results/render    # a `wcbench render` output, as it is
+    wcbench evaluate --method folder --scenes pandaset_002 --data-root ../shared/data \\
+        --predictions my_frames/ --frames 0-9 --scale 0.5 --out results/part   # frames 0-9 at 960x540
+
+Frames larger than 960 px on their longer side are scored downscaled to 960 (``--metric-resolution``;
+``native`` for the exact protocol); ``--scale`` or ``--width/--height`` sets the size scored at.
 """
 
 from __future__ import annotations
@@ -25,13 +32,18 @@ import sys
 from pathlib import Path
 
 from wcbench.cli.common import (
+    METRIC_RESOLUTION,
+    METRIC_RESOLUTION_HELP,
     add_executor_arguments,
+    add_frame_and_size_arguments,
     add_progress_argument,
     add_scene_arguments,
     executor_from,
     frame_rate,
     method_name,
+    metric_resolution,
     parse_metric_options,
+    size_request_from,
     split_list,
 )
 from wcbench.cli.report import write_report
@@ -50,6 +62,8 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
                         help="option of one metric, repeatable, e.g. sem_cs.segmenter=segformer-b0-ade, "
                              "clip_s.backend=torch, flow_warping_error.flow=deepflow (VALUE is read as JSON "
                              "when it parses, else as text)")
+    parser.add_argument("--metric-resolution", type=metric_resolution, default=METRIC_RESOLUTION,
+                        metavar="PX|native", help=METRIC_RESOLUTION_HELP)
     parser.add_argument("--overwrite", action="store_true", help="replace finished results of other inputs")
     parser.add_argument("--report", action="store_true", help="also write OUT/report.html (see `wcbench report`)")
     add_progress_argument(parser)
@@ -67,6 +81,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "their own size do it anyway)")
     parser.add_argument("--frame-offset", type=int, default=0, metavar="N",
                         help="the method's frame i is scene frame i + N (default 0)")
+    add_frame_and_size_arguments(parser, size_help="size the frames are scored at, predictions and scene frames "
+                                                   "resized to it (default: the predictions' own size, within "
+                                                   "--metric-resolution)")
     add_evaluate_options(parser)
 
 
@@ -106,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
         method=args.method, scenes=args.scenes, predictions=args.predictions, out=args.out,
         weathers=split_list(args.weathers), metrics=split_list(args.metrics), pattern=args.pattern,
         resize=args.resize, fps=args.fps, frame_offset=args.frame_offset, data_root=args.data_root,
-        overwrite=args.overwrite,
+        overwrite=args.overwrite, metric_resolution=args.metric_resolution, frames=args.frames,
+        score_size=size_request_from(args),
         show_progress=not args.no_progress, metric_options=parse_metric_options(args.metric_option),
     )
     with executor_from(args) as executor:

@@ -11,7 +11,7 @@ Examples::
     wcbench render --scenes pandaset_002 --weather rain --preset heavy --out renders
     wcbench render --scenes ../shared/data/pandaset_002 --weather fog --visibility 60 --out renders
     wcbench render --scenes pandaset_002 --weather snow --wind 4,20,30 --frames 0-9 --out renders
-    wcbench render --method weathercity --scenes pandaset_002 --weather rain --preset heavy --scale 0.5 \
+    wcbench render --method weathercity --scenes pandaset_002 --weather rain --preset heavy --scale 0.5 \\
         --edit "remove class=Car" --out renders
 
 A finished folder rendered with the same settings is left alone; one rendered with other settings
@@ -22,8 +22,10 @@ or loaded from the cache; ``--profile``, ``--supervision``, ``--edit`` and ``--m
 for ``run``), rendered at any size.
 
 ``render`` is a front of the units of work ``wcbench run`` renders through: the same method, seed,
-weather and size give the same frames either way (``run`` renders at the scene's size, ``render``
-at ``--scale`` 0.25 unless told otherwise; both record the size and settings in info.json).
+weather and size give the same frames either way: both take ``--frames`` and ``--scale`` or
+``--width/--height`` and default to the method's own size (``lidar_init``: a quarter of the
+scene's, 480x270 for 1920x1080), and both record the size and settings in info.json. A render of
+some frames is scored as it is by ``wcbench evaluate`` (its info.json lists the frames and size).
 """
 
 from __future__ import annotations
@@ -33,11 +35,14 @@ from pathlib import Path
 from typing import Any
 
 from wcbench.cli.common import (
+    add_frame_and_size_arguments,
     add_method_options,
     add_progress_argument,
     add_scene_arguments,
     method_name,
     method_options_from,
+    parse_frame_spec,
+    size_request_from,
 )
 from wcbench.core.errors import InputError
 from wcbench.core.weathers import WEATHERS
@@ -77,16 +82,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--exposure", type=float, default=None, help="camera exposure in seconds (rain streaks)"
     )
     parser.add_argument("--seed", type=int, default=0, help="particle seed")
-    parser.add_argument("--frames", default=None, help="frames to render: 17, 0-9, 0,5,10 (default: all)")
-    size = parser.add_mutually_exclusive_group()
-    size.add_argument(
-        "--scale",
-        type=float,
-        default=None,
-        help="resolution as a fraction of the scene's (default 0.25: 480x270 for 1920x1080)",
-    )
-    size.add_argument("--width", type=int, default=None, help="output width in px (with --height)")
-    parser.add_argument("--height", type=int, default=None, help="output height in px (with --width)")
+    add_frame_and_size_arguments(parser, size_help="size of the rendered frames (default: the method's own, "
+                                                   "as `run`: 480x270 for 1920x1080 with lidar_init)")
     parser.add_argument("--voxel", type=float, default=None,
                         help="voxel size of the lidar initialisation (m; default: the method's, 0.2)")
     parser.add_argument(
@@ -104,38 +101,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_method_options(parser)
 
 
-def parse_frames(spec: str | None, n: int) -> list[int]:
-    """Frame indices of ``--frames`` (``17``, ``0-9``, ``0,5,10``; ranges inclusive), sorted.
+def parse_frames(frames: tuple[int, ...] | None, n: int) -> list[int]:
+    """The frames of ``--frames`` (all when not given), checked against a scene of ``n`` frames.
 
     Raises
     ------
     InputError
-        On a malformed spec or an index outside [0, n).
+        On an index outside [0, n).
     """
-    if spec is None:
+    if frames is None:
         return list(range(n))
-    out: set[int] = set()
-    for part in spec.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        try:
-            if "-" in part:
-                a, b = part.split("-", 1)
-                lo, hi = int(a), int(b)
-                if hi < lo:
-                    raise ValueError
-                out.update(range(lo, hi + 1))
-            else:
-                out.add(int(part))
-        except ValueError:
-            raise InputError(f"--frames: cannot parse {part!r}; use e.g. 17, 0-9 or 0,5,10") from None
-    bad = sorted(k for k in out if not 0 <= k < n)
+    bad = [k for k in frames if not 0 <= k < n]
     if bad:
         raise InputError(f"--frames: {bad} outside the scene's frames 0-{n - 1}")
-    if not out:
-        raise InputError(f"--frames: {spec!r} selects no frame")
-    return sorted(out)
+    return sorted(frames)
 
 
 def _floats(text: str | None, count: int, option: str) -> tuple[float, ...] | None:
@@ -174,24 +153,13 @@ def _weather(args: argparse.Namespace) -> Any:
         raise InputError(f"weather: {exc}") from None
 
 
-def _resolution(args: argparse.Namespace, width: int, height: int) -> tuple[int, int]:
-    if args.width is not None or args.height is not None:
-        if args.width is None or args.height is None or args.width < 1 or args.height < 1:
-            raise InputError("--width and --height go together and must be positive")
-        return int(args.width), int(args.height)
-    scale = 0.25 if args.scale is None else float(args.scale)
-    if not 0 < scale <= 4:
-        raise InputError(f"--scale must be in (0, 4], got {scale}")
-    return max(1, round(width * scale)), max(1, round(height * scale))
-
-
-def _method_options(args: argparse.Namespace, scene_size: tuple[int, int], n_frames: int) -> dict[str, Any]:
-    """Options of the method: the weather, the output size, and the scene settings that were given."""
-    options: dict[str, Any] = {"weathers": {args.weather: _weather(args)}, "size": _resolution(args, *scene_size)}
+def _method_options(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
+    """Options of the method: the weather, and the scene settings that were given."""
+    options: dict[str, Any] = {"weathers": {args.weather: _weather(args)}}
     if args.voxel is not None:
         options["voxel_m"] = args.voxel
     if args.init_frames is not None:
-        options["init_frames"] = parse_frames(args.init_frames, n_frames)
+        options["init_frames"] = parse_frames(tuple(parse_frame_spec(args.init_frames)), n_frames)
     return options
 
 
@@ -205,17 +173,19 @@ def run(args: argparse.Namespace) -> int:
     get_method(args.method)  # an unknown name fails before any scene is loaded
     check_writable_folder(args.out)
     weather = _weather(args)
+    size = size_request_from(args)
     settings_base = {"seed": weather.seed, "overwrite": args.overwrite, "video": not args.no_video,
                      "show_progress": not args.no_progress}
     for ref in resolve_scenes(args.scenes, data_root=data_root_from(args.data_root)):
         scene = ref.load()
-        options = _method_options(args, scene.image_size, len(scene))
+        options = _method_options(args, len(scene))
         given = method_options_from(args)
         clash = sorted(set(options) & set(given))
         if clash:
             raise InputError(f"--method-option {', '.join(clash)}: set by render's own options "
-                             "(--weather/--preset..., --scale/--width/--height, --voxel, --init-frames)")
+                             "(--weather/--preset..., --voxel, --init-frames)")
         method = get_method(args.method, **options, **given)
+        method.request_size(size)  # type: ignore[attr-defined]  # runnable: the unit renders it
         unit = WorkUnit(method, scene, weather.kind, Path(args.out) / method.info.name / scene.id)
         settings = RenderSettings(frames=tuple(parse_frames(args.frames, len(scene))), **settings_base)
         info = unit.render(settings)

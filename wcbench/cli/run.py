@@ -17,16 +17,19 @@ from __future__ import annotations
 import argparse
 
 from wcbench.cli.common import (
+    add_frame_and_size_arguments,
     add_method_options,
     add_scene_arguments,
     executor_from,
     method_name,
     method_options_from,
     parse_metric_options,
+    size_request_from,
     split_list,
 )
 from wcbench.cli.evaluate import add_evaluate_options, report
 from wcbench.cli.report import write_report
+from wcbench.core.errors import InputError
 
 HELP = "render with a runnable method, then evaluate"
 
@@ -37,6 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="runnable method (see `wcbench methods list`)")
     add_scene_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="random seed of the method")
+    add_frame_and_size_arguments(parser, size_help="size the method renders at, and the frames are scored at "
+                                                   "(default: the method's own size)")
     add_evaluate_options(parser)
     add_method_options(parser)
 
@@ -44,16 +49,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Render, then evaluate (one pass over the units of work)."""
     from wcbench.evaluation import EvaluateConfig, evaluate
-    from wcbench.methods import get_method
+    from wcbench.methods import get_method, is_runnable
     from wcbench.units import RenderSettings
 
+    if args.frames and list(args.frames) != list(range(args.frames[0], args.frames[-1] + 1)):
+        raise InputError(f"--frames {','.join(map(str, args.frames))}: run scores one contiguous run of frames "
+                         "(temporal metrics compare neighbours), e.g. 0-9")
     method = get_method(args.method, **method_options_from(args))
+    size = size_request_from(args)
+    if size is not None:
+        if not is_runnable(method):
+            raise InputError(f"method {args.method!r} is an output reader: --scale/--width/--height size what "
+                             "wcbench renders")
+        method.request_size(size)  # type: ignore[attr-defined]
     cfg = EvaluateConfig(
         method=args.method, scenes=args.scenes, predictions=args.out / method.info.name, out=args.out,
         weathers=split_list(args.weathers) or list(method.info.weathers), metrics=split_list(args.metrics),
         fps=args.fps, data_root=args.data_root, overwrite=args.overwrite, show_progress=not args.no_progress,
-        metric_options=parse_metric_options(args.metric_option),
-        render=RenderSettings(seed=args.seed, overwrite=args.overwrite, show_progress=not args.no_progress),
+        metric_options=parse_metric_options(args.metric_option), metric_resolution=args.metric_resolution,
+        frames=args.frames,
+        render=RenderSettings(seed=args.seed, frames=args.frames, overwrite=args.overwrite,
+                              show_progress=not args.no_progress),
     )
     with executor_from(args) as executor:
         outcome = evaluate(cfg, method=method, executor=executor)

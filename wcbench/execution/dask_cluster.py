@@ -218,7 +218,7 @@ class DaskExecutor(Executor):
         todo = [(u, k) for u, k in zip(units, keys) if u.cached_result(scoring.out, k) is None]
         if todo:
             shared = RunShared(units[0].method, scoring.metrics, scoring.metric_config, out=scoring.out.resolve(),
-                               fps=scoring.fps)
+                               fps=scoring.fps, resolution=scoring.resolution, score_size=scoring.score_size)
             data, digest = pack(shared)
             needs = sorted({r for m in scoring.metrics.values() for r in m.requires()})
             resources = self._resources(needs)

@@ -19,6 +19,7 @@ from typing import Any
 
 from wcbench.core.errors import InputError
 from wcbench.core.storage import sha256_json
+from wcbench.core.working_size import SizeRequest
 from wcbench.methods import Method, is_runnable
 from wcbench.metrics.base import Metric
 from wcbench.scenes.scene import Scene
@@ -47,6 +48,10 @@ class RunShared:
     fps : float, optional
     render : RenderSettings, optional
         Rendering only.
+    resolution : int, optional
+        Metric working resolution; ``None``: native.
+    score_size : SizeRequest, optional
+        The size to score at (``evaluate --scale``).
     """
 
     method: Method | None
@@ -55,6 +60,8 @@ class RunShared:
     out: Path | None = None
     fps: float | None = None
     render: RenderSettings | None = None
+    resolution: int | None = None
+    score_size: SizeRequest | None = None
 
 
 @dataclass(frozen=True)
@@ -165,11 +172,12 @@ def score_task(data: bytes, digest: str, spec: UnitSpec) -> dict[str, Any]:
             raise RuntimeError("score_task of a run without a results folder")
         unit = _unit(shared, spec)
         unit.open(**(spec.open_options or {}))
-        key = unit.key(shared.metric_config, fps=shared.fps)
+        scoring = Scoring(shared.out, shared.metrics, shared.metric_config, fps=shared.fps,
+                          resolution=shared.resolution, score_size=shared.score_size, show_progress=False)
+        key = scoring.key(unit)
         if key != spec.key:
             raise InputError(f"{unit.label}: its files changed since the run was planned (or this worker sees "
                              f"other files under {spec.root}); run again")
-        scoring = Scoring(shared.out, shared.metrics, shared.metric_config, fps=shared.fps, show_progress=False)
         if unit.cached_result(shared.out, key) is None:
             unit.validate(show_progress=False)
         outcome = execute_unit(unit, scoring, key=key)

@@ -38,8 +38,8 @@ class LidarInitMethod(FrameRenderer):
     size : (int, int), optional
         Output (width, height); ``scale`` is used when not given.
     scale : float
-        Output size as a fraction of the scene's (1.0: the scene's resolution, which evaluation
-        needs without ``--resize``).
+        Output size as a fraction of the scene's (default 0.25: 480x270 for 1920x1080, the size
+        ``render`` and ``run`` both use unless told otherwise; frames are scored at that size).
     voxel_m : float
         Voxel size of the lidar initialisation (m).
     init_frames : list of int, optional
@@ -53,7 +53,7 @@ class LidarInitMethod(FrameRenderer):
         *,
         weathers: dict[str, Weather] | None = None,
         size: tuple[int, int] | None = None,
-        scale: float = 1.0,
+        scale: float = 0.25,
         voxel_m: float = 0.2,
         init_frames: list[int] | None = None,
     ):
@@ -87,7 +87,7 @@ class LidarInitMethod(FrameRenderer):
         desc.pop("seed", None)
         return {"weather": desc, "init": {"voxel_m": self.voxel_m, "frames": self.init_frames}}
 
-    def output_size(self, scene: Scene) -> tuple[int, int]:
+    def native_size(self, scene: Scene) -> tuple[int, int]:
         """``size`` if given, else the scene's size times ``scale``."""
         if self.size is not None:
             return self.size

@@ -78,7 +78,7 @@ class Method(Protocol):
 
     def open_predictions(
         self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False,
-        frame_offset: int = 0, single_weather: bool = False,
+        frame_offset: int = 0, single_weather: bool = False, frames: Sequence[int] | None = None,
     ) -> PredictionSequence:
         """Map the files under ``root`` to the scene's frames for ``weather``.
 
@@ -92,6 +92,8 @@ class Method(Protocol):
             The method's frame *i* is scene frame ``i + frame_offset``.
         single_weather : bool
             Only this weather is scored: its ``<weather>`` folder level may be left out.
+        frames : sequence of int, optional
+            Only these scene frames (a contiguous run) are scored; default: every frame.
 
         Raises
         ------

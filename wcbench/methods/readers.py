@@ -93,14 +93,14 @@ class PatternReader:
 
     def open_predictions(
         self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False,
-        frame_offset: int = 0, single_weather: bool = False,
+        frame_offset: int = 0, single_weather: bool = False, frames: Sequence[int] | None = None,
     ) -> PredictionSequence:
         """Match the files under ``root`` to ``scene``'s frames (see :func:`match_predictions`)."""
         return match_predictions(
             scene, weather, root, pattern=pattern or self.layouts, frame_start=self.frame_start,
             frame_offset=frame_offset, resize=resize or self.resizes, weather_names=self.weather_names,
             ignore=self.ignore, partial_reason=self.partial_reason, hints=self.hints,
-            weather_level_optional=single_weather,
+            weather_level_optional=single_weather, frames=frames,
         )
 
     def settings(self) -> dict[str, Any]:

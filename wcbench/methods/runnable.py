@@ -1,7 +1,7 @@
 """Shared machinery of runnable methods: render into the canonical layout, resumably.
 
 A subclass implements :meth:`FrameRenderer.render_frame` (and optionally :meth:`prepare`,
-:meth:`output_size`, :meth:`describe`); :meth:`FrameRenderer.render` writes
+:meth:`native_size`, :meth:`describe`); :meth:`FrameRenderer.render` writes
 ``<out>/{frame:03d}.png`` atomically, keeps a small state file so a killed render resumes where it
 stopped, times every frame (FPS) and finally writes ``info.json`` with the parameters and the
 sha256 of every frame. A folder finished with other settings is never replaced unless asked.
@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 
 from wcbench.core.errors import InputError, ResultsExistError
-from wcbench.core.image_io import read_rgb8, write_mp4, write_png
+from wcbench.core.image_io import read_rgb8, resize_rgb8, write_mp4, write_png
 from wcbench.core.progress import progress
 from wcbench.core.storage import atomic_write_json, sha256_file, sha256_json
 from wcbench.core.timing import FrameTimer
+from wcbench.core.working_size import SizeRequest
 from wcbench.methods.protocol import MethodInfo
 from wcbench.predictions import (
     CANONICAL_PATTERN,
@@ -44,6 +45,17 @@ def sequence_frame_rate(timestamps: Sequence[float]) -> float:
     return float(min(max(1.0 / np.median(dt), 1.0), 120.0))
 
 
+def _rendered_frames(folder: Path) -> list[int] | None:
+    """The scene frames a finished render in ``folder`` lists in its ``info.json`` (``None``: no
+    readable list; the folder is then checked against every scene frame)."""
+    try:
+        info = json.loads((folder / INFO_FILE).read_text(encoding="utf-8"))
+        frames = sorted({int(f["index"]) for f in info["frames"]})
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return frames or None
+
+
 class FrameRenderer(ABC):
     """Base class of methods wcbench runs frame by frame."""
 
@@ -54,9 +66,24 @@ class FrameRenderer(ABC):
         """Settings that change the frames (recorded in ``info.json`` and part of the resume key)."""
         return {}
 
-    def output_size(self, scene: Scene) -> tuple[int, int]:
-        """(width, height) of the rendered frames; the scene's own size unless a method says otherwise."""
+    _size_request: SizeRequest | None = None
+
+    def request_size(self, request: SizeRequest | None) -> None:
+        """Render at ``request`` (``--scale`` or ``--width/--height``) instead of :meth:`native_size`
+        (``None``: the method's own size again). A method that draws at the scene's size (a 2D
+        editor) has its frames area-resized to the requested size."""
+        self._size_request = request
+
+    def native_size(self, scene: Scene) -> tuple[int, int]:
+        """(width, height) the method renders at unless told otherwise: the scene's own size unless a
+        method says otherwise."""
         return scene.image_size
+
+    def output_size(self, scene: Scene) -> tuple[int, int]:
+        """(width, height) of the rendered frames: the requested size, else :meth:`native_size`."""
+        if self._size_request is not None:
+            return self._size_request.resolve(scene.image_size)
+        return self.native_size(scene)
 
     def setup_scene(self, scene: Scene, *, show_progress: bool = True) -> None:  # noqa: B027 - optional hook
         """Scene-level work that every weather of ``scene`` shares (training a model), done once.
@@ -84,16 +111,20 @@ class FrameRenderer(ABC):
 
     def open_predictions(
         self, scene: Scene, weather: str, root: Path, *, pattern: str | None = None, resize: bool = False,
-        frame_offset: int = 0, single_weather: bool = False,
+        frame_offset: int = 0, single_weather: bool = False, frames: Sequence[int] | None = None,
     ) -> PredictionSequence:
         """Read frames this method wrote (the canonical layout).
 
         Frames rendered at another size than the scene's (``info.json`` ``size``) are scored at
         that size, the scene's frames resized to it once (see :meth:`wcbench.units.WorkUnit.score`),
-        unless ``resize`` asks for the predictions to be resized to the scene's size instead.
+        unless ``resize`` asks for the predictions to be resized to the scene's size instead. A
+        render of some frames (``wcbench render --frames``; ``info.json`` lists them) is scored on
+        those frames when ``frames`` does not say otherwise.
         """
+        if frames is None and pattern is None:
+            frames = _rendered_frames(root / weather)
         seq = match_predictions(scene, weather, root, pattern=pattern or CANONICAL_PATTERN, resize=resize,
-                                frame_offset=frame_offset, weather_level_optional=single_weather)
+                                frame_offset=frame_offset, weather_level_optional=single_weather, frames=frames)
         size = (seq.info or {}).get("size")
         if size is not None and not resize:
             if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
@@ -166,6 +197,9 @@ class FrameRenderer(ABC):
             ``"rendered"`` or ``"up to date"`` (not stored).
         """
         indices = list(range(len(scene))) if frames is None else sorted(set(frames))
+        outside = [k for k in indices if not 0 <= k < len(scene)]
+        if outside or not indices:
+            raise InputError(f"frames {outside or 'none'}: outside scene {scene.id!r}'s frames 0-{len(scene) - 1}")
         key = self._key(scene, weather, seed, indices)
         out_dir.mkdir(parents=True, exist_ok=True)
         done_info = self._check_existing(out_dir, key, overwrite)
@@ -195,6 +229,9 @@ class FrameRenderer(ABC):
             with timer.frame():
                 out = self.render_frame(scene, weather, k, seed=seed)
             img, facts = out if isinstance(out, tuple) else (out, {})
+            if img.shape[:2] == scene.image_size[::-1] and (width, height) != scene.image_size \
+                    and img.dtype == np.uint8:  # drawn at the scene's size, asked for another
+                img = resize_rgb8(img, (width, height))
             if img.shape != (height, width, 3) or img.dtype != np.uint8:
                 raise RuntimeError(
                     f"{self.info.name}.render_frame returned {img.dtype} {img.shape}, "

@@ -355,7 +355,7 @@ class WeatherCityMethod(FrameRenderer):
         return {"training": self.config.to_json(), "supervision": self.supervision, "jitter": self.jitter,
                 "edits": [e.to_json() for e in self.edits], "weather": desc}
 
-    def output_size(self, scene: Scene) -> tuple[int, int]:
+    def native_size(self, scene: Scene) -> tuple[int, int]:
         """``size`` if given, else the training resolution."""
         return self.size or self.config.size_for(scene.image_size)
 

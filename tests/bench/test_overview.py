@@ -1,0 +1,84 @@
+"""``wcbench bench all``: the Pareto front, the summary table and the charts from suite JSON files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from wcbench.bench.overview import pareto_front, summarize
+from wcbench.bench.schema import BenchCase, BenchReport
+from wcbench.cli import main
+
+
+def test_pareto_front_lower_and_higher_is_better() -> None:
+    pts = [(1.0, 5.0), (2.0, 3.0), (3.0, 3.0), (4.0, 1.0), (2.0, 6.0)]
+    assert pareto_front(pts) == [True, True, False, True, False]
+    # PSNR, higher is better: (2, 6) dominates every slower point; (1, 5) stays, being the fastest
+    assert pareto_front(pts, higher_is_better=True) == [True, False, False, False, True]
+    assert pareto_front([(1.0, 1.0), (1.0, 1.0)]) == [True, True]  # equal points do not dominate each other
+
+
+def _write(folder: Path, suite: str, cases: list[BenchCase]) -> None:
+    BenchReport(suite, cases=cases, notes=[f"{suite} note"]).write(folder / f"{suite}.json")
+
+
+def test_summary_marks_defaults_off_the_front_and_draws_one_chart_per_knob(tmp_path: Path) -> None:
+    _write(tmp_path, "raster", [
+        BenchCase("tile_8", "tile", 8, 10.0, 1e-6, "abs"),
+        BenchCase("tile_16", "tile", 16, 8.0, 1e-6, "abs", {"default": True}),
+        BenchCase("tile_32", "tile", 32, 12.0, 2e-6, "abs"),
+        BenchCase("alone", "other", 1, None, None, "abs"),
+        BenchCase("rain", "jitter", 0.5, 5.0, 0.1, "abs", {"default": True}),  # one value on two weathers:
+        BenchCase("snow", "jitter", 0.5, 5.0, 0.05, "abs", {"default": True}),  # listed, not compared
+    ])
+    _write(tmp_path, "model", [
+        BenchCase("iterations_800", "iterations", 800, 200.0, 28.2, "psnr_db", {"default": True}),
+        BenchCase("hidden_64", "hidden", 64, 240.0, 28.2, "psnr_db"),
+        BenchCase("iterations_400", "iterations", 400, 100.0, 28.5, "psnr_db"),
+    ])
+    done = summarize(tmp_path)
+    assert done["suites"] == ["model", "raster"]
+    assert done["off_front"] == [("model", "iterations", "iterations_800")]  # 400 steps: quicker and better
+    names = sorted(p.name for p in done["charts"])
+    assert names == ["model-iterations-iterations.png", "raster-tile-tile.png"]  # one-case knobs: listed, not charted
+    for p in done["charts"]:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = (tmp_path / "summary.md").read_text()
+    assert "| tile_16 | tile | 16 | 8 | 1e-06 | abs | yes | yes |" in text
+    assert "| tile_32 | tile | 32 | 12 | 2e-06 | abs |  | no |" in text
+    assert "- model / iterations: iterations_800" in text and "![raster-tile-tile](charts/raster-tile-tile.png)" in text
+
+
+def test_summary_of_a_foreign_or_empty_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    with pytest.raises(ValueError, match="no benchmark JSON files"):
+        summarize(tmp_path)
+    (tmp_path / "other.json").write_text(json.dumps({"hello": 1}))
+    assert main(["bench", "all", "--summary-only", "--out", str(tmp_path)]) == 2
+    assert f"{tmp_path / 'other.json'}: not a wcbench benchmark JSON" in capsys.readouterr().err
+
+
+def test_summary_only_from_the_cli(tmp_path: Path, capsys) -> None:
+    _write(tmp_path, "weather", [BenchCase("k_1", "k", 1, 1.0, 0.1, "rel", {"default": True}),
+                                 BenchCase("k_2", "k", 2, 2.0, 0.05, "rel")])
+    assert main(["bench", "all", "--summary-only", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "1 charts" in out and "off its Pareto front" not in out
+
+
+@pytest.mark.slow
+def test_bench_all_quick_runs_every_suite(tmp_path: Path, capsys) -> None:
+    pytest.importorskip("torch")
+    from wcbench.bench import SUITES
+
+    assert main(["bench", "all", "--quick", "--out", str(tmp_path)]) == 0
+    assert {p.stem for p in tmp_path.glob("*.json")} == set(SUITES)
+    assert (tmp_path / "summary.md").is_file() and list((tmp_path / "charts").glob("*.png"))
+
+
+def test_options_of_bench_all_are_refused_elsewhere(tmp_path: Path, capsys) -> None:
+    assert main(["bench", "all", "--json", str(tmp_path / "x.json")]) == 2
+    assert "writes every suite's JSON into --out" in capsys.readouterr().err
+    assert main(["bench", "metrics", "--summary-only"]) == 2
+    assert "--summary-only goes with `bench all`" in capsys.readouterr().err

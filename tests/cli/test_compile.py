@@ -1,0 +1,27 @@
+"""``wcbench compile``: every kernel runs once (loaded from numba's cache when it is there)."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("numba")
+
+from wcbench.cli import main
+
+
+def test_compile_runs_every_kernel(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["compile"]) == 0
+    captured = capsys.readouterr()
+    assert "compiling the numba kernels" in captured.err
+    assert "raster kernels ready" in captured.err and "weather kernels ready" in captured.err
+    assert captured.out.startswith("kernels ready in ")
+
+
+def test_compile_reports_a_missing_backend(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    from wcbench.reference_model import _numba_backend
+
+    monkeypatch.setitem(_numba_backend._failed, "weather.fog_kernels", "ImportError: no numba")
+    monkeypatch.delitem(_numba_backend._loaded, "weather.fog_kernels", raising=False)
+    assert main(["compile"]) == 2
+    assert "numba kernels weather.fog_kernels unavailable: ImportError: no numba" in capsys.readouterr().err
