@@ -54,6 +54,10 @@ def test_summary_marks_defaults_off_the_front_and_draws_one_chart_per_knob(tmp_p
 def test_summary_of_a_foreign_or_empty_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:
     with pytest.raises(ValueError, match="no benchmark JSON files"):
         summarize(tmp_path)
+    (tmp_path / "broken.json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"broken\.json: not a wcbench benchmark JSON"):
+        summarize(tmp_path)
+    (tmp_path / "broken.json").unlink()
     (tmp_path / "other.json").write_text(json.dumps({"hello": 1}))
     assert main(["bench", "all", "--summary-only", "--out", str(tmp_path)]) == 2
     assert f"{tmp_path / 'other.json'}: not a wcbench benchmark JSON" in capsys.readouterr().err

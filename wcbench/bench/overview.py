@@ -105,10 +105,10 @@ def summarize(folder: Path) -> dict[str, Any]:
     """
     reports = []
     for path in sorted(folder.glob("*.json")):
-        obj = json.loads(path.read_text())
         try:
+            obj = json.loads(path.read_text(encoding="utf-8"))
             validate_benchmark(obj)
-        except ValueError as exc:
+        except (ValueError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: not a wcbench benchmark JSON: {exc}") from None
         reports.append(obj)
     if not reports:
