@@ -132,10 +132,12 @@ def scoring_cases(*, data_root: Path | None, quick: bool) -> tuple[list[BenchCas
                                                  metrics, res, True))
             if res is None:
                 native = values
-                skipped = sorted({s["metric"] for s in doc["skipped"]})
-                if skipped:
-                    notes.append(f"scoring cases: {', '.join(skipped)} skipped (weights not installed or not "
-                                 "applicable; `wcbench models list` shows what is installed)")
+                scored = {r["metric"] for ws in doc["results"].values() for outs in ws.values()
+                          for r in outs.values()}
+                never = sorted(set(metrics) - scored)
+                if never:
+                    notes.append(f"scoring cases: {', '.join(never)} not scored on any unit (weights not "
+                                 "installed or not applicable; `wcbench models list` shows what is installed)")
             worst, errors = _deviation(values, native)
             cases.append(BenchCase(
                 name=f"resolution_{label}", knob="metric_resolution", value=label, time_ms=1e3 * seconds,
