@@ -115,7 +115,8 @@ def as_float_images(x: Any, *, name: str) -> np.ndarray:
         return a.astype(np.float32) / 255.0
     if not np.issubdtype(a.dtype, np.floating):
         raise ValueError(f"{name}: expected uint8 or float images, got dtype {a.dtype}")
-    if a.size and (not np.all(np.isfinite(a)) or a.min() < 0.0 or a.max() > 1.0):
+    # NaN makes min/max NaN and fails both comparisons, +-inf fails the range: two passes, no mask
+    if a.size and not (a.min() >= 0.0 and a.max() <= 1.0):
         raise ValueError(f"{name}: float images must be finite and in [0, 1]")
     return a
 

@@ -185,3 +185,37 @@ def test_metric_resolution_scores_downscaled_frames_and_says_so(pandaset_root, t
     with pytest.raises(SystemExit) as exc:  # argparse refuses it before any work
         main([*base, "--out", str(tmp_path / "bad"), "--metric-resolution", "12"])
     assert exc.value.code == 2 and "'native' or the longer side in pixels" in capsys.readouterr().err
+
+
+def test_worker_threads_and_kept_frames_change_no_number(demo_scene, tmp_path, monkeypatch):
+    """The fast scoring path (decoding threads, predictions decoded once by the check and kept, raw
+    frames shared by units) against its twin (one thread, every frame decoded where it is used):
+    the same numbers to the bit, with each prediction decoded once instead of twice."""
+    import wcbench.predictions as predictions_module
+    from wcbench.evaluation import EvaluateConfig, evaluate
+    from wcbench.metrics.temporal.flicker import FLOW_CACHE
+    from wcbench.units import FRAME_CACHE
+
+    preds = write_prediction_folder(demo_scene, tmp_path / "preds", ["clear", "rain", "snow"], transform=_darken)
+    real_read = predictions_module.read_rgb8
+    reads: list[str] = []
+
+    def counting_read(path):
+        reads.append(str(path))
+        return real_read(path)
+
+    monkeypatch.setattr(predictions_module, "read_rgb8", counting_read)
+    docs = {}
+    for name, fast, threads in (("twin", False, "1"), ("fast", True, "2")):
+        monkeypatch.setenv("WCBENCH_THREADS", threads)
+        FRAME_CACHE.clear()
+        FLOW_CACHE.clear()
+        reads.clear()
+        cfg = EvaluateConfig(method="folder", scenes="demo", predictions=preds, out=tmp_path / name,
+                             weathers=["clear", "rain", "snow"], metrics=["psnr", "ssim", "temporal_flicker",
+                                                                          "flow_warping_error"],
+                             prefetch_frames=fast, share_frames=fast, show_progress=False)
+        docs[name] = evaluate(cfg).results
+        assert len(reads) == (1 if fast else 2) * 3 * len(demo_scene), name
+    assert docs["fast"]["results"] == docs["twin"]["results"]
+    assert FRAME_CACHE.nbytes == len(demo_scene) * 320 * 180 * 3  # only the raw frames stay, for other units

@@ -101,8 +101,9 @@ class EvaluateConfig:
     frames : tuple of int, optional
         Score only these scene frames (a contiguous run; ``--frames``); default every frame (a
         runnable method's render of some frames is scored on the frames it lists).
-    prefetch_frames, share_sources : bool
-        Decode frames in a background thread; keep decoded raw frames for the scene's other units
+    prefetch_frames, share_frames : bool
+        Decode frames in worker threads; keep decoded frames in memory (the raw frames for the
+        scene's other units, the predictions from their check to their scoring)
         (:meth:`~wcbench.units.WorkUnit.score`; off only to measure what they save).
     """
 
@@ -125,7 +126,7 @@ class EvaluateConfig:
     frames: tuple[int, ...] | None = None
     score_size: SizeRequest | None = None
     prefetch_frames: bool = True
-    share_sources: bool = True
+    share_frames: bool = True
 
 
 @dataclass
@@ -370,7 +371,7 @@ def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Execu
                 "pass --overwrite to replace them or choose another --out"
             )
     scoring = Scoring(cfg.out, metrics, metric_cfg, fps=cfg.fps, resolution=cfg.metric_resolution,
-                      score_size=cfg.score_size, prefetch_frames=cfg.prefetch_frames, share_sources=cfg.share_sources,
+                      score_size=cfg.score_size, prefetch_frames=cfg.prefetch_frames, share_frames=cfg.share_frames,
                       show_progress=cfg.show_progress)
     outcomes = executor.score(units, scoring, [scoring.key(u) for u in units])
     computed = sum(o.computed for o in outcomes)

@@ -153,8 +153,23 @@ class PredictionSequence:
                     f"{self.files[0]}: video has {count} frames, expected {last + 1} (one per scene frame)"
                 )
         else:
-            for p in self.files:
-                yield self._fit(read_rgb8(p), str(p))
+            for i in range(len(self.files)):
+                yield self.read_frame(i)
+
+    def read_frame(self, i: int) -> np.ndarray:
+        """Prediction ``i`` (uint8 RGB [H, W, 3] at the scene's size) of an image sequence; a video is
+        read in order by iterating."""
+        if self.is_video:
+            raise ValueError("read_frame: the frames of a video are read in order, by iterating")
+        return self._fit(read_rgb8(self.files[i]), str(self.files[i]))
+
+    def frame_keys(self) -> list[tuple[str, ...]]:
+        """A content key of every prediction: its file's sha256, with its position for a video's frames."""
+        hashes = self.sha256s()
+        if not self.is_video:
+            return [(h,) for h in hashes]
+        positions = list(range(self.n_frames)) if self.video_positions is None else self.video_positions
+        return [(hashes[0], str(p)) for p in positions]
 
     def sha256s(self) -> list[str]:
         """sha256 of every input file (one for a video)."""

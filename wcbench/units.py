@@ -12,18 +12,17 @@ any order or place and assembled afterwards (docs/design.md §1, §9).
 from __future__ import annotations
 
 import json
-import queue
-import threading
-from collections import OrderedDict
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from wcbench.core.byte_cache import ByteBudgetCache
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, resize_rgb8, to_float
+from wcbench.core.parallel import ordered_map, prefetch, thread_count
 from wcbench.core.progress import progress
 from wcbench.core.storage import atomic_write_json, json_safe, sha256_file, sha256_json
 from wcbench.core.working_size import SizeRequest, working_size
@@ -43,87 +42,16 @@ WORK_DIR = ".work"
 #: Frames handed to metrics per update: model metrics batch their inference; 8 frames of 1080p
 #: in three float32 streams stay under 0.6 GB.
 FRAME_BATCH = 8
-#: Bytes of decoded source frames kept in memory across the units of a process: the other weathers
-#: and methods of a scene read the raw frames once.
-SOURCE_CACHE_BYTES = 1 << 30
-
-
-class _SourceCache:
-    """Decoded (and resized) raw frames by (sha256, size), least recently used dropped beyond a budget."""
-
-    def __init__(self, budget_bytes: int):
-        self.budget = budget_bytes
-        self._items: OrderedDict[tuple[str, tuple[int, int]], np.ndarray] = OrderedDict()
-        self._bytes = 0
-        self._lock = threading.Lock()
-
-    def clear(self) -> None:
-        """Forget every frame (benchmarks start cold)."""
-        with self._lock:
-            self._items.clear()
-            self._bytes = 0
-
-    def get(self, key: tuple[str, tuple[int, int]], load: Callable[[], np.ndarray]) -> np.ndarray:
-        """The frame under ``key``, loaded by ``load()`` on a miss (kept if it fits the budget)."""
-        with self._lock:
-            hit = self._items.get(key)
-            if hit is not None:
-                self._items.move_to_end(key)
-                return hit
-        img = load()
-        img.setflags(write=False)  # shared by units: nobody may change it
-        with self._lock:
-            if key not in self._items and img.nbytes <= self.budget:
-                self._items[key] = img
-                self._bytes += img.nbytes
-                while self._bytes > self.budget:
-                    _, old = self._items.popitem(last=False)
-                    self._bytes -= old.nbytes
-        return img
-
-
-SOURCE_CACHE = _SourceCache(SOURCE_CACHE_BYTES)
-
-
-def prefetch(items: Iterable[Any], depth: int) -> Iterator[Any]:
-    """``items`` produced by a background thread, up to ``depth`` ahead, in order (decoding and
-    resizing release the GIL, so frames are read while the metrics run). An exception of the
-    producer is raised here, at its place in the sequence."""
-    q: queue.Queue[tuple[bool, Any]] = queue.Queue(maxsize=max(1, depth))
-    stop = threading.Event()
-
-    def produce() -> None:
-        try:
-            for item in items:
-                while not stop.is_set():
-                    try:
-                        q.put((True, item), timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-            q.put((False, None))
-        except BaseException as exc:  # handed to the consumer, raised there
-            q.put((False, exc))
-
-    thread = threading.Thread(target=produce, name="wcbench-prefetch", daemon=True)
-    thread.start()
-    try:
-        while True:
-            ok, item = q.get()
-            if not ok:
-                if item is not None:
-                    raise item
-                return
-            yield item
-    finally:
-        stop.set()
-        while thread.is_alive():  # unblock a producer waiting on a full queue
-            try:
-                q.get_nowait()
-            except queue.Empty:
-                thread.join(0.05)
+#: Bytes of decoded frames kept in memory across the units of a process: the raw frames are read
+#: once for a scene's weathers and methods, and predictions decoded by the check before scoring are
+#: scored from memory.
+FRAME_CACHE_BYTES = 1 << 30
+#: Decoded (and resized) frames: ``("source", sha256, size)`` and ``("prediction", unit folder,
+#: weather, *frame key, scene size, size)``; predictions are taken out once scored.
+FRAME_CACHE: ByteBudgetCache[np.ndarray] = ByteBudgetCache(FRAME_CACHE_BYTES)
+#: Share of :data:`FRAME_CACHE` that predictions decoded ahead of scoring may fill, so that the
+#: raw frames of the unit being scored never push out predictions still to be scored.
+AHEAD_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -300,15 +228,54 @@ class WorkUnit:
         result: dict[str, Any] = rec["result"]
         return result
 
-    def validate(self, *, show_progress: bool = True) -> None:
-        """Decode every prediction once (size, bit depth, video length), so bad input fails before work starts."""
+    def _prediction_key(self, key: tuple[str, ...], size: tuple[int, int]) -> tuple[Any, ...]:
+        """:data:`FRAME_CACHE` key of a prediction of this unit (frame key, see
+        :meth:`PredictionSequence.frame_keys`) brought to the scene's size then to ``size``. The unit
+        is part of it: two units with equal files each take their own copy once."""
+        return ("prediction", str(self.root), self.weather, *key, self._opened().size, size)
+
+    def _predictions_at(self, size: tuple[int, int], *, workers: int) -> Iterator[np.ndarray]:
+        """Every prediction in order, uint8 at ``size``: image files decoded by ``workers`` threads,
+        a video read in order (by a background thread when ``workers`` > 1)."""
         preds = self._opened()
-        for _ in progress(preds, desc=f"checking {self.scene.id} {self.weather}", total=len(preds),
-                          enabled=show_progress):
-            pass
+
+        def fit(img: np.ndarray) -> np.ndarray:
+            return img if img.shape[1::-1] == size else resize_rgb8(img, size)
+
+        if preds.is_video:
+            frames = (fit(img) for img in preds)
+            yield from (prefetch(frames, FRAME_BATCH) if workers > 1 else frames)
+        else:
+            yield from ordered_map(lambda i: fit(preds.read_frame(i)), range(len(preds)), workers=workers,
+                                   depth=FRAME_BATCH)
+
+    def validate(self, *, size: tuple[int, int] | None = None, keep: bool = False, workers: int | None = None,
+                 show_progress: bool = True) -> None:
+        """Decode every prediction once (size, bit depth, video length), so bad input fails before work starts.
+
+        Parameters
+        ----------
+        size : (int, int), optional
+            (width, height) the unit will be scored at (:meth:`scored_size`).
+        keep : bool
+            Keep the decoded predictions, brought to ``size``, in :data:`FRAME_CACHE` (up to
+            :data:`AHEAD_SHARE` of its budget) so that :meth:`score` does not decode them again.
+        workers : int, optional
+            Decoding threads (default :func:`~wcbench.core.parallel.thread_count`).
+        show_progress : bool
+        """
+        preds = self._opened()
+        target = size if keep and size is not None else preds.size
+        keys = [self._prediction_key(k, target) for k in preds.frame_keys()] if keep else None
+        limit = int(AHEAD_SHARE * FRAME_CACHE.budget)
+        frames = self._predictions_at(target, workers=thread_count() if workers is None else workers)
+        for i, img in enumerate(progress(frames, desc=f"checking {self.scene.id} {self.weather}", total=len(preds),
+                                         enabled=show_progress)):
+            if keys is not None:
+                FRAME_CACHE.put(keys[i], img, fill_limit=limit)
 
     def score(self, metrics: dict[str, Metric], *, fps: float | None = None, resolution: int | None = None,
-              score_size: SizeRequest | None = None, prefetch_frames: bool = True, share_sources: bool = True,
+              score_size: SizeRequest | None = None, prefetch_frames: bool = True, share_frames: bool = True,
               show_progress: bool = True) -> dict[str, Any]:
         """Run every metric over the unit's frames.
 
@@ -323,9 +290,11 @@ class WorkUnit:
         score_size : SizeRequest, optional
             Score at this size instead (predictions and scene frames area-resized to it).
         prefetch_frames : bool
-            Decode (and resize) frames in a background thread while the metrics run.
-        share_sources : bool
-            Keep the decoded raw frames in memory (:data:`SOURCE_CACHE`) for the scene's other units.
+            Decode (and resize) frames in worker threads (:func:`~wcbench.core.parallel.thread_count`)
+            while the metrics run.
+        share_frames : bool
+            Use :data:`FRAME_CACHE`: the decoded raw frames are kept for the scene's other units, and
+            predictions kept by :meth:`validate` are scored from memory.
 
         Returns
         -------
@@ -354,36 +323,50 @@ class WorkUnit:
         # working resolution are scored downscaled: the scene's frames (and any ground truth) are
         # resized to that size as they are read.
         w, h = self.scored_size(resolution, score_size)
-        shrink_preds = (w, h) != preds.size
+        workers = thread_count() if prefetch_frames else 1
+
+        def fit(img: np.ndarray) -> np.ndarray:
+            return img if img.shape[1::-1] == (w, h) else resize_rgb8(img, (w, h))
 
         def source_frame(k: int) -> np.ndarray:
             def load() -> np.ndarray:
-                img = read_rgb8(scene.frames[k].image_path)
-                return img if img.shape[1::-1] == (w, h) else resize_rgb8(img, (w, h))
+                return fit(read_rgb8(scene.frames[k].image_path))
 
-            if share_sources and k < len(self.source_hashes):  # decoded once per process for every unit
-                return SOURCE_CACHE.get((self.source_hashes[k], (w, h)), load)
+            if share_frames and k < len(self.source_hashes):  # decoded once per process for every unit
+                return FRAME_CACHE.get(("source", self.source_hashes[k], (w, h)), load)
             return load()
 
-        def reference_frame(k: int) -> np.ndarray:
-            assert refs is not None
-            img = read_rgb8(refs[k])
-            return img if img.shape[1::-1] == (w, h) else resize_rgb8(img, (w, h))
-
-        def frames_read() -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray | None]]:
+        def others(j: int) -> tuple[np.ndarray, np.ndarray | None]:
             # the scene frames of a partial sequence are one contiguous run: consecutive predictions are
             # consecutive scene frames, as temporal metrics assume
-            for k, pred8 in zip(preds.frame_indices, preds):
-                if shrink_preds:
-                    pred8 = resize_rgb8(pred8, (w, h))
-                ref8 = None
-                if needs_ref and self.weather != "clear":
-                    ref8 = reference_frame(k)
-                yield k, pred8, source_frame(k), ref8
+            k = preds.frame_indices[j]
+            ref8 = fit(read_rgb8(refs[k])) if refs is not None and needs_ref and self.weather != "clear" else None
+            return source_frame(k), ref8
 
-        frames = progress(prefetch(frames_read(), FRAME_BATCH) if reads_frames and prefetch_frames else frames_read(),
-                          desc=f"{scene.id} {self.weather}", total=len(preds), enabled=show_progress)
+        kept: list[np.ndarray | None] = [None] * len(preds)
+        if share_frames:  # decoded by validate(): scored from memory, then dropped
+            kept = [FRAME_CACHE.take(self._prediction_key(key, (w, h))) for key in preds.frame_keys()]
+
+        def frames_read() -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+            if preds.is_video and not all(p is not None for p in kept):
+                # a video is decoded in order; the raw frames are read by worker threads beside it
+                for pred8, (src8, ref8) in zip(self._predictions_at((w, h), workers=workers),
+                                               ordered_map(others, range(len(preds)), workers=workers,
+                                                           depth=FRAME_BATCH)):
+                    yield pred8, src8, ref8
+                return
+
+            def item(j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+                pred8 = kept[j]
+                if pred8 is None:
+                    pred8 = fit(preds.read_frame(j))
+                return (pred8, *others(j))
+
+            yield from ordered_map(item, range(len(preds)), workers=workers, depth=FRAME_BATCH)
+
         check = UneditedCheck() if self.check_unedited else None
+        frames = progress(frames_read() if reads_frames or check is not None else iter(()),
+                          desc=f"{scene.id} {self.weather}", total=len(preds), enabled=show_progress)
         # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
         streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
         buffers = {name: np.empty((FRAME_BATCH, h, w, 3), np.float32) for name in streams}
@@ -396,7 +379,7 @@ class WorkUnit:
             for m in active.values():
                 m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
 
-        for _, pred8, src8, ref8 in frames:
+        for pred8, src8, ref8 in frames:
             to_float(pred8, out=buffers["pred"][filled])
             to_float(src8, out=buffers["source"][filled])
             if check is not None:
@@ -464,7 +447,7 @@ class Scoring:
         Metric working resolution (:func:`~wcbench.core.working_size.working_size`); ``None``: native.
     score_size : SizeRequest, optional
         Score at this size instead (``evaluate --scale``).
-    prefetch_frames, share_sources : bool
+    prefetch_frames, share_frames : bool
         As :meth:`WorkUnit.score` (off only to measure what they save).
     show_progress : bool
     """
@@ -476,7 +459,7 @@ class Scoring:
     resolution: int | None = None
     score_size: SizeRequest | None = None
     prefetch_frames: bool = True
-    share_sources: bool = True
+    share_frames: bool = True
     show_progress: bool = True
 
     def key(self, unit: WorkUnit) -> str:
@@ -510,7 +493,7 @@ def execute_unit(unit: WorkUnit, scoring: Scoring, *, key: str | None = None) ->
     if cached is not None:
         return UnitResult(unit, key, cached, computed=False)
     result = unit.score(scoring.metrics, fps=scoring.fps, resolution=scoring.resolution, score_size=scoring.score_size,
-                        prefetch_frames=scoring.prefetch_frames, share_sources=scoring.share_sources,
+                        prefetch_frames=scoring.prefetch_frames, share_frames=scoring.share_frames,
                         show_progress=scoring.show_progress)
     atomic_write_json(unit.work_path(scoring.out), {"key": key, "result": result, "checksum": sha256_json(result)})
     return UnitResult(unit, key, result, computed=True)

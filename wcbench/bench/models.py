@@ -49,6 +49,7 @@ import numpy as np
 from wcbench.bench.schema import BenchCase
 from wcbench.core.image_io import read_rgb8, to_float
 from wcbench.core.models.store import ModelStore, ModelStoreError, load_registry
+from wcbench.core.parallel import thread_count
 from wcbench.core.storage import sha256_file
 from wcbench.core.weathers import EDITED_WEATHERS
 from wcbench.evaluation import EvaluateConfig, evaluate
@@ -503,7 +504,7 @@ def evaluate_cases(store: ModelStore, work: Path, scene_set: str,
     cold_s, warm_s = runs["cold"][1], runs["warm"][1]
     h, w = scene.frames[0].camera.height, scene.frames[0].camera.width
     n_pred = n_frames * len(WEATHERS)
-    decode_s = (2 * n_pred * io["png_decode_ms"] + n_pred * io["src_decode_ms"]) / 1e3
+    decode_s = (n_pred * io["png_decode_ms"] + n_frames * io["src_decode_ms"]) / 1e3
     notes = [
         f"evaluate_scene: filter2d rain/snow/fog of {scene.id} ({n_frames} frames, {w}x{h}) rendered untimed in "
         f"{render_s:.1f} s; metrics {', '.join(EVAL_METRICS)}; Sem-CS with {SEG_ENTRY} (ONNX), CLIP ONNX; "
@@ -513,8 +514,9 @@ def evaluate_cases(store: ModelStore, work: Path, scene_set: str,
         f"{'met' if cold_s <= EVALUATE_TARGET_S else 'MISSED'} ({cold_s:.1f} s cold, {warm_s:.1f} s warm)",
         f"evaluate I/O per frame: decode {io['png_decode_ms']:.0f} ms (prediction PNG), "
         f"{io['src_decode_ms']:.0f} ms (source), sha256 {io['png_sha256_ms']:.0f} ms (PNG), uint8->float "
-        f"{io['to_float_ms']:.0f} ms; evaluate decodes each prediction twice (check, then score) and each "
-        f"source once per weather: ~{decode_s:.1f} s of decoding for this scene",
+        f"{io['to_float_ms']:.0f} ms; evaluate decodes each prediction once (the check keeps it for scoring "
+        f"while the frame cache has room) and each source once per scene: ~{decode_s:.1f} s of decoding for "
+        f"this scene, spread over {thread_count()} threads",
     ]
     return cases, notes
 

@@ -11,8 +11,10 @@ resolution_<px>     the default metrics over two units, ``clear`` predictions th
                     relative deviation of any output from its native value, per output in
                     ``errors``; ``default`` marks :data:`~wcbench.core.working_size.METRIC_RESOLUTION`
 identity_run        ``run --method identity`` scoring (clear, default metrics): the old path
-                    (native size, no frame prefetch, no source sharing: ``old_ms``) against the new
-                    default in the same run; ``speedup`` and the largest relative deviation
+                    (native size, one thread, every frame decoded where it is used, nothing kept
+                    between units: ``old_ms``) against the new default (working resolution, worker
+                    threads, :data:`~wcbench.units.FRAME_CACHE`) in the same run; ``speedup`` and
+                    the largest relative deviation
 two_weathers        ``evaluate`` of ``filter2d`` rain and snow with only temporal flicker and the flow
                     warping error, old path against new (the second weather reuses the raw
                     frames and their flows)
@@ -23,9 +25,12 @@ The flow cache is emptied before every timed scoring, so each starts cold.
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +39,7 @@ import numpy as np
 
 from wcbench.bench.schema import BenchCase
 from wcbench.core.image_io import read_rgb8
+from wcbench.core.parallel import THREADS_ENV
 from wcbench.core.working_size import METRIC_RESOLUTION
 from wcbench.evaluation import EvaluateConfig, evaluate
 from wcbench.methods import get_method
@@ -42,7 +48,7 @@ from wcbench.metrics.temporal.flicker import FLOW_CACHE
 from wcbench.scenes.demo import ensure_demo_scene
 from wcbench.scenes.scene import Scene
 from wcbench.scenes.sets import resolve_scenes
-from wcbench.units import SOURCE_CACHE, RenderSettings, WorkUnit
+from wcbench.units import FRAME_CACHE, RenderSettings, WorkUnit
 
 __all__ = ["scoring_cases"]
 
@@ -78,14 +84,31 @@ def _render(method: str, scene: Scene, weather: str, root: Path) -> None:
         RenderSettings(seed=0, show_progress=False, video=False))
 
 
-def _score(cfg: EvaluateConfig) -> tuple[float, dict[str, float], dict[str, Any]]:
-    """Seconds of one cold scoring (the in-process caches emptied first, as in a fresh process), its
-    numeric outputs by ``weather/output`` and the results document."""
+@contextmanager
+def _threads(n: int | None) -> Iterator[None]:
+    """``WCBENCH_THREADS=n`` inside the block (``None``: unchanged)."""
+    before = os.environ.get(THREADS_ENV)
+    if n is not None:
+        os.environ[THREADS_ENV] = str(n)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(THREADS_ENV, None)
+        else:
+            os.environ[THREADS_ENV] = before
+
+
+def _score(cfg: EvaluateConfig, *, threads: int | None = None) -> tuple[float, dict[str, float], dict[str, Any]]:
+    """Seconds of one cold scoring (the in-process caches emptied first, as in a fresh process) with
+    ``threads`` worker threads (default: :func:`~wcbench.core.parallel.thread_count`), its numeric
+    outputs by ``weather/output`` and the results document."""
     FLOW_CACHE.clear()
-    SOURCE_CACHE.clear()
-    t = time.perf_counter()
-    doc = evaluate(cfg).results
-    seconds = time.perf_counter() - t
+    FRAME_CACHE.clear()
+    with _threads(threads):
+        t = time.perf_counter()
+        doc = evaluate(cfg).results
+        seconds = time.perf_counter() - t
     values = {f"{w}/{name}": r["value"] for ws in doc["results"].values() for w, outs in ws.items()
               for name, r in outs.items() if isinstance(r.get("value"), (int, float)) and name != "fps"}
     return seconds, values, doc
@@ -122,7 +145,7 @@ def scoring_cases(*, data_root: Path | None, quick: bool) -> tuple[list[BenchCas
                    resolution: int | None, fast: bool) -> EvaluateConfig:
             return EvaluateConfig(method=method, scenes=spec, predictions=predictions, out=root / "out" / name,
                                   weathers=weathers, metrics=metrics, metric_resolution=resolution,
-                                  prefetch_frames=fast, share_sources=fast, show_progress=False)
+                                  prefetch_frames=fast, share_frames=fast, show_progress=False)
 
         metrics = list(DEFAULT_METRICS)
         native: dict[str, float] = {}
@@ -148,10 +171,11 @@ def scoring_cases(*, data_root: Path | None, quick: bool) -> tuple[list[BenchCas
             _render("identity", scene, "clear", root)
             runs.insert(0, ("identity_run", "identity", ["clear"], metrics))
         for name, method, weathers, chosen in runs:
-            old_s, old, _ = _score(config(f"{name}_old", method, root / method, weathers, chosen, None, False))
+            old_s, old, _ = _score(config(f"{name}_old", method, root / method, weathers, chosen, None, False),
+                                   threads=1)
             new_s, new, _ = _score(config(f"{name}_new", method, root / method, weathers, chosen, default, True))
             worst, errors = _deviation(new, old)
-            cases.append(BenchCase(name=name, knob="scoring", value=f"{default} px, prefetch, shared sources",
+            cases.append(BenchCase(name=name, knob="scoring", value=f"{default} px, threads, shared frames",
                                    time_ms=1e3 * new_s, error=worst, error_unit="rel",
                                    extra={"old_ms": round(1e3 * old_s, 1), "speedup": round(old_s / new_s, 2),
                                           "errors": errors}))

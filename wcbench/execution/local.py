@@ -13,8 +13,9 @@ __all__ = ["LocalExecutor"]
 class LocalExecutor(Executor):
     """Runs units in this process; bad input fails before any result is written.
 
-    Every unit to score is decoded once (:meth:`WorkUnit.validate`) before the first one is
-    scored, so a corrupt frame anywhere stops the run before it writes anything.
+    Every unit to score is decoded (:meth:`WorkUnit.validate`) before the first one is scored, so a
+    corrupt frame anywhere stops the run before it writes anything; the decoded frames are kept for
+    scoring as far as :data:`~wcbench.units.FRAME_CACHE` allows, so most are decoded only once.
     """
 
     name = "local"
@@ -27,5 +28,6 @@ class LocalExecutor(Executor):
         """Validate every unit left to score, then score them in order (kept results are reused)."""
         todo = [u for u, k in zip(units, keys) if u.cached_result(scoring.out, k) is None]
         for u in todo:
-            u.validate(show_progress=scoring.show_progress)
+            u.validate(size=u.scored_size(scoring.resolution, scoring.score_size), keep=scoring.share_frames,
+                       workers=None if scoring.prefetch_frames else 1, show_progress=scoring.show_progress)
         return [execute_unit(u, scoring, key=k) for u, k in zip(units, keys)]

@@ -179,7 +179,8 @@ def score_task(data: bytes, digest: str, spec: UnitSpec) -> dict[str, Any]:
             raise InputError(f"{unit.label}: its files changed since the run was planned (or this worker sees "
                              f"other files under {spec.root}); run again")
         if unit.cached_result(shared.out, key) is None:
-            unit.validate(show_progress=False)
+            unit.validate(size=unit.scored_size(scoring.resolution, scoring.score_size), keep=True,
+                          show_progress=False)
         outcome = execute_unit(unit, scoring, key=key)
         return {"key": key, "computed": outcome.computed, "seconds": time.perf_counter() - start}
 
