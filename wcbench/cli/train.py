@@ -32,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profile", default="default", help="training profile: default, quick")
     parser.add_argument("--ablation", default="", help="named ablation: no-wgs, no-content-loss")
     parser.add_argument("--supervision", default="filter2d",
-                        help="edited frames to learn from: filter2d (built in) or READER:DIR")
+                        help="edited frames to learn from: filter2d (built in), sim-editor[:SEVERITY] "
+                             "(needs ground-truth scenes, e.g. synth_1) or READER:DIR")
     parser.add_argument("--jitter", type=float, default=0.0,
                         help="per-frame perturbation of the filter2d supervision, 0..1 (default 0)")
     parser.add_argument("--holdout", nargs="*", default=None, metavar="FRAME",

@@ -14,7 +14,9 @@ Two options make it a stand-in for a 2D editor's output as training supervision 
 method trains on edited frames): ``effects=False`` leaves out the streaks and flakes (particles
 come from the physics, as the paper's edited backgrounds leave them out), and ``jitter`` in [0, 1]
 adds seeded per-frame tone, color and local-structure perturbations, the way frame-by-frame
-editors flicker.
+editors flicker. Its pieces (:func:`tone_jitter`, :func:`smooth_warp`, :func:`smear_blotches`) and
+:func:`overlay_strokes` are public: ``sim-editor`` (:mod:`wcbench.methods.sim_editor`) builds its
+simulated editor errors from them.
 """
 
 from __future__ import annotations
@@ -56,8 +58,34 @@ def fog_filter(img: np.ndarray, K: np.ndarray, *, visibility_m: float, fog_color
     return t * img + (1 - t) * np.asarray(fog_color)
 
 
-def _overlay_strokes(img: np.ndarray, rng: np.random.Generator, *, count: int, length: float, angle: float,
-                     thickness: int, intensity: float, blur: int) -> np.ndarray:
+def overlay_strokes(img: np.ndarray, rng: np.random.Generator, *, count: int, length: float, angle: float,
+                    thickness: int, intensity: float, blur: int) -> np.ndarray:
+    """Draw ``count`` seeded straight strokes (rain streaks, or snowflakes when short and thick).
+
+    Parameters
+    ----------
+    img : ndarray [H, W, 3] float
+        RGB in [0, 1].
+    rng : numpy.random.Generator
+        Where the stroke positions and lengths come from (three draws of ``count`` values).
+    count : int
+        Number of strokes.
+    length : float
+        Longest stroke in pixels (each is 0.5-1 times it).
+    angle : float
+        Radians from the image's down direction (positive: leaning right).
+    thickness : int
+        Line width in pixels.
+    intensity : float
+        Opacity of a stroke's core.
+    blur : int
+        Gaussian blur kernel of the stroke layer (softens edges; <= 1: none).
+
+    Returns
+    -------
+    ndarray [H, W, 3] float
+        ``img`` blended toward near-white (0.9) under the strokes.
+    """
     h, w = img.shape[:2]
     layer = np.zeros((h, w), np.float32)
     xs, ys = rng.uniform(0, w, count), rng.uniform(0, h, count)
@@ -71,6 +99,128 @@ def _overlay_strokes(img: np.ndarray, rng: np.random.Generator, *, count: int, l
     return img * (1 - a) + a * 0.9
 
 
+def tone_jitter(img: np.ndarray, rng: np.random.Generator, strength: float, *, contrast: float = 0.08,
+                exposure: float = 0.08, channel: float = 0.04) -> np.ndarray:
+    """A seeded per-frame change of contrast, exposure and per-channel gain (an editor's grade drifting).
+
+    Parameters
+    ----------
+    img : ndarray [H, W, 3] float32
+        RGB in [0, 1].
+    rng : numpy.random.Generator
+        Five normal draws: contrast, exposure, then three channel gains.
+    strength : float
+        Multiplies every standard deviation (0: unchanged, though the draws are still made).
+    contrast, exposure, channel : float
+        Standard deviations of the relative contrast, exposure and channel gain changes at strength 1.
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+        Not clipped.
+    """
+    s = float(strength)
+    mean = float(img.mean())
+    out = (img - mean) * (1.0 + s * rng.normal(0.0, contrast)) + mean
+    return out * (1.0 + s * rng.normal(0.0, exposure)) * (1.0 + s * rng.normal(0.0, channel, 3)).astype(np.float32)
+
+
+def smooth_warp(img: np.ndarray, rng: np.random.Generator, amplitude: float, *, grid: tuple[int, int] = (4, 6),
+                weight: np.ndarray | None = None) -> np.ndarray:
+    """Displace ``img`` by a seeded smooth random field (structures wobble by a few pixels).
+
+    Parameters
+    ----------
+    img : ndarray [H, W, 3] float
+    rng : numpy.random.Generator
+        Two draws of ``grid`` normals (x, then y displacement), upsampled bicubically.
+    amplitude : float
+        Standard deviation of the displacement in pixels.
+    grid : (int, int)
+        Rows and columns of the random field before upsampling (more: finer, more local wobble).
+    weight : ndarray [H, W] float, optional
+        Scales the displacement per pixel (0: the pixel stays exactly where it is).
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+    """
+    h, w = img.shape[:2]
+    field = [cv2.resize(rng.normal(0.0, 1.0, grid).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
+             for _ in range(2)]
+    dx, dy = amplitude * field[0], amplitude * field[1]
+    if weight is not None:
+        dx, dy = dx * weight, dy * weight
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return cv2.remap(img.astype(np.float32), gx + dx, gy + dy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+
+def smear_blotches(img: np.ndarray, rng: np.random.Generator, strength: float, *, rate: float = 3.0,
+                   local: bool = False) -> np.ndarray:
+    """Smear local structure away in a few seeded soft ellipses (an editor erasing what was there).
+
+    Parameters
+    ----------
+    img : ndarray [H, W, 3] float32
+    rng : numpy.random.Generator
+        A Poisson count, then five draws per ellipse.
+    strength : float
+        Scales the expected count (``rate * strength``) and the opacity (``min(1, 0.8 strength)``).
+    rate : float
+        Expected number of ellipses at strength 1.
+    local : bool
+        Blur only around the ellipses instead of the whole frame (a full-HD frame's smear blur
+        alone takes 0.2 s). The result matches the whole-frame blur to float rounding (OpenCV's
+        vectorised blur rounds a crop's pixels slightly differently), so :func:`jitter_frame`
+        keeps the whole-frame blur and with it filter2d's frames to the bit.
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+        Clipped to [0, 1].
+    """
+    s = float(strength)
+    h, w = img.shape[:2]
+    sigma_mask, sigma_smear = max(1.0, 0.01 * h), max(1.0, 0.02 * h)
+    smeared = None if local else cv2.GaussianBlur(img, (0, 0), sigma_smear)
+    mask = np.zeros((h, w), np.float32)
+    for _ in range(int(rng.poisson(rate * s))):
+        center = (int(rng.uniform(0, w)), int(rng.uniform(0, h)))
+        axes = (max(1, int(rng.uniform(0.03, 0.08) * h)), max(1, int(rng.uniform(0.03, 0.08) * h)))
+        cv2.ellipse(mask, center, axes, float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+    if smeared is not None:
+        mask = cv2.GaussianBlur(mask, (0, 0), sigma_mask)[..., None] * min(1.0, 0.8 * s)
+        return np.clip(img * (1 - mask) + smeared * mask, 0.0, 1.0)
+    out = np.clip(img, 0.0, 1.0)
+    rows, cols = np.nonzero(mask)
+    if rows.size == 0:
+        return out
+    # the blurred mask reaches one kernel radius beyond the ellipses; outside that the frame is kept
+    r_mask = _gauss_radius(sigma_mask)
+    y0, y1 = max(0, int(rows.min()) - r_mask), min(h, int(rows.max()) + 1 + r_mask)
+    x0, x1 = max(0, int(cols.min()) - r_mask), min(w, int(cols.max()) + 1 + r_mask)
+    soft = _blur_region(mask, (y0, y1, x0, x1), r_mask, sigma_mask)[..., None] * min(1.0, 0.8 * s)
+    part = _blur_region(img, (y0, y1, x0, x1), _gauss_radius(sigma_smear), sigma_smear)
+    out[y0:y1, x0:x1] = np.clip(img[y0:y1, x0:x1] * (1 - soft) + part * soft, 0.0, 1.0)
+    return out
+
+
+def _gauss_radius(sigma: float) -> int:
+    """Half the kernel OpenCV's GaussianBlur picks for float images with ksize (0, 0), plus one pixel
+    (a margin too wide costs nothing; one too narrow would cut the kernel)."""
+    return (round(sigma * 4 * 2 + 1) | 1) // 2 + 1
+
+
+def _blur_region(img: np.ndarray, box: tuple[int, int, int, int], radius: int, sigma: float) -> np.ndarray:
+    """``cv2.GaussianBlur(img, (0, 0), sigma)[y0:y1, x0:x1]`` (to float rounding), blurring only the
+    box and a margin of ``radius`` around it (the image's own border handling where it leaves it)."""
+    h, w = img.shape[:2]
+    y0, y1, x0, x1 = box
+    py0, py1, px0, px1 = max(0, y0 - radius), min(h, y1 + radius), max(0, x0 - radius), min(w, x1 + radius)
+    part = cv2.GaussianBlur(np.ascontiguousarray(img[py0:py1, px0:px1]), (0, 0), sigma)
+    return part[y0 - py0:y1 - py0, x0 - px0:x1 - px0]
+
+
 def jitter_frame(img: np.ndarray, rng: np.random.Generator, strength: float) -> np.ndarray:
     """A frame-by-frame editor's inconsistency on float RGB [H, W, 3]: seeded exposure, contrast and
     per-channel gain changes, a smooth displacement of a few pixels (structures wobble) and a few
@@ -78,24 +228,9 @@ def jitter_frame(img: np.ndarray, rng: np.random.Generator, strength: float) -> 
     if strength <= 0:
         return img
     s = float(strength)
-    h, w = img.shape[:2]
-    mean = float(img.mean())
-    out = (img - mean) * (1.0 + s * rng.normal(0.0, 0.08)) + mean
-    out = out * (1.0 + s * rng.normal(0.0, 0.08)) * (1.0 + s * rng.normal(0.0, 0.04, 3)).astype(np.float32)
-    amp = 2.0 * s * h / 270.0  # px, relative to a 270-row frame
-    field = [cv2.resize(rng.normal(0.0, 1.0, (4, 6)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
-             for _ in range(2)]
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    out = cv2.remap(out.astype(np.float32), gx + amp * field[0], gy + amp * field[1], cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REFLECT)
-    smeared = cv2.GaussianBlur(out, (0, 0), max(1.0, 0.02 * h))
-    mask = np.zeros((h, w), np.float32)
-    for _ in range(int(rng.poisson(3.0 * s))):
-        center = (int(rng.uniform(0, w)), int(rng.uniform(0, h)))
-        axes = (max(1, int(rng.uniform(0.03, 0.08) * h)), max(1, int(rng.uniform(0.03, 0.08) * h)))
-        cv2.ellipse(mask, center, axes, float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
-    mask = cv2.GaussianBlur(mask, (0, 0), max(1.0, 0.01 * h))[..., None] * min(1.0, 0.8 * s)
-    return np.clip(out * (1 - mask) + smeared * mask, 0.0, 1.0)
+    out = tone_jitter(img, rng, s)
+    out = smooth_warp(out, rng, 2.0 * s * img.shape[0] / 270.0)  # px, relative to a 270-row frame
+    return smear_blotches(out, rng, s)
 
 
 class Filter2DMethod(FrameRenderer):
@@ -146,15 +281,15 @@ class Filter2DMethod(FrameRenderer):
             if weather == "rain":
                 out = (0.7 * raw + 0.3 * gray) * p["darken"] * np.asarray(p["tint"], np.float32)
                 if self.effects:
-                    out = _overlay_strokes(out, rng, count=max(1, int(p["streaks_per_megapixel"] * mpx)),
-                                           length=p["streak_px"] * h, angle=0.15, thickness=1, intensity=0.35,
-                                           blur=3)
+                    out = overlay_strokes(out, rng, count=max(1, int(p["streaks_per_megapixel"] * mpx)),
+                                          length=p["streak_px"] * h, angle=0.15, thickness=1, intensity=0.35,
+                                          blur=3)
             else:
                 out = raw * (1 - p["brighten"]) + p["brighten"]
                 if self.effects:
-                    out = _overlay_strokes(out, rng, count=max(1, int(p["flakes_per_megapixel"] * mpx)),
-                                           length=max(1.0, p["flake_px"] * h), angle=0.3,
-                                           thickness=max(1, int(p["flake_px"] * h)), intensity=0.8, blur=3)
+                    out = overlay_strokes(out, rng, count=max(1, int(p["flakes_per_megapixel"] * mpx)),
+                                          length=max(1.0, p["flake_px"] * h), angle=0.3,
+                                          thickness=max(1, int(p["flake_px"] * h)), intensity=0.8, blur=3)
         if self.jitter:
             # its own stream: jitter does not move the streaks of the same seed
             out = jitter_frame(np.asarray(out, np.float32), np.random.default_rng([seed, index, 0x71]), self.jitter)

@@ -2,7 +2,8 @@
 
 For each scene the method (1) gets edited frames of every weather from a supervision method (the
 built-in ``filter2d`` grade by default, run without its streaks and flakes, since particles come
-from the physics; or another tool's frames read from a folder, ``READER:DIR``), (2) builds the
+from the physics; the simulated editor ``sim-editor[:SEVERITY]`` on scenes with ground truth; or
+another tool's frames read from a folder, ``READER:DIR``), (2) builds the
 weather Gaussian scene graph from the lidar and trains it on the raw frames and the edits
 (:mod:`wcbench.reference_model.training`), caching the trained model under a key over every input
 that changes it, (3) renders any frame under any weather at its training resolution: the decoded
@@ -36,6 +37,8 @@ from wcbench.methods import get_method
 from wcbench.methods.filter2d import Filter2DMethod
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
+from wcbench.methods.sim_editor import supervision_frames as sim_editor_frames
+from wcbench.methods.sim_editor import supervision_severity
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
@@ -57,9 +60,25 @@ VERSION = "1"
 CONTENT_LAYERS = ("relu4_1",)
 
 
+def _check_supervision(spec: str, jitter: float) -> float | None:
+    """The sim-editor severity of ``spec`` (``None``: another source); refuses a jitter it would ignore.
+
+    Raises
+    ------
+    InputError
+        A sim-editor severity outside [0, 1], or a ``jitter`` given with sim-editor supervision.
+    """
+    severity = supervision_severity(spec)
+    if severity is not None and jitter:
+        raise InputError(f"--supervision {spec!r}: jitter perturbs the filter2d supervision; sim-editor's own "
+                         "knob is its severity (sim-editor:SEVERITY)")
+    return severity
+
+
 def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitter: float,
                         seed: int) -> tuple[dict[str, list[np.ndarray]], dict[str, Any]]:
-    """Edited frames per weather from ``spec`` (``filter2d`` or ``READER:DIR``) and a record of them."""
+    """Edited frames per weather from ``spec`` (``filter2d``, ``sim-editor[:SEVERITY]`` or ``READER:DIR``)
+    and a record of them."""
     frames: dict[str, list[np.ndarray]] = {}
     if spec == "filter2d":
         f2d = Filter2DMethod(effects=False, jitter=jitter)
@@ -68,9 +87,13 @@ def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitt
         record = {"method": "filter2d", "effects": False, "jitter": jitter, "seed": seed,
                   "parameters": {w: f2d.parameters(w) for w in weathers}}
         return frames, record
+    severity = _check_supervision(spec, jitter)
+    if severity is not None:  # the simulated editor's frames of the scene's truth (synth scenes)
+        return sim_editor_frames(scene, severity, weathers, seed)
     reader_name, sep, folder = spec.partition(":")
     if not sep or not folder:
-        raise InputError(f"--supervision {spec!r}: expected 'filter2d' or READER:DIR (e.g. qwen-image:edits/)")
+        raise InputError(f"--supervision {spec!r}: expected 'filter2d' or READER:DIR (e.g. qwen-image:edits/), "
+                         "or sim-editor[:SEVERITY]")
     reader = get_method(reader_name)
     root = Path(folder).expanduser()
     if not root.is_dir():
@@ -173,9 +196,10 @@ def train_scene(
     scene : Scene
     config : TrainConfig
     supervision : str
-        ``"filter2d"`` or ``READER:DIR``.
+        ``"filter2d"``, ``"sim-editor"`` / ``"sim-editor:SEVERITY"`` (the simulated editor's frames of
+        the scene's ground truth) or ``READER:DIR``.
     jitter : float
-        Per-frame perturbation strength of the ``filter2d`` supervision.
+        Per-frame perturbation strength of the ``filter2d`` supervision (refused with sim-editor's).
     weathers : tuple of str
         Edited weathers to train (clear is always trained); those without supervision are not.
     folder : Path, optional
@@ -273,7 +297,8 @@ class WeatherCityMethod(FrameRenderer):
     Parameters
     ----------
     supervision : str
-        ``"filter2d"`` (default) or ``READER:DIR`` (another tool's edited frames).
+        ``"filter2d"`` (default), ``"sim-editor[:SEVERITY]"`` (the simulated editor on the scene's
+        ground truth, severity in [0, 1]) or ``READER:DIR`` (another tool's edited frames).
     jitter : float
         Per-frame perturbation of the ``filter2d`` supervision, in [0, 1].
     profile : str
@@ -319,6 +344,7 @@ class WeatherCityMethod(FrameRenderer):
             raise InputError(f"weathercity: {exc}") from None
         if not 0.0 <= float(jitter) <= 1.0:
             raise InputError(f"weathercity: jitter must be in [0, 1], got {jitter}")
+        _check_supervision(supervision, float(jitter))  # a bad sim-editor severity fails before training
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
         self.weathers: dict[str, Weather] = {}
         for kind, value in (weathers or {}).items():
