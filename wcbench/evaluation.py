@@ -352,6 +352,8 @@ def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Execu
     folders = None if cfg.render is not None else scene_folders(cfg, method)
     plan = _plan_units(cfg, method, folders)
     if cfg.render is not None:
+        for unit in (u for scene_units in plan for u in scene_units):  # every unit can run: nothing written yet
+            unit.method.check_scene(unit.scene, unit.weather)  # type: ignore[attr-defined]
         executor.render(plan, cfg.render)
     units = _open_units(cfg, plan)
     config = _config_record(cfg, method, units, metric_cfg, folders)

@@ -140,6 +140,11 @@ def test_a_scene_without_truth_is_refused_by_name(demo_scene, tmp_path, capsys):
                  "--out", str(out), "--no-progress"]) == 2
     assert "needs ground-truth frames of 'rain'" in capsys.readouterr().err
     assert not list(out.rglob("*.png"))
+    # the default weathers: clear could render, but the run stops before it (rain cannot)
+    assert main(["run", "--method", "sim-editor", "--scenes", "demo", "--metrics", "psnr",
+                 "--out", str(tmp_path / "all"), "--no-progress"]) == 2
+    assert "needs ground-truth frames of 'rain'" in capsys.readouterr().err
+    assert not list((tmp_path / "all").rglob("*.png"))
     # clear needs no references: its truth is the raw frames
     assert main(["run", "--method", "sim-editor", "--scenes", "demo", "--weathers", "clear", "--frames", "0-3",
                  "--metrics", "psnr", "--method-option", "severity=0.5", "--out", str(out), "--no-progress"]) == 0

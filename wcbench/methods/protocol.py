@@ -109,6 +109,11 @@ class Method(Protocol):
 class RunnableMethod(Method, Protocol):
     """A method wcbench can run itself."""
 
+    def check_scene(self, scene: Scene, weather: str) -> None:
+        """Raise ``InputError`` if ``scene`` lacks what rendering ``weather`` needs (ground-truth
+        frames...); called for every unit before anything is rendered."""
+        ...
+
     def render(self, scene: Scene, weather: str, out_dir: Path, *, seed: int = 0,
                frames: Sequence[int] | None = None, overwrite: bool = False, video: bool = False,
                show_progress: bool = True) -> dict[str, Any]:

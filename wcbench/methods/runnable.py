@@ -93,6 +93,10 @@ class FrameRenderer(ABC):
         distributed run does it as one unit on one worker before the scene's weathers render.
         """
 
+    def check_scene(self, scene: Scene, weather: str) -> None:  # noqa: B027 - optional hook
+        """Raise ``InputError`` if ``scene`` lacks what rendering ``weather`` needs; called for every
+        unit of a run before its first frame is rendered, so a run fails before writing anything."""
+
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:  # noqa: B027 - optional hook
         """Per-(scene, weather) set-up before the first frame (not part of frame timings)."""
 

@@ -395,6 +395,10 @@ class SimEditorMethod(FrameRenderer):
             return key  # its truth is the raw frames, already in the key
         return sha256_json({"render": key, "truth": [sha256_file(p) for p in truth_paths(scene, weather)]})
 
+    def check_scene(self, scene: Scene, weather: str) -> None:
+        """The scene must have truth frames of ``weather`` (checked for every unit before any render)."""
+        truth_paths(scene, weather)
+
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
         """Check the scene has truth frames of ``weather`` before any frame is drawn."""
         truth_paths(scene, weather)
