@@ -86,7 +86,8 @@ class Weather:
         Fixed particle count (rain drops or snowflakes) instead of a rate, with the ``paper``
         preset's shapes when the preset is physical. ``rate_mm_h`` and ``count`` exclude each other.
     visibility_m : float, optional
-        Fog visibility V (m), beta = 2.996 / V. For rain and snow: overrides the haze.
+        Fog visibility V (m), the meteorological optical range (5 % contrast): beta = 2.996 / V.
+        For rain and snow: overrides the haze of the rate.
     fog_density : float, optional
         Fog extinction beta (m^-1); wins over ``visibility_m``.
     fog_color : tuple of 3 float, optional

@@ -16,6 +16,9 @@ shortcut, measured by ``bench_weather``.
 ``offset_m`` starts the attenuation at a distance (rain haze beyond the explicit particles):
 t = exp(-beta max(l - offset_m, 0)). Colors are float32 RGB in [0, 1] (the images' values, as
 the paper fogs them); images are numpy.
+
+Visibilities are meteorological optical ranges, V = -ln(0.05) / beta = 2.996 / beta (the WMO's 5 %
+contrast threshold; Koschmieder's 2 % gives 3.912 / beta): see :data:`MOR_CONSTANT`.
 """
 
 from __future__ import annotations
@@ -27,6 +30,10 @@ import numpy as np
 from wcbench.reference_model._numba_backend import load_numba_kernels
 
 __all__ = [
+    "KOSCHMIEDER_CONSTANT",
+    "KOSCHMIEDER_CONTRAST_THRESHOLD",
+    "MOR_CONSTANT",
+    "MOR_CONTRAST_THRESHOLD",
     "VISIBILITY_CONTRAST",
     "background_transmittance",
     "compose_exact",
@@ -38,8 +45,21 @@ __all__ = [
     "visibility_from_density",
 ]
 
-#: Koschmieder's constant: visibility V = -ln(0.05) / beta = 2.996 / beta (5 % contrast threshold).
-VISIBILITY_CONTRAST = -math.log(0.05)
+#: The visibility convention. Koschmieder's law: a black object seen against the horizon sky keeps
+#: the contrast C = exp(-beta l) at distance l, so it vanishes at V = -ln(eps) / beta for a
+#: threshold contrast eps. wcbench uses the WMO / CIE meteorological optical range (MOR): the path
+#: that attenuates a collimated beam to 5 % (eps = 0.05, WMO-No. 8; CIE 17-31-018), so
+#: V = 2.996 / beta. Koschmieder's (1924) own threshold, eps = 0.02, gives V = 3.912 / beta, 1.31x
+#: longer (the older "meteorological range"; Rasmussen et al. 1999 use it for snow). The paper's
+#: d_f = 0.2 m^-1 is "V ~ 15 m" in the MOR convention.
+MOR_CONTRAST_THRESHOLD = 0.05
+KOSCHMIEDER_CONTRAST_THRESHOLD = 0.02
+#: -ln(0.05) = 2.996: V = MOR_CONSTANT / beta (the convention of every visibility in wcbench).
+MOR_CONSTANT = -math.log(MOR_CONTRAST_THRESHOLD)
+#: -ln(0.02) = 3.912: Koschmieder's 2 % visibility, for converting a visibility quoted that way.
+KOSCHMIEDER_CONSTANT = -math.log(KOSCHMIEDER_CONTRAST_THRESHOLD)
+#: The constant the visibility functions use (the MOR's; kept under this name for callers).
+VISIBILITY_CONTRAST = MOR_CONSTANT
 #: Largest |value| of a fog or background color: the rasterizer's ``MAX_ABS_COLOR`` (not imported:
 #: this module needs no torch); beyond it float32 sums could overflow (docs/design.md §9).
 MAX_ABS_COLOR = 1e15
@@ -48,7 +68,10 @@ _F32_MAX = float(np.finfo(np.float32).max)
 
 
 def density_from_visibility(visibility_m: float) -> float:
-    """Extinction coefficient beta (m^-1) for a meteorological visibility V (m): beta = 2.996 / V.
+    """Extinction coefficient beta (m^-1) for a visibility V (m): beta = 2.996 / V.
+
+    V is the meteorological optical range (5 % contrast, :data:`MOR_CONSTANT`); a visibility quoted
+    with Koschmieder's 2 % threshold converts as V_MOR = V_2% x 2.996 / 3.912.
 
     Raises
     ------
@@ -67,8 +90,8 @@ def density_from_visibility(visibility_m: float) -> float:
 
 
 def visibility_from_density(beta: float) -> float:
-    """Visibility V = 2.996 / beta (m); ``inf`` for beta = 0 (and for a beta below 2.996 / 1.8e308,
-    whose visibility exceeds float64).
+    """Visibility V = 2.996 / beta (m), the meteorological optical range (5 % contrast); ``inf`` for
+    beta = 0 (and for a beta below 2.996 / 1.8e308, whose visibility exceeds float64).
 
     Raises
     ------

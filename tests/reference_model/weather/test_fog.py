@@ -28,6 +28,13 @@ def pinhole(width: int = 64, height: int = 48, f: float = 40.0) -> np.ndarray:
 
 
 def test_visibility_and_density_are_koschmieder_inverses() -> None:
+    from wcbench.reference_model.weather.fog import KOSCHMIEDER_CONSTANT, MOR_CONSTANT, VISIBILITY_CONTRAST
+
+    # The convention is the WMO's meteorological optical range (5 % contrast); Koschmieder's 2 %
+    # threshold is exposed for conversions and gives 1.31x longer visibilities.
+    assert VISIBILITY_CONTRAST == MOR_CONSTANT == pytest.approx(2.9957, abs=1e-4)
+    assert KOSCHMIEDER_CONSTANT == pytest.approx(3.9120, abs=1e-4)
+    assert math.exp(-MOR_CONSTANT) == pytest.approx(0.05) and math.exp(-KOSCHMIEDER_CONSTANT) == pytest.approx(0.02)
     assert density_from_visibility(60.0) * 60.0 == pytest.approx(2.996, abs=1e-3)
     assert visibility_from_density(density_from_visibility(123.0)) == pytest.approx(123.0)
     assert visibility_from_density(0.0) == math.inf and density_from_visibility(math.inf) == 0.0

@@ -16,9 +16,12 @@ from wcbench.reference_model.weather.particles import (
     extinction_coefficient,
     horizontal_basis,
     number_density,
+    precipitation_extinction,
+    rain_extinction,
     rain_fall_speed,
     sample_diameters,
     size_distribution,
+    snow_extinction,
     snow_fall_speed,
 )
 
@@ -63,6 +66,66 @@ def test_marshall_palmer_and_fall_speed_match_published_values() -> None:
     assert 2.996 / beta == pytest.approx(1080.0, rel=0.05)
 
 
+@pytest.mark.parametrize(("rate", "beta_per_km"), [(2.5, 0.57647), (7.6, 1.21423), (25.0, 2.69634)])
+def test_rain_haze_is_the_weber_2015_extinction_of_the_rate(rate: float, beta_per_km: float) -> None:
+    # beta = 0.312 R^0.67 km^-1 (Weber et al. 2015), evaluated by hand at the three presets.
+    assert rain_extinction(rate) == pytest.approx(beta_per_km * 1e-3, rel=1e-4)
+    # The geometric-optics extinction of the Marshall-Palmer population, pi N0 / Lambda^3, is the
+    # same physics: within 13 % at these rates (0.650, 1.309, 2.771 km^-1).
+    geometric = precipitation_extinction("rain", rate, model="geometric")
+    assert geometric == pytest.approx(extinction_coefficient(*size_distribution("rain", rate)), rel=1e-12)
+    assert 1.0 < geometric / rain_extinction(rate) < 1.13
+    # The presets use the empirical relation for the haze beyond the particle box.
+    f = field("rain", {2.5: "light", 7.6: "moderate", 25.0: "heavy"}[rate])
+    assert f.spec.haze_model == "weber2015" and f.haze_density() == rain_extinction(rate)
+    assert f.info()["haze_model"] == "weber2015"
+    assert rain_extinction(0.0) == 0.0
+
+
+def test_snow_haze_is_the_rasmussen_1999_extinction_of_the_rate() -> None:
+    # beta = 3 rho_w S / (C3 v_t): dry aggregates (C3 = 0.017 g cm^-2, 1 m/s) 4.90 km^-1 per mm/h,
+    # wet ones (0.072 g cm^-2, 2 m/s) 0.579 km^-1 per mm/h; linear in the rate.
+    assert snow_extinction(1.0) == pytest.approx(3 / 3.6e6 / (0.017e-2 * 1.0), rel=1e-12)
+    assert snow_extinction(1.0) == pytest.approx(4.902e-3, rel=1e-3)
+    assert snow_extinction(1.0, aggregates="wet") == pytest.approx(5.787e-4, rel=1e-3)
+    assert snow_extinction(2.5) == pytest.approx(2.5 * snow_extinction(1.0), rel=1e-12)
+    # At 2 mm/h: MOR visibilities of 0.31 km (dry) and 2.6 km (wet), the spread Rasmussen et al.
+    # report for one rate (a factor 3-10).
+    assert 2.996 / snow_extinction(2.0) == pytest.approx(306.0, rel=0.01)
+    assert 2.996 / snow_extinction(2.0, aggregates="wet") == pytest.approx(2590.0, rel=0.01)
+    # The presets: light snow (0.5 mm/h) leaves 1.2 km, heavy snow (2.5 mm/h) 245 m (the US Federal
+    # Meteorological Handbook calls snow heavy at a visibility of 1/4 mile, ~400 m, or less).
+    light, heavy = field("snow", "light"), field("snow", "heavy")
+    assert light.spec.haze_model == heavy.spec.haze_model == "rasmussen1999_dry"
+    assert 2.996 / light.haze_density() == pytest.approx(1222.0, rel=0.01)
+    assert 2.996 / heavy.haze_density() == pytest.approx(244.5, rel=0.01)
+    # Geometric optics on the Gunn-Marshall flakes (4x their melted diameter) is within a factor 3.2.
+    for f in (light, heavy):
+        geometric = precipitation_extinction("snow", f.spec.rate_mm_h, model="geometric", spec=f.spec)  # type: ignore[arg-type]
+        assert 1.0 < geometric / f.haze_density() < 3.2
+    with pytest.raises(ValueError, match="aggregates"):
+        snow_extinction(1.0, aggregates="slush")
+    with pytest.raises(ValueError, match="rate_mm_h"):
+        snow_extinction(-1.0)
+
+
+def test_haze_model_is_a_setting_checked_per_kind() -> None:
+    from dataclasses import replace
+
+    empirical = field("rain", "heavy", max_particles=100)
+    f = ParticleField(replace(empirical.spec, haze_model="geometric"), seed=3)
+    # The geometric option keeps the former value: 2.8e-3 m^-1 at 25 mm/h.
+    assert f.haze_density() == pytest.approx(2.771e-3, rel=1e-3)
+    assert empirical.haze_density() == pytest.approx(2.696e-3, rel=1e-3)
+    assert ParticleSpec(kind="snow", rate_mm_h=1.0).haze_model == "rasmussen1999_dry"  # the kind's default
+    with pytest.raises(ValueError, match="haze_model"):
+        ParticleSpec(kind="rain", rate_mm_h=1.0, haze_model="rasmussen1999_dry")
+    with pytest.raises(ValueError, match="haze_model"):
+        precipitation_extinction("snow", 1.0, model="weber2015")
+    # A fixed-count (paper) preset has no haze.
+    assert field("snow", "paper").haze_density() == 0.0 and field("snow", "paper").info()["haze_model"] is None
+
+
 def test_number_density_and_sampling_follow_the_truncated_exponential() -> None:
     n0, lam = size_distribution("rain", 7.6)
     d = np.linspace(0.5, 6.0, 200001)
@@ -73,6 +136,67 @@ def test_number_density_and_sampling_follow_the_truncated_exponential() -> None:
     assert sample.min() >= 0.5 and sample.max() <= 6.0
     mean = np.trapezoid(d * np.exp(-lam * d), d) / np.trapezoid(np.exp(-lam * d), d)
     assert sample.mean() == pytest.approx(mean, rel=0.01)  # 200k samples: ~0.2 % standard error
+
+
+def test_snowflakes_draw_their_sizes_from_gunn_marshall() -> None:
+    """Every simulated flake has its own melted diameter from N(D) = N0 exp(-Lambda D) on
+    [0.5, 5] mm, its three Gaussians scaled by it and its fall speed from it; the paper keeps one size."""
+    from scipy.stats import kstest
+
+    f = field("snow", "heavy")  # 2.5 mm/h: Lambda = 2.55 R^-0.48 = 1.643 mm^-1
+    lo, hi, lam = f.spec.min_diameter_mm, f.spec.max_diameter_mm, f.lam
+    assert lam == pytest.approx(2.55 * 2.5**-0.48, rel=1e-12) and f.n0 == pytest.approx(3800 * 2.5**-0.87, rel=1e-12)
+    d = f.diameter_mm
+    assert d.shape == (16000,) and d.min() >= lo and d.max() <= hi
+
+    def cdf(x: np.ndarray) -> np.ndarray:  # the truncated exponential
+        return np.clip(-np.expm1(-lam * (x - lo)) / -math.expm1(-lam * (hi - lo)), 0.0, 1.0)
+
+    # Kolmogorov-Smirnov against the analytic CDF: for 16,000 draws the statistic is ~0.007 and
+    # exceeds 1.95 / sqrt(n) = 0.015 with probability 1e-3.
+    ks = kstest(d, cdf)
+    assert ks.statistic < 1.95 / math.sqrt(d.size) and ks.pvalue > 1e-3
+    grid = np.linspace(lo, hi, 400001)
+    mean = np.trapezoid(grid * np.exp(-lam * grid), grid) / np.trapezoid(np.exp(-lam * grid), grid)
+    assert mean == pytest.approx(lo + 1 / lam - (hi - lo) / math.expm1(lam * (hi - lo)), rel=1e-6)
+    assert d.mean() == pytest.approx(mean, rel=0.02)  # standard error 0.4 %
+    # Shapes: the long arm has sigma = D x flake_ratio / 4 (the flake's extent is 4 x its melted
+    # diameter), the short axes 0.625 of it; fall speed 0.8 (D x ratio)^0.16 m/s.
+    g = f.gaussians(0.8, np.zeros(3), fast=False)
+    long = d[g.particle] * f.spec.flake_ratio * 1e-3 / 4.0
+    np.testing.assert_allclose(g.scales[:, 0], long, rtol=1e-6)
+    np.testing.assert_allclose(g.scales[:, 1:], np.repeat(long[:, None] * 0.625, 2, 1), rtol=1e-6)
+    np.testing.assert_allclose(f.fall_speed, snow_fall_speed(d * f.spec.flake_ratio), rtol=1e-12)
+    assert np.unique(g.scales[:, 0]).size > 1000 and np.ptp(f.fall_speed) > 0.2
+    # The paper's flakes have one size and one speed.
+    paper = field("snow", "paper")
+    gp = paper.gaussians(0.8, np.zeros(3), fast=False)
+    assert np.unique(gp.scales, axis=0).shape[0] == 1 and np.ptp(paper.fall_speed) == 0.0
+
+
+def test_heavy_snow_looks_heavy_at_the_working_size() -> None:
+    """At 480 x 270 (f = 300 px) heavy snow has flakes of several pixels near the camera (their box
+    holds them at 1/1.8 of the physical density) and a haze of 245 m visibility beyond it."""
+    K = np.array([[300.0, 0, 240], [0, 300.0, 135], [0, 0, 1]])
+    view = (np.eye(4), K, 480, 270)  # at the origin, looking along +z; world up is -y
+    sizes = {}
+    for preset in ("light", "heavy"):
+        f = field("snow", preset, up=np.array([0.0, -1.0, 0.0]), seed=1)
+        # Nearly the physical density near the camera: each flake stands for fewer than 2.
+        assert 1.0 < f.represented < 2.0 and f.spec.radius_m == 2.0
+        px = []
+        for t in (1.0, 2.0, 3.0, 4.0):
+            g = f.gaussians(t, np.zeros(3), view=view, near=0.01)
+            flakes = slice(None, None, 3)  # one row per flake (its long arm comes first)
+            px.append(4.0 * g.scales[flakes, 0].astype(np.float64) * 300.0 / g.means[flakes, 2])  # +-2 sigma
+        sizes[preset] = np.concatenate(px)
+    heavy, light = sizes["heavy"], sizes["light"]
+    # Per frame (seed 1): ~300 heavy flakes span a pixel or more, 11-24 span 3 px or more, the
+    # largest 6-11 px; light snow has half as many of a pixel or more.
+    assert (heavy >= 3).sum() / 4 >= 10 and heavy.max() >= 6
+    assert (heavy >= 1).sum() > 1.5 * (light >= 1).sum()
+    hazy = field("snow", "heavy")
+    assert 2.996 / hazy.haze_density() < 400  # "heavy snow" in the US weather service's terms
 
 
 def test_presets_are_data_and_the_paper_preset_matches_the_paper() -> None:
@@ -125,7 +249,7 @@ def test_physical_count_above_the_cap_scales_opacity_and_is_recorded() -> None:
 @pytest.mark.parametrize("kind,preset", [("rain", "heavy"), ("snow", "light")])
 def test_position_follows_the_closed_form_until_it_wraps(kind: str, preset: str) -> None:
     f = field(kind, preset, wind=Wind(6.0, 15.0, 40.0))
-    t = 0.1
+    t = 0.05  # short enough that most particles are still inside the (4 m wide) snow box
     pos, wraps = f.positions(t, np.zeros(3))
     closed = f.initial_positions() + f.displacement(t)
     rel = box_coords(f, closed, np.zeros(3))
@@ -185,6 +309,9 @@ def test_frame_is_a_pure_function_of_seed_and_time() -> None:
     a, b = seq.gaussians(1.7, center17), alone.gaussians(1.7, center17)
     for name in ("means", "quats", "scales", "opacities", "colors", "particle"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    # The flake sizes are drawn once from the seed, never from the frames rendered before.
+    np.testing.assert_array_equal(seq.diameter_mm, alone.diameter_mm)
+    assert np.unique(a.scales[:, 0]).size > 100  # one size per flake, not one for all
     other = field("snow", "heavy", wind=Wind(4.0, 20.0, 30.0), seed=4).gaussians(1.7, center17)
     assert not np.array_equal(other.means[:10], a.means[:10])
 
@@ -256,6 +383,8 @@ def test_fast_gaussians_match_the_numpy_reference(kind: str, preset: str, overri
         fast = f.gaussians(t, c, fast=True, **kw)  # type: ignore[arg-type]
         ref = f.gaussians(t, c, fast=False, **kw)  # type: ignore[arg-type]
         assert len(ref) > 20
+        if f.spec.physical:  # the twins are compared on particles of many sizes
+            assert np.unique(ref.scales[:, 0]).size > 10
         np.testing.assert_array_equal(fast.particle, ref.particle)
         np.testing.assert_array_equal(fast.colors, ref.colors)
         # float32 outputs of float64 math; only sin/cos differ (4e-16) and the matrix products'
@@ -373,7 +502,7 @@ def test_rain_rate_extremes(rate: float) -> None:
     else:
         assert f.count == f.spec.max_particles and f.represented > 100
         assert np.all(np.isfinite(g.opacities)) and g.opacities.max() <= 1.0
-        assert 100 < 2.996 / f.haze_density() < 300  # a cloudburst: visibility of about 160 m
+        assert 100 < 2.996 / f.haze_density() < 300  # a cloudburst: visibility of about 150 m
 
 
 def test_camera_on_the_wrap_boundary() -> None:
