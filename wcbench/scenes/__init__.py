@@ -1,3 +1,3 @@
 """Scenes: the data model (:mod:`.scene`), loaders of the on-disk formats (:mod:`.loaders`), scene
-sets as TOML data (:mod:`.sets`, files in ``specs/``) and the built-in procedural scene
-(:mod:`.demo`)."""
+sets as TOML data (:mod:`.sets`, files in ``specs/``), the built-in procedural scene (:mod:`.demo`)
+and the procedural scenes with ground-truth weather (:mod:`.synth`)."""

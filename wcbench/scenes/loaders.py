@@ -17,6 +17,11 @@ Two layouts of drivestudio/OmniRe (the format WeatherCity trains on) are read:
 
 Both are in a global z-up frame on disk; the loaders re-base every scene so that the first
 camera sits at the origin (see :mod:`wcbench.scenes.scene`).
+
+Either layout may hold ground truth per weather (the synthetic scenes of :mod:`wcbench.scenes.synth`
+do): ``truth/{weather}/{t:03d}_{cam}.png`` (or ``.jpg``) for ``rain``, ``snow`` or ``fog`` fills
+``Scene.references[weather]``. A truth folder must hold a frame, of the scene's image size, for
+every selected frame; a partial one is an input error naming the missing files.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import numpy as np
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import image_size
 from wcbench.core.validation import expect_dict, finite_number, read_json
+from wcbench.core.weathers import EDITED_WEATHERS
 from wcbench.scenes.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene, check_finite_matrix
 
 #: Maps OpenCV camera axes (x right, y down, z forward) to Waymo camera axes (x forward, y left,
@@ -246,6 +252,39 @@ def _optional(path: Path) -> Path | None:
     return path if path.is_file() else None
 
 
+def _references(root: Path, indices: list[int], camera: int, size: tuple[int, int]) -> dict[str, list[Path]]:
+    """Ground-truth frames per edited weather from ``truth/<weather>/{t:03d}_{cam}.png``, one per
+    selected frame in order; weathers without a folder have none.
+
+    Raises
+    ------
+    InputError
+        A truth folder lacks frames (every missing file is named) or holds one of another size.
+    """
+    out: dict[str, list[Path]] = {}
+    for weather in EDITED_WEATHERS:
+        folder = root / "truth" / weather
+        if not folder.is_dir():
+            continue
+        paths, missing = [], []
+        for t in indices:
+            found = next((p for ext in _IMAGE_EXTS if (p := folder / f"{t:03d}_{camera}{ext}").is_file()), None)
+            if found is None:
+                missing.append(f"{t:03d}_{camera}.png")
+            else:
+                paths.append(found)
+        if missing:
+            raise InputError(
+                f"{folder}: the {weather} ground truth must hold a frame for every selected frame "
+                f"({indices[0]}..{indices[-1]}); {len(missing)} missing: {', '.join(missing)}"
+            )
+        for p in paths:
+            if image_size(p) != size:
+                raise InputError(f"{p}: ground-truth frame is {image_size(p)}, the scene's frames are {size}")
+        out[weather] = paths
+    return out
+
+
 def _build_scene(
     root: Path,
     *,
@@ -295,6 +334,7 @@ def _build_scene(
         root=root,
         lidar_loader=lambda f: lidar_reader(f, offset),
         class_names=_class_names(root),
+        references=_references(root, indices, camera, (width, height)),
     )
 
 
