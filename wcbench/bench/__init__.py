@@ -13,4 +13,5 @@ SUITES = {
     "report": "wcbench.bench.report:run",
     "model": "wcbench.bench.model:run",
     "scale": "wcbench.bench.scale:run",
+    "validity": "wcbench.bench.validity:run",
 }

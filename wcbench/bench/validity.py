@@ -1,0 +1,219 @@
+"""``wcbench bench validity``: do the proxy metrics agree with the truth?
+
+The ``synth_*`` scenes ship true rain, snow and fog frames (docs/design.md §3), so every method can
+be scored against the truth (PSNR, SSIM, LPIPS) next to the proxies the paper has to use without
+it (CLIP-S, CLIP-DS, Sem-CS) and the temporal ones (flicker, flow warping error, their ratios).
+
+Cases
+-----
+``<entry>``
+    One method (``identity``, ``filter2d``, ``lidar_init`` outside ``--quick``), one severity of
+    the simulated editor (``sim-editor_<s>``) or the truth itself (``truth``: severity 0),
+    rendered and scored on every scene of the set and every edited weather: the mean of each
+    output over those units (``null`` where a metric skipped, the reason in the notes),
+    ``time_ms`` of rendering and scoring, ``error`` the mean LPIPS against the truth.
+``agree_<proxy>_<truth>``
+    Spearman's rank correlation between a proxy and a truth metric over every unit (entry x scene
+    x weather), oriented so that +1 means the proxy ranks units as the truth does (a lower-is-better
+    proxy against PSNR counts its negative), with a 95 % percentile bootstrap interval over units
+    (2,000 resamples, seeded). The notes give one line per proxy: it tracks the truth when, against
+    PSNR, SSIM and LPIPS alike, its correlation is at least 0.5 and its interval lies above 0;
+    otherwise the line says plainly that it does not.
+``supervised_<s>``
+    (outside ``--quick``) WeatherCity (``quick`` profile) trained on ``sim-editor:<s>`` frames,
+    against those frames themselves: PSNR against the truth, and temporal flicker next to the
+    truth's own (``closer_flicker``: WeatherCity's flicker is nearer the truth's).
+
+``--quick`` runs ``synth_1`` with two severities; the full suite runs ``synth_3``.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import spearmanr
+
+from wcbench.bench.models import private_caches
+from wcbench.bench.schema import BenchCase, BenchReport
+from wcbench.evaluation import EvaluateConfig, evaluate
+from wcbench.methods import get_method
+from wcbench.units import RenderSettings
+
+__all__ = ["agreement", "run"]
+
+EDITED = ("rain", "snow", "fog")
+TRUTH = ("psnr", "ssim", "lpips")
+PROXY_METRICS = ("clip_s", "clip_ds", "sem_cs", "temporal_flicker", "flow_warping_error")
+#: outputs compared with the truth (a metric may give two: the value and its ratio to the source)
+PROXIES = ("clip_s", "clip_ds", "sem_cs", "temporal_flicker", "temporal_flicker_ratio", "flow_warping_error",
+           "flow_warping_error_ratio")
+WEAK = 0.5
+BOOTSTRAP = 2000
+
+
+def agreement(proxy: np.ndarray, truth: np.ndarray, *, sign: float = 1.0, resamples: int = BOOTSTRAP,
+              seed: int = 0) -> tuple[float, float, float]:
+    """Spearman's rho of ``proxy`` against ``truth`` [N] times ``sign``, with a 95 % percentile
+    bootstrap interval over the N points.
+
+    Returns
+    -------
+    (rho, low, high) : floats
+        NaN when fewer than 3 points or when either series is constant; resamples in which one is
+        constant are left out of the interval.
+    """
+    x, y = np.asarray(proxy, np.float64), np.asarray(truth, np.float64)
+    if x.shape != y.shape or x.ndim != 1:
+        raise ValueError(f"proxy and truth must be two series of one length, got {x.shape} and {y.shape}")
+    nan = float("nan")
+    if len(x) < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
+        return nan, nan, nan
+    rho = sign * float(spearmanr(x, y).statistic)
+    rng = np.random.default_rng(seed)
+    draws = []
+    for _ in range(resamples):
+        idx = rng.integers(0, len(x), len(x))
+        if np.ptp(x[idx]) > 0 and np.ptp(y[idx]) > 0:
+            draws.append(sign * float(spearmanr(x[idx], y[idx]).statistic))
+    if not draws:
+        return rho, nan, nan
+    low, high = np.percentile(draws, [2.5, 97.5])
+    return rho, float(low), float(high)
+
+
+def _entries(quick: bool) -> list[tuple[str, str, dict[str, Any]]]:
+    severities = (0.25, 1.0) if quick else (0.25, 0.5, 0.75, 1.0)
+    # the truth itself (sim-editor at severity 0) is a unit too: the perfect method
+    out: list[tuple[str, str, dict[str, Any]]] = [("truth", "sim-editor", {"severity": 0.0}),
+                                                  ("identity", "identity", {}), ("filter2d", "filter2d", {})]
+    if not quick:
+        out.append(("lidar_init", "lidar_init", {}))
+    out += [(f"sim-editor_{s:g}", "sim-editor", {"severity": s}) for s in severities]
+    return out
+
+
+def _run_entry(label: str, name: str, options: dict[str, Any], scenes: str, root: Path,
+               metrics: tuple[str, ...]) -> tuple[float, dict[str, Any]]:
+    """Seconds to render and score one entry, and its results document."""
+    method = get_method(name, **options)
+    cfg = EvaluateConfig(method=name, scenes=scenes, predictions=root / "predictions" / label,
+                         out=root / "results" / label, weathers=list(EDITED), metrics=list(metrics),
+                         render=RenderSettings(seed=0, show_progress=False), show_progress=False)
+    start = time.perf_counter()
+    doc = evaluate(cfg, method=method).results
+    return time.perf_counter() - start, doc
+
+
+def _units(doc: dict[str, Any]) -> list[dict[str, Any]]:
+    """One record per (scene, weather) of a results document: output -> value (None if skipped)."""
+    return [{"scene": scene, "weather": w, **{name: rec.get("value") for name, rec in outs.items()}}
+            for scene, ws in doc["results"].items() for w, outs in ws.items()]
+
+
+def _mean(values: list[Any]) -> float | None:
+    nums = [float(v) for v in values if isinstance(v, (int, float)) and math.isfinite(v)]
+    return float(np.mean(nums)) if nums else None
+
+
+def run(*, data_root: Path | None = None, quick: bool = False) -> BenchReport:
+    """Run the suite (``data_root`` is not used: the scenes are built in).
+
+    Parameters
+    ----------
+    data_root : Path, optional
+        Unused (the ``synth_*`` sets generate themselves).
+    quick : bool
+        ``synth_1``, two severities and no WeatherCity training: a smoke run.
+    """
+    report = BenchReport("validity")
+    scenes = "synth_1" if quick else "synth_3"
+    metrics = (*TRUTH, *PROXY_METRICS)
+    points: list[dict[str, Any]] = []
+    directions: dict[str, bool] = {}
+    skipped: dict[str, str] = {}
+    per_entry: dict[str, list[dict[str, Any]]] = {}
+    with private_caches(store=False), tempfile.TemporaryDirectory(prefix="wcbench-bench-validity-") as tmp:
+        root = Path(tmp)
+        for label, name, options in _entries(quick):
+            seconds, doc = _run_entry(label, name, options, scenes, root, metrics)
+            units = _units(doc)
+            per_entry[label] = units
+            points += [{"entry": label, **u} for u in units]
+            for ws in doc["results"].values():
+                for outs in ws.values():
+                    for out_name, rec in outs.items():
+                        directions[out_name] = bool(rec.get("higher_is_better"))
+            for s in doc.get("skipped", []):
+                skipped.setdefault(s["metric"], s["reason"])
+            means = {k: _mean([u.get(k) for u in units]) for k in (*TRUTH, *PROXIES)}
+            report.cases.append(BenchCase(
+                name=label, knob="method", value=label, time_ms=1e3 * seconds, error=means["lpips"],
+                error_unit="lpips vs truth", extra={**{k: v for k, v in means.items() if k != "lpips"},
+                                                    "units": len(units)}))
+        if not quick:
+            report.cases += _supervision_cases(scenes, root, per_entry, metrics)
+    for proxy in PROXIES:
+        if proxy not in directions:
+            continue
+        found: dict[str, tuple[float, float, float, int]] = {}
+        for truth in TRUTH:
+            pairs = [(p.get(proxy), p.get(truth)) for p in points]
+            pairs = [(a, b) for a, b in pairs if isinstance(a, (int, float)) and isinstance(b, (int, float))
+                     and math.isfinite(a) and math.isfinite(b)]
+            if len(pairs) < 3:
+                continue
+            sign = 1.0 if directions[proxy] == directions.get(truth, True) else -1.0
+            x, y = (np.array(v) for v in zip(*pairs))
+            rho, low, high = agreement(x, y, sign=sign)
+            found[truth] = (rho, low, high, len(pairs))
+            report.cases.append(BenchCase(
+                name=f"agree_{proxy}_{truth}", knob="agreement",
+                value=f"{proxy} vs {truth}: rho {rho:+.2f} [{low:+.2f}, {high:+.2f}], n {len(pairs)}", time_ms=None,
+                error=None, error_unit="n/a", extra={"rho": rho, "low": low, "high": high, "n": len(pairs)}))
+        if found:
+            tracks = all(rho >= WEAK and low > 0 for rho, low, _, _ in found.values())
+            verdict = "tracks the truth" if tracks else "does NOT track the truth here"
+            detail = "; ".join(f"{t} {r:+.2f} [{lo:+.2f}, {hi:+.2f}]" for t, (r, lo, hi, _) in found.items())
+            n = max(v[3] for v in found.values())
+            report.notes.append(f"{proxy} {verdict} (rho against the truth over {n} units: {detail})")
+    for metric, reason in sorted(skipped.items()):
+        if metric in PROXY_METRICS or metric in TRUTH:
+            report.notes.append(f"{metric} skipped: {reason}")
+    report.notes.append(f"scenes {scenes}; weathers {', '.join(EDITED)}; agreement = Spearman rho oriented so "
+                        f"that +1 ranks units as the truth does, 95 % bootstrap interval over units "
+                        f"({BOOTSTRAP} resamples); 'tracks' needs rho >= {WEAK} and an interval above 0")
+    return report
+
+
+def _supervision_cases(scenes: str, root: Path, per_entry: dict[str, list[dict[str, Any]]],
+                       metrics: tuple[str, ...]) -> list[BenchCase]:
+    """WeatherCity trained on the simulated editor's frames against those frames (see module docstring)."""
+    cases = []
+    for severity in (0.5, 1.0):
+        label = f"sim-editor_{severity:g}"
+        editor = per_entry.get(label)
+        if editor is None:
+            continue
+        seconds, doc = _run_entry(f"weathercity_{severity:g}", "weathercity",
+                                  {"supervision": f"sim-editor:{severity:g}", "profile": "quick"}, scenes, root,
+                                  metrics)
+        units = _units(doc)
+        psnr_wc, psnr_ed = _mean([u.get("psnr") for u in units]), _mean([u.get("psnr") for u in editor])
+        fl_wc = _mean([u.get("temporal_flicker") for u in units])
+        fl_ed = _mean([u.get("temporal_flicker") for u in editor])
+        fl_truth = _mean([u.get("temporal_flicker") for u in per_entry.get("truth", [])])
+        closer = None if psnr_wc is None or psnr_ed is None else psnr_wc > psnr_ed
+        steadier = None if fl_wc is None or fl_ed is None or fl_truth is None else (
+            abs(fl_wc - fl_truth) < abs(fl_ed - fl_truth))
+        cases.append(BenchCase(
+            name=f"supervised_{severity:g}", knob="supervision", value=f"sim-editor:{severity:g}",
+            time_ms=1e3 * seconds, error=_mean([u.get("lpips") for u in units]), error_unit="lpips vs truth",
+            extra={"psnr_weathercity": psnr_wc, "psnr_editor": psnr_ed, "flicker_weathercity": fl_wc,
+                   "flicker_editor": fl_ed, "flicker_truth": fl_truth, "closer_psnr": closer,
+                   "closer_flicker": steadier}))
+    return cases
