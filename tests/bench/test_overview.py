@@ -51,6 +51,24 @@ def test_summary_marks_defaults_off_the_front_and_draws_one_chart_per_knob(tmp_p
     assert "- model / iterations: iterations_800" in text and "![raster-tile-tile](charts/raster-tile-tile.png)" in text
 
 
+def test_a_reference_default_joins_every_knob_one_setting_away(tmp_path: Path) -> None:
+    """The knob rows of ``bench model`` vary one setting each from one default row: that row
+    (``stands_for_knobs``) is each knob's default point, in its front and its chart."""
+    _write(tmp_path, "model", [
+        BenchCase("weathercity_half", "iterations", 800, 200.0, 28.2, "psnr_db",
+                  {"default": True, "stands_for_knobs": True}),
+        BenchCase("hidden_64", "hidden", 64, 240.0, 28.1, "psnr_db"),  # slower and worse: the default is on the front
+        BenchCase("budget_100k", "budget", 100000, 150.0, 28.3, "psnr_db"),  # quicker and better: it is not
+        BenchCase("other", "unrelated", 1, 5.0, 0.1, "abs"),  # another unit: not compared with it
+    ])
+    done = summarize(tmp_path)
+    assert done["off_front"] == [("model", "budget", "weathercity_half (against budget)")]
+    names = sorted(p.name for p in done["charts"])
+    assert names == ["model-budget-budget.png", "model-hidden-hidden.png"]
+    text = (tmp_path / "summary.md").read_text()
+    assert text.count("| weathercity_half |") == 1  # listed once, under its own knob
+
+
 def test_summary_of_a_foreign_or_empty_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:
     with pytest.raises(ValueError, match="no benchmark JSON files"):
         summarize(tmp_path)

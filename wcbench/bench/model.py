@@ -389,7 +389,8 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
     evals, spent, row = train(half)
     default_half = evals[half.iterations]["mean_psnr"]
     knob_cases = [BenchCase(name="weathercity_half", knob="iterations", value=half.iterations, time_ms=1e3 * spent,
-                            error=default_half, error_unit="psnr_db", extra={**row, "default": True})]
+                            error=default_half, error_unit="psnr_db",
+                            extra={**row, "default": True, "stands_for_knobs": True})]
     for name, knob, value, settings in knobs:
         config = replace(base, **settings).scaled(0.5)
         evals, spent, row = train(config)

@@ -124,10 +124,14 @@ def summarize(folder: Path) -> dict[str, Any]:
         lines += [f"- stand-in: {s}" for s in rep.get("stand_ins", [])]
         lines += ["| case | knob | value | time (ms) | error | unit | default | front |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        references = [c for c in rep["cases"] if c.get("stands_for_knobs") and c.get("default") and _usable(c)]
         for knob, cases in _groups([rep]).items():
             # a front among alternatives only: rows of one value (the same setting on several
             # weathers or scenes) are listed, not compared
             usable = [c for c in cases if _usable(c)]
+            if usable and not any(c.get("default") for c in cases):  # a knob one setting away from a reference
+                units = {c["error_unit"] for c in usable}
+                usable += [{**r, "value": ""} for r in references if r["error_unit"] in units]  # labelled "(default)"
             if len({str(c["value"]) for c in usable}) < 2:
                 usable = []
             front = pareto_front([(c["time_ms"], c["error"]) for c in usable],
@@ -141,6 +145,9 @@ def summarize(folder: Path) -> dict[str, Any]:
                              f"{_cell(c['error'])} | {c['error_unit']} | {default} | {mark} |")
                 if c.get("default") and f is False and len(usable) > 1:
                     off_front.append((rep["suite"], knob[1], c["name"]))
+            for c in usable:  # a reference borrowed by this knob: its place on this knob's front
+                if c not in cases and on.get(id(c)) is False and len(usable) > 1:
+                    off_front.append((rep["suite"], knob[1], f"{c['name']} (against {knob[2]})"))
             if len(usable) > 1:
                 path = folder / "charts" / f"{rep['suite']}-{_slug(knob[1])}-{_slug(knob[2])}.png"
                 _chart(path, rep["suite"], f"{knob[1]} ({knob[2]})", usable, front)

@@ -23,7 +23,10 @@ A benchmark file is::
 
 ``time_ms`` and ``error`` may be ``null`` when a case measures only one of them. Reports chart any
 suite by (knob, value, time_ms, error) without knowing the suite; a case whose value is wcbench's
-default for its knob may say so with ``"default": true`` (the report marks it).
+default for its knob may say so with ``"default": true`` (the report marks it). A default case that
+also says ``"stands_for_knobs": true`` stands for the defaults of every knob of its suite that varies one
+setting away from it (the knob rows of ``bench model``): the summary puts it in each such knob's
+front and chart.
 """
 
 from __future__ import annotations
