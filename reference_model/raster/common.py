@@ -193,6 +193,48 @@ def _positive_integer(v: Any) -> bool:
         return False
 
 
+class _ExpectedDepth(torch.autograd.Function):
+    """``dnum / max(alpha, DEPTH_EPS)`` saturated at the dtype's finite range, both ways (see
+    :func:`expected_depth`)."""
+
+    @staticmethod
+    def forward(ctx: Any, dnum: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        ctx.save_for_backward(dnum, alpha)
+        big = torch.finfo(dnum.dtype).max
+        return (dnum / alpha.clamp_min(DEPTH_EPS)).clamp_(-big, big)
+
+    @staticmethod
+    def backward(ctx: Any, g: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # type: ignore[override]
+        dnum, alpha = ctx.saved_tensors
+        big = torch.finfo(dnum.dtype).max
+        a = alpha.clamp_min(DEPTH_EPS)
+        g_dnum = (g / a).clamp_(-big, big)
+        g_alpha = (dnum / a).div_(a).mul_(g).neg_()  # autograd's -g ((dnum / a) / a), bit for bit
+        g_alpha.masked_fill_(alpha < DEPTH_EPS, 0.0)  # where the clamp holds alpha, as torch.clamp_min
+        over = ~torch.isfinite(g_alpha)
+        if bool(over.any()):
+            # -g depth / alpha beyond the dtype (a depth near 3.4e38 at a low alpha): autograd of the
+            # plain division gave -Inf there, or 0 * Inf = NaN where g = 0, and NaN in every gradient
+            # behind it. Here: the value from float64, saturated; exactly 0 where g is.
+            g64, a64 = g[over].double(), a[over].double()
+            exact = torch.where(g64 == 0, 0.0, -(g64 * (dnum[over].double() / a64)) / a64)
+            g_alpha[over] = exact.clamp(-big, big).to(g_alpha.dtype)
+        return g_dnum, g_alpha
+
+
+def expected_depth(dnum: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """Expected depth ``sum(w z) / max(alpha, DEPTH_EPS)`` of both backends, differentiable.
+
+    Saturated at the dtype's largest finite value in the forward (the quotient of two rounded
+    float32 sums can pass float32's max for a Gaussian at 3.4e38) and in the backward (dL/dalpha =
+    -g depth / alpha exceeds float32 for depths beyond ~1e36 at low alpha): gradients beyond float32
+    saturate at +-3.4e38 (docs/design.md §9), and are exactly 0 where the depth's gradient is. Where
+    nothing overflows, values and gradients are those of ``dnum / alpha.clamp_min(DEPTH_EPS)``, bit
+    for bit.
+    """
+    return _ExpectedDepth.apply(dnum, alpha)
+
+
 def empty_meta(backend: str, n: int) -> dict[str, Any]:
     """The meta dict with every counter present and zero."""
     meta: dict[str, Any] = {"backend": backend, "n_gaussians": n, "n_visible": 0, "tile_size": TILE_SIZE,

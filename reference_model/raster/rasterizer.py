@@ -24,7 +24,7 @@ import torch
 
 from wcbench.core.progress import announce
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
-from wcbench.reference_model.raster.common import DEPTH_EPS, RenderOutput, check_inputs
+from wcbench.reference_model.raster.common import RenderOutput, check_inputs, expected_depth
 from wcbench.reference_model.raster.torch_twin import rasterize_torch
 
 __all__ = ["RenderOutput", "numba_available", "rasterize"]
@@ -220,6 +220,6 @@ def rasterize(
     color, alpha, dnum = _RasterizeFunction.apply(*params, means2d, holder_abs, job)
     if bg is not None:
         color = color + (1.0 - alpha)[..., None] * bg
-    depth = dnum / alpha.clamp_min(DEPTH_EPS) if render_depth else None
+    depth = expected_depth(dnum, alpha) if render_depth else None
     return RenderOutput(color=color, alpha=alpha, depth=depth, means2d=means2d, means2d_abs=means2d_abs,
                         radii=radii, depths=depths, meta=job.meta)

@@ -28,7 +28,6 @@ from wcbench.reference_model.raster.common import (
     CULL_NONFINITE,
     CULL_OFFSCREEN,
     CULL_TRANSPARENT,
-    DEPTH_EPS,
     EPS2D,
     MAX_EXTENT,
     QUAT_EPS2,
@@ -39,6 +38,7 @@ from wcbench.reference_model.raster.common import (
     check_inputs,
     cull_counts,
     empty_meta,
+    expected_depth,
 )
 
 __all__ = ["project_torch", "rasterize_torch"]
@@ -368,7 +368,7 @@ def rasterize_torch(
         with torch.no_grad():
             alpha0, sigma0 = _alpha_from_pairs(proj, m2[gid], gid, pix, width)
             skip = (sigma0 < 0) | (alpha0 < ALPHA_MIN)
-            log_t = torch.where(skip, 0.0, torch.log1p(-alpha0.to(torch.float64)))
+            log_t = torch.where(skip, 0.0, torch.log1p(-alpha0))
             start = _segment_starts(pix)
             cs = torch.cumsum(log_t, 0)
             base = (cs - log_t)[start]
@@ -393,7 +393,7 @@ def rasterize_torch(
     alpha, _ = _alpha_from_pairs(proj, mp, gid, pix, width)
 
     hw = height * width
-    log_t = torch.log1p(-alpha.to(torch.float64))
+    log_t = torch.log1p(-alpha)  # alpha is float64 (see _alpha_from_pairs)
     if pix.numel():
         start = _segment_starts(pix)
         cs = torch.cumsum(log_t, 0)
@@ -401,7 +401,7 @@ def rasterize_torch(
         t_excl = torch.exp(excl - excl[start])
     else:
         t_excl = log_t
-    w = t_excl * alpha.to(torch.float64)  # [P] blending weights
+    w = t_excl * alpha  # [P] blending weights
     col = _to64(proj["colors"])[gid]
     color = torch.zeros(hw, n_ch, dtype=torch.float64).index_add(0, pix, w[:, None] * col)
     t_final = torch.exp(torch.zeros(hw, dtype=torch.float64).index_add(0, pix, log_t))
@@ -411,8 +411,8 @@ def rasterize_torch(
         color = color + (1.0 - alpha_img)[:, None] * bg
     depth = None
     if render_depth:
-        dnum = torch.zeros(hw, dtype=torch.float64).index_add(0, pix, w * proj["depths"][gid].to(torch.float64))
-        depth = dnum.to(dtype) / alpha_img.clamp_min(DEPTH_EPS)
+        dnum = torch.zeros(hw, dtype=torch.float64).index_add(0, pix, w * _to64(proj["depths"])[gid])
+        depth = expected_depth(dnum.to(dtype), alpha_img)
         depth = depth.reshape(height, width)
     radii = torch.where((reason == 0)[:, None], torch.ceil(proj["extents"]).to(torch.int32), 0)
     return RenderOutput(color=color.reshape(height, width, n_ch), alpha=alpha_img.reshape(height, width),
@@ -423,22 +423,47 @@ def rasterize_torch(
 def _alpha_from_pairs(
     proj: dict[str, torch.Tensor], mp: torch.Tensor, gid: torch.Tensor, pix: torch.Tensor, width: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Clamped alpha [P] and sigma = q / 2 [P] of pairs whose float64 2D means ``mp`` [P, 2] are gathered.
+    """Clamped alpha [P] (float64 holding values of the input dtype) and sigma = q / 2 [P] (input
+    dtype) of pairs whose float64 2D means ``mp`` [P, 2] are gathered.
 
     dx = (px - a) + (0.5 - (mx - a)) with the integer anchor a = floor(mx): the same value as
     px + 0.5 - mx, without the rounding of a large pixel coordinate to the conic's dtype. Alpha is
     formed as exp(log o - sigma), the fast path's o exp(-sigma) up to rounding: autograd then never
     forms dL/dalpha * o, which overflows float32 for opacities far above 1 (pairs exist only for
     Gaussians with o >= 1/255, so the clamp inside the log changes nothing).
+
+    Precision plan of the fast path: the value is computed in the input dtype, its gradient by
+    autograd of the same formula in float64 at the same dx, dy, with the forward's clamp decisions,
+    and summed per Gaussian in float64 before :func:`_to64` saturates it. Per-pair terms such as
+    dL/dsigma dx^2 exceed float32 for a Gaussian at a depth near 3.4e38 (dL/dalpha ~ z / alpha
+    through the expected depth): in the input dtype they were Inf, and NaN further on.
     """
     con = proj["conics"][gid]
     dtype = con.dtype
     anchor = torch.floor(mp.detach())
-    offset = (0.5 - (mp - anchor)).to(dtype)
-    dx = ((pix % width) - anchor[:, 0]).to(dtype) + offset[:, 0]
-    dy = (torch.div(pix, width, rounding_mode="floor") - anchor[:, 1]).to(dtype) + offset[:, 1]
-    sigma = 0.5 * (con[:, 0] * dx * dx + con[:, 2] * dy * dy) + con[:, 1] * dx * dy
-    log_o = torch.log(proj["opacities"].clamp_min(ALPHA_MIN))[gid]
-    # Exponents above 0 give alpha > 1, clamped to ALPHA_MAX anyway: capping them first keeps exp
-    # finite (o near float32's max at sigma ~ 0 would be Inf, and Inf * 0 = NaN in the backward).
-    return torch.clamp(torch.exp((log_o - sigma).clamp_max(0.0)), max=ALPHA_MAX), sigma
+    off64 = 0.5 - (mp - anchor)
+    ix = (pix % width) - anchor[:, 0]
+    iy = torch.div(pix, width, rounding_mode="floor") - anchor[:, 1]
+    with torch.no_grad():
+        offset = off64.to(dtype)
+        dx = ix.to(dtype) + offset[:, 0]
+        dy = iy.to(dtype) + offset[:, 1]
+        sigma = 0.5 * (con[:, 0] * dx * dx + con[:, 2] * dy * dy) + con[:, 1] * dx * dy
+        u = torch.log(proj["opacities"].clamp_min(ALPHA_MIN))[gid] - sigma
+        # Exponents above 0 give alpha > 1, clamped to ALPHA_MAX anyway: capping them first keeps
+        # exp finite (o near float32's max at sigma ~ 0 would be Inf).
+        e = torch.exp(u.clamp_max(0.0))
+        alpha = torch.clamp(e, max=ALPHA_MAX).double()
+    needs_grad = any(t.requires_grad for t in (mp, proj["conics"], proj["opacities"]))
+    if not (torch.is_grad_enabled() and needs_grad):
+        return alpha, sigma
+    # Where the forward's clamps pass the gradient (as torch.clamp_max and torch.clamp do).
+    live = (u <= 0.0) & (e <= ALPHA_MAX)
+    c64 = _to64(proj["conics"])[gid]
+    dx64 = dx.double() + (off64[:, 0] - off64[:, 0].detach())  # the forward's dx, d/d offset = 1
+    dy64 = dy.double() + (off64[:, 1] - off64[:, 1].detach())
+    sigma64 = 0.5 * (c64[:, 0] * dx64 * dx64 + c64[:, 2] * dy64 * dy64) + c64[:, 1] * dx64 * dy64
+    u64 = torch.log(_to64(proj["opacities"].clamp_min(ALPHA_MIN)))[gid] - sigma64
+    a64 = torch.exp(torch.where(live, u64, 0.0))  # exp of 0 where clamped: finite, zero gradient
+    # The forward's value exactly (x + 0), the float64 formula's gradient.
+    return alpha + torch.where(live, a64 - a64.detach(), 0.0), sigma
