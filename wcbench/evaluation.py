@@ -42,7 +42,7 @@ from wcbench.core.weathers import WEATHERS
 from wcbench.core.working_size import METRIC_RESOLUTION, SizeRequest
 from wcbench.execution import Executor
 from wcbench.execution.local import LocalExecutor
-from wcbench.methods import Method, get_method
+from wcbench.methods import Method, get_method, is_runnable
 from wcbench.metrics.base import Metric
 from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric
 from wcbench.predictions import (
@@ -353,7 +353,8 @@ def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Execu
     plan = _plan_units(cfg, method, folders)
     if cfg.render is not None:
         for unit in (u for scene_units in plan for u in scene_units):  # every unit can run: nothing written yet
-            unit.method.check_scene(unit.scene, unit.weather)  # type: ignore[attr-defined]
+            if is_runnable(unit.method):  # a reader is refused by name when its render is asked for
+                unit.method.check_scene(unit.scene, unit.weather)  # type: ignore[attr-defined]
         executor.render(plan, cfg.render)
     units = _open_units(cfg, plan)
     config = _config_record(cfg, method, units, metric_cfg, folders)
