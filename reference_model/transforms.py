@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-__all__ = ["apply_linear", "quat_from_matrix", "quat_multiply", "quat_to_matrix"]
+__all__ = ["apply_linear", "quat_from_matrices", "quat_from_matrix", "quat_multiply", "quat_to_matrix"]
 
 
 def apply_linear(points: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -75,3 +75,34 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
         q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
     out = np.array(q)
     return out / np.linalg.norm(out)
+
+
+def quat_from_matrices(R: np.ndarray) -> np.ndarray:
+    """[N, 4] unit quaternions (w, x, y, z) of rotations [N, 3, 3] (or one [3, 3] -> [1, 4]).
+
+    Shepperd's method, vectorised: the branch of the largest of the trace and the diagonal terms
+    keeps the square root well away from zero (:func:`quat_from_matrix` is the one-matrix form).
+    """
+    R = np.asarray(R, np.float64).reshape(-1, 3, 3)
+    q = np.empty((len(R), 4))
+    diag = np.stack([R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2], R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], -1)
+    branch = np.argmax(diag, axis=1)
+    sel = branch == 0
+    if sel.any():
+        r = R[sel]
+        s = 2.0 * np.sqrt(1.0 + diag[sel, 0])
+        q[sel] = np.stack([0.25 * s, (r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
+                           (r[:, 1, 0] - r[:, 0, 1]) / s], -1)
+    for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # the largest diagonal term is R[a, a]
+        sel = branch == a + 1
+        if not sel.any():
+            continue
+        r = R[sel]
+        s = 2.0 * np.sqrt(np.maximum(1.0 + r[:, a, a] - r[:, b, b] - r[:, c, c], 1e-300))
+        out = np.empty((len(r), 4))
+        out[:, 0] = (r[:, c, b] - r[:, b, c]) / s
+        out[:, 1 + a] = 0.25 * s
+        out[:, 1 + b] = (r[:, a, b] + r[:, b, a]) / s
+        out[:, 1 + c] = (r[:, a, c] + r[:, c, a]) / s
+        q[sel] = out
+    return q / np.linalg.norm(q, axis=1, keepdims=True)

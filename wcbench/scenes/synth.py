@@ -37,9 +37,11 @@ import cv2
 import numpy as np
 
 from wcbench.core.errors import InputError
+from wcbench.core.image_io import to_uint8
 from wcbench.core.paths import cache_dir
 from wcbench.core.progress import announce
 from wcbench.core.storage import dumps_json
+from wcbench.reference_model.transforms import quat_from_matrices, quat_multiply, quat_to_matrix
 from wcbench.scenes.loaders import OPENCV_TO_WAYMO
 from wcbench.scenes.scene import Camera
 
@@ -181,56 +183,6 @@ def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
-def _quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """[N, 4] unit quaternions (w, x, y, z) of rotations [N, 3, 3] (or one [3, 3] -> [1, 4]).
-
-    Shepperd's method: the branch of the largest of the trace and the diagonal terms keeps the
-    square root well away from zero.
-    """
-    R = np.asarray(R, np.float64).reshape(-1, 3, 3)
-    q = np.empty((len(R), 4))
-    diag = np.stack([R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2], R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], -1)
-    branch = np.argmax(diag, axis=1)
-    sel = branch == 0
-    if sel.any():
-        r = R[sel]
-        s = 2.0 * np.sqrt(1.0 + diag[sel, 0])
-        q[sel] = np.stack([0.25 * s, (r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
-                           (r[:, 1, 0] - r[:, 0, 1]) / s], -1)
-    for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # the largest diagonal term is R[a, a]
-        sel = branch == a + 1
-        if not sel.any():
-            continue
-        r = R[sel]
-        s = 2.0 * np.sqrt(np.maximum(1.0 + r[:, a, a] - r[:, b, b] - r[:, c, c], 1e-300))
-        out = np.empty((len(r), 4))
-        out[:, 0] = (r[:, c, b] - r[:, b, c]) / s
-        out[:, 1 + a] = 0.25 * s
-        out[:, 1 + b] = (r[:, a, b] + r[:, b, a]) / s
-        out[:, 1 + c] = (r[:, a, c] + r[:, c, a]) / s
-        q[sel] = out
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
-
-
-def _quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton products p q of quaternions (w, x, y, z), broadcast over leading axes."""
-    pw, px, py, pz = np.moveaxis(np.asarray(p, np.float64), -1, 0)
-    qw, qx, qy, qz = np.moveaxis(np.asarray(q, np.float64), -1, 0)
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw], -1)
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """[N, 3, 3] rotations of quaternions [N, 4] (w, x, y, z), normalised first."""
-    q = np.asarray(q, np.float64)
-    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
-
-
 def gaussian_normals(quats: np.ndarray, scales: np.ndarray) -> np.ndarray:
     """Normals of flat Gaussians: the rotated axis of each Gaussian's smallest scale.
 
@@ -247,7 +199,7 @@ def gaussian_normals(quats: np.ndarray, scales: np.ndarray) -> np.ndarray:
         Unit normals in world axes. The sign is the rotated local axis' own: the surfaces of this
         module put that axis outwards.
     """
-    R = _quat_to_matrix(quats)
+    R = quat_to_matrix(quats)
     axis = np.argmin(np.asarray(scales), axis=1)
     return R[np.arange(len(R)), :, axis]
 
@@ -336,8 +288,8 @@ class _Cloud:
 
     def posed(self, T: np.ndarray) -> _Cloud:
         """The cloud moved by the rigid transform ``T`` [4, 4]."""
-        q = _quat_from_matrix(T[:3, :3])[0]
-        return _Cloud(self.means @ T[:3, :3].T + T[:3, 3], _quat_mul(q, self.quats), self.scales, self.opacities,
+        q = quat_from_matrices(T[:3, :3])[0]
+        return _Cloud(self.means @ T[:3, :3].T + T[:3, 3], quat_multiply(q, self.quats), self.scales, self.opacities,
                       self.albedo, self.snow, self.wet, self.sheen)
 
 
@@ -388,7 +340,7 @@ def _box(center: np.ndarray, R: np.ndarray, half: np.ndarray, faces: tuple[str, 
         frame = R @ F
         cell = np.zeros(3)
         cell[i], cell[j] = du, dv
-        clouds.append(_Cloud.make(center + local @ R.T, _quat_from_matrix(frame),
+        clouds.append(_Cloud.make(center + local @ R.T, quat_from_matrices(frame),
                                   np.array([SIGMA_OF_SPACING * du, SIGMA_OF_SPACING * dv, THIN_M]),
                                   albedo(face, local, cell), **material))
     return _Cloud.concat(clouds)
@@ -527,7 +479,7 @@ def _ground(street: _Street, cameras: np.ndarray, rng: np.random.Generator, pudd
         snow = np.clip(0.9 - 0.65 * in_track + 0.05 * rng.standard_normal(len(s)), 0.0, 1.0)
         m = MATERIALS["rain"]
         clouds.append(_Cloud.make(
-            street.point(s, d, 0.0), _quat_from_matrix(street.frame(s)),
+            street.point(s, d, 0.0), quat_from_matrices(street.frame(s)),
             np.stack([np.full(len(s), SIGMA_OF_SPACING * ds), np.full(len(s), SIGMA_OF_SPACING * dv),
                       np.full(len(s), THIN_M)], -1),
             albedo, snow=snow, wet=m["asphalt_wet"] + (m["puddle_wet"] - m["asphalt_wet"]) * puddle,
@@ -540,7 +492,7 @@ def _ground(street: _Street, cameras: np.ndarray, rng: np.random.Generator, pudd
             joints = 1.0 - (1.0 - _pulses(s, ds, 1.5, 0.0, 0.04)) * (1.0 - _pulses(np.abs(d), dv, 1.5, 0.0, 0.04))
             grey = 0.56 + 0.02 * rng.standard_normal(len(s)) - 0.12 * joints
             clouds.append(_Cloud.make(
-                street.point(s, d, CURB_M), _quat_from_matrix(street.frame(s)),
+                street.point(s, d, CURB_M), quat_from_matrices(street.frame(s)),
                 np.array([SIGMA_OF_SPACING * ds, SIGMA_OF_SPACING * dv, THIN_M]),
                 grey[:, None] * np.array([1.0, 0.99, 0.96]), snow=0.95, wet=0.7, sheen=0.15))
             # curb face, towards the road: columns tangent, up, normal (right-handed on the left side;
@@ -552,7 +504,7 @@ def _ground(street: _Street, cameras: np.ndarray, rng: np.random.Generator, pudd
             if side < 0:
                 F[:, [0, 1]], sigma[[0, 1]] = F[:, [1, 0]], sigma[[1, 0]]
             clouds.append(_Cloud.make(street.point(s, side * ROAD_HALF_M, CURB_M / 2 + v),
-                                      _quat_from_matrix(street.frame(s) @ F), sigma, np.array([0.62, 0.62, 0.6]),
+                                      quat_from_matrices(street.frame(s) @ F), sigma, np.array([0.62, 0.62, 0.6]),
                                       snow=0.0, wet=0.75))
     return _Cloud.concat(clouds)
 
@@ -651,7 +603,7 @@ def _trees(street: _Street, cameras: np.ndarray, rng: np.random.Generator) -> tu
             sigma = SIGMA_OF_SPACING * 1.15 * math.sqrt(4 * math.pi) * r / math.sqrt(n)
             green = np.array([0.17, 0.31, 0.11]) * rng.uniform(0.8, 1.2) + 0.04 * rng.standard_normal((n, 1))
             shade = 0.65 + 0.35 * (normal[:, 2:] + 1) / 2  # the underside of a canopy is in its own shade
-            clouds.append(_Cloud.make(top + radius[:, None] * normal, _quat_from_matrix(frames),
+            clouds.append(_Cloud.make(top + radius[:, None] * normal, quat_from_matrices(frames),
                                       np.array([sigma, sigma, 0.03]), green * shade,
                                       snow=np.clip(0.85 + 0.1 * rng.standard_normal(n), 0, 1), wet=0.8, sheen=0.1))
             spheres.append([*top, r])
@@ -1072,11 +1024,6 @@ def _png(path: Path, image: np.ndarray) -> None:
     path.write_bytes(buf.tobytes())
 
 
-def _to_uint8(image: np.ndarray) -> np.ndarray:
-    """round(255 x), clipped (docs/design.md §2)."""
-    return np.clip(np.rint(np.asarray(image, np.float64) * 255.0), 0, 255).astype(np.uint8)
-
-
 def _savetxt(path: Path, values: np.ndarray) -> None:
     """A matrix as text in numpy's default format (as drivestudio writes it): fixed, so deterministic."""
     np.savetxt(path, values, fmt="%.18e")
@@ -1195,7 +1142,7 @@ def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> di
             r = renderers[w]
             frame = r.render(cam, float(times[k]), camera_velocity=velocity, gaussians=splats,
                              background_image=_sky(rays_up, w).astype(np.float32) if r.background_visible else None)
-            image = _to_uint8(frame.image)
+            image = to_uint8(np.asarray(frame.image, np.float64))  # float64 math: the bytes VERSION 1 shipped
             if w == "clear":
                 _png(root / "images" / f"{k:03d}_0.png", image)
                 _png(root / "sky_masks" / f"{k:03d}_0.png", np.where(frame.alpha < 0.5, 255, 0).astype(np.uint8))
