@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -127,6 +128,50 @@ def check_same_shape(a: np.ndarray, b: np.ndarray, *, names: tuple[str, str]) ->
         raise ValueError(f"{names[0]} has shape {a.shape} but {names[1]} has shape {b.shape}")
 
 
+def check_min_side(images: np.ndarray, min_side: int, *, name: str) -> None:
+    """Raise ``ValueError`` if frames of ``images`` [B, H, W, C] (B >= 1) are under ``min_side`` px
+    on a side (a metric's window or network needs it); an empty batch passes."""
+    if len(images) and min(images.shape[1:3]) < min_side:
+        raise ValueError(f"{name}: images must be at least {min_side} px on each side, "
+                         f"got {images.shape[1]} x {images.shape[2]} px")
+
+
+def identical_frames(pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Which frames of ``pred`` equal their ``reference`` exactly, element for element.
+
+    A full-reference metric knows its value on such a pair exactly (PSNR +inf, SSIM 1, LPIPS 0),
+    so it need not compute it: a method that passes a frame through unchanged (every method's
+    ``clear`` frames that are the raw ones) is scored without the work.
+
+    Parameters
+    ----------
+    pred, reference : ndarray [B, H, W, C]
+        Of one shape (checked by the caller).
+
+    Returns
+    -------
+    ndarray [B] bool
+    """
+    return np.fromiter((np.array_equal(p, r) for p, r in zip(pred, reference)), bool, len(pred))
+
+
+def frame_values_skipping_identical(values: Callable[[np.ndarray, np.ndarray], Any], pred: np.ndarray,
+                                    reference: np.ndarray, identical_value: float | None) -> np.ndarray:
+    """``values(pred, reference)`` [B] float64, computed only for the frames that differ from their
+    reference; the others get ``identical_value`` (``None``: every frame is computed)."""
+    if identical_value is None:
+        return np.asarray(values(pred, reference), np.float64).reshape(-1)
+    same = identical_frames(pred, reference)
+    out = np.full(len(pred), identical_value, np.float64)
+    if not same.all():
+        differ = ~same
+        computed = np.asarray(values(pred[differ], reference[differ]), np.float64).reshape(-1)
+        if computed.shape[0] != int(differ.sum()):
+            raise ValueError(f"{computed.shape[0]} values returned for {int(differ.sum())} frames")
+        out[differ] = computed
+    return out
+
+
 class Metric(ABC):
     """Base class of every wcbench metric.
 
@@ -210,7 +255,13 @@ class PerFrameReferenceMetric(Metric):
     """A metric that scores each frame against its ground truth and reports the mean over frames.
 
     Subclasses set ``name``, ``description``, ``outputs`` (one name), ``higher_is_better``,
-    ``variant`` and :meth:`frame_values`.
+    ``variant``, ``identical_value`` and :meth:`frame_values`.
+
+    Parameters
+    ----------
+    skip_identical : bool
+        Give a frame equal to its reference ``identical_value`` without computing it
+        (:func:`identical_frames`); off only to measure what that saves.
     """
 
     needs_reference = True
@@ -218,8 +269,13 @@ class PerFrameReferenceMetric(Metric):
     variant: ClassVar[str] = ""
     #: Why the mean may be non-finite (e.g. PSNR of identical frames).
     nonfinite_reason: ClassVar[str] = "non-finite per-frame value"
+    #: The exact value of a frame against itself; ``None``: always computed.
+    identical_value: ClassVar[float | None] = None
+    #: Smallest frame side the metric takes (checked before any frame is skipped as identical).
+    min_side: ClassVar[int] = 1
 
-    def __init__(self) -> None:
+    def __init__(self, *, skip_identical: bool = True) -> None:
+        self.skip_identical = bool(skip_identical)
         self.reset()
 
     @abstractmethod
@@ -237,7 +293,9 @@ class PerFrameReferenceMetric(Metric):
             raise ValueError(f"{self.name}: a reference batch is required")
         p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
         check_same_shape(p, r, names=("pred", "reference"))
-        self._values.extend(np.asarray(self.frame_values(p, r), np.float64).tolist())
+        check_min_side(p, self.min_side, name=self.name)
+        self._values.extend(frame_values_skipping_identical(
+            self.frame_values, p, r, self.identical_value if self.skip_identical else None).tolist())
 
     def compute(self) -> dict[str, MetricValue]:
         """Mean over frames (null with a reason when non-finite or when no frame was seen)."""

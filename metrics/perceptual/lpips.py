@@ -33,8 +33,10 @@ from wcbench.metrics.base import (
     MetricContext,
     MetricValue,
     as_float_images,
+    check_min_side,
     check_same_shape,
     finite_or_none,
+    frame_values_skipping_identical,
 )
 from wcbench.metrics.perceptual.spec import LPIPS_SCALE, LPIPS_SHIFT, NETS, NORM_EPS
 
@@ -48,6 +50,9 @@ _ALEX = ((0, 4, 2, False), (3, 1, 2, True), (6, 1, 1, True), (8, 1, 1, False), (
 # VGG16: conv indices per block; a 2x2/2 max-pool precedes every block but the first; LPIPS taps
 # the last ReLU of each block
 _VGG_BLOCKS = ((0, 2), (5, 7), (10, 12, 14), (17, 19, 21), (24, 26, 28))
+#: Smallest frame side each backbone takes: AlexNet's stride-4 convolution and two 3x3 stride-2
+#: pools leave one pixel at 31 px; VGG's four 2x2 pools at 16 px.
+MIN_SIDE = {"alex": 31, "vgg": 16}
 # im2col working set per matmul (bytes): bounds memory on full-resolution frames
 _IM2COL_BYTES = 64 << 20
 
@@ -242,6 +247,7 @@ def lpips_distances(
     _check_net_backend(net, backend)
     a, b = as_float_images(img0, name="img0"), as_float_images(img1, name="img1")
     check_same_shape(a, b, names=("img0", "img1"))
+    check_min_side(a, MIN_SIDE[net], name=f"lpips ({net})")
     d = _model_dir(net, store)
     return np.asarray(_runner(str(d), net, _resolve_backend(d, backend))(a, b), np.float64)
 
@@ -293,7 +299,10 @@ class LPIPS(StoreBacked, Metric):
     store : ModelStore, optional
     distance : callable, optional
         Injected ``distance(pred [B, H, W, 3], reference [B, H, W, 3]) -> [B]`` (tests); replaces
-        the weights from the store.
+        the weights from the store (frames under ``MIN_SIDE[net]`` are still refused).
+    skip_identical : bool
+        A frame equal to its reference gets 0 without running the network (its two feature stacks
+        are the same); off only to measure what that saves.
     """
 
     name = "lpips"
@@ -309,9 +318,11 @@ class LPIPS(StoreBacked, Metric):
         backend: str = "auto",
         store: Any = None,
         distance: DistanceFn | None = None,
+        skip_identical: bool = True,
     ) -> None:
         _check_net_backend(net, backend)
         self.net, self.backend, self._store, self._distance = net, backend, store, distance
+        self.skip_identical = bool(skip_identical)
         self.reset()
 
     def skip_reason(self, ctx: MetricContext) -> str | None:
@@ -358,8 +369,13 @@ class LPIPS(StoreBacked, Metric):
             raise ValueError("lpips: a reference batch is required")
         p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
         check_same_shape(p, r, names=("pred", "reference"))
+        # the backbone's bound, also with an injected distance (it stands in for the backbone)
+        check_min_side(p, MIN_SIDE[self.net], name=f"lpips ({self.net})")
         fn, self._backend_used = self._fn()
-        values = np.asarray(fn(p, r), np.float64).reshape(-1)
+        try:
+            values = frame_values_skipping_identical(fn, p, r, 0.0 if self.skip_identical else None)
+        except ValueError as exc:
+            raise ValueError(f"lpips: the distance returned {exc}") from None
         if values.shape[0] != p.shape[0]:
             raise ValueError(f"lpips: the distance returned {values.shape[0]} values for {p.shape[0]} frames")
         self._values.extend(values.tolist())

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from wcbench.core.parallel import parallel_map
@@ -64,6 +66,7 @@ class PSNR(PerFrameReferenceMetric):
     higher_is_better = True
     variant = _VARIANT
     nonfinite_reason = "PSNR is infinite for identical images (MSE = 0)"
+    identical_value = math.inf
 
     def frame_values(self, pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """Per-frame PSNR [B] in dB (inf for identical frames), frames in parallel (NumPy releases the

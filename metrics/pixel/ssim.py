@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from wcbench.core.parallel import parallel_map
-from wcbench.metrics.base import PerFrameReferenceMetric, as_float_images, check_same_shape
+from wcbench.metrics.base import PerFrameReferenceMetric, as_float_images, check_min_side, check_same_shape
 
 SIGMA = 1.5
 TRUNCATE = 3.5  # scipy.ndimage.gaussian_filter's default: radius int(3.5 * 1.5 + 0.5) = 5
@@ -31,9 +31,7 @@ def gaussian_kernel_1d(sigma: float = SIGMA, radius: int = _RADIUS) -> np.ndarra
 
 def ssim_map_mean(a: np.ndarray, b: np.ndarray, *, data_range: float = 1.0) -> float:
     """SSIM of two images [H, W, C] (float64 math), mean over valid pixels and channels."""
-    if min(a.shape[:2]) < 2 * _RADIUS + 1:  # the 11 x 11 window, and OpenCV's reflection, need it
-        raise ValueError(f"ssim: images must be at least {2 * _RADIUS + 1} px on each side, "
-                         f"got {a.shape[0]} x {a.shape[1]} px")
+    check_min_side(a[None], 2 * _RADIUS + 1, name="ssim")  # the 11 x 11 window and OpenCV's reflection need it
     k = gaussian_kernel_1d()
     x, y = a.astype(np.float64), b.astype(np.float64)
 
@@ -85,6 +83,8 @@ class SSIM(PerFrameReferenceMetric):
     outputs = ("ssim",)
     higher_is_better = True
     variant = _VARIANT
+    min_side = 2 * _RADIUS + 1
+    identical_value = 1.0  # every pixel's ratio is (2 mu^2 + C1)(2 s^2 + C2) over itself
 
     def frame_values(self, pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """Per-frame SSIM [B], frames in parallel (OpenCV's filters and NumPy release the GIL; each

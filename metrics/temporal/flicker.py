@@ -26,6 +26,7 @@ import numpy as np
 
 from wcbench.core.byte_cache import ByteBudgetCache
 from wcbench.core.image_io import to_uint8
+from wcbench.core.parallel import parallel_map
 from wcbench.metrics.base import Metric, MetricValue, as_float_images, check_same_shape, finite_or_none
 
 FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -401,14 +402,26 @@ class FlowWarpingError(Metric):
         if len(p) and self._last is not None:
             _check_frame_size(p[0], self._last[0])
         self._frames += len(p)
-        for k in range(len(p)):
-            key = frame_digest(s[k])  # once per frame, not once per pair it belongs to
-            if self._last is not None:
-                p0, s0, key0 = self._last
-                pair = source_pair(self.flow_name if self._cacheable else self._flow, s0, s[k], (key0, key))
-                self._pred.append(warp_error_pair(p0, p[k], pair.forward, pair.mask))
-                self._src.append(pair.source_error)
-            self._last = (p[k], s[k], key)
+        keys = [frame_digest(f) for f in s]  # once per frame, not once per pair it belongs to
+        frames = [(p[k], s[k], keys[k]) for k in range(len(p))]
+        if self._last is not None:
+            frames.insert(0, self._last)
+        flow = self.flow_name if self._cacheable else self._flow
+
+        def pair_errors(k: int) -> tuple[float, float]:
+            (p0, s0, key0), (p1, s1, key1) = frames[k], frames[k + 1]
+            pair = source_pair(flow, s0, s1, (key0, key1))
+            return warp_error_pair(p0, p1, pair.forward, pair.mask), pair.source_error
+
+        # The pairs are independent: a named flow (OpenCV, which releases the GIL, a new flow object
+        # per call) runs them in worker threads; an injected callable one by one.
+        pairs = range(len(frames) - 1)
+        errors = parallel_map(pair_errors, pairs) if self._cacheable else [pair_errors(k) for k in pairs]
+        for e_pred, e_src in errors:
+            self._pred.append(e_pred)
+            self._src.append(e_src)
+        if frames:
+            self._last = frames[-1]
         if self._last is not None:  # the caller may reuse its buffers: keep a copy
             self._last = (self._last[0].copy(), self._last[1].copy(), self._last[2])
 

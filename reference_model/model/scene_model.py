@@ -7,13 +7,15 @@ the same for every weather), then puts each weather's sky behind the Gaussians:
 
     I_w = C_w + (1 - A) S_w,      C_w = sum_i c_i^w alpha_i T_i,   A = sum_i alpha_i T_i
 
-with S_w the weather's environment map looked up along each pixel's ray (docs/design.md §7).
+with S_w the weather's environment map looked up along each pixel's ray (docs/design.md §7). A
+weather given a haze (training on edited frames, :mod:`.haze`) is composed through it instead:
+one more channel per hazy weather carries the Gaussians' transmittance.
 Node placement can be changed per render (edits: hide, move or copy nodes, :class:`Placement`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
@@ -23,6 +25,7 @@ from torch import nn
 
 from wcbench.reference_model.model.decoders import WeatherDecoders
 from wcbench.reference_model.model.gaussians import GaussianParams
+from wcbench.reference_model.model.haze import Haze, compose_haze, haze_transmittance, hazy_weathers
 from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
 from wcbench.reference_model.model.sky import SkyModel
 from wcbench.reference_model.raster.rasterizer import rasterize
@@ -244,6 +247,7 @@ class WeatherCityModel(nn.Module):
         absgrad: bool = False,
         placement: Placement | None = None,
         rasterizer: Callable[..., Any] = rasterize,
+        hazes: Mapping[str, Haze] | None = None,
     ) -> WeatherRender:
         """Render ``weathers`` of ``frame`` in one rasterization pass (differentiable).
 
@@ -263,15 +267,32 @@ class WeatherCityModel(nn.Module):
         placement : Placement, optional
         rasterizer : callable
             ``rasterize``-compatible (tests inject the pure-torch twin).
+        hazes : mapping of str to Haze, optional
+            Weathers rendered through their Beer-Lambert haze (:mod:`.haze`); the others, and a
+            haze of beta 0, get their sky behind the Gaussians.
         """
         g = self.frame_gaussians(frame, placement)
-        colors = g.colors(lambda f: self.decoders(f, weathers))
+        colors = g.colors(lambda f: self.decoders(f, weathers))  # [N, 3 len(weathers)]
+        hazy = hazy_weathers(weathers, hazes)
+        w2c = np.asarray(world_to_camera, np.float64)
+        if hazy:
+            center = torch.from_numpy(-w2c[:3, :3].T @ w2c[:3, 3]).to(colors.dtype)
+            t = haze_transmittance(g.means, center, list(hazy.values()))  # [N, K]
+            column = {w: j for j, w in enumerate(hazy)}
+            parts = [colors[:, 3 * i:3 * i + 3] * t[:, column[w], None] if w in column else colors[:, 3 * i:3 * i + 3]
+                     for i, w in enumerate(weathers)]
+            colors = torch.cat([*parts, t], 1)  # [N, 3 len(weathers) + K]
         out = rasterizer(
             g.means, g.quats, g.scales, g.opacities, colors,
-            torch.from_numpy(np.asarray(world_to_camera, np.float32)), torch.from_numpy(np.asarray(K, np.float32)),
+            torch.from_numpy(w2c.astype(np.float32)), torch.from_numpy(np.asarray(K, np.float32)),
             int(width), int(height), render_depth=depth, absgrad=absgrad,
         )
+        n = 3 * len(weathers)
         sky = self.sky(sky_grid, weathers)
-        images = out.color + (1.0 - out.alpha)[..., None] * sky
+        images = out.color[..., :n] + (1.0 - out.alpha)[..., None] * sky
+        if hazy:
+            images = torch.cat([
+                compose_haze(out.color[..., 3 * i:3 * i + 3], out.color[..., n + column[w]], out.alpha, hazy[w])
+                if w in column else images[..., 3 * i:3 * i + 3] for i, w in enumerate(weathers)], -1)
         return WeatherRender(images=images, alpha=out.alpha, depth=out.depth, raster=out, gaussians=g,
                              weathers=tuple(weathers))

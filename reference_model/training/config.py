@@ -44,6 +44,11 @@ class TrainConfig:
     weather_interval : int
         Every this many steps the edited weathers are rendered (in the same pass) and supervised;
         the other steps fit the raw frame only.
+    through_haze : bool
+        Compose each edited weather's physics haze (fog; rain and snow extinction) into its
+        training render, so its decoder learns the appearance behind the haze, which the renderer
+        then adds once (:mod:`~wcbench.reference_model.model.haze`). Off: the paper's recipe, which
+        learns an edit's haze into the colors and adds the physics haze on top of it.
     lr : dict of str to float
         Adam learning rates: ``means`` (times the scene extent), ``log_scales``, ``quats``,
         ``object_quats``, ``opacity_logits``, ``features``, ``decoders``, ``sky``, ``offsets``.
@@ -102,6 +107,7 @@ class TrainConfig:
     opacity_weight: float = 0.05
     deform_weight: float = 1.0
     weather_interval: int = 8
+    through_haze: bool = True
     lr: dict[str, float] = field(default_factory=lambda: {
         "means": 1.6e-4, "log_scales": 5e-3, "quats": 1e-3, "object_quats": 1e-4, "opacity_logits": 3e-2,
         "features": 5e-3, "decoders": 2e-3, "sky": 2e-2, "offsets": 1e-3,

@@ -5,6 +5,7 @@ every ``weather_interval`` steps, every supervised weather in the **same** raste
 minimises
 
     sum_w [(1 - 0.2) L1 + 0.2 (1 - SSIM)](I_w, target_w)          RGB, raw frame and every edit
+                                   (an edit's I_w composed through its weather's haze: ``through_haze``)
     + lambda_cc  L_cc(I_w, raw)      every ``content_interval``-th weather step, VGG16, sky masked
     + lambda_depth |D - D_lidar|     where the frame's lidar landed
     + lambda_opacity L_opacity(A, sky)
@@ -19,13 +20,14 @@ same next step (:mod:`.checkpoint`).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
 
+from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import BACKGROUND, WeatherCityModel
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize
@@ -88,12 +90,16 @@ class Trainer:
         The content loss; ``None`` skips the term (no VGG16 weights, or the ablation).
     rasterizer : callable
         ``rasterize``-compatible (tests inject the pure-torch twin).
+    hazes : mapping of str to Haze, optional
+        The physics haze of each edited weather, composed into its render when
+        ``config.through_haze`` (:mod:`~wcbench.reference_model.model.haze`).
     """
 
     model: WeatherCityModel
     views: Sequence[TrainingView]
     config: TrainConfig
     content: ContentLoss | None = None
+    hazes: Mapping[str, Haze] | None = None
     rasterizer: Callable[..., Any] = rasterize
     step_index: int = 0
     history: list[StepLog] = field(default_factory=list)
@@ -178,7 +184,8 @@ class Trainer:
         weathers = self.weathers if all_weathers else ("clear",)
         want_depth = cfg.depth_weight > 0 and tv.depth is not None
         render = self.model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, weathers,
-                                   sky_grid=tv.grid, depth=want_depth, absgrad=True, rasterizer=self.rasterizer)
+                                   sky_grid=tv.grid, depth=want_depth, absgrad=True, rasterizer=self.rasterizer,
+                                   hazes=self.hazes if cfg.through_haze else None)
         target = torch.cat([tv.targets[w] for w in weathers], -1)
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
         terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]

@@ -212,6 +212,16 @@ class Weather:
             color = self.fog_color
         return float(beta), np.asarray(color, np.float32), offset
 
+    def haze(self) -> tuple[float, np.ndarray, float]:
+        """:meth:`fog_parameters` of this weather's own particle field (the haze a renderer of it adds),
+        without a renderer: (beta m^-1, color [3], offset m)."""
+        spec = self.particle_spec()
+        if spec is None:
+            return self.fog_parameters()
+        # the haze depends on the population's rate and sizes, not on where the particles are
+        return self.fog_parameters(ParticleField(spec, wind=self.wind, up=np.array([0.0, 0.0, 1.0]),
+                                                 seed=int(self.seed)))
+
     def to_json(self) -> dict[str, Any]:
         """The description as given (JSON-ready)."""
         d = asdict(self)

@@ -42,3 +42,34 @@ def test_agreement_degenerate_inputs() -> None:
     assert all(math.isnan(v) for v in agreement(np.arange(2.0), np.arange(2.0)))
     with pytest.raises(ValueError, match="two series of one length"):
         agreement(np.arange(3.0), np.arange(4.0))
+
+
+def test_supervision_cases_compare_per_weather_and_in_the_mean(monkeypatch, tmp_path) -> None:
+    import wcbench.bench.validity as validity
+
+    def doc(psnr: dict[str, float], flicker: dict[str, float]) -> dict:
+        return {"results": {"synth_000": {w: {"psnr": {"value": psnr[w]}, "temporal_flicker": {"value": flicker[w]},
+                                              "lpips": {"value": 0.1}} for w in psnr}}}
+
+    calls = []
+
+    def fake_run(label, name, options, scenes, root, metrics):
+        calls.append((label, name, options))
+        return 2.0, doc({"rain": 31.0, "snow": 26.0, "fog": 33.0}, {"rain": 0.025, "snow": 0.07, "fog": 0.03})
+
+    monkeypatch.setattr(validity, "_run_entry", fake_run)
+    units = lambda d: validity._units(d)  # noqa: E731
+    editor = units(doc({"rain": 30.0, "snow": 27.0, "fog": 29.0}, {"rain": 0.04, "snow": 0.06, "fog": 0.05}))
+    truth = units(doc({"rain": 99.0, "snow": 99.0, "fog": 99.0}, {"rain": 0.024, "snow": 0.039, "fog": 0.025}))
+    cases = validity._supervision_cases("synth_1", tmp_path, {"truth": truth, "sim-editor_0.5": editor},
+                                        ("psnr",))
+    assert [c.name for c in cases] == ["supervised_0.5"]  # no editor entry at severity 1: no case
+    assert calls == [("weathercity_0.5", "weathercity",
+                      {"supervision": "sim-editor:0.5", "profile": "default", "weathers": "truth"})]
+    x = cases[0].extra
+    assert x["psnr_weathercity"] == pytest.approx(30.0) and x["psnr_editor"] == pytest.approx(28.666, abs=1e-3)
+    assert x["closer_psnr"] is True
+    assert x["closer_psnr_rain"] is True and x["closer_psnr_snow"] is False and x["closer_psnr_fog"] is True
+    # snow: |0.07 - 0.039| > |0.06 - 0.039|, the editor's flicker is nearer the truth's there
+    assert x["closer_flicker_snow"] is False and x["closer_flicker_rain"] is True
+    assert x["flicker_truth_fog"] == pytest.approx(0.025)

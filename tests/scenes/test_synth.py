@@ -235,3 +235,28 @@ def test_synth_3_scenes_with_pedestrians_load(synth_env):
         assert len(walkers) == 1 and sorted(scene.references) == ["fog", "rain", "snow"]
         _check_lidar_on_solid_pixels(scene)
         _check_moving_boxes_in_dynamic_masks(scene)
+
+
+def test_weathercity_renders_with_the_truths_physics_on_request(scene0: Scene, demo_scene: Scene) -> None:
+    from wcbench.methods.weathercity import WeatherCityMethod, training_hazes, truth_physics
+
+    truth = json.loads((scene0.root / "truth" / "weather.json").read_text(encoding="utf-8"))
+    method = WeatherCityMethod(profile="quick", weathers="truth")
+    physics = truth_physics(scene0)
+    assert sorted(physics) == ["fog", "rain", "snow"]
+    for kind in ("rain", "snow", "fog"):
+        chosen = method.weather_for(kind, 7, scene0)
+        assert chosen.to_json() == truth[kind]["weather"]  # the truth's seed, not the run's 7
+    assert method.weather_for("snow", 7, scene0).max_particles == 30000
+    assert method.weather_for("rain", 7).seed == 7  # without the scene: the default, seeded by the run
+    method.check_scene(scene0, "snow")
+    # training composes the haze the renderer of the truth's weather adds
+    hazes = training_hazes(method.config, method.physics(scene0), ("clear", "rain", "snow", "fog"))
+    assert sorted(hazes) == ["fog", "rain", "snow"]
+    assert hazes["fog"].beta == pytest.approx(truth["fog"]["renderer"]["fog"]["density_per_m"], rel=1e-9)
+    assert hazes["rain"].beta == pytest.approx(truth["rain"]["renderer"]["fog"]["density_per_m"], rel=1e-9)
+    assert hazes["rain"].offset_m == truth["rain"]["renderer"]["fog"]["offset_m"] > 0
+    with pytest.raises(InputError, match=r"truth[/\\]weather\.json: not found"):
+        method.check_scene(demo_scene, "rain")
+    with pytest.raises(InputError, match="weathers must be"):
+        WeatherCityMethod(weathers="sunny")

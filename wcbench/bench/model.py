@@ -62,6 +62,7 @@ from wcbench.bench.schema import BenchCase, BenchReport
 from wcbench.core.errors import InputError
 from wcbench.methods.weathercity import WeatherCityMethod, content_loss_for, training_inputs
 from wcbench.metrics.temporal.flicker import flow_warp_error
+from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.scene_graph.lidar_init import estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.training.build import build_model
@@ -192,17 +193,19 @@ def _plain_case(scene: Scene, base: TrainConfig, train_views: list[TrainingView]
 
 
 def _step_ms(scene: Scene, train_views: list[TrainingView], views: list[TrainingView], config: TrainConfig,
-             weathers: tuple[str, ...], content: Any, *, steps: int) -> tuple[float, int]:
+             weathers: tuple[str, ...], content: Any, *, steps: int,
+             hazes: dict[str, Haze] | None = None) -> tuple[float, int]:
     """Median ms of a training step (no densification) of a freshly built model, and its Gaussians."""
     model, _ = build_model(scene, train_views, config, weathers=weathers)
-    trainer = Trainer(model, views, replace(config, densify_from=10**9), content=content)
+    trainer = Trainer(model, views, replace(config, densify_from=10**9), content=content, hazes=hazes)
     for _ in range(2):  # warm-up, and step 0 renders every weather whatever the interval
         trainer.step()
     return 1e3 * statistics.median(trainer.step().seconds for _ in range(steps)), model.counts()["total"]
 
 
 def _skip_cases(scene: Scene, base: TrainConfig, train_views: list[TrainingView], views: list[TrainingView],
-                trained: tuple[str, ...], content: Any, *, steps: int) -> list[BenchCase]:
+                trained: tuple[str, ...], content: Any, *, steps: int,
+                hazes: dict[str, Haze] | None = None) -> list[BenchCase]:
     """What each skip saves per training step (see the module docstring)."""
     clear_steps = replace(base, weather_interval=10**9)  # clear-only steps after the first
     every_step = replace(base, weather_interval=1)
@@ -215,8 +218,9 @@ def _skip_cases(scene: Scene, base: TrainConfig, train_views: list[TrainingView]
     ]
     out = []
     for name, knob, value, with_cfg, without_cfg, with_w, without_w in pairs:
-        t_with, n_with = _step_ms(scene, train_views, views, with_cfg, with_w, content, steps=steps)
-        t_without, n_without = _step_ms(scene, train_views, views, without_cfg, without_w, content, steps=steps)
+        t_with, n_with = _step_ms(scene, train_views, views, with_cfg, with_w, content, steps=steps, hazes=hazes)
+        t_without, n_without = _step_ms(scene, train_views, views, without_cfg, without_w, content, steps=steps,
+                                        hazes=hazes)
         out.append(BenchCase(
             name=name, knob=knob, value=value, time_ms=t_with, error=None, error_unit="-",
             extra={"without_ms": round(t_without, 1), "saving_pct": round(100 * (1 - t_with / t_without), 1),
@@ -231,7 +235,8 @@ def _temporal_cases(scene: Scene, base: TrainConfig, content: Any, *, jitter: fl
     views = inputs.views
     train_views = [v for v in views if v.frame not in base.holdout]
     model, _ = build_model(scene, train_views, base, weathers=inputs.trained)
-    trainer = Trainer(model, views, base, content=content if base.content_weight > 0 else None)
+    trainer = Trainer(model, views, base, content=content if base.content_weight > 0 else None,
+                      hazes=inputs.hazes)
     t = time.perf_counter()
     trainer.train()
     spent = time.perf_counter() - t
@@ -343,14 +348,16 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
     content, content_note = content_loss_for(base, None)
     report.notes.append(f"content loss: {content_note}")
     if "skips" in groups:
-        report.cases += _skip_cases(scene, base, train_views, views, inputs.trained, content, steps=3 if quick else 8)
+        report.cases += _skip_cases(scene, base, train_views, views, inputs.trained, content, steps=3 if quick else 8,
+                                    hazes=inputs.hazes)
 
     def train(config: TrainConfig) -> tuple[dict[int, Any], float, dict[str, Any]]:
         model, facts = build_model(scene, train_views, config, weathers=inputs.trained)
         loss = content
         if content is not None and config.content_size != base.content_size:  # the knob's own resolution
             loss = ContentLoss(content.features, size=config.content_size)
-        trainer = Trainer(model, views, config, content=loss if config.content_weight > 0 else None)
+        trainer = Trainer(model, views, config, content=loss if config.content_weight > 0 else None,
+                          hazes=inputs.hazes)
         evals: dict[int, Any] = {}
         spent = 0.0
         for mark in (config.iterations // 2, config.iterations):

@@ -3,9 +3,10 @@
 For each scene the method (1) gets edited frames of every weather from a supervision method (the
 built-in ``filter2d`` grade by default, run without its streaks and flakes, since particles come
 from the physics; the simulated editor ``sim-editor[:SEVERITY]`` on scenes with ground truth; or
-another tool's frames read from a folder, ``READER:DIR``), (2) builds the
-weather Gaussian scene graph from the lidar and trains it on the raw frames and the edits
-(:mod:`wcbench.reference_model.training`), caching the trained model under a key over every input
+another tool's frames read from a folder, ``READER:DIR``), (2) builds the weather Gaussian scene
+graph from the lidar and trains it on the raw frames and the edits, each edit's render composed
+through the haze its physics weather adds (:mod:`wcbench.reference_model.training`,
+:mod:`wcbench.reference_model.model.haze`), caching the trained model under a key over every input
 that changes it, (3) renders any frame under any weather at its training resolution: the decoded
 colors of that weather, the weather's sky, rain or snow particles rasterized with the scene, and
 exact Beer-Lambert fog (:mod:`wcbench.reference_model.weather`), optionally with object edits.
@@ -17,8 +18,10 @@ counts per node, what the scene graph skipped, the supervision, and the whole-fr
 
 from __future__ import annotations
 
+import json
 import time
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +41,9 @@ from wcbench.methods.filter2d import Filter2DMethod
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
 from wcbench.methods.sim_editor import supervision_frames as sim_editor_frames
-from wcbench.methods.sim_editor import supervision_severity
+from wcbench.methods.sim_editor import supervision_severity, truth_paths
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
+from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
 from wcbench.reference_model.training.build import build_model
@@ -52,7 +56,8 @@ from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
 from wcbench.scenes.scene import Scene
 
-__all__ = ["VERSION", "TrainingInputs", "WeatherCityMethod", "content_loss_for", "train_scene", "training_inputs"]
+__all__ = ["VERSION", "TrainingInputs", "WeatherCityMethod", "content_loss_for", "train_scene", "training_hazes",
+           "training_inputs", "truth_physics"]
 
 #: Bumped whenever training or rendering changes what a cached model or a frame would be.
 VERSION = "1"
@@ -133,6 +138,36 @@ def content_loss_for(config: TrainConfig, store: ModelStore | None) -> tuple[Con
     )
 
 
+def truth_physics(scene: Scene) -> dict[str, Weather]:
+    """The physics weathers the scene's ground truth was rendered with (``truth/weather.json`` of the
+    ``synth_*`` scenes: rate, visibility, wind and particle seed per edited weather).
+
+    Raises
+    ------
+    InputError
+        The scene has no such file, or it does not describe a weather per kind.
+    """
+    path = Path(scene.root) / "truth" / "weather.json"
+    if not path.is_file():
+        raise InputError(f"{path}: not found; weathers='truth' renders with the physics a scene's ground truth "
+                         "was made with, and only the synth_* scenes ship it")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        return {kind: Weather.from_json(entry["weather"]) for kind, entry in doc.items()
+                if isinstance(entry, dict) and "weather" in entry}
+    except (ValueError, TypeError, KeyError) as exc:
+        raise InputError(f"{path}: expected {{kind: {{'weather': Weather fields, ...}}}} per edited weather "
+                         f"({exc})") from None
+
+
+def training_hazes(config: TrainConfig, physics: Mapping[str, Weather], weathers: tuple[str, ...]) -> dict[str, Haze]:
+    """The haze each edited weather's training render is composed through (none unless
+    ``config.through_haze``): that of its physics weather, or of the kind's default one."""
+    if not config.through_haze:
+        return {}
+    return {w: Haze.of(physics.get(w, Weather(kind=w))) for w in weathers if w != "clear"}
+
+
 @dataclass
 class TrainingInputs:
     """What a training of a scene is made from (see :func:`training_inputs`).
@@ -149,6 +184,8 @@ class TrainingInputs:
         How the views were made (:func:`build_views`).
     sources : list of str
         sha256 of the scene's frames.
+    hazes : dict of str to Haze
+        The haze of each trained edited weather (:func:`training_hazes`).
     """
 
     views: list[TrainingView]
@@ -156,12 +193,15 @@ class TrainingInputs:
     supervision: dict[str, Any]
     view_facts: dict[str, Any]
     sources: list[str]
+    hazes: dict[str, Haze] = field(default_factory=dict)
 
 
 def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = "filter2d", jitter: float = 0.0,
-                    weathers: tuple[str, ...] = ("rain", "snow", "fog")) -> TrainingInputs:
+                    weathers: tuple[str, ...] = ("rain", "snow", "fog"),
+                    physics: Mapping[str, Weather] | None = None) -> TrainingInputs:
     """The views (raw frames, edits of every supervised weather, lidar depth, sky and object masks)
-    of ``scene`` at ``config``'s training size.
+    of ``scene`` at ``config``'s training size, and the haze of each weather's physics (``physics``;
+    the kind's default weather where it has none).
 
     Raises
     ------
@@ -173,7 +213,8 @@ def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = "fi
     views, view_facts = build_views(scene, size=config.size_for(scene.image_size),
                                     supervision={w: frames[w] for w in trained if w != "clear"})
     return TrainingInputs(views=views, trained=trained, supervision=sup_record, view_facts=view_facts,
-                          sources=[sha256_file(f.image_path) for f in scene.frames])
+                          sources=[sha256_file(f.image_path) for f in scene.frames],
+                          hazes=training_hazes(config, physics or {}, trained))
 
 
 def train_scene(
@@ -183,6 +224,7 @@ def train_scene(
     supervision: str = "filter2d",
     jitter: float = 0.0,
     weathers: tuple[str, ...] = ("rain", "snow", "fog"),
+    physics: Mapping[str, Weather] | None = None,
     folder: Path | None = None,
     store: ModelStore | None = None,
     content: ContentLoss | str | None = "auto",
@@ -202,6 +244,9 @@ def train_scene(
         Per-frame perturbation strength of the ``filter2d`` supervision (refused with sim-editor's).
     weathers : tuple of str
         Edited weathers to train (clear is always trained); those without supervision are not.
+    physics : mapping of str to Weather, optional
+        The physics weathers the model will be rendered under: their haze is composed into the
+        training renders (``config.through_haze``). Default: each kind's default weather.
     folder : Path, optional
         Where the checkpoint goes; default the cache folder ``weathercity/<scene>-<key>``.
     store : ModelStore, optional
@@ -224,7 +269,8 @@ def train_scene(
     start = time.perf_counter()
     size = config.size_for(scene.image_size)
     log(f"weathercity {scene.id}: {size[0]}x{size[1]} views, supervision from {supervision}")
-    inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers)
+    inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers,
+                             physics=physics)
     views, trained = inputs.views, inputs.trained
     content_loss: ContentLoss | None
     if isinstance(content, str):
@@ -235,6 +281,7 @@ def train_scene(
         content_loss, content_note = content, "injected" if content is not None else "off"
     key = sha256_json({"version": VERSION, "scene": scene.id, "sources": inputs.sources, "config": config.to_json(),
                        "supervision": inputs.supervision, "trained": trained, "content": content_note,
+                       "hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
                        "lidar": [str(f.lidar_path) for f in scene.frames]})
     folder = folder or cache_dir() / "weathercity" / f"{scene.id}-{key[:16]}"
     log(f"weathercity {scene.id}: building the scene graph")
@@ -242,7 +289,7 @@ def train_scene(
     model, graph_facts = build_model(scene, train_views, config, weathers=trained)
 
     def make_trainer(m: WeatherCityModel) -> Trainer:
-        return Trainer(m, views, config, content=content_loss)
+        return Trainer(m, views, config, content=content_loss, hazes=inputs.hazes)
 
     info = read_checkpoint_info(folder)
     if info is not None and info.get("key") == key:
@@ -277,6 +324,7 @@ def train_scene(
         "trained_weathers": list(trained),
         "not_trained": sorted(set(weathers) - set(trained)),
         "content_loss": content_note,
+        "training_hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
         "views": inputs.view_facts,
         "scene_graph": graph_facts,
         "gaussians": model.counts(),
@@ -309,9 +357,12 @@ class WeatherCityMethod(FrameRenderer):
         Training settings overriding the profile's (see :class:`TrainConfig`).
     holdout : sequence of int
         Frames left out of training (their held-out PSNR goes to info.json).
-    weathers : dict of str to Weather or dict, optional
+    weathers : dict of str to Weather or dict, or "truth", optional
         The physics weather per kind (default: each kind's default preset); a dict gives the
         :class:`Weather` fields (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
+        ``"truth"``: per scene, the physics its ground truth was rendered with, particle seed
+        included (``truth/weather.json`` of the ``synth_*`` scenes; :func:`truth_physics`), so that
+        a comparison with the truth measures the learned scene, not the draw of the particles.
     size : (int, int), optional
         Render size; default the training size (and scored there).
     edits : str or list, optional
@@ -331,7 +382,7 @@ class WeatherCityMethod(FrameRenderer):
         ablation: str = "",
         settings: dict[str, Any] | None = None,
         holdout: tuple[int, ...] | list[int] = (),
-        weathers: dict[str, Weather | dict[str, Any]] | None = None,
+        weathers: dict[str, Weather | dict[str, Any]] | str | None = None,
         size: tuple[int, int] | None = None,
         edits: str | list[Any] | None = None,
         content: Any = "auto",
@@ -347,7 +398,11 @@ class WeatherCityMethod(FrameRenderer):
         _check_supervision(supervision, float(jitter))  # a bad sim-editor severity fails before training
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
         self.weathers: dict[str, Weather] = {}
-        for kind, value in (weathers or {}).items():
+        self.truth_weathers = weathers == "truth"
+        if isinstance(weathers, str) and not self.truth_weathers:
+            raise InputError(f"weathercity: weathers must be a dict of kind -> Weather fields or 'truth', "
+                             f"got {weathers!r}")
+        for kind, value in ({} if isinstance(weathers, str) else weathers or {}).items():
             try:
                 self.weathers[kind] = value if isinstance(value, Weather) else Weather(kind=kind, **dict(value))
             except (TypeError, ValueError) as exc:
@@ -370,16 +425,37 @@ class WeatherCityMethod(FrameRenderer):
         self._rays: dict[tuple[bytes, int, int], torch.Tensor] = {}
         self._placement = Placement()
 
-    def weather_for(self, kind: str, seed: int) -> Weather:
-        """The physics weather of ``kind`` with ``seed`` (the given one, or the kind's default)."""
+    def weather_for(self, kind: str, seed: int, scene: Scene | None = None) -> Weather:
+        """The physics weather of ``kind`` with ``seed`` (the given one, or the kind's default); with
+        ``weathers="truth"``, ``scene``'s own, with its truth's seed."""
+        if self.truth_weathers and scene is not None and kind != "clear":
+            physics = truth_physics(scene)
+            if kind in physics:
+                return physics[kind]
         return replace(self.weathers.get(kind, Weather(kind=kind)), seed=seed)
+
+    def physics(self, scene: Scene) -> dict[str, Weather]:
+        """The physics weather of every edited kind for ``scene`` (the training hazes come from it)."""
+        return {kind: self.weather_for(kind, 0, scene) for kind in WEATHERS if kind != "clear"}
 
     def parameters(self, weather: str) -> dict[str, Any]:
         """Training settings, supervision, edits and the weather's physics (seed recorded apart)."""
-        desc = self.weather_for(weather, 0).to_json()
-        desc.pop("seed", None)
+        desc: dict[str, Any] | str = "truth (each scene's truth/weather.json, seed included)"
+        if not self.truth_weathers or weather == "clear":
+            desc = self.weather_for(weather, 0).to_json()
+            desc.pop("seed", None)
         return {"training": self.config.to_json(), "supervision": self.supervision, "jitter": self.jitter,
                 "edits": [e.to_json() for e in self.edits], "weather": desc}
+
+    def check_scene(self, scene: Scene, weather: str) -> None:
+        """With ``weathers="truth"`` the scene must ship ``truth/weather.json`` describing ``weather``;
+        with sim-editor supervision, truth frames of every edited weather (checked before any render)."""
+        if self.truth_weathers and weather != "clear" and weather not in truth_physics(scene):
+            raise InputError(f"{Path(scene.root) / 'truth' / 'weather.json'}: no {weather!r} entry "
+                             "(weathers='truth')")
+        if supervision_severity(self.supervision) is not None:
+            for kind in ("rain", "snow", "fog"):
+                truth_paths(scene, kind)
 
     def native_size(self, scene: Scene) -> tuple[int, int]:
         """``size`` if given, else the training resolution."""
@@ -390,7 +466,7 @@ class WeatherCityMethod(FrameRenderer):
         if self._scene_key != (scene.id, str(scene.root)):
             trained, _, facts = train_scene(
                 scene, self.config, supervision=self.supervision, jitter=self.jitter, content=self.content,
-                show_progress=show_progress,
+                physics=self.physics(scene), show_progress=show_progress,
             )
             self.use_model(scene, trained, facts)
 
@@ -407,7 +483,8 @@ class WeatherCityMethod(FrameRenderer):
         first = scene.frames[0].camera
         self._renderer = WeatherRenderer(
             _FrameSet(g.means, g.quats, g.scales, g.opacities, torch.zeros(len(g), 3)),
-            self.weather_for(weather, seed), up=scene.up, heading=first.camera_to_world[:3, 2], anchor=first.center,
+            self.weather_for(weather, seed, scene), up=scene.up, heading=first.camera_to_world[:3, 2],
+            anchor=first.center,
         )
         self._node_colors = self._decode_nodes(model, decoded)
         self._activated = model.activated()

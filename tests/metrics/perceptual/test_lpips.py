@@ -227,7 +227,7 @@ def test_metric_with_real_weights_and_config(lpips_store):
 def test_metric_batch_equals_accumulated_and_skips():
     dist = lambda a, b: np.abs(a.astype(np.float64) - b).mean(axis=(1, 2, 3))  # noqa: E731 - injected model
     rng = np.random.default_rng(5)
-    pred, ref = rng.random((4, 8, 9, 3)).astype(np.float32), rng.random((4, 8, 9, 3)).astype(np.float32)
+    pred, ref = rng.random((4, 31, 33, 3)).astype(np.float32), rng.random((4, 31, 33, 3)).astype(np.float32)
     one, many = LPIPS(distance=dist), LPIPS(distance=dist)
     one.update(pred, reference=ref)
     for i in range(4):
@@ -238,7 +238,7 @@ def test_metric_batch_equals_accumulated_and_skips():
     assert one.compute()["lpips"].value is None
     with pytest.raises(ValueError, match="reference batch is required"):
         one.update(pred)
-    with pytest.raises(ValueError, match=r"pred has shape \(4, 8, 9, 3\) but reference has shape"):
+    with pytest.raises(ValueError, match=r"pred has shape \(4, 31, 33, 3\) but reference has shape"):
         one.update(pred, reference=ref[:, :5])
     no_ref = MetricContext(weather="rain", n_frames=4, has_reference=False)
     assert "no ground-truth" in LPIPS(distance=dist).skip_reason(no_ref)
@@ -325,3 +325,39 @@ def test_shared_metric_tester(lpips_store):
     out = check_metric(lambda: LPIPS(store=lpips_store, backend="numpy"), pred, reference=ref,
                        functional={"lpips": lambda p, s, r: lpips(p, r, store=lpips_store, backend="numpy")})
     assert 0 < out["lpips"].value < 1
+
+
+def test_identical_frames_get_zero_without_the_network_and_the_same_value_as_computed(lpips_store):
+    ref, p0 = _example("ex_ref.png"), _example("ex_p0.png")
+    pred, refs = np.stack([ref, p0, ref]), np.stack([ref, ref, ref])  # frames 0 and 2 pass through
+    seen: list[int] = []
+
+    def counting(a, b):
+        seen.append(len(a))
+        return lpips_distances(a, b, net="alex", backend="numpy", store=lpips_store)
+
+    skipping, computing = LPIPS(distance=counting), LPIPS(distance=counting, skip_identical=False)
+    skipping.update(pred, reference=refs)
+    assert seen == [1]  # only the frame that differs ran
+    computing.update(pred, reference=refs)
+    assert seen == [1, 3]
+    fast, slow = skipping.compute()["lpips"], computing.compute()["lpips"]
+    # LPIPS of a frame against itself is 0 (the feature stacks are equal): the skip is exact
+    np.testing.assert_allclose(fast.per_frame, slow.per_frame, atol=1e-7, rtol=0)
+    assert fast.per_frame[0] == 0.0 and fast.per_frame[1] > 0.5
+
+
+@pytest.mark.parametrize("net", ["alex", "vgg"])
+def test_the_smallest_side_each_backbone_takes_runs_and_one_less_is_refused_clearly(random_lpips_dirs, net):
+    from wcbench.metrics.perceptual.lpips import MIN_SIDE, _NumpyLPIPS, _TorchLPIPS
+
+    side = MIN_SIDE[net]
+    d = random_lpips_dirs[net]
+    rng = np.random.default_rng(0)
+    a, b = (rng.random((1, side, side + 5, 3)).astype(np.float32) for _ in range(2))
+    for runner in (_NumpyLPIPS(d / "weights.safetensors", net), _TorchLPIPS(d / "weights.safetensors", net)):
+        assert np.isfinite(runner(a, b)).all()  # the architecture's bound, not a guess
+    metric = LPIPS(net)
+    metric._fn = lambda: (_NumpyLPIPS(d / "weights.safetensors", net), "numpy")  # the random weights
+    with pytest.raises(ValueError, match=rf"at least {side} px on each side, got {side - 1} x"):
+        metric.update(a[:, 1:], reference=a[:, 1:])  # identical frames are not let through either

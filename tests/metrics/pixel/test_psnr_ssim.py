@@ -80,3 +80,29 @@ def test_empty_inputs_are_refused_with_the_reason():
             fn(np.zeros((0, 16, 16, 3)), np.zeros((0, 16, 16, 3)))
     with pytest.raises(ValueError, match=r"at least 11 px on each side, got 10 x 30 px"):
         ssim(np.zeros((10, 30, 3)), np.zeros((10, 30, 3)))
+
+
+@pytest.mark.parametrize("cls", ["PSNR", "SSIM"])
+def test_frames_equal_to_their_reference_get_the_computed_value_without_the_work(rng, cls):
+    from wcbench.metrics.pixel import psnr as psnr_module
+    from wcbench.metrics.pixel import ssim as ssim_module
+
+    metric_cls = getattr(psnr_module if cls == "PSNR" else ssim_module, cls)
+    ref = rng.random((4, 40, 56, 3)).astype(np.float32)
+    pred = ref.copy()
+    pred[1] = np.clip(pred[1] + 0.05 * rng.standard_normal(pred[1].shape), 0, 1)
+    calls: list[int] = []
+
+    class Counting(metric_cls):
+        def frame_values(self, p, r):
+            calls.append(len(p))
+            return super().frame_values(p, r)
+
+    skipping, computing = Counting(), Counting(skip_identical=False)
+    skipping.update(pred, reference=ref)
+    computing.update(pred, reference=ref)
+    assert calls == [1, 4]
+    fast, slow = skipping.compute()[cls.lower()], computing.compute()[cls.lower()]
+    # the exact value of a pair of equal frames is what the computation gives (PSNR inf, SSIM 1)
+    assert fast.per_frame == slow.per_frame
+    assert skipping._values == computing._values

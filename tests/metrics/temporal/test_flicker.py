@@ -105,6 +105,24 @@ def test_source_flow_is_computed_once_across_weathers():
     assert FLOW_CACHE.misses - before == 2  # two frame pairs, flowed once each
 
 
+def test_pairs_in_worker_threads_give_the_one_thread_values_in_order(monkeypatch):
+    from wcbench.core.parallel import THREADS_ENV
+    from wcbench.metrics.temporal.flicker import FLOW_CACHE
+
+    seq = translated_sequence(n=7, size=(48, 64))
+    edit = np.clip(seq * 0.85 + 0.05 * np.sin(np.arange(7))[:, None, None, None], 0, 1).astype(np.float32)
+    per_pair = {}
+    for threads in ("1", "4"):
+        monkeypatch.setenv(THREADS_ENV, threads)
+        FLOW_CACHE.clear()
+        m = FlowWarpingError()
+        m.update(edit[:4], source=seq[:4])  # two batches: the pair across them too
+        m.update(edit[4:], source=seq[4:])
+        per_pair[threads] = (list(m._pred), list(m._src))
+    assert len(per_pair["1"][0]) == 6
+    assert per_pair["1"] == per_pair["4"]  # each pair is computed alone: the same bits
+
+
 # ---- numeric guards (docs/design.md §9) -------------------------------------------------------
 
 
