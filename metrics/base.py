@@ -156,18 +156,22 @@ def identical_frames(pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 def frame_values_skipping_identical(values: Callable[[np.ndarray, np.ndarray], Any], pred: np.ndarray,
-                                    reference: np.ndarray, identical_value: float | None) -> np.ndarray:
+                                    reference: np.ndarray, identical_value: float | None, *,
+                                    name: str) -> np.ndarray:
     """``values(pred, reference)`` [B] float64, computed only for the frames that differ from their
-    reference; the others get ``identical_value`` (``None``: every frame is computed)."""
-    if identical_value is None:
-        return np.asarray(values(pred, reference), np.float64).reshape(-1)
-    same = identical_frames(pred, reference)
-    out = np.full(len(pred), identical_value, np.float64)
-    if not same.all():
-        differ = ~same
+    reference; the others get ``identical_value`` (``None``: every frame is computed).
+
+    Raises
+    ------
+    ValueError
+        ``values`` returned another count than the frames it was given (``name`` says whose).
+    """
+    differ = np.ones(len(pred), bool) if identical_value is None else ~identical_frames(pred, reference)
+    out = np.full(len(pred), np.nan if identical_value is None else identical_value, np.float64)
+    if differ.any():
         computed = np.asarray(values(pred[differ], reference[differ]), np.float64).reshape(-1)
         if computed.shape[0] != int(differ.sum()):
-            raise ValueError(f"{computed.shape[0]} values returned for {int(differ.sum())} frames")
+            raise ValueError(f"{name}: {computed.shape[0]} values returned for {int(differ.sum())} frames")
         out[differ] = computed
     return out
 
@@ -295,7 +299,7 @@ class PerFrameReferenceMetric(Metric):
         check_same_shape(p, r, names=("pred", "reference"))
         check_min_side(p, self.min_side, name=self.name)
         self._values.extend(frame_values_skipping_identical(
-            self.frame_values, p, r, self.identical_value if self.skip_identical else None).tolist())
+            self.frame_values, p, r, self.identical_value if self.skip_identical else None, name=self.name).tolist())
 
     def compute(self) -> dict[str, MetricValue]:
         """Mean over frames (null with a reason when non-finite or when no frame was seen)."""

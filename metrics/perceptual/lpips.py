@@ -372,12 +372,8 @@ class LPIPS(StoreBacked, Metric):
         # the backbone's bound, also with an injected distance (it stands in for the backbone)
         check_min_side(p, MIN_SIDE[self.net], name=f"lpips ({self.net})")
         fn, self._backend_used = self._fn()
-        try:
-            values = frame_values_skipping_identical(fn, p, r, 0.0 if self.skip_identical else None)
-        except ValueError as exc:
-            raise ValueError(f"lpips: the distance returned {exc}") from None
-        if values.shape[0] != p.shape[0]:
-            raise ValueError(f"lpips: the distance returned {values.shape[0]} values for {p.shape[0]} frames")
+        values = frame_values_skipping_identical(fn, p, r, 0.0 if self.skip_identical else None,
+                                                 name="lpips distance")
         self._values.extend(values.tolist())
 
     def compute(self) -> dict[str, MetricValue]:

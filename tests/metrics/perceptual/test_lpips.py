@@ -361,3 +361,12 @@ def test_the_smallest_side_each_backbone_takes_runs_and_one_less_is_refused_clea
     metric._fn = lambda: (_NumpyLPIPS(d / "weights.safetensors", net), "numpy")  # the random weights
     with pytest.raises(ValueError, match=rf"at least {side} px on each side, got {side - 1} x"):
         metric.update(a[:, 1:], reference=a[:, 1:])  # identical frames are not let through either
+
+
+def test_a_distance_returning_another_count_is_refused_by_name():
+    rng = np.random.default_rng(1)
+    pred, ref = rng.random((3, 32, 32, 3)).astype(np.float32), rng.random((3, 32, 32, 3)).astype(np.float32)
+    pred[1] = ref[1]  # two frames differ: the distance gets two
+    m = LPIPS(distance=lambda a, b: np.zeros(len(a) + 1))
+    with pytest.raises(ValueError, match="lpips distance: 3 values returned for 2 frames"):
+        m.update(pred, reference=ref)
