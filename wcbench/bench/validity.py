@@ -29,7 +29,7 @@ Cases
     several dB that say nothing about the scene.
 ``first_run_<set>``
     (outside ``--quick``) The README's main job, ``wcbench run --method weathercity --scenes <set>
-    --profile quick``, in a new process as on a fresh install: empty scene cache (the scenes are
+    --profile quick --report``, in a new process as on a fresh install: empty scene cache (the scenes are
     generated), empty model store (no weights: LPIPS and the content loss skip), empty numba cache
     (the kernels compile). ``limit_s`` is the time it must stay under (5 min for ``synth_1``,
     15 min for ``synth_3``).
@@ -256,13 +256,15 @@ def _first_run_case(scenes: str) -> BenchCase:
         env = {**os.environ, "WCBENCH_CACHE": str(root / "cache"), "WCBENCH_MODELS": str(root / "models"),
                "NUMBA_CACHE_DIR": str(root / "numba"), "WCBENCH_PROGRESS": "0"}
         cmd = [sys.executable, "-m", "wcbench", "run", "--method", "weathercity", "--scenes", scenes,
-               "--profile", "quick", "--out", str(root / "run"), "--no-progress"]
+               "--profile", "quick", "--out", str(root / "run"), "--report", "--no-progress"]
         start = time.perf_counter()
         done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
         seconds = time.perf_counter() - start
         if done.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
         doc = json.loads((root / "run" / "results.json").read_text(encoding="utf-8"))
+        if not (root / "run" / "report.html").is_file():
+            raise RuntimeError(f"{' '.join(cmd)} wrote no report.html")
     units = _units(doc)
     truth = {k: _mean([u.get(k) for u in units if u["weather"] != "clear"]) for k in TRUTH}
     limit = FIRST_RUN_LIMIT_S[scenes]
@@ -270,4 +272,5 @@ def _first_run_case(scenes: str) -> BenchCase:
         name=f"first_run_{scenes}", knob="first_run", value=scenes, time_ms=1e3 * seconds, error=None,
         error_unit="-", extra={"limit_s": limit, "within_limit": seconds <= limit, "units": len(units),
                                **{f"{k}_vs_truth": v for k, v in truth.items()},
-                               "command": "wcbench run --method weathercity --scenes " + scenes + " --profile quick"})
+                               "command": f"wcbench run --method weathercity --scenes {scenes} --profile quick "
+                                          "--out OUT --report"})
