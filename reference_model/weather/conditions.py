@@ -20,7 +20,7 @@ import numpy as np
 
 from wcbench.core.weathers import WEATHERS
 from wcbench.reference_model.weather.fog import density_from_visibility
-from wcbench.reference_model.weather.particles import ParticleField, ParticleSpec, Wind
+from wcbench.reference_model.weather.particles import ParticleField, ParticleSpec, Wind, haze_density
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -191,6 +191,16 @@ class Weather:
         field_ : ParticleField, optional
             The rain/snow population whose haze to use (its extinction, starting at its radius).
         """
+        return self._fog(haze_density(field_.spec) if field_ is not None else 0.0)
+
+    def haze(self) -> tuple[float, np.ndarray, float]:
+        """:meth:`fog_parameters` of this weather's own particles (the haze a renderer of it adds),
+        without drawing them: (beta m^-1, color [3], offset m)."""
+        spec = self.particle_spec()
+        return self._fog(haze_density(spec) if spec is not None else 0.0)
+
+    def _fog(self, precipitation_beta: float) -> tuple[float, np.ndarray, float]:
+        """:meth:`fog_parameters` with rain or snow of extinction ``precipitation_beta`` (m^-1)."""
         if self.kind == "clear":
             return 0.0, np.zeros(3, np.float32), 0.0
         _, table = _preset_table(self.kind, self.preset)
@@ -202,7 +212,7 @@ class Weather:
             offset = 0.0
         else:
             color = table.get("haze_color", (0.6, 0.62, 0.66))
-            beta = field_.haze_density() if field_ is not None else 0.0
+            beta = precipitation_beta
             offset = float(table.get("radius_m", 10.0))
         if self.visibility_m is not None:
             beta = density_from_visibility(self.visibility_m)
@@ -211,16 +221,6 @@ class Weather:
         if self.fog_color is not None:
             color = self.fog_color
         return float(beta), np.asarray(color, np.float32), offset
-
-    def haze(self) -> tuple[float, np.ndarray, float]:
-        """:meth:`fog_parameters` of this weather's own particle field (the haze a renderer of it adds),
-        without a renderer: (beta m^-1, color [3], offset m)."""
-        spec = self.particle_spec()
-        if spec is None:
-            return self.fog_parameters()
-        # the haze depends on the population's rate and sizes, not on where the particles are
-        return self.fog_parameters(ParticleField(spec, wind=self.wind, up=np.array([0.0, 0.0, 1.0]),
-                                                 seed=int(self.seed)))
 
     def to_json(self) -> dict[str, Any]:
         """The description as given (JSON-ready)."""

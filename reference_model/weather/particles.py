@@ -48,6 +48,7 @@ __all__ = [
     "ParticleSpec",
     "Wind",
     "extinction_coefficient",
+    "haze_density",
     "horizontal_basis",
     "number_density",
     "particle_dilation_compensation",
@@ -771,6 +772,23 @@ class ParticleGaussians:
 # The particle field
 
 
+def haze_density(spec: ParticleSpec) -> float:
+    """Extinction coefficient (m^-1) of the rain or snow beyond the particle box, 0 if haze is off.
+
+    From the rate by the spec's ``haze_model`` (:func:`precipitation_extinction`): the empirical
+    relation of the kind by default, or geometric optics on the spec's size distribution. A
+    function of the spec alone: no particle needs to be drawn for it.
+    """
+    if not spec.haze or not spec.physical:
+        return 0.0
+    assert spec.rate_mm_h is not None
+    if spec.haze_model == "geometric":
+        n0, lam = size_distribution(spec.kind, spec.rate_mm_h, spec)
+        ratio = spec.flake_ratio if spec.kind == "snow" else 1.0
+        return extinction_coefficient(n0, lam, size_ratio=ratio)
+    return precipitation_extinction(spec.kind, spec.rate_mm_h, model=spec.haze_model)
+
+
 @dataclass
 class ParticleField:
     """A seeded population of rain drops or snowflakes; positions are closed-form in time.
@@ -1379,20 +1397,8 @@ class ParticleField:
     # ---- bookkeeping ----------------------------------------------------------------------
 
     def haze_density(self) -> float:
-        """Extinction coefficient (m^-1) of the rain or snow beyond the box, 0 if haze is off.
-
-        From the rate by the spec's ``haze_model`` (:func:`precipitation_extinction`): the
-        empirical relation of the kind by default, or geometric optics on this field's size
-        distribution.
-        """
-        spec = self.spec
-        if not spec.haze or not spec.physical:
-            return 0.0
-        if spec.haze_model == "geometric":
-            ratio = spec.flake_ratio if spec.kind == "snow" else 1.0
-            return extinction_coefficient(self.n0, self.lam, size_ratio=ratio)
-        assert spec.rate_mm_h is not None
-        return precipitation_extinction(spec.kind, spec.rate_mm_h, model=spec.haze_model)
+        """:func:`haze_density` of this field's spec (m^-1)."""
+        return haze_density(self.spec)
 
     def info(self) -> dict[str, Any]:
         """JSON-ready description of the population (for ``info.json``)."""

@@ -399,6 +399,7 @@ class WeatherCityMethod(FrameRenderer):
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
         self.weathers: dict[str, Weather] = {}
         self.truth_weathers = weathers == "truth"
+        self._truth: dict[str, dict[str, Weather]] = {}
         if isinstance(weathers, str) and not self.truth_weathers:
             raise InputError(f"weathercity: weathers must be a dict of kind -> Weather fields or 'truth', "
                              f"got {weathers!r}")
@@ -429,10 +430,18 @@ class WeatherCityMethod(FrameRenderer):
         """The physics weather of ``kind`` with ``seed`` (the given one, or the kind's default); with
         ``weathers="truth"``, ``scene``'s own, with its truth's seed."""
         if self.truth_weathers and scene is not None and kind != "clear":
-            physics = truth_physics(scene)
+            physics = self._truth_physics(scene)
             if kind in physics:
                 return physics[kind]
         return replace(self.weathers.get(kind, Weather(kind=kind)), seed=seed)
+
+    def _truth_physics(self, scene: Scene) -> dict[str, Weather]:
+        """:func:`truth_physics` of ``scene``, read once per scene folder (every unit checks and
+        prepares with it)."""
+        key = str(scene.root)
+        if key not in self._truth:
+            self._truth[key] = truth_physics(scene)
+        return self._truth[key]
 
     def physics(self, scene: Scene) -> dict[str, Weather]:
         """The physics weather of every edited kind for ``scene`` (the training hazes come from it)."""
@@ -450,7 +459,7 @@ class WeatherCityMethod(FrameRenderer):
     def check_scene(self, scene: Scene, weather: str) -> None:
         """With ``weathers="truth"`` the scene must ship ``truth/weather.json`` describing ``weather``;
         with sim-editor supervision, truth frames of every edited weather (checked before any render)."""
-        if self.truth_weathers and weather != "clear" and weather not in truth_physics(scene):
+        if self.truth_weathers and weather != "clear" and weather not in self._truth_physics(scene):
             raise InputError(f"{Path(scene.root) / 'truth' / 'weather.json'}: no {weather!r} entry "
                              "(weathers='truth')")
         if supervision_severity(self.supervision) is not None:

@@ -103,6 +103,20 @@ def test_a_decoder_fitted_through_the_haze_learns_the_colors_behind_it():
     assert as_is > 3 * through, (as_is, through)
 
 
+@pytest.mark.parametrize("fields", [{"kind": "rain", "preset": "heavy"}, {"kind": "snow", "preset": "light"},
+                                    {"kind": "rain", "rate_mm_h": 4.0, "seed": 3}, {"kind": "snow", "preset": "paper"},
+                                    {"kind": "fog", "visibility_m": 80.0}])
+def test_weather_haze_without_particles_equals_the_renderers(fields):
+    from wcbench.reference_model.weather.particles import ParticleField
+
+    weather = Weather(**fields)
+    spec = weather.particle_spec()
+    field_ = None if spec is None else ParticleField(spec, wind=weather.wind, seed=weather.seed)
+    beta, color, offset = weather.fog_parameters(field_)  # what WeatherRenderer uses
+    h_beta, h_color, h_offset = weather.haze()  # no particle drawn
+    assert h_beta == beta and h_offset == offset and np.array_equal(h_color, color)
+
+
 def test_haze_is_validated():
     with pytest.raises(ValueError, match="beta"):
         Haze(beta=-1.0, color=(0.5, 0.5, 0.5))
