@@ -104,10 +104,17 @@ def weights_status(metric_config: dict[str, Any]) -> list[dict[str, Any]]:
 
 def weight_flags(folders: list[ResultsFolder], outputs_of: dict[str, set[str]]) -> list[Flag]:
     """One ``weights`` flag per model whose weights are not verified as the published ones, on every
-    number a metric computed with it (in any folder)."""
+    number a metric computed with it (in any folder). A metric with no number (every row skipped,
+    e.g. its weights are not installed) flags nothing: there is nothing to compare."""
     groups: dict[tuple[str, str, bool | None], dict[str, Any]] = {}
     for f in folders:
         for metric, cfg in sorted(f.doc["config"].get("metric_config", {}).items()):
+            outputs = outputs_of.get(metric, {metric})
+            units = {(f.label, scene, output) for scene, weathers in f.doc["results"].items()
+                     for outs in weathers.values() for output in outputs
+                     if isinstance(outs.get(output), dict) and outs[output].get("value") is not None}
+            if not units:
+                continue
             for w in weights_status(cfg):
                 if w["verified"] is True:
                     continue
@@ -115,8 +122,7 @@ def weight_flags(folders: list[ResultsFolder], outputs_of: dict[str, set[str]]) 
                                       {"metrics": set(), "methods": set(), "units": set()})
                 g["metrics"].add(metric)
                 g["methods"].add(f.label)
-                g["units"].update((f.label, scene, output) for scene in f.doc["results"]
-                                  for output in outputs_of.get(metric, {metric}))
+                g["units"].update(units)
     flags = []
     for (model, sha, verified), g in sorted(groups.items(), key=lambda kv: str(kv[0])):
         why = ("its source file did not match the pinned sha256 of the published file (e.g. a random-weight "

@@ -14,6 +14,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -37,13 +38,18 @@ class Display:
     weathers: tuple[str, ...]
     groups: dict[str, dict[str, str]]
     outputs: dict[str, dict[str, str]]
+    summary: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def load(cls, path: Path = _DISPLAY) -> Display:
         """Read the display settings."""
         with open(path, "rb") as fh:
             data = tomllib.load(fh)
-        return cls(tuple(data["weathers"]), dict(data["groups"]), dict(data["outputs"]))
+        return cls(tuple(data["weathers"]), dict(data["groups"]), dict(data["outputs"]), dict(data.get("summary", {})))
+
+    def summary_weathers(self, output: str) -> tuple[str, ...]:
+        """The weathers the paper's summary column of ``output`` averages (empty: no such column)."""
+        return tuple(self.summary.get("weathers", {}).get(output, ()))
 
     def label(self, output: str) -> str:
         """Column label of ``output``."""
@@ -313,17 +319,43 @@ class TableBuilder:
                     out.append((g, members))
         return out
 
+    def _summary_cell(self, method: str, output: str, weathers: tuple[str, ...]) -> tuple[Cell, list[str]]:
+        """The mean over ``weathers`` of the method's mean cells of ``output`` (the paper's summary),
+        and the scenes behind it; a dash naming the weathers without a number."""
+        base = _Where(method, MEAN, str(self.display.summary.get("label", "summary")), output)
+        parts = {w: self._mean_cell(method, w, output) for w in weathers}
+        missing = [w for w, c in parts.items() if c.value is None]
+        scenes = sorted({s for w in weathers for s in self._scenes_of.get((method, w), [])})
+        if missing:
+            return base.cell(None, DASH, f"the summary needs {output} in {', '.join(weathers)}; no number in "
+                                          f"{', '.join(missing)}"), scenes
+        value = sum(float(c.value) for c in parts.values() if c.value is not None) / len(weathers)
+        return base.cell(value, format_value(value, self.decimals[output])), scenes
+
     def main_table(self, group: str, outputs: list[str]) -> Table:
-        """Methods x (weather x output), means over each method's scenes."""
+        """Methods x (weather x output), means over each method's scenes; then the paper's summary
+        columns (the mean over weathers by its rule, ``display.toml`` ``[summary]``) of the outputs
+        that have one, computed from the same cells."""
         columns, notes = self._columns(outputs)
         rows = [Row(m, MEAN, [self._flag(self._mean_cell(m, c.weather, c.output),
                                          self._scenes_of.get((m, c.weather), [])) for c in columns])
                 for m in self.methods]
+        label = str(self.display.summary.get("label", "summary"))
+        summarised = [o for o in outputs if self.display.summary_weathers(o)
+                      and any(c.output == o for c in columns)]
+        for o in summarised:
+            columns.append(Column(label, o, self.display.label(o), self.higher_is_better.get(o)))
+            for row in rows:
+                cell, scenes = self._summary_cell(row.method, o, self.display.summary_weathers(o))
+                row.cells.append(self._flag(cell, scenes))
         for j, c in enumerate(columns):
             self._rank([r.cells[j] for r in rows], c.higher_is_better)
         g = self.display.groups[group]
-        scenes = ", ".join(self.scenes)
-        return Table(f"t-{group}", g["title"], f"{g['caption']} Scenes: {scenes}.", columns, rows, notes=notes)
+        caption = f"{g['caption']} Scenes: {', '.join(self.scenes)}."
+        if summarised:
+            caption += f" Columns '{label}': the mean over weathers of the cells beside them, by the paper's rule: " \
+                       f"{self.display.summary.get('rule', '')}."
+        return Table(f"t-{group}", g["title"], caption, columns, rows, notes=notes)
 
     def scene_table(self, group: str, outputs: list[str]) -> Table:
         """Per-scene breakdown: (scene, method) rows, ranks within each scene."""

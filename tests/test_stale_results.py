@@ -96,5 +96,7 @@ def test_a_second_configuration_into_one_folder_is_refused_not_lost(preds, tmp_p
     args = [a if a != "clear,rain" else "rain" for a in _args(preds, out)]
     capsys.readouterr()
     assert main(args) == 2
-    assert "finished results of another configuration" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    # what differs is named (here the weathers), not only the method and scenes that are the same
+    assert "finished results of another configuration" in err and "weathers clear,rain there, rain asked" in err
     assert (out / "results.json").read_bytes() == first

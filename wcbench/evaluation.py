@@ -302,13 +302,20 @@ def check_out_folder(
     previous = read_results(results_path) if results_path.is_file() and not cfg.overwrite else None
     if previous is not None:
         old = previous.get("config", {})
-        same = (old.get("method") == method.info.name and old.get("scenes") == cfg.scenes
-                and sorted(old.get("metrics", [])) == sorted(metric_names)
-                and (cfg.weathers is None or sorted(old.get("weathers", [])) == sorted(cfg.weathers)))
-        if not same:
+        differs = [(what, was, now) for what, was, now in (
+            ("method", old.get("method"), method.info.name),
+            ("scenes", old.get("scenes"), cfg.scenes),
+            ("metrics", sorted(old.get("metrics", [])), sorted(metric_names)),
+            ("weathers", sorted(old.get("weathers", [])), None if cfg.weathers is None else sorted(cfg.weathers)),
+        ) if now is not None and was != now]
+        if differs:
+            def show(v: Any) -> str:
+                return ",".join(map(str, v)) if isinstance(v, list) else str(v)
+
+            what = "; ".join(f"{name} {show(was)} there, {show(now)} asked" for name, was, now in differs)
             raise ResultsExistError(
                 f"{results_path}: finished results of another configuration ({old.get('method')} on "
-                f"{old.get('scenes')}) are there; pass --overwrite to replace them or choose another --out"
+                f"{old.get('scenes')}: {what}) are there; pass --overwrite to replace them or choose another --out"
             )
     return method, metric_names, previous
 

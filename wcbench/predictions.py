@@ -27,6 +27,7 @@ named in the results (never silently).
 from __future__ import annotations
 
 import fnmatch
+import os
 import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -113,6 +114,15 @@ class PredictionSequence:
     location: Path | None = None
     ignored: list[str] = field(default_factory=list)
     native_sizes: set[tuple[int, int]] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        # a file the user cannot read fails here, before any unit is scored, naming every such file
+        unreadable = [p for p in self.files if not os.access(p, os.R_OK)]
+        if unreadable:
+            listing = "\n".join(f"  {p}" for p in unreadable[:10])
+            more = f"\n  ... and {len(unreadable) - 10} more" if len(unreadable) > 10 else ""
+            raise InputError(f"{len(unreadable)} prediction file(s) cannot be read by this user "
+                             f"(permission denied):\n{listing}{more}")
     video_positions: list[int] | None = None
     _hashes: list[str] | None = field(default=None, repr=False)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 
@@ -25,12 +26,18 @@ from wcbench.reference_model.model.gaussians import GaussianParams
 from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
 from wcbench.reference_model.model.scene_model import WeatherCityModel
 from wcbench.reference_model.model.sky import SkyModel, sky_window, view_directions
+from wcbench.reference_model.scene_graph.completion import (
+    FILL_GROUND,
+    FILL_WALL,
+    complete_distance,
+    ground_height_below,
+)
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import init_scene_from_lidar, sample_image
 from wcbench.reference_model.training.config import TrainConfig
 from wcbench.reference_model.training.views import TrainingView
 
-__all__ = ["NONRIGID_WORDS", "build_model", "far_cloud", "in_any_frustum", "is_nonrigid"]
+__all__ = ["NONRIGID_WORDS", "build_model", "completion_cloud", "far_cloud", "in_any_frustum", "is_nonrigid"]
 
 #: Track classes containing one of these words (case-insensitive) deform: non-rigid nodes.
 NONRIGID_WORDS = ("pedestrian", "person", "cyclist", "bicyclist", "human", "child")
@@ -103,6 +110,60 @@ def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int =
                          opacities=np.full(len(m), opacity, np.float32), colors=np.clip(c, 0, 1))
 
 
+def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px: int = 6, every: int = 2,
+                     opacity: float = 0.5, max_distance_m: float = 200.0) -> GaussianCloud:
+    """Gaussians on the surfaces a view sees beyond its lidar: the ground plane below the lidar's
+    lowest beam and the walls above its highest
+    (:func:`~wcbench.reference_model.scene_graph.completion.complete_distance`).
+
+    Each sampled pixel (every ``stride_px`` pixels of every ``every``-th view, not sky, not a moving
+    object, no lidar return within half a stride) gets one Gaussian at its completed distance, as
+    wide as ``stride_px`` pixels there, colored by the pixel.
+    """
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    means, colors, scales = [], [], []
+    for v in list(views)[::every]:
+        if v.depth is None or not np.any(v.depth > 0):
+            continue
+        h, w = v.height, v.width
+        r = stride_px // 2
+        depth = np.where(v.depth > 0, v.depth, np.inf).astype(np.float32)
+        # the nearest return within half a stride stands for the pixel (lidar is sparser than the image)
+        near = cv2.erode(depth, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        known = np.isfinite(near)
+        xs = (np.arange(w) + 0.5 - v.K[0, 2]) / v.K[0, 0]
+        ys = (np.arange(h) + 0.5 - v.K[1, 2]) / v.K[1, 1]
+        cam = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((h, w))), -1)
+        norm = np.linalg.norm(cam, axis=-1)
+        rays = (cam / norm[..., None]) @ v.camera_to_world[:3, :3].T
+        center = v.camera_to_world[:3, 3]
+        distance = np.where(known, near * norm, np.inf)
+        points = center + rays[v.depth > 0] * (v.depth[v.depth > 0] * norm[v.depth > 0])[:, None]
+        sky = v.sky if v.sky is not None else np.zeros((h, w), bool)
+        filled, kind, _ = complete_distance(distance, known, sky, rays, center, up,
+                                            ground_height_below(points, center, up),
+                                            forward=v.camera_to_world[:3, 2])
+        ys_, xs_ = np.mgrid[r:h:stride_px, r:w:stride_px]
+        ys_, xs_ = ys_.ravel(), xs_.ravel()
+        d = filled[ys_, xs_]
+        ok = np.isin(kind[ys_, xs_], (FILL_GROUND, FILL_WALL)) & np.isfinite(d) & (d < max_distance_m)
+        if v.dynamic.shape == (h, w):
+            ok &= ~v.dynamic[ys_, xs_]
+        ys_, xs_, d = ys_[ok], xs_[ok], d[ok]
+        if not len(d):
+            continue
+        means.append(center + rays[ys_, xs_] * d[:, None])
+        colors.append(sample_image(v.images["clear"], np.stack([xs_ + 0.5, ys_ + 0.5], 1)))
+        scales.append(d * stride_px / (2 * v.K[0, 0]))
+    if not means:
+        return GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+    m, c, sc = np.concatenate(means), np.concatenate(colors), np.concatenate(scales)
+    quats = np.zeros((len(m), 4), np.float32)
+    quats[:, 0] = 1
+    return GaussianCloud(means=m, quats=quats, scales=np.repeat(sc[:, None], 3, 1),
+                         opacities=np.full(len(m), opacity, np.float32), colors=np.clip(c, 0, 1))
+
+
 def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, *,
                 weathers: Sequence[str]) -> tuple[WeatherCityModel, dict[str, Any]]:
     """The model to train, initialised from the scene's lidar and the training views.
@@ -134,6 +195,11 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         far = far_cloud(views, opacity=config.init_opacity)
         n_far = len(far)
         clouds.append(far)
+    n_completion = 0
+    if config.completion_points:
+        completed = completion_cloud(views, up=np.asarray(scene.up, np.float64), opacity=config.init_opacity)
+        n_completion = len(completed)
+        clouds.append(completed)
     background = GaussianCloud.concatenate(clouds)
     inside = in_any_frustum(background.means, views) if config.cull_frustum else np.ones(len(background), bool)
     dropped = int((~inside).sum())
@@ -181,6 +247,7 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
     facts = {
         "gaussians": model.counts(),
         "far_gaussians": n_far,
+        "completion_gaussians": n_completion,
         "skipped": {
             "static_tracks_in_background": len(scene.tracks) - moving,
             "moving_tracks_without_lidar_points": empty_nodes,

@@ -41,6 +41,10 @@ class TrainConfig:
         (width, height) the content loss runs at.
     depth_weight, opacity_weight, deform_weight : float
         Lidar depth (paper: 0.01), opacity/sky (paper: 0.05) and pedestrian deformation weights.
+    opacity_solid : bool
+        The opacity loss also pulls every non-sky pixel's opacity to 1 (:func:`~.losses.opacity_loss`):
+        under an edited weather's haze the sky map is not seen, so structure it drew would vanish
+        into the airlight. Off: the paper's two terms only.
     weather_interval : int
         Every this many steps the edited weathers are rendered (in the same pass) and supervised;
         the other steps fit the raw frame only.
@@ -73,6 +77,10 @@ class TrainConfig:
         background.
     far_points : bool
         Add Gaussians far along the rays of pixels no lidar point reaches (distant structure).
+    completion_points : bool
+        Add Gaussians on the surfaces a view sees beyond its lidar, the ground plane below its lowest
+        beam and the walls above its highest (:func:`~.build.completion_cloud`), so that they are
+        Gaussians at their depth, not the sky map's (an edited weather's haze hides the sky).
     budget : int
         Most Gaussians the densification may reach (the render speed depends on it).
     densify_from, densify_until, densify_interval : int
@@ -105,6 +113,7 @@ class TrainConfig:
     content_size: tuple[int, int] = (240, 135)
     depth_weight: float = 0.01
     opacity_weight: float = 0.05
+    opacity_solid: bool = True
     deform_weight: float = 1.0
     weather_interval: int = 8
     through_haze: bool = True
@@ -119,6 +128,7 @@ class TrainConfig:
     node_voxel_m: float = 0.12
     init_opacity: float = 0.1
     far_points: bool = True
+    completion_points: bool = True
     cull_frustum: bool = True
     moving_threshold_m: float = 0.5
     budget: int = 125_000
@@ -179,9 +189,10 @@ class TrainConfig:
 PROFILES: dict[str, dict[str, Any]] = {
     "default": {},
     "quick": {
-        "width": 240, "iterations": 300, "content_interval": 1, "content_size": (120, 68),
+        "width": 240, "iterations": 300, "content_interval": 4, "content_size": (120, 68),
         "voxel_m": 0.3, "node_voxel_m": 0.15, "budget": 60_000, "densify_from": 60, "densify_until": 240,
         "densify_interval": 60, "checkpoint_interval": 100, "far_points": False,
+        "weather_interval": 2,
     },
 }
 

@@ -82,13 +82,23 @@ def depth_l1(depth: torch.Tensor, lidar: torch.Tensor) -> torch.Tensor:
     return (depth[valid] - lidar[valid]).abs().mean()
 
 
-def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None) -> torch.Tensor:
-    """-mean(O log O) - mean(M_sky log(1 - O)) of the accumulated opacity O [H, W]."""
+def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool = False) -> torch.Tensor:
+    """-mean(O log O) - mean(M_sky log(1 - O)) of the accumulated opacity O [H, W] (the paper's), and
+    with ``solid`` also -mean((1 - M_sky) log O): the Gaussians cover every pixel that is not sky.
+
+    The paper's two terms leave a non-sky pixel free to be drawn by the sky map; under an edited
+    weather's haze the sky is not seen (it lies at infinity), so such a pixel would show the
+    airlight instead of the structure (``TrainConfig.opacity_solid``).
+    """
     o = alpha.clamp(_EPS, 1 - _EPS)
     entropy = -(o * torch.log(o)).mean()
     if sky is None:
         return entropy
-    return entropy - (sky.to(o.dtype) * torch.log(1 - o)).mean()
+    m = sky.to(o.dtype)
+    out = entropy - (m * torch.log(1 - o)).mean()
+    if solid:
+        out = out - ((1.0 - m) * torch.log(o)).mean()
+    return out
 
 
 class ContentLoss(nn.Module):

@@ -201,7 +201,7 @@ class Trainer:
             terms.append((cfg.depth_weight, d))
             logged["depth"] = float(d.detach())
         if cfg.opacity_weight > 0:
-            o = opacity_loss(render.alpha, tv.sky)
+            o = opacity_loss(render.alpha, tv.sky, solid=cfg.opacity_solid)
             terms.append((cfg.opacity_weight, o))
             logged["opacity"] = float(o.detach())
         if self.model.nonrigid and cfg.deform_weight > 0:

@@ -156,6 +156,21 @@ class Weather:
             return None
         return _preset_table(self.kind, self.preset)[0]
 
+    def precipitation_rate(self) -> float:
+        """Rain or snow rate (mm/h of liquid water) this weather stands for; 0 for clear and fog.
+
+        A fixed-count preset (``paper``) has no rate of its own: the kind's default preset's rate
+        is taken (the surfaces' wetness and snow cover need one).
+        """
+        if not self.has_particles:
+            return 0.0
+        if self.rate_mm_h is not None:
+            return float(self.rate_mm_h)
+        _, table = _preset_table(self.kind, self.preset)
+        if "rate_mm_h" not in table:
+            table = _preset_table(self.kind, load_presets()[self.kind].get("default_preset"))[1]
+        return float(table["rate_mm_h"])
+
     def exposure(self) -> float:
         """Exposure time (s)."""
         if self.exposure_s is not None:

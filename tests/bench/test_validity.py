@@ -53,9 +53,10 @@ def test_supervision_cases_compare_per_weather_and_in_the_mean(monkeypatch, tmp_
 
     calls = []
 
-    def fake_run(label, name, options, scenes, root, metrics):
-        calls.append((label, name, options))
-        return 2.0, doc({"rain": 31.0, "snow": 26.0, "fog": 33.0}, {"rain": 0.025, "snow": 0.07, "fog": 0.03})
+    def fake_run(label, name, options, scenes, root, metrics, weathers=validity.EDITED):
+        calls.append((label, name, options, weathers))
+        return 2.0, doc({"clear": 34.0, "rain": 31.0, "snow": 26.0, "fog": 33.0},
+                        {"clear": 0.02, "rain": 0.025, "snow": 0.07, "fog": 0.03})
 
     monkeypatch.setattr(validity, "_run_entry", fake_run)
     units = lambda d: validity._units(d)  # noqa: E731
@@ -63,10 +64,13 @@ def test_supervision_cases_compare_per_weather_and_in_the_mean(monkeypatch, tmp_
     truth = units(doc({"rain": 99.0, "snow": 99.0, "fog": 99.0}, {"rain": 0.024, "snow": 0.039, "fog": 0.025}))
     cases = validity._supervision_cases("synth_1", tmp_path, {"truth": truth, "sim-editor_0.5": editor},
                                         ("psnr",))
-    assert [c.name for c in cases] == ["supervised_0.5"]  # no editor entry at severity 1: no case
-    assert calls == [("weathercity_0.5", "weathercity",
-                      {"supervision": "sim-editor:0.5", "profile": "default", "weathers": "truth"})]
+    # only the supervisions whose editor entry ran get a case (here sim-editor 0.5)
+    assert [c.name for c in cases] == ["supervised_sim-editor_0.5"]
+    assert calls == [("weathercity_sim-editor_0.5", "weathercity",
+                      {"supervision": "sim-editor:0.5", "profile": "default", "weathers": "truth"},
+                      ("clear", "rain", "snow", "fog"))]
     x = cases[0].extra
+    assert x["psnr_clear_vs_raw"] == pytest.approx(34.0)  # the clear unit stays out of the weathers' means
     assert x["psnr_weathercity"] == pytest.approx(30.0) and x["psnr_editor"] == pytest.approx(28.666, abs=1e-3)
     assert x["closer_psnr"] is True
     assert x["closer_psnr_rain"] is True and x["closer_psnr_snow"] is False and x["closer_psnr_fog"] is True

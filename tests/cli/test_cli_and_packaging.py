@@ -42,6 +42,19 @@ def test_python_dash_m_entry_point():
     assert out.stdout.startswith("wcbench ")
 
 
+def test_the_checkout_imports_like_the_installed_package():
+    """From the repository root `./wcbench` shadows the installed package; its three sibling folders
+    must still import as wcbench.metrics, wcbench.reports and wcbench.reference_model."""
+    code = ("import wcbench, wcbench.metrics, wcbench.reports, wcbench.reference_model, wcbench.metrics.temporal; "
+            "print(wcbench.__file__); print(wcbench.metrics.__file__)")
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    package, metrics = done.stdout.split()
+    # whichever package Python picked, the metrics came from the same tree
+    assert (REPO / "wcbench" / "__init__.py").samefile(package)
+    assert (REPO / "metrics" / "__init__.py").samefile(metrics)
+
+
 def test_listing_commands(capsys):
     assert main(["scenes", "list"]) == 0
     out = capsys.readouterr().out

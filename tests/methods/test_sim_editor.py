@@ -198,8 +198,9 @@ def test_weathercity_takes_sim_editor_supervision(truth_scene):
         "sim-editor:0.3"
     frames, record = _supervision_frames(truth_scene, "sim-editor:0.3", ("rain",), 0.0, 0)
     assert record["method"] == "sim-editor" and record["severity"] == 0.3 and len(frames["rain"]) == 12
-    # the filter2d record is as it was
+    assert record["weather_check"] == {"rain": "unverified: the scene records no weather of its truth"}
+    # the filter2d record: its settings and how its weather relates to the physics
     _, f2d = _supervision_frames(truth_scene, "filter2d", ("rain",), 0.0, 0)
-    assert set(f2d) == {"method", "effects", "jitter", "seed", "parameters"}
-    with pytest.raises(InputError, match="expected 'filter2d' or READER:DIR"):
+    assert set(f2d) == {"method", "effects", "jitter", "seed", "parameters", "weather_check"}
+    with pytest.raises(InputError, match="'filter2d', sim-editor\\[:SEVERITY\\] or READER:DIR"):
         _supervision_frames(truth_scene, "nowhere", ("rain",), 0.0, 0)

@@ -66,7 +66,7 @@ def test_train_cli_writes_facts_and_a_second_call_loads_the_checkpoint(tmp_path,
     (["--profile", "fast"], "unknown training profile"),
     (["--ablation", "no-sky"], "unknown ablation"),
     (["--holdout", "40"], "has frames 0..11"),
-    (["--supervision", "nowhere"], "expected 'filter2d' or READER:DIR"),
+    (["--supervision", "nowhere"], "or READER:DIR (e.g. qwen-image:edits/)"),
 ])
 @pytest.mark.model
 def test_train_cli_refuses_bad_options_by_name(tmp_path, capsys, args, message):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import html
+import io
 import json
 import re
 import shutil
@@ -10,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from report_helpers import expected_text, parse_report, result_values, rewrite_results, skip_output
 
@@ -112,6 +115,23 @@ def test_weights_not_published_are_flagged_red_next_to_every_number(small, tmp_p
         assert marked == (cell["data-output"].startswith(("clip", "sem_cs"))), cell
     html = out.read_text()
     assert "mk-weights" in html and "not verified" in html
+
+
+def test_a_model_whose_every_number_was_skipped_raises_no_weights_flag(small, tmp_path):
+    """A fresh install skips CLIP (no weights): the report must not flag numbers that do not exist."""
+    def skip_clip(doc):
+        for scene, weathers in doc["results"].items():
+            for weather in list(weathers):
+                for metric in ("clip_s", "clip_ds"):
+                    if any(r["metric"] == metric for r in weathers[weather].values()):
+                        skip_output(doc, scene, weather, metric, "weights for clip-vit-b32-openai not installed")
+
+    for folder in small.values():
+        rewrite_results(folder, skip_clip)
+    outcome = build_report(list(small.values()), tmp_path / "r.html")
+    flags = [f for f in outcome.flags if f.topic == "weights"]
+    assert flags and not any("clip" in f.message.lower() for f in flags)  # SegFormer's numbers still flagged
+    assert all("sem_cs" in f.message for f in flags)
 
 
 def test_mismatched_folders_are_flagged_not_mixed(small, tmp_path):
@@ -262,3 +282,38 @@ def test_training_time_of_a_scene_counts_once_across_its_weathers(small, tmp_pat
     build_report([small["tint"]], out, animation_frames=0)
     html = out.read_text()
     assert "150.0 s" in html and "450.0 s" not in html
+
+
+def test_the_papers_summary_columns_follow_its_rule_in_html_csv_and_latex(tmp_path):
+    """CLIP-DS averaged over rain, snow and fog; CLIP-S and Sem-CS over rain and snow; from the cells."""
+    from wcbench.bench.report import make_results_folders
+
+    root = tmp_path / "res"
+    make_results_folders(root, methods=("tint", "haze"), scenes=("scene_a", "scene_b"),
+                         weathers=("clear", "rain", "snow", "fog"), n_frames=4, size=(64, 36))
+    folders = sorted(p for p in root.iterdir() if (p / "results.json").is_file())
+    # one scene of haze lost its snow CLIP-S: haze's CLIP-S summary is a dash naming the weather
+    rewrite_results(root / "haze", lambda doc: skip_output(doc, "scene_b", "snow", "clip_s", "weights missing"))
+    out = tmp_path / "r.html"
+    build_report(folders, out, csv=True, latex=True)
+    values = result_values(folders)
+    summary = [c for c in parse_report(out).cells if c["data-weather"] == "mean (paper's rule)"]
+    assert {c["data-output"] for c in summary} == {"clip_s", "clip_ds", "sem_cs"}
+    rule = {"clip_ds": ("rain", "snow", "fog"), "clip_s": ("rain", "snow"), "sem_cs": ("rain", "snow")}
+    for cell in summary:
+        method, output = cell["data-method"], cell["data-output"]
+        per_weather = [np.mean([values[(method, s, w, output)] for s in ("scene_a", "scene_b")])
+                       if all(values.get((method, s, w, output)) is not None for s in ("scene_a", "scene_b"))
+                       else None for w in rule[output]]
+        if None in per_weather:
+            assert (method, output) == ("haze", "clip_s") and cell["value"] == "\u2013"
+            assert "no number in snow" in cell["title"]
+        else:
+            assert cell["value"] == f"{np.mean(per_weather):.3f}", cell
+    page = html.unescape(out.read_text())
+    assert "by the paper's rule: CLIP-DS over rain, snow and fog; CLIP-S and Sem-CS over rain and snow" in page
+    rows = list(csv.DictReader(io.StringIO((tmp_path / "r.csv").read_text())))
+    in_csv = {(r["method"], r["output"]): r["value"] or "\u2013" for r in rows
+              if r["weather"] == "mean (paper's rule)" and r["table"] == "t-paper"}
+    assert in_csv == {(c["data-method"], c["data-output"]): c["value"] for c in summary}
+    assert "mean (paper's rule)" in (tmp_path / "r.tex").read_text()

@@ -248,7 +248,10 @@ def test_weathercity_renders_with_the_truths_physics_on_request(scene0: Scene, d
         chosen = method.weather_for(kind, 7, scene0)
         assert chosen.to_json() == truth[kind]["weather"]  # the truth's seed, not the run's 7
     assert method.weather_for("snow", 7, scene0).max_particles == 30000
-    assert method.weather_for("rain", 7).seed == 7  # without the scene: the default, seeded by the run
+    # without a recorded weather: the preset, seeded by the run; "auto" (the default) reads the record
+    assert WeatherCityMethod(weathers="presets").weather_for("rain", 7, scene0).seed == 7
+    assert WeatherCityMethod().weather_for("rain", 7, scene0).to_json() == truth["rain"]["weather"]
+    assert WeatherCityMethod().weather_for("rain", 7, demo_scene).seed == 7
     method.check_scene(scene0, "snow")
     # training composes the haze the renderer of the truth's weather adds
     hazes = training_hazes(method.config, method.physics(scene0), ("clear", "rain", "snow", "fog"))

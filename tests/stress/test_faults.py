@@ -203,6 +203,50 @@ def test_read_only_output_fails_clearly_before_work_as_a_non_root_user(kind, sce
         p.chmod(p.stat().st_mode | stat.S_IWUSR)
 
 
+@pytest.mark.parametrize("kind", ["unreadable predictions folder", "unreadable frame"])
+def test_unreadable_predictions_exit_2_naming_the_file_as_a_non_root_user(kind, scene, reference, shared_tmp,
+                                                                          as_nobody, case_counter):
+    prefix = as_nobody
+    shutil.copytree(scene, shared_tmp / "street")
+    shutil.copytree(reference / "filter2d", shared_tmp / "preds")
+    for p in [shared_tmp, *shared_tmp.rglob("*")]:
+        p.chmod(0o777 if p.is_dir() else 0o666)
+    rain = shared_tmp / "preds" / "street" / "rain"
+    locked = rain if kind == "unreadable predictions folder" else rain / "004.png"
+    locked.chmod(0o000)
+    out = shared_tmp / "out"
+    env = {**os.environ, "HOME": str(shared_tmp), "WCBENCH_CACHE": str(shared_tmp / "cache")}
+    cmd = [*prefix, *_cli("evaluate", "--method", "filter2d", "--scenes", str(shared_tmp / "street"),
+                          "--predictions", str(shared_tmp / "preds"), "--out", str(out), "--weathers",
+                          "clear,rain", "--metrics", "temporal_flicker", "psnr", "--no-progress")]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=shared_tmp)
+    finally:
+        locked.chmod(0o777 if locked.is_dir() else 0o666)
+    case_counter["faults: unreadable predictions as a non-root user"] += 1
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and str(locked) in proc.stderr, proc.stderr
+    assert proc.stderr.count("error:") == 1 and proc.stderr.startswith("wcbench evaluate: error:")  # one message
+    assert not (out / "results.json").exists() and not list(out.rglob("*.json"))
+
+
+def test_a_read_only_model_store_exits_2_naming_it_as_a_non_root_user(shared_tmp, as_nobody, case_counter):
+    store = shared_tmp / "store"
+    store.mkdir()
+    source = shared_tmp / "weights.safetensors"
+    source.write_bytes(b"not weights")
+    source.chmod(0o644)
+    store.chmod(0o555)
+    env = {**os.environ, "HOME": str(shared_tmp), "WCBENCH_MODELS": str(store)}
+    cmd = [*as_nobody, *_cli("models", "import", "lpips-alex", str(source), "--allow-unverified")]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=shared_tmp)
+    case_counter["faults: read-only model store as a non-root user"] += 1
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and str(store) in proc.stderr and "permission denied" in proc.stderr
+    assert not list(store.iterdir())
+    store.chmod(0o777)
+
+
 def test_a_full_disk_fails_clearly_keeps_finished_work_and_resumes(scene, reference, tmp_path, monkeypatch,
                                                                    capsys, case_counter):
     import wcbench.core.storage as storage

@@ -201,6 +201,8 @@ for _name, _data in {
 CASES["lidar: truncated"] = (_put(_scene("lidar/003.bin"), lambda p: truncated(p, 10)), _render, "003.bin")
 CASES["lidar: NaN points"] = (_put(_scene("lidar/003.bin"), _const(np.full((100, 4), np.nan, np.float32).tobytes())),
                               _render, "003.bin")
+CASES["lidar: points at 1e30 m"] = (
+    _put(_scene("lidar/003.bin"), _const(np.full((100, 4), 1e30, np.float32).tobytes())), _render, "003.bin")
 CASES["lidar pose: zero rotation"] = (_put(_scene("lidar_pose/003.txt"), _pose(np.zeros((3, 3)))), _render, "003.txt")
 CASES["lidar semseg: wrong length"] = (_put(_scene("lidar_semseg/003.bin"), _const(b"\x01\x02")), _render, "003.bin")
 

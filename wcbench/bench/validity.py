@@ -7,11 +7,13 @@ it (CLIP-S, CLIP-DS, Sem-CS) and the temporal ones (flicker, flow warping error,
 Cases
 -----
 ``<entry>``
-    One method (``identity``, ``filter2d``, ``lidar_init`` outside ``--quick``), one severity of
+    One method (``identity``, ``filter2d``, ``physical-editor``, ``lidar_init`` outside ``--quick``),
+    one severity of
     the simulated editor (``sim-editor_<s>``) or the truth itself (``truth``: severity 0),
     rendered and scored on every scene of the set and every edited weather: the mean of each
     output over those units (``null`` where a metric skipped, the reason in the notes),
-    ``time_ms`` of rendering and scoring, ``error`` the mean LPIPS against the truth.
+    ``time_ms`` of rendering and scoring, ``error`` the mean LPIPS against the truth; per weather
+    PSNR, LPIPS and flicker ratio, and ``frames``: the median whole-frame time of the renders.
 ``agree_<proxy>_<truth>``
     Spearman's rank correlation between a proxy and a truth metric over every unit (entry x scene
     x weather), oriented so that +1 means the proxy ranks units as the truth does (a lower-is-better
@@ -19,11 +21,13 @@ Cases
     (2,000 resamples, seeded). The notes give one line per proxy: it tracks the truth when, against
     PSNR, SSIM and LPIPS alike, its correlation is at least 0.5 and its interval lies above 0;
     otherwise the line says plainly that it does not.
-``supervised_<s>``
-    (outside ``--quick``) WeatherCity (``default`` profile) trained on ``sim-editor:<s>`` frames,
-    against those frames themselves: PSNR against the truth (``closer_psnr``: WeatherCity's is
+``supervised_<label>``
+    (outside ``--quick``) WeatherCity (``default`` profile) trained on each supervision: its default
+    ``physical-editor``, ``filter2d`` and ``sim-editor`` at severities 0.5 and 1, against the
+    supervision's frames themselves: PSNR against the truth (``closer_psnr``: WeatherCity's is
     higher), and temporal flicker next to the truth's own (``closer_flicker``: WeatherCity's is
-    nearer it), in the mean and per weather. WeatherCity renders with the physics the truth was
+    nearer it), in the mean and per weather; ``psnr_clear_vs_raw``, the same run's clear
+    reconstruction. WeatherCity renders with the physics the truth was
     rendered with, particle seed included (``weathers="truth"``): the editor's frames start from
     the truth's own particles, and another draw of heavy snow alone is about 34 dB from the truth
     (heavy rain 47 dB), a cap near the scores compared that says nothing about the scene.
@@ -31,8 +35,8 @@ Cases
     (outside ``--quick``) The README's main job, ``wcbench run --method weathercity --scenes <set>
     --profile quick --report``, in a new process as on a fresh install: empty scene cache (the scenes are
     generated), empty model store (no weights: LPIPS and the content loss skip), empty numba cache
-    (the kernels compile). ``limit_s`` is the time it must stay under (5 min for ``synth_1``,
-    15 min for ``synth_3``).
+    (the kernels compile). ``limit_s`` is the time it must stay under (3 min for ``synth_1``,
+    15 min for ``synth_3``); ``psnr_<weather>``: against the truth (clear: against the raw frames).
 
 ``--quick`` runs ``synth_1`` with two severities; the full suite runs ``synth_3``.
 """
@@ -69,9 +73,13 @@ PROXIES = ("clip_s", "clip_ds", "sem_cs", "temporal_flicker", "temporal_flicker_
 WEAK = 0.5
 BOOTSTRAP = 2000
 #: The issue's limits on the README main job from a fresh install (s).
-FIRST_RUN_LIMIT_S = {"synth_1": 300.0, "synth_3": 900.0}
-#: sim-editor severities WeatherCity is trained on (outside --quick).
-SUPERVISION_SEVERITIES = (0.5, 1.0)
+FIRST_RUN_LIMIT_S = {"synth_1": 180.0, "synth_3": 900.0}
+#: The supervisions WeatherCity is trained on (outside --quick): its default (the physical editor),
+#: the 2D grade, and the simulated editor at two severities (label, --supervision, the entry whose
+#: frames it is compared with).
+SUPERVISIONS = (("physical-editor", "physical-editor", "physical-editor"), ("filter2d", "filter2d", "filter2d"),
+                ("sim-editor_0.5", "sim-editor:0.5", "sim-editor_0.5"),
+                ("sim-editor_1", "sim-editor:1", "sim-editor_1"))
 
 
 def agreement(proxy: np.ndarray, truth: np.ndarray, *, sign: float = 1.0, resamples: int = BOOTSTRAP,
@@ -108,7 +116,8 @@ def _entries(quick: bool) -> list[tuple[str, str, dict[str, Any]]]:
     severities = (0.25, 1.0) if quick else (0.25, 0.5, 0.75, 1.0)
     # the truth itself (sim-editor at severity 0) is a unit too: the perfect method
     out: list[tuple[str, str, dict[str, Any]]] = [("truth", "sim-editor", {"severity": 0.0}),
-                                                  ("identity", "identity", {}), ("filter2d", "filter2d", {})]
+                                                  ("identity", "identity", {}), ("filter2d", "filter2d", {}),
+                                                  ("physical-editor", "physical-editor", {})]
     if not quick:
         out.append(("lidar_init", "lidar_init", {}))
     out += [(f"sim-editor_{s:g}", "sim-editor", {"severity": s}) for s in severities]
@@ -116,15 +125,26 @@ def _entries(quick: bool) -> list[tuple[str, str, dict[str, Any]]]:
 
 
 def _run_entry(label: str, name: str, options: dict[str, Any], scenes: str, root: Path,
-               metrics: tuple[str, ...]) -> tuple[float, dict[str, Any]]:
+               metrics: tuple[str, ...], weathers: tuple[str, ...] = EDITED) -> tuple[float, dict[str, Any]]:
     """Seconds to render and score one entry, and its results document."""
     method = get_method(name, **options)
     cfg = EvaluateConfig(method=name, scenes=scenes, predictions=root / "predictions" / label,
-                         out=root / "results" / label, weathers=list(EDITED), metrics=list(metrics),
+                         out=root / "results" / label, weathers=list(weathers), metrics=list(metrics),
                          render=RenderSettings(seed=0, show_progress=False), show_progress=False)
     start = time.perf_counter()
     doc = evaluate(cfg, method=method).results
     return time.perf_counter() - start, doc
+
+
+def _frame_ms(root: Path, label: str) -> dict[str, Any] | None:
+    """Median whole-frame time (ms) of an entry's renders and their size, from their ``info.json``."""
+    medians, size = [], None
+    for info_path in sorted((root / "predictions" / label).rglob("info.json")):
+        timings = json.loads(info_path.read_text(encoding="utf-8")).get("timings", {})
+        if isinstance(timings.get("median_frame_ms"), (int, float)):
+            medians.append(float(timings["median_frame_ms"]))
+            size = timings.get("resolution")
+    return {"median_frame_ms": float(np.median(medians)), "size": size} if medians else None
 
 
 def _units(doc: dict[str, Any]) -> list[dict[str, Any]]:
@@ -171,10 +191,13 @@ def run(*, data_root: Path | None = None, quick: bool = False) -> BenchReport:
             for s in doc.get("skipped", []):
                 skipped.setdefault(s["metric"], s["reason"])
             means = {k: _mean([u.get(k) for u in units]) for k in (*TRUTH, *PROXIES)}
+            per_weather = {f"{k}_{w}": _mean([u.get(k) for u in units if u["weather"] == w])
+                           for k in ("psnr", "lpips", "temporal_flicker_ratio") for w in EDITED}
             report.cases.append(BenchCase(
                 name=label, knob="method", value=label, time_ms=1e3 * seconds, error=means["lpips"],
                 error_unit="lpips vs truth", extra={**{k: v for k, v in means.items() if k != "lpips"},
-                                                    "units": len(units)}))
+                                                    **per_weather, "units": len(units),
+                                                    "frames": _frame_ms(root, label)}))
         if not quick:
             report.cases += _supervision_cases(scenes, root, per_entry, metrics)
     report.cases += first_runs
@@ -216,19 +239,20 @@ def _supervision_cases(scenes: str, root: Path, per_entry: dict[str, list[dict[s
     """WeatherCity trained on the simulated editor's frames against those frames (see the module docstring)."""
     cases = []
     truth_units = per_entry.get("truth", [])
-    for severity in SUPERVISION_SEVERITIES:
-        label = f"sim-editor_{severity:g}"
-        editor = per_entry.get(label)
+    for label, supervision, entry in SUPERVISIONS:
+        editor = per_entry.get(entry)
         if editor is None:
             continue
-        seconds, doc = _run_entry(f"weathercity_{severity:g}", "weathercity",
-                                  {"supervision": f"sim-editor:{severity:g}", "profile": "default",
-                                   "weathers": "truth"}, scenes, root, metrics)
+        seconds, doc = _run_entry(f"weathercity_{label}", "weathercity",
+                                  {"supervision": supervision, "profile": "default", "weathers": "truth"},
+                                  scenes, root, metrics, weathers=("clear", *EDITED))
         units = _units(doc)
-        extra: dict[str, Any] = {}
+        clear = [u for u in units if u["weather"] == "clear"]
+        extra: dict[str, Any] = {"psnr_clear_vs_raw": _mean([u.get("psnr") for u in clear])}
         for subset in ("all", *EDITED):
             def pick(us: list[dict[str, Any]], key: str, subset: str = subset) -> float | None:
-                return _mean([u.get(key) for u in us if subset == "all" or u["weather"] == subset])
+                return _mean([u.get(key) for u in us if u["weather"] == subset
+                              or (subset == "all" and u["weather"] != "clear")])
 
             suffix = "" if subset == "all" else f"_{subset}"
             psnr_wc, psnr_ed = pick(units, "psnr"), pick(editor, "psnr")
@@ -243,8 +267,9 @@ def _supervision_cases(scenes: str, root: Path, per_entry: dict[str, list[dict[s
                     abs(fl_wc - fl_truth) < abs(fl_ed - fl_truth)),
             })
         cases.append(BenchCase(
-            name=f"supervised_{severity:g}", knob="supervision", value=f"sim-editor:{severity:g}",
-            time_ms=1e3 * seconds, error=_mean([u.get("lpips") for u in units]), error_unit="lpips vs truth",
+            name=f"supervised_{label}", knob="supervision", value=supervision,
+            time_ms=1e3 * seconds, error=_mean([u.get("lpips") for u in units if u["weather"] != "clear"]),
+            error_unit="lpips vs truth",
             extra=extra))
     return cases
 
@@ -267,10 +292,12 @@ def _first_run_case(scenes: str) -> BenchCase:
             raise RuntimeError(f"{' '.join(cmd)} wrote no report.html")
     units = _units(doc)
     truth = {k: _mean([u.get(k) for u in units if u["weather"] != "clear"]) for k in TRUTH}
+    per_weather = {f"psnr_{w}": _mean([u.get("psnr") for u in units if u["weather"] == w])
+                   for w in ("clear", *EDITED)}
     limit = FIRST_RUN_LIMIT_S[scenes]
     return BenchCase(
         name=f"first_run_{scenes}", knob="first_run", value=scenes, time_ms=1e3 * seconds, error=None,
         error_unit="-", extra={"limit_s": limit, "within_limit": seconds <= limit, "units": len(units),
-                               **{f"{k}_vs_truth": v for k, v in truth.items()},
+                               **{f"{k}_vs_truth": v for k, v in truth.items()}, **per_weather,
                                "command": f"wcbench run --method weathercity --scenes {scenes} --profile quick "
                                           "--out OUT --report"})

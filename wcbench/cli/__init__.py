@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``wcbench`` console script; returns the exit status.
 
-    Input errors (:class:`~wcbench.core.errors.WcbenchError`) print one message and exit with 2.
+    Input errors (:class:`~wcbench.core.errors.WcbenchError`) and files or folders the user may
+    not read or write (``PermissionError``) print one message and exit with 2.
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -69,6 +70,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except WcbenchError as exc:
         print(f"wcbench {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except PermissionError as exc:  # a file or folder this user may not read or write: no traceback
+        where = exc.filename or "a file"
+        print(f"wcbench {args.command}: error: {where}: permission denied for this user ({exc.strerror or exc})",
+              file=sys.stderr)
+        return 2
     except BrokenPipeError:  # `wcbench ... | head`: the reader left, nothing to report
         sys.stderr.close()
         return 0

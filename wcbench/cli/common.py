@@ -166,9 +166,9 @@ def add_method_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("method options (passed to the method; see `wcbench methods list -v`)")
     group.add_argument("--profile", default=None, help="training profile of a trained method: default, quick")
     group.add_argument("--supervision", default=None,
-                       help="edited frames a trained method learns from: filter2d (built in), "
-                            "sim-editor[:SEVERITY] (needs ground-truth scenes, e.g. synth_1) or READER:DIR, "
-                            "e.g. qwen-image:edits/")
+                       help="edited frames a trained method learns from: physical-editor (built in, the "
+                            "default), filter2d (built in), sim-editor[:SEVERITY] (needs ground-truth scenes, "
+                            "e.g. synth_1) or READER:DIR, e.g. qwen-image:edits/")
     group.add_argument("--edit", action="append", default=None, metavar="EDIT",
                        help="object edit, repeatable: 'remove class=Car except ids=3,7', "
                             "'translate id=5 by=0,2,0', or a JSON list")

@@ -31,9 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="where OUT/<scene>/training.json goes (default: runs/train)")
     parser.add_argument("--profile", default="default", help="training profile: default, quick")
     parser.add_argument("--ablation", default="", help="named ablation: no-wgs, no-content-loss")
-    parser.add_argument("--supervision", default="filter2d",
-                        help="edited frames to learn from: filter2d (built in), sim-editor[:SEVERITY] "
-                             "(needs ground-truth scenes, e.g. synth_1) or READER:DIR")
+    parser.add_argument("--supervision", default="physical-editor",
+                        help="edited frames to learn from: physical-editor (built in, the default), filter2d "
+                             "(built in), sim-editor[:SEVERITY] (needs ground-truth scenes, e.g. synth_1) or "
+                             "READER:DIR")
     parser.add_argument("--jitter", type=float, default=0.0,
                         help="per-frame perturbation of the filter2d supervision, 0..1 (default 0)")
     parser.add_argument("--holdout", nargs="*", default=None, metavar="FRAME",
@@ -49,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Train every scene of the set; print and write what each training measured."""
     from wcbench.core.storage import atomic_write_json, check_writable_folder
+    from wcbench.methods.weather_spec import resolve_physics
     from wcbench.methods.weathercity import train_scene
     from wcbench.reference_model.training.config import make_config
     from wcbench.scenes.sets import resolve_scenes
@@ -71,8 +73,10 @@ def run(args: argparse.Namespace) -> int:
         bad = [h for h in holdout if not 0 <= h < len(scene)]
         if bad:
             raise InputError(f"--holdout {bad}: {scene.id} has frames 0..{len(scene) - 1}")
+        # the physics `run --method weathercity` renders with by default, so that it finds this model
         _, _, facts = train_scene(scene, config, supervision=args.supervision, jitter=args.jitter,
-                                  folder=args.checkpoint, show_progress=not args.no_progress)
+                                  physics=resolve_physics(scene, "auto"), folder=args.checkpoint,
+                                  show_progress=not args.no_progress)
         path = args.out / scene.id / "training.json"
         atomic_write_json(path, facts)
         counts = facts["gaussians"]

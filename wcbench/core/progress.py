@@ -45,6 +45,8 @@ class Progress(Generic[T]):
             total = len(items)
         self.total = total
         self.count, self.postfix = 0, ""
+        self._first_done: float | None = None
+        self._first_count = 1  # items the first advance counted
         self._start = self._last = time.perf_counter()
         self._closed = False
         self._interval = _interval()
@@ -64,11 +66,13 @@ class Progress(Generic[T]):
 
     def advance(self, n: int = 1) -> None:
         """Count ``n`` more items done (iteration does it; a caller stepping by hand may too)."""
+        now = time.perf_counter()
+        if self.count == 0:
+            self._first_done, self._first_count = now, n
         self.count += n
         if self._bar is not None:
             self._bar.update(n)
             return
-        now = time.perf_counter()
         if now - self._last >= self._interval:
             self._last = now
             print(self._line(now, done=False), file=sys.stderr, flush=True)
@@ -99,7 +103,14 @@ class Progress(Generic[T]):
         else:
             text += f", {_seconds(spent)}"
             if self.total and self.count:
-                text += f", about {_seconds(spent / self.count * (self.total - self.count))} left"
+                # the first item pays for compiling and warming up (a training's first step took 60x a
+                # steady one): the time left comes from the items after it
+                steady = self.count - self._first_count
+                if steady > 0 and self._first_done is not None:
+                    rate = (now - self._first_done) / steady
+                    text += f", about {_seconds(rate * (self.total - self.count))} left"
+                else:
+                    text += ", time left: estimating"
         return text + (f" ({self.postfix})" if self.postfix else "")
 
 

@@ -22,6 +22,7 @@ METHODS: LazyRegistry = LazyRegistry(
         "identity": "wcbench.methods.identity:IdentityMethod",
         "filter2d": "wcbench.methods.filter2d:Filter2DMethod",
         "sim-editor": "wcbench.methods.sim_editor:SimEditorMethod",
+        "physical-editor": "wcbench.methods.physical_editor:PhysicalEditorMethod",
         "lidar_init": "wcbench.methods.lidar_init:LidarInitMethod",
         "weathercity": "wcbench.methods.weathercity:WeatherCityMethod",
         **{name: f"wcbench.methods.readers:{name.replace('-', '_')}" for name in _READERS},

@@ -34,9 +34,11 @@ from wcbench.methods.runnable import FrameRenderer
 from wcbench.scenes.scene import Scene
 
 FOG_COLOR = (0.80, 0.80, 0.85)  # paper's c_fog
+#: Fog visibility (m) unless told another (``visibility_m``).
+FOG_VISIBILITY_M = 60.0
 _PARAMS: dict[str, dict[str, Any]] = {
     "clear": {},
-    "fog": {"visibility_m": 60.0, "fog_color": FOG_COLOR, "camera_height_m": 1.6, "far_m": 1000.0},
+    "fog": {"visibility_m": FOG_VISIBILITY_M, "fog_color": FOG_COLOR, "camera_height_m": 1.6, "far_m": 1000.0},
     "rain": {"darken": 0.78, "tint": (0.92, 0.96, 1.05), "streaks_per_megapixel": 1500, "streak_px": 0.06},
     "snow": {"brighten": 0.12, "flakes_per_megapixel": 2500, "flake_px": 0.004},
 }
@@ -242,6 +244,9 @@ class Filter2DMethod(FrameRenderer):
         Draw rain streaks and snowflakes (``False``: the weather's grade only).
     jitter : float
         Strength in [0, 1] of the per-frame perturbations of :func:`jitter_frame`.
+    visibility_m : float, optional
+        Fog visibility (m; default 60): WeatherCity sets its physics fog's when it trains on
+        filter2d (one weather spec for the supervision and the physics).
     """
 
     info = MethodInfo(
@@ -252,14 +257,19 @@ class Filter2DMethod(FrameRenderer):
         layout="writes <out>/filter2d/<scene>/<weather>/{frame:03d}.png + info.json",
     )
 
-    def __init__(self, *, effects: bool = True, jitter: float = 0.0):
+    def __init__(self, *, effects: bool = True, jitter: float = 0.0, visibility_m: float | None = None):
         if not 0.0 <= float(jitter) <= 1.0:
             raise InputError(f"filter2d: jitter must be in [0, 1], got {jitter}")
+        if visibility_m is not None and not 0 < float(visibility_m) < float("inf"):
+            raise InputError(f"filter2d: visibility_m must be a finite visibility > 0 m, got {visibility_m}")
         self.effects, self.jitter = bool(effects), float(jitter)
+        self.visibility_m = None if visibility_m is None else float(visibility_m)
 
     def parameters(self, weather: str) -> dict[str, Any]:
         """The filter settings used for ``weather``."""
         out = dict(_PARAMS[weather])
+        if weather == "fog" and self.visibility_m is not None:
+            out["visibility_m"] = self.visibility_m
         if not self.effects or self.jitter:  # the defaults leave the record (and render keys) as they were
             out.update(effects=self.effects, jitter=self.jitter)
         return out
@@ -272,7 +282,8 @@ class Filter2DMethod(FrameRenderer):
         if weather == "clear":
             out = raw
         elif weather == "fog":
-            out = fog_filter(raw, scene.frames[index].camera.K, **p)
+            out = fog_filter(raw, scene.frames[index].camera.K, **{**p, **({"visibility_m": self.visibility_m}
+                                                                          if self.visibility_m else {})})
         else:
             h, w = raw.shape[:2]
             mpx = h * w / 1e6

@@ -1,9 +1,12 @@
 """``weathercity``: the paper's method, trained on the scene, rendered under physics weather.
 
 For each scene the method (1) gets edited frames of every weather from a supervision method (the
-built-in ``filter2d`` grade by default, run without its streaks and flakes, since particles come
-from the physics; the simulated editor ``sim-editor[:SEVERITY]`` on scenes with ground truth; or
-another tool's frames read from a folder, ``READER:DIR``), (2) builds the weather Gaussian scene
+built-in ``physical-editor`` by default: physically based weather from the scene's lidar, without
+particles, since particles come from the physics; the ``filter2d`` 2D grade, without its streaks
+and flakes; the simulated editor ``sim-editor[:SEVERITY]`` on scenes with ground truth; or another
+tool's frames read from a folder, ``READER:DIR``), each checked against the run's one weather spec
+(:mod:`wcbench.methods.weather_spec`: the built-in editors edit with the physics' rate and
+visibility, a folder that records another is refused), (2) builds the weather Gaussian scene
 graph from the lidar and trains it on the raw frames and the edits, each edit's render composed
 through the haze its physics weather adds (:mod:`wcbench.reference_model.training`,
 :mod:`wcbench.reference_model.model.haze`), caching the trained model under a key over every input
@@ -21,7 +24,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,11 +40,26 @@ from wcbench.core.progress import progress
 from wcbench.core.storage import sha256_file, sha256_json
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods import get_method
+from wcbench.methods.filter2d import FOG_VISIBILITY_M as FILTER2D_VISIBILITY_M
 from wcbench.methods.filter2d import Filter2DMethod
+from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
+from wcbench.methods.physical_editor import check_lidar, edit_scene
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
 from wcbench.methods.sim_editor import supervision_frames as sim_editor_frames
 from wcbench.methods.sim_editor import supervision_severity, truth_paths
+from wcbench.methods.weather_spec import (
+    EDITED,
+    WeathersOption,
+    check_consistent,
+    describe_option,
+    has_truth_weather,
+    parse_weathers,
+    physics_record,
+    resolve_physics,
+    truth_physics,
+)
+from wcbench.predictions import INFO_FILE
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
@@ -53,6 +71,7 @@ from wcbench.reference_model.training.losses import ContentLoss
 from wcbench.reference_model.training.trainer import Trainer, evaluate_views
 from wcbench.reference_model.training.views import TrainingView, build_views
 from wcbench.reference_model.weather.conditions import Weather
+from wcbench.reference_model.weather.fog import visibility_from_density
 from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
 from wcbench.scenes.scene import Scene
 
@@ -80,25 +99,62 @@ def _check_supervision(spec: str, jitter: float) -> float | None:
     return severity
 
 
-def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitter: float,
-                        seed: int) -> tuple[dict[str, list[np.ndarray]], dict[str, Any]]:
-    """Edited frames per weather from ``spec`` (``filter2d``, ``sim-editor[:SEVERITY]`` or ``READER:DIR``)
-    and a record of them."""
+def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitter: float, seed: int, *,
+                        physics: Mapping[str, Weather] | None = None, size: tuple[int, int] | None = None
+                        ) -> tuple[dict[str, list[np.ndarray]], dict[str, Any]]:
+    """Edited frames per weather from ``spec`` (``physical-editor``, ``filter2d``, ``sim-editor[:SEVERITY]``
+    or ``READER:DIR``) and a record of them, each weather checked against the run's ``physics``.
+
+    The record's ``weather_check`` says per weather how the supervision's weather relates to the
+    physics: ``"consistent"`` (made from the same spec, or recorded and equal), ``"reconciled: ..."``
+    (a built-in editor set to the physics' values) or ``"unverified: ..."`` (a folder that records
+    no weather). A recorded contradiction is refused.
+
+    Raises
+    ------
+    InputError
+        A malformed ``spec``, a missing folder, or a supervision whose weather contradicts the physics.
+    """
     frames: dict[str, list[np.ndarray]] = {}
+    physics = physics if physics is not None else resolve_physics(scene, "presets")
+    size = size or scene.image_size
+    edited = {w: physics[w] for w in weathers if w in physics}
+    if spec == PHYSICAL_EDITOR:
+        if jitter:
+            raise InputError(f"--supervision {spec!r}: jitter perturbs the filter2d supervision only")
+        frames_f, record, timings = edit_scene(scene, edited, size)
+        record["weather_check"] = {w: "consistent: edited with the run's physics" for w in edited}
+        record["timings"] = timings  # dropped from the training's key (:func:`train_scene`)
+        return {w: list(v) for w, v in frames_f.items()}, record
     if spec == "filter2d":
-        f2d = Filter2DMethod(effects=False, jitter=jitter)
+        fog = edited.get("fog")
+        beta = fog.haze()[0] if fog is not None else 0.0
+        visibility = visibility_from_density(beta) if beta > 0 else None
+        f2d = Filter2DMethod(effects=False, jitter=jitter, visibility_m=visibility)
         for w in weathers:
             frames[w] = [f2d.render_frame(scene, w, k, seed=seed) for k in range(len(scene))]
+        check = {w: "unverified: filter2d's rain and snow are a 2D grade with no rate" for w in weathers if w != "fog"}
+        if "fog" in weathers:
+            check["fog"] = (f"reconciled: filter2d fogs at the physics' visibility {visibility:.4g} m (its own "
+                            f"default: {FILTER2D_VISIBILITY_M:g} m)" if visibility else "unverified: no fog haze")
         record = {"method": "filter2d", "effects": False, "jitter": jitter, "seed": seed,
-                  "parameters": {w: f2d.parameters(w) for w in weathers}}
+                  "parameters": {w: f2d.parameters(w) for w in weathers}, "weather_check": check}
         return frames, record
     severity = _check_supervision(spec, jitter)
     if severity is not None:  # the simulated editor's frames of the scene's truth (synth scenes)
-        return sim_editor_frames(scene, severity, weathers, seed)
+        truth = truth_physics(scene) if has_truth_weather(scene) else {}
+        for w in edited:
+            if w in truth:
+                check_consistent(w, edited[w], physics_record(truth[w]),
+                                 source=f"--supervision {spec} ({Path(scene.root) / 'truth' / 'weather.json'})")
+        frames, record = sim_editor_frames(scene, severity, weathers, seed)
+        record["weather_check"] = {w: "consistent: the truth's weather" if w in truth else
+                                   "unverified: the scene records no weather of its truth" for w in weathers}
+        return frames, record
     reader_name, sep, folder = spec.partition(":")
     if not sep or not folder:
-        raise InputError(f"--supervision {spec!r}: expected 'filter2d' or READER:DIR (e.g. qwen-image:edits/), "
-                         "or sim-editor[:SEVERITY]")
+        raise InputError(f"--supervision {spec!r}: expected {PHYSICAL_EDITOR!r}, 'filter2d', "
+                         "sim-editor[:SEVERITY] or READER:DIR (e.g. qwen-image:edits/)")
     reader = get_method(reader_name)
     root = Path(folder).expanduser()
     if not root.is_dir():
@@ -106,10 +162,12 @@ def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitt
     scene_root = root / scene.id if (root / scene.id).is_dir() else root
     hashes: dict[str, list[str]] = {}
     missing: dict[str, str] = {}
+    checked: dict[str, str] = {}
     for w in weathers:
         if w not in reader.info.weathers:
             missing[w] = f"{reader_name} does not produce {w}"
             continue
+        checked[w] = _check_folder_weather(scene_root / w / INFO_FILE, w, edited.get(w))
         try:
             seq = reader.open_predictions(scene, w, scene_root, resize=True)
         except InputError as exc:
@@ -121,7 +179,29 @@ def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitt
         frames[w] = list(seq)
         hashes[w] = seq.sha256s()
     return frames, {"method": reader_name, "folder": str(scene_root.resolve()), "sha256": hashes,
-                    "not_supervised": missing}
+                    "not_supervised": missing, "weather_check": {w: c for w, c in checked.items() if w in frames}}
+
+
+def _check_folder_weather(info_path: Path, kind: str, physics: Weather | None) -> str:
+    """``"consistent"`` when the folder's ``info.json`` records the physics it was made with
+    (``parameters.physics``) and it matches; ``"unverified: ..."`` when it records none.
+
+    Raises
+    ------
+    InputError
+        The recorded weather contradicts ``physics`` (both values named).
+    """
+    if physics is None:
+        return "unverified: no physics weather of this kind in the run"
+    try:
+        doc = json.loads(info_path.read_text(encoding="utf-8")) if info_path.is_file() else {}
+    except (OSError, ValueError):
+        doc = {}
+    record = (doc.get("parameters") or {}).get("physics") if isinstance(doc, dict) else None
+    if not isinstance(record, dict):
+        return "unverified: the folder records no weather (info.json parameters.physics)"
+    check_consistent(kind, physics, record, source=str(info_path))
+    return f"consistent: {info_path} records the run's physics"
 
 
 def content_loss_for(config: TrainConfig, store: ModelStore | None) -> tuple[ContentLoss | None, str]:
@@ -136,28 +216,6 @@ def content_loss_for(config: TrainConfig, store: ModelStore | None) -> tuple[Con
         f"VGG16 {','.join(CONTENT_LAYERS)} at {config.content_size[0]}x{config.content_size[1]}, "
         f"every {config.content_interval * config.weather_interval} steps (sha256 {store.sha256('vgg16')})"
     )
-
-
-def truth_physics(scene: Scene) -> dict[str, Weather]:
-    """The physics weathers the scene's ground truth was rendered with (``truth/weather.json`` of the
-    ``synth_*`` scenes: rate, visibility, wind and particle seed per edited weather).
-
-    Raises
-    ------
-    InputError
-        The scene has no such file, or it does not describe a weather per kind.
-    """
-    path = Path(scene.root) / "truth" / "weather.json"
-    if not path.is_file():
-        raise InputError(f"{path}: not found; weathers='truth' renders with the physics a scene's ground truth "
-                         "was made with, and only the synth_* scenes ship it")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-        return {kind: Weather.from_json(entry["weather"]) for kind, entry in doc.items()
-                if isinstance(entry, dict) and "weather" in entry}
-    except (ValueError, TypeError, KeyError) as exc:
-        raise InputError(f"{path}: expected {{kind: {{'weather': Weather fields, ...}}}} per edited weather "
-                         f"({exc})") from None
 
 
 def training_hazes(config: TrainConfig, physics: Mapping[str, Weather], weathers: tuple[str, ...]) -> dict[str, Haze]:
@@ -196,7 +254,7 @@ class TrainingInputs:
     hazes: dict[str, Haze] = field(default_factory=dict)
 
 
-def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = "filter2d", jitter: float = 0.0,
+def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = PHYSICAL_EDITOR, jitter: float = 0.0,
                     weathers: tuple[str, ...] = ("rain", "snow", "fog"),
                     physics: Mapping[str, Weather] | None = None) -> TrainingInputs:
     """The views (raw frames, edits of every supervised weather, lidar depth, sky and object masks)
@@ -208,20 +266,22 @@ def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = "fi
     InputError
         On a malformed ``supervision`` or a folder that does not exist.
     """
-    frames, sup_record = _supervision_frames(scene, supervision, weathers, jitter, config.seed)
+    size = config.size_for(scene.image_size)
+    physics = dict(physics) if physics is not None else resolve_physics(scene, "presets")
+    frames, sup_record = _supervision_frames(scene, supervision, weathers, jitter, config.seed, physics=physics,
+                                             size=size)
     trained = ("clear", *[w for w in weathers if w in frames])
-    views, view_facts = build_views(scene, size=config.size_for(scene.image_size),
-                                    supervision={w: frames[w] for w in trained if w != "clear"})
+    views, view_facts = build_views(scene, size=size, supervision={w: frames[w] for w in trained if w != "clear"})
     return TrainingInputs(views=views, trained=trained, supervision=sup_record, view_facts=view_facts,
                           sources=[sha256_file(f.image_path) for f in scene.frames],
-                          hazes=training_hazes(config, physics or {}, trained))
+                          hazes=training_hazes(config, physics, trained))
 
 
 def train_scene(
     scene: Scene,
     config: TrainConfig,
     *,
-    supervision: str = "filter2d",
+    supervision: str = PHYSICAL_EDITOR,
     jitter: float = 0.0,
     weathers: tuple[str, ...] = ("rain", "snow", "fog"),
     physics: Mapping[str, Weather] | None = None,
@@ -238,15 +298,16 @@ def train_scene(
     scene : Scene
     config : TrainConfig
     supervision : str
-        ``"filter2d"``, ``"sim-editor"`` / ``"sim-editor:SEVERITY"`` (the simulated editor's frames of
-        the scene's ground truth) or ``READER:DIR``.
+        ``"physical-editor"`` (default), ``"filter2d"``, ``"sim-editor"`` / ``"sim-editor:SEVERITY"``
+        (the simulated editor's frames of the scene's ground truth) or ``READER:DIR``.
     jitter : float
         Per-frame perturbation strength of the ``filter2d`` supervision (refused with sim-editor's).
     weathers : tuple of str
         Edited weathers to train (clear is always trained); those without supervision are not.
     physics : mapping of str to Weather, optional
-        The physics weathers the model will be rendered under: their haze is composed into the
-        training renders (``config.through_haze``). Default: each kind's default weather.
+        The physics weathers the model will be rendered under: the built-in supervision edits with
+        them and their haze is composed into the training renders (``config.through_haze``).
+        Default: each kind's default preset.
     folder : Path, optional
         Where the checkpoint goes; default the cache folder ``weathercity/<scene>-<key>``.
     store : ModelStore, optional
@@ -279,8 +340,9 @@ def train_scene(
         content_loss, content_note = content_loss_for(config, store)
     else:
         content_loss, content_note = content, "injected" if content is not None else "off"
+    made = {k: v for k, v in inputs.supervision.items() if k != "timings"}  # what makes the frames, not how fast
     key = sha256_json({"version": VERSION, "scene": scene.id, "sources": inputs.sources, "config": config.to_json(),
-                       "supervision": inputs.supervision, "trained": trained, "content": content_note,
+                       "supervision": made, "trained": trained, "content": content_note,
                        "hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
                        "lidar": [str(f.lidar_path) for f in scene.frames]})
     folder = folder or cache_dir() / "weathercity" / f"{scene.id}-{key[:16]}"
@@ -345,8 +407,9 @@ class WeatherCityMethod(FrameRenderer):
     Parameters
     ----------
     supervision : str
-        ``"filter2d"`` (default), ``"sim-editor[:SEVERITY]"`` (the simulated editor on the scene's
-        ground truth, severity in [0, 1]) or ``READER:DIR`` (another tool's edited frames).
+        ``"physical-editor"`` (default), ``"filter2d"``, ``"sim-editor[:SEVERITY]"`` (the simulated
+        editor on the scene's ground truth, severity in [0, 1]) or ``READER:DIR`` (another tool's
+        edited frames).
     jitter : float
         Per-frame perturbation of the ``filter2d`` supervision, in [0, 1].
     profile : str
@@ -357,12 +420,13 @@ class WeatherCityMethod(FrameRenderer):
         Training settings overriding the profile's (see :class:`TrainConfig`).
     holdout : sequence of int
         Frames left out of training (their held-out PSNR goes to info.json).
-    weathers : dict of str to Weather or dict, or "truth", optional
-        The physics weather per kind (default: each kind's default preset); a dict gives the
-        :class:`Weather` fields (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
-        ``"truth"``: per scene, the physics its ground truth was rendered with, particle seed
-        included (``truth/weather.json`` of the ``synth_*`` scenes; :func:`truth_physics`), so that
-        a comparison with the truth measures the learned scene, not the draw of the particles.
+    weathers : "auto", "truth", "presets" or dict, optional
+        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_weathers`). Default
+        ``"auto"``: a scene's recorded weather where it ships one (``truth/weather.json`` of the
+        ``synth_*`` scenes, particle seed included, so that a comparison with the truth measures
+        the learned scene, not the draw of the particles), else each kind's default preset;
+        ``"truth"`` requires the record; a dict gives the :class:`Weather` fields
+        (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
     size : (int, int), optional
         Render size; default the training size (and scored there).
     edits : str or list, optional
@@ -376,13 +440,13 @@ class WeatherCityMethod(FrameRenderer):
     def __init__(
         self,
         *,
-        supervision: str = "filter2d",
+        supervision: str = PHYSICAL_EDITOR,
         jitter: float = 0.0,
         profile: str = "default",
         ablation: str = "",
         settings: dict[str, Any] | None = None,
         holdout: tuple[int, ...] | list[int] = (),
-        weathers: dict[str, Weather | dict[str, Any]] | str | None = None,
+        weathers: Any = None,
         size: tuple[int, int] | None = None,
         edits: str | list[Any] | None = None,
         content: Any = "auto",
@@ -397,17 +461,8 @@ class WeatherCityMethod(FrameRenderer):
             raise InputError(f"weathercity: jitter must be in [0, 1], got {jitter}")
         _check_supervision(supervision, float(jitter))  # a bad sim-editor severity fails before training
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
-        self.weathers: dict[str, Weather] = {}
-        self.truth_weathers = weathers == "truth"
-        self._truth: dict[str, dict[str, Weather]] = {}
-        if isinstance(weathers, str) and not self.truth_weathers:
-            raise InputError(f"weathercity: weathers must be a dict of kind -> Weather fields or 'truth', "
-                             f"got {weathers!r}")
-        for kind, value in ({} if isinstance(weathers, str) else weathers or {}).items():
-            try:
-                self.weathers[kind] = value if isinstance(value, Weather) else Weather(kind=kind, **dict(value))
-            except (TypeError, ValueError) as exc:
-                raise InputError(f"weathercity: weathers[{kind!r}]: {exc}") from None
+        self.weathers: WeathersOption = parse_weathers(weathers, who="weathercity")
+        self._physics: dict[str, dict[str, Weather]] = {}
         self.size = None if size is None else (int(size[0]), int(size[1]))
         self.info = MethodInfo(
             name="weathercity",
@@ -426,45 +481,46 @@ class WeatherCityMethod(FrameRenderer):
         self._rays: dict[tuple[bytes, int, int], torch.Tensor] = {}
         self._placement = Placement()
 
-    def weather_for(self, kind: str, seed: int, scene: Scene | None = None) -> Weather:
-        """The physics weather of ``kind`` with ``seed`` (the given one, or the kind's default); with
-        ``weathers="truth"``, ``scene``'s own, with its truth's seed."""
-        if self.truth_weathers and scene is not None and kind != "clear":
-            physics = self._truth_physics(scene)
-            if kind in physics:
-                return physics[kind]
-        return replace(self.weathers.get(kind, Weather(kind=kind)), seed=seed)
+    def weather_for(self, kind: str, seed: int, scene: Scene) -> Weather:
+        """The physics weather of ``kind`` for ``scene``: its recorded one (seed included) under
+        ``"auto"``/``"truth"`` where it ships one, else the given or preset weather with ``seed``."""
+        if kind == "clear":
+            return Weather(kind="clear", seed=seed)
+        return resolve_physics(scene, self.weathers, seed=seed, truth=self._recorded(scene))[kind]
 
-    def _truth_physics(self, scene: Scene) -> dict[str, Weather]:
-        """:func:`truth_physics` of ``scene``, read once per scene folder (every unit checks and
-        prepares with it)."""
-        key = str(scene.root)
-        if key not in self._truth:
-            self._truth[key] = truth_physics(scene)
-        return self._truth[key]
+    def _recorded(self, scene: Scene) -> dict[str, Weather] | None:
+        """The scene's recorded weather (``truth/weather.json``), read once per scene folder; ``None``
+        when the option does not use it."""
+        if self.weathers == "truth" or (self.weathers == "auto" and has_truth_weather(scene)):
+            key = str(scene.root)
+            if key not in self._physics:
+                self._physics[key] = truth_physics(scene)
+            return self._physics[key]
+        return None
 
     def physics(self, scene: Scene) -> dict[str, Weather]:
-        """The physics weather of every edited kind for ``scene`` (the training hazes come from it)."""
-        return {kind: self.weather_for(kind, 0, scene) for kind in WEATHERS if kind != "clear"}
+        """The physics weather of every edited kind for ``scene``: the training hazes and the
+        built-in supervision read it."""
+        return {kind: self.weather_for(kind, 0, scene) for kind in EDITED}
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """Training settings, supervision, edits and the weather's physics (seed recorded apart)."""
-        desc: dict[str, Any] | str = "truth (each scene's truth/weather.json, seed included)"
-        if not self.truth_weathers or weather == "clear":
-            desc = self.weather_for(weather, 0).to_json()
-            desc.pop("seed", None)
+        """Training settings, supervision, edits and the weather option (the resolved physics goes to
+        ``describe``; the seed is recorded apart)."""
         return {"training": self.config.to_json(), "supervision": self.supervision, "jitter": self.jitter,
-                "edits": [e.to_json() for e in self.edits], "weather": desc}
+                "edits": [e.to_json() for e in self.edits],
+                "weather": describe_option(self.weathers, weather) if weather != "clear" else "clear"}
 
     def check_scene(self, scene: Scene, weather: str) -> None:
         """With ``weathers="truth"`` the scene must ship ``truth/weather.json`` describing ``weather``;
-        with sim-editor supervision, truth frames of every edited weather (checked before any render)."""
-        if self.truth_weathers and weather != "clear" and weather not in self._truth_physics(scene):
-            raise InputError(f"{Path(scene.root) / 'truth' / 'weather.json'}: no {weather!r} entry "
-                             "(weathers='truth')")
+        with sim-editor supervision, truth frames of every edited weather; with the physical editor,
+        lidar (checked before any render)."""
+        if weather != "clear":
+            resolve_physics(scene, self.weathers, truth=self._recorded(scene))
         if supervision_severity(self.supervision) is not None:
-            for kind in ("rain", "snow", "fog"):
+            for kind in EDITED:
                 truth_paths(scene, kind)
+        if self.supervision == PHYSICAL_EDITOR:
+            check_lidar(scene)
 
     def native_size(self, scene: Scene) -> tuple[int, int]:
         """``size`` if given, else the training resolution."""
@@ -523,6 +579,8 @@ class WeatherCityMethod(FrameRenderer):
         out: dict[str, Any] = {"training": self._facts, "decoded_weather": getattr(self, "_decoded", None)}
         if self._renderer is not None:
             out["renderer"] = self._renderer.info()
+            if self._renderer.weather.kind != "clear":
+                out["physics"] = physics_record(self._renderer.weather)
         return out
 
     def setup_timings(self) -> dict[str, float]:

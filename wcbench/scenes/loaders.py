@@ -122,8 +122,16 @@ def read_intrinsics(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return K, v[4:9].copy()
 
 
-def _read_lidar(path: Path, columns: int, *, finite: tuple[int, ...]) -> np.ndarray:
-    """The float32 [N, columns] points of a lidar file; the ``finite`` columns must be finite."""
+#: Farthest plausible lidar return (m) from its sensor: automotive lidars reach 200-300 m; a point
+#: beyond a kilometre is a corrupt value, not a measurement.
+MAX_LIDAR_RANGE_M = 1000.0
+
+
+def _read_lidar(path: Path, columns: int, *, finite: tuple[int, ...], point: tuple[int, int, int],
+                origin: tuple[int, int, int] | None = None) -> np.ndarray:
+    """The float32 [N, columns] points of a lidar file; the ``finite`` columns must be finite and
+    every ``point`` (columns x, y, z in the sensor's or vehicle's frame) within
+    :data:`MAX_LIDAR_RANGE_M` of its ``origin`` columns (of the frame's origin when there are none)."""
     if path.stat().st_size % (4 * columns):
         raise InputError(
             f"{path}: lidar file of {path.stat().st_size} bytes is not a whole number of points of "
@@ -133,6 +141,15 @@ def _read_lidar(path: Path, columns: int, *, finite: tuple[int, ...]) -> np.ndar
     bad = ~np.isfinite(pts[:, list(finite)]).all(axis=1)
     if bad.any():
         raise InputError(f"{path}: {int(bad.sum())} of {len(pts)} lidar points have NaN or Inf coordinates")
+    xyz = pts[:, list(point)].astype(np.float64)
+    if origin is not None:
+        xyz -= pts[:, list(origin)]
+    far = np.einsum("ij,ij->i", xyz, xyz) > MAX_LIDAR_RANGE_M ** 2
+    if far.any():
+        worst = float(np.sqrt(np.einsum("ij,ij->i", xyz[far], xyz[far]).max()))
+        raise InputError(f"{path}: {int(far.sum())} of {len(pts)} lidar points lie beyond "
+                         f"{MAX_LIDAR_RANGE_M:g} m of the sensor (up to {worst:.3g} m), farther than any lidar "
+                         "measures: the file is corrupt")
     return pts
 
 
@@ -370,7 +387,7 @@ def load_nuscenes_layout(
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
         t = orig[frame.index]
-        pts = _read_lidar(frame.lidar_path, 4, finite=(0, 1, 2))
+        pts = _read_lidar(frame.lidar_path, 4, finite=(0, 1, 2), point=(0, 1, 2))
         pose = read_pose(root / "lidar_pose" / f"{t:03d}.txt", what="lidar-to-world pose")
         world = pts[:, :3].astype(np.float64) @ pose[:3, :3].T + (pose[:3, 3] - offset)
         labels = None
@@ -406,7 +423,8 @@ def load_waymo_layout(
 
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
-        pts = _read_lidar(frame.lidar_path, 14, finite=(0, 1, 2, 3, 4, 5)).astype(np.float64)
+        pts = _read_lidar(frame.lidar_path, 14, finite=(0, 1, 2, 3, 4, 5), point=(3, 4, 5),
+                          origin=(0, 1, 2)).astype(np.float64)
         pose = ego[frame.index]
         R, tr = pose[:3, :3], pose[:3, 3] - offset
         return LidarSweep(

@@ -78,7 +78,12 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     if path.suffix == ".safetensors":
         return load_file(str(path))
     # weights_only: a .bin is a pickle; refuse anything but tensors
-    state = torch.load(path, map_location="cpu", weights_only=True)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises a zoo of types on foreign files
+        # torch's own text advises weights_only=False (arbitrary code execution): never passed on
+        raise ValueError(f"{path}: not a PyTorch checkpoint wcbench reads ({type(exc).__name__}); expected "
+                         "pytorch_model.bin or model.safetensors of the model's Hugging Face repository") from None
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
         state = state["state_dict"]
     if not isinstance(state, dict):

@@ -708,3 +708,19 @@ def test_registry_file_documents_its_format() -> None:
         "own section at the end",
     ):
         assert word in head
+
+
+@pytest.mark.parametrize("name", ["segformer-b0-ade", "upernet-convnext-tiny-ade"])
+def test_importing_a_file_that_is_not_a_checkpoint_exits_2_without_unsafe_advice(name, tmp_path, monkeypatch,
+                                                                                  capsys) -> None:
+    pytest.importorskip("torch")
+    from wcbench.cli import main
+
+    junk = tmp_path / "pytorch_model.bin"
+    junk.write_bytes(bytes(range(256)) * 8)
+    monkeypatch.setenv("WCBENCH_MODELS", str(tmp_path / "store"))
+    assert main(["models", "import", name, str(junk)]) == 2
+    err = capsys.readouterr().err
+    assert f"{junk}: not a PyTorch checkpoint wcbench reads" in err
+    assert "weights_only" not in err and "Traceback" not in err
+    assert not (tmp_path / "store" / name).exists()

@@ -1,0 +1,257 @@
+"""The physical weather editor: a clear frame turned into rain, snow or fog from the scene's own 3D.
+
+:class:`WeatherEditor` edits raw frame k under a :class:`~wcbench.reference_model.weather.conditions.Weather`
+(the same object the physics renderer draws: its rate, visibility and haze), per pixel, from the
+surface maps of the scene's lidar (:mod:`.maps`) and the models of :mod:`.shading`:
+
+1. **overcast light** (every edited weather): the clear sky's sun divided out and the overcast
+   sky's light put in, per normal, at the weather's exposure;
+2. **rain**: a water film on open surfaces (full on horizontal ones, damp on vertical ones, less in
+   the wheel paths), puddles where the world-anchored puddle field exceeds the rate's threshold,
+   and a Fresnel-weighted reflection of the scene and sky mirrored about the ground plane (a
+   blurred one on wet asphalt, a sharp one in puddles);
+3. **snow**: cover on surfaces facing up and open to the sky, its amount from the rate, the wheel
+   paths mostly cleared, damp bare surfaces and a cooler white balance;
+4. **haze**: Koschmieder's law with the weather's own haze (fog visibility, or the rain or snow
+   extinction beyond the particles), the sky at infinity taking the airlight.
+
+No particles are drawn: a method that renders the weather draws its own. Everything is anchored in
+the world (surface attributes on lidar Gaussians, noise fields over the ground plane), so the
+edit does not flicker. Frames are float32 display RGB in [0, 1].
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from wcbench.core.errors import InputError
+from wcbench.reference_model.appearance.maps import SurfaceMaps, mirror_render, refine, surface_maps
+from wcbench.reference_model.appearance.shading import (
+    LightModel,
+    apply_haze,
+    fresnel_schlick,
+    linear_to_srgb,
+    overcast_gain,
+    overcast_irradiance,
+    smoothstep,
+    snow_cover,
+    srgb_to_linear,
+    wet_albedo,
+)
+from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surfaces
+from wcbench.reference_model.weather.conditions import Weather, load_presets
+
+__all__ = ["AppearanceParams", "WeatherEditor"]
+
+
+@dataclass(frozen=True)
+class AppearanceParams:
+    """The ``[appearance]`` tables of the weather presets (see ``presets.toml`` for each value's source).
+
+    Attributes
+    ----------
+    light : LightModel
+    rain, snow, fog : dict
+        Per-kind settings.
+    sky_color : ndarray [3]
+        The overcast sky where a weather has no haze.
+    """
+
+    light: LightModel
+    rain: dict[str, Any]
+    snow: dict[str, Any]
+    fog: dict[str, Any]
+    sky_color: np.ndarray
+
+    @classmethod
+    def load(cls, overrides: Mapping[str, Mapping[str, Any]] | None = None) -> AppearanceParams:
+        """The presets' tables, each updated by ``overrides[kind]`` (kinds: light, rain, snow, fog, sky).
+
+        Raises
+        ------
+        ValueError
+            An unknown table or key in ``overrides``.
+        """
+        base = {k: dict(v) for k, v in load_presets().get("appearance", {}).items()}
+        for kind, table in (overrides or {}).items():
+            if kind not in base:
+                raise ValueError(f"appearance: unknown table {kind!r}; known: {sorted(base)}")
+            unknown = sorted(set(table) - set(base[kind]))
+            if unknown:
+                raise ValueError(f"appearance.{kind}: unknown keys {unknown}; known: {sorted(base[kind])}")
+            base[kind].update(table)
+        return cls(light=LightModel.from_mapping(base["light"]), rain=base["rain"], snow=base["snow"],
+                   fog=base["fog"], sky_color=np.asarray(base["sky"]["color"], np.float32))
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready tables (recorded with every edit)."""
+        return {"light": {"sun_elevation_deg": self.light.sun_elevation_deg,
+                          "direct_to_diffuse": self.light.direct_to_diffuse,
+                          "ground_albedo": self.light.ground_albedo},
+                "rain": self.rain, "snow": self.snow, "fog": self.fog, "sky": {"color": self.sky_color.tolist()}}
+
+    def puddle_fraction(self, rate_mm_h: float) -> float:
+        """Share of the open ground under puddles at a rain rate (mm/h)."""
+        return float(self.rain["puddle_max"]) * (1.0 - np.exp(-rate_mm_h / float(self.rain["puddle_rate_mm_h"])))
+
+    def snow_amount(self, rate_mm_h: float) -> float:
+        """Cover of an open horizontal surface at a snow rate (mm/h of liquid water)."""
+        depth = rate_mm_h * float(self.snow["accumulation_h"])
+        return float(1.0 - np.exp(-depth / float(self.snow["full_cover_mm"])))
+
+
+class WeatherEditor:
+    """Edits a scene's raw frames into a weather (see the module docstring).
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+        Must have lidar; its sky masks are used when it ships them.
+    params : AppearanceParams, optional
+        Default: the presets'.
+    voxel_m : float
+        Voxel of the lidar surfaces (m).
+
+    Raises
+    ------
+    InputError
+        The scene has no lidar point in any frame.
+    """
+
+    def __init__(self, scene: Any, *, params: AppearanceParams | None = None, voxel_m: float = 0.2):
+        start = time.perf_counter()
+        self.scene = scene
+        self.params = params or AppearanceParams.load()
+        self.surfaces: SurfaceScene = build_surfaces(scene, voxel_m=voxel_m)
+        self._maps_memo: tuple[tuple[Any, ...], SurfaceMaps] | None = None
+        # the puddle threshold per rain rate: a quantile of the field over the open ground
+        ground = (self.surfaces.static_attributes[:, 3] > 0.5) & (self.surfaces.static_attributes[:, 4] > 0.5)
+        field = self.surfaces.static_attributes[ground, 5]
+        self._puddle_values = np.sort(field) if field.size else np.array([0.5], np.float32)
+        self.setup_seconds = time.perf_counter() - start
+
+    def _sky(self, index: int, camera: Any) -> np.ndarray | None:
+        """The scene's sky mask of frame ``index`` at ``camera``'s size, or ``None`` when it ships none
+        (the maps then take it from the render of the lidar surfaces)."""
+        path = self.scene.frames[index].sky_mask_path
+        if path is None:
+            return None
+        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise InputError(f"{path}: not a readable image (a sky mask, 8-bit grayscale, was expected)")
+        w, h = int(camera.width), int(camera.height)
+        return cv2.resize(mask, (w, h), interpolation=cv2.INTER_NEAREST) > 127
+
+    def maps(self, index: int, camera: Any, image: np.ndarray | None = None) -> SurfaceMaps:
+        """The completed surface maps of frame ``index`` at ``camera``'s size (the last view's are
+        kept: every weather of a frame shares them); ``image``, the frame at that size, refines a
+        sky the scene does not ship (:func:`~.maps.coverage_sky`)."""
+        key = (index, np.asarray(camera.K, np.float64).tobytes(), int(camera.width), int(camera.height),
+               np.asarray(camera.camera_to_world, np.float64).tobytes())
+        if self._maps_memo is None or self._maps_memo[0] != key:
+            self._maps_memo = (key, surface_maps(self.surfaces, index, camera, self._sky(index, camera),
+                                                 image=image))
+        return self._maps_memo[1]
+
+    def edit(self, raw: np.ndarray, index: int, camera: Any, weather: Weather) -> tuple[np.ndarray, dict[str, Any]]:
+        """Raw frame ``index`` under ``weather``.
+
+        Parameters
+        ----------
+        raw : ndarray [H, W, 3] float32
+            The clear frame, display RGB in [0, 1], at ``camera``'s size.
+        index : int
+        camera : Camera
+            The frame's camera at the size of ``raw``.
+        weather : Weather
+            Its kind, rate and haze drive the edit; ``clear`` returns ``raw``.
+
+        Returns
+        -------
+        image : ndarray [H, W, 3] float32
+        info : dict
+            Timings (ms) and the fractions of the frame wet, in puddles and under snow.
+        """
+        if raw.shape[:2] != (int(camera.height), int(camera.width)):
+            raise ValueError(f"raw is {raw.shape[1]}x{raw.shape[0]}, the camera {camera.width}x{camera.height}")
+        if weather.kind == "clear":
+            return np.asarray(raw, np.float32), {}
+        t0 = time.perf_counter()
+        m = self.maps(index, camera, raw)
+        t_maps = time.perf_counter()
+        p, kind = self.params, weather.kind
+        table = getattr(p, kind)
+        h = raw.shape[0]
+        radius = max(1, round(2 * h / 270))
+        up = self.surfaces.up
+        n_up = m.normal @ up.astype(np.float32)
+        lin = srgb_to_linear(raw)
+        exposure = float(table["exposure"])
+        base = lin * overcast_gain(n_up, model=p.light, exposure=exposure)[..., None]
+        solid = ~m.sky
+        beta, haze_color, offset = weather.haze()
+        sky_seen = haze_color if beta > 0 else p.sky_color
+        info: dict[str, Any] = {}
+        if kind == "rain":
+            rate = weather.precipitation_rate()
+            fraction = p.puddle_fraction(rate)
+            threshold = float(np.quantile(self._puddle_values, 1.0 - fraction)) if fraction > 0 else np.inf
+            ground = refine(m.ground, raw, radius=radius)
+            openness = refine(m.open, raw, radius=radius)
+            puddle = smoothstep(m.puddle, threshold, threshold + 0.03) * ground * openness
+            vertical_wet = float(table["wetness_vertical"])
+            wet = (vertical_wet + (float(table["wetness_horizontal"]) - vertical_wet) * smoothstep(n_up, 0.3, 0.9))
+            wet = wet * openness * (1.0 - (1.0 - float(table["track_wetness"])) * m.track)
+            wet = np.maximum(wet, puddle) * solid
+            base = wet_albedo(base, wet)
+            # the reflection in the wet ground: the scene mirrored about the ground plane, then the
+            # weather's haze along the reflected path
+            refl, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height,
+                                            float(np.sqrt(exposure)), sky_seen)
+            refl = apply_haze(refl, refl_dist, beta=beta, color=haze_color, offset_m=offset)
+            blur = float(table["rough_blur_px"]) * h / 270.0
+            rough = cv2.GaussianBlur(refl, (0, 0), blur) if blur > 0 else refl
+            cos = np.abs(np.sum(m.rays * m.normal, axis=-1))
+            fresnel = fresnel_schlick(cos, float(table["fresnel_f0"]))
+            road = ground * (1.0 - puddle) * float(table["sheen_road"]) * wet
+            still = puddle * float(table["sheen_puddle"])
+            reflect_lin = srgb_to_linear(rough) * (fresnel * road)[..., None] + \
+                srgb_to_linear(refl) * (fresnel * still)[..., None]
+            weight = (fresnel * (road + still))[..., None]
+            base = base * (1.0 - weight) + reflect_lin
+            info.update(rate_mm_h=rate, puddle_fraction_of_frame=round(float((puddle > 0.5).mean()), 4),
+                        wet_fraction_of_frame=round(float((wet > 0.5).mean()), 4))
+        elif kind == "snow":
+            rate = weather.precipitation_rate()
+            amount = p.snow_amount(rate)
+            openness = refine(m.open, raw, radius=radius)
+            cover = snow_cover(n_up, openness, amount=amount, facing_from=float(table["facing_from"]),
+                               facing_full=float(table["facing_full"]))
+            cover = cover * (1.0 - (1.0 - float(table["track_cover"])) * m.track) * solid
+            cover = refine(cover, raw, radius=radius)
+            base = wet_albedo(base, float(table["damp"]) * openness)
+            # snow is lit by the overcast sky: its albedo at the overcast exposure and irradiance
+            snow_lin = float(table["snow_albedo"]) * exposure * overcast_irradiance(n_up, model=p.light)
+            base = base * (1.0 - cover[..., None]) + snow_lin[..., None] * cover[..., None]
+            base = base * np.asarray(table["white_balance"], np.float32)
+            info.update(rate_mm_h=rate, snow_amount=round(amount, 4),
+                        snow_fraction_of_frame=round(float((cover > 0.5).mean()), 4))
+        else:
+            base = wet_albedo(base, float(table["damp"]) * solid)
+        out = linear_to_srgb(base)
+        if beta <= 0:  # no haze: an overcast sky, brighter toward the zenith (CIE overcast)
+            elevation = np.clip(m.rays @ up.astype(np.float32), 0.0, 1.0)
+            sky = p.sky_color * (0.8 + 0.2 * (1.0 + 2.0 * elevation) / 3.0)[..., None]
+            out = np.where(m.sky[..., None], sky, out)
+        out = apply_haze(out, m.distance, beta=beta, color=haze_color, offset_m=offset)
+        t_end = time.perf_counter()
+        info["timings_ms"] = {"maps": round(1e3 * (t_maps - t0), 2), "shade": round(1e3 * (t_end - t_maps), 2)}
+        info["haze"] = {"beta_per_m": beta, "color": np.asarray(haze_color).tolist(), "offset_m": offset}
+        return np.clip(out, 0.0, 1.0).astype(np.float32), info
+

@@ -1,0 +1,317 @@
+"""The surfaces a scene's lidar shows, as Gaussians with per-Gaussian attributes for weather appearance.
+
+From the scene's lidar initialisation
+(:func:`~wcbench.reference_model.scene_graph.lidar_init.init_scene_from_lidar`: static Gaussians
+plus one rigid node per moving track) each Gaussian gets, anchored in the world
+(so that what is drawn from them does not flicker from frame to frame):
+
+* a **normal** (the smallest principal axis of its 16 nearest neighbours, turned toward the
+  cameras' path; a node's in its box frame, turned outward);
+* **ground** (1 where the normal points up and the Gaussian lies on the local ground height);
+* **open** (1 where no other return lies above it within half a metre sideways: open to the sky,
+  so snow settles and rain falls; 0 under a tree, a car or a roof), averaged with the normals over
+  the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
+* **puddle**: a smooth noise field over the ground plane (two octaves of value noise, 4 m and
+  1.5 m), thresholded by the editor at the rain's puddle fraction;
+* **track**: closeness to the wheel paths of the traffic (the ego vehicle's path and every moving
+  track's, extended along the lane), where snow is compacted and water splashed away.
+
+Only what a real scene has is read: lidar, poses, tracks (docs/design.md §7).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.scene_graph.lidar_init import init_scene_from_lidar
+from wcbench.reference_model.scene_graph.nodes import SceneGaussians
+
+__all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "pca_normals", "value_noise"]
+
+#: Attribute channels, in order.
+ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
+
+#: Half the distance between a car's wheels (m), and the spread of a wheel path (m): a tyre's half-width
+#: (0.11 m) and the lateral wander of traffic in a lane (standard deviation ~0.25 m, as pavement
+#: engineering measures it for rutting studies) added in quadrature.
+_HALF_TRACK_M, _WHEEL_PATH_SIGMA_M = 0.8, float(np.hypot(0.11, 0.25))
+#: How far a lane's wheel paths are extended beyond the observed path, each way (m): earlier traffic
+#: drove the same lane.
+_LANE_EXTENSION_M = 120.0
+
+
+def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
+    """Unit normals: the smallest principal axis of the ``k`` nearest points (unoriented).
+
+    Parameters
+    ----------
+    points : ndarray [N, 3]
+    k : int
+
+    Returns
+    -------
+    ndarray [N, 3] float64
+        +z for fewer than 3 points.
+    """
+    n = len(points)
+    if n < 3:
+        out = np.zeros((n, 3))
+        out[:, 2] = 1.0
+        return out
+    _, idx = cKDTree(points).query(points, k=min(k, n), workers=-1)
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    _, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return v[:, :, 0]
+
+
+def _plane_axes(up: np.ndarray) -> np.ndarray:
+    """[2, 3] two unit axes spanning the plane perpendicular to ``up``."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(up, a)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(up, e1)])
+
+
+def value_noise(xy: np.ndarray, *, cell_m: float, seed: int) -> np.ndarray:
+    """Smooth value noise in [0, 1] at 2D points: hashed lattice values, smoothstep-interpolated.
+
+    Parameters
+    ----------
+    xy : ndarray [N, 2]
+        Plane coordinates (m).
+    cell_m : float
+        Lattice spacing (m): the size of the features.
+    seed : int
+
+    Returns
+    -------
+    ndarray [N] float64
+    """
+    p = np.asarray(xy, np.float64) / cell_m
+    i0 = np.floor(p).astype(np.int64)
+    f = p - i0
+    u = f * f * (3.0 - 2.0 * f)
+
+    def lattice(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+        h = (ix * 73856093) ^ (iy * 19349663) ^ (seed * 83492791)
+        h = (h ^ (h >> 13)) * 1274126177
+        return ((h ^ (h >> 16)) & 0xFFFFFF).astype(np.float64) / float(0xFFFFFF)
+
+    a, b = lattice(i0[:, 0], i0[:, 1]), lattice(i0[:, 0] + 1, i0[:, 1])
+    c, d = lattice(i0[:, 0], i0[:, 1] + 1), lattice(i0[:, 0] + 1, i0[:, 1] + 1)
+    return (a + (b - a) * u[:, 0]) * (1 - u[:, 1]) + (c + (d - c) * u[:, 0]) * u[:, 1]
+
+
+def lane_paths(scene: Any, *, up: np.ndarray, step_m: float = 0.1) -> np.ndarray:
+    """[M, 3] points along every wheel path of the traffic (world, m), on the plane of each path.
+
+    The ego vehicle's path is the cameras' (its wheels half a track to each side, at the ground
+    below the camera: the height is not used, distances are taken in the ground plane); each
+    moving track's is its box centres' path. Each path is extended straight by
+    ``_LANE_EXTENSION_M`` at both ends along its end headings.
+    """
+    paths = [np.stack([f.camera.center for f in scene.frames])]
+    for track in scene.tracks:
+        centers = np.asarray(track.object_to_world, np.float64)[:, :3, 3]
+        if len(centers) > 1 and np.linalg.norm(centers[-1] - centers[0]) > 2.0:
+            paths.append(centers)
+    out = []
+    for path in paths:
+        path = np.asarray(path, np.float64)
+        flat = path - np.outer(path @ up, up)
+        seg = np.diff(flat, axis=0)
+        keep = np.linalg.norm(seg, axis=1) > 1e-3
+        if not np.any(keep):
+            continue
+        h0 = seg[keep][0] / np.linalg.norm(seg[keep][0])
+        h1 = seg[keep][-1] / np.linalg.norm(seg[keep][-1])
+        ext = np.arange(step_m, _LANE_EXTENSION_M, step_m)[:, None]
+        line = np.concatenate([flat[0] - ext[::-1] * h0, flat, flat[-1] + ext * h1])
+        # resample the observed part densely too
+        dense = [line[:len(ext)]]
+        for a, b in itertools.pairwise(flat):
+            n = max(1, int(np.ceil(np.linalg.norm(b - a) / step_m)))
+            dense.append(a + (b - a) * (np.arange(n)[:, None] / n))
+        dense.append(line[len(ext) + len(flat):])
+        center = np.concatenate(dense)
+        tangent = np.gradient(center, axis=0)
+        tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+        side = np.cross(up, tangent)
+        out += [center + _HALF_TRACK_M * side, center - _HALF_TRACK_M * side]
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+@dataclass
+class SurfaceScene:
+    """A scene's lidar Gaussians with surface attributes (see the module docstring).
+
+    Attributes
+    ----------
+    gaussians : SceneGaussians
+        Static Gaussians and rigid nodes (clear-weather colours from the frames).
+    static_attributes : ndarray [N, 7] float32
+        :data:`ATTRIBUTES` of the static Gaussians (world normals).
+    node_attributes : list of ndarray [M_i, 7] float32
+        Those of each node, normals in the node's box frame.
+    up : ndarray [3]
+        Unit up vector.
+    plane_axes : ndarray [2, 3]
+        Axes of the ground plane coordinates of the noise fields.
+    ground_cells : (cKDTree, ndarray)
+        Ground height per 2 m cell of the plane: a tree over the cell centres and their heights.
+    lanes : cKDTree or None
+        Over the wheel-path points (plane coordinates).
+    noise_seed : int
+    facts : dict
+        Counts (Gaussians, ground, open, in wheel paths) for ``info.json``.
+    """
+
+    gaussians: SceneGaussians
+    static_attributes: np.ndarray
+    node_attributes: list[np.ndarray]
+    up: np.ndarray
+    plane_axes: np.ndarray
+    ground_cells: tuple[cKDTree, np.ndarray]
+    lanes: cKDTree | None
+    noise_seed: int
+    facts: dict[str, Any]
+
+    def ground_height(self, points: np.ndarray) -> np.ndarray:
+        """[N] height (along ``up``) of the ground below ``points`` [N, 3] (m)."""
+        tree, heights = self.ground_cells
+        _, i = tree.query(np.asarray(points, np.float64) @ self.plane_axes.T, workers=-1)
+        return np.asarray(heights[i])
+
+    def puddle_field(self, points: np.ndarray) -> np.ndarray:
+        """[N] the puddle noise in [0, 1] at ``points`` [N, 3] (world)."""
+        xy = np.asarray(points, np.float64) @ self.plane_axes.T
+        coarse = value_noise(xy, cell_m=4.0, seed=self.noise_seed)
+        fine = value_noise(xy, cell_m=1.5, seed=self.noise_seed + 1)
+        return 0.7 * coarse + 0.3 * fine
+
+    def track_field(self, points: np.ndarray) -> np.ndarray:
+        """[N] closeness to the nearest wheel path in [0, 1] (1 on it) at ``points`` [N, 3]."""
+        if self.lanes is None:
+            return np.zeros(len(points))
+        d, _ = self.lanes.query(np.asarray(points, np.float64) @ self.plane_axes.T, workers=-1)
+        return np.exp(-0.5 * (np.asarray(d) / _WHEEL_PATH_SIGMA_M) ** 2)
+
+    def at_frame(self, index: int) -> tuple[GaussianCloud, np.ndarray]:
+        """The Gaussians of frame ``index`` (world) and their attributes [N, 7] (world normals); the
+        last frame's are kept (a view's maps and its reflection both ask)."""
+        memo = getattr(self, "_frame_memo", None)
+        if memo is not None and memo[0] == index:
+            return memo[1], memo[2]
+        parts, attrs = [self.gaussians.static], [self.static_attributes]
+        for node, a in zip(self.gaussians.nodes, self.node_attributes):
+            cloud = node.at_frame(index)
+            if cloud is None:
+                continue
+            hit = int(np.nonzero(np.asarray(node.frames) == index)[0][0])
+            R = np.asarray(node.object_to_world[hit], np.float64)[:3, :3]
+            posed = a.copy()
+            posed[:, :3] = a[:, :3] @ R.T.astype(np.float32)
+            parts.append(cloud)
+            attrs.append(posed)
+        cloud = parts[0] if len(parts) == 1 else GaussianCloud.concatenate(parts)
+        out = np.ascontiguousarray(np.concatenate(attrs), np.float32)
+        self._frame_memo = (index, cloud, out)
+        return cloud, out
+
+
+def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> SurfaceScene:
+    """The scene's lidar Gaussians and their surface attributes (see the module docstring).
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+        Must have lidar.
+    voxel_m : float
+        Voxel of the lidar Gaussians (m).
+    noise_seed : int
+        Seed of the puddle field (the weather's particle seed does not move the puddles).
+
+    Returns
+    -------
+    SurfaceScene
+
+    Raises
+    ------
+    InputError
+        If no lidar point projects into any frame.
+    """
+    gaussians = init_scene_from_lidar(scene, voxel_m=voxel_m)
+    up = np.asarray(scene.up, np.float64)
+    up = up / np.linalg.norm(up)
+    axes = _plane_axes(up)
+    means = gaussians.static.means.astype(np.float64)
+    normals = pca_normals(means)
+    cams = np.stack([np.asarray(f.camera.center, np.float64) for f in scene.frames])
+    _, near_cam = cKDTree(cams).query(means, workers=-1)
+    flip = np.einsum("ij,ij->i", cams[near_cam] - means, normals) < 0
+    normals[flip] *= -1.0
+    height = means @ up
+    xy = means @ axes.T
+
+    # ground height per 2 m cell: a low percentile of the upward-facing returns there
+    flat = normals @ up > 0.9
+    cells: dict[tuple[int, int], list[float]] = {}
+    keys = np.floor(xy[flat] / 2.0).astype(np.int64)
+    for key, h in zip(map(tuple, keys), height[flat]):
+        cells.setdefault(key, []).append(float(h))
+    if not cells:  # no flat return at all: the ground lies below the cameras at a car's height
+        cam_xy = cams @ axes.T
+        cells = {tuple(np.floor(c / 2.0).astype(np.int64)): [float(h) - 1.6] for c, h in zip(cam_xy, cams @ up)}
+    centers = np.array([(k[0] + 0.5, k[1] + 0.5) for k in cells]) * 2.0
+    heights = np.array([np.percentile(v, 10) for v in cells.values()])
+    ground_tree = cKDTree(centers)
+
+    lanes_pts = lane_paths(scene, up=up)
+    lanes = cKDTree(lanes_pts @ axes.T) if len(lanes_pts) else None
+    surf = SurfaceScene(gaussians=gaussians, static_attributes=np.zeros((0, len(ATTRIBUTES)), np.float32),
+                        node_attributes=[], up=up, plane_axes=axes, ground_cells=(ground_tree, heights), lanes=lanes,
+                        noise_seed=int(noise_seed), facts={})
+    ground = (normals @ up > 0.8) & (height - surf.ground_height(means) < 0.3)
+
+    # open to the sky: no return higher by 0.5 m within 0.5 m sideways
+    tree = cKDTree(xy)
+    _, idx = tree.query(xy, k=min(32, len(xy)), distance_upper_bound=0.5, workers=-1)
+    idx = np.asarray(idx).reshape(len(xy), -1)
+    valid = idx < len(xy)
+    above = np.where(valid, height[np.minimum(idx, len(xy) - 1)] - height[:, None] > 0.5, False)
+    open_ = ~np.any(above, axis=1)
+    # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
+    # Gaussians (about half a metre), so that what is drawn from them is not speckled
+    _, near = cKDTree(means).query(means, k=min(8, len(means)), workers=-1)
+    near = np.asarray(near).reshape(len(means), -1)
+    smooth = normals[near].sum(axis=1)
+    normals = smooth / np.maximum(np.linalg.norm(smooth, axis=1, keepdims=True), 1e-9)
+
+    static = np.zeros((len(means), len(ATTRIBUTES)), np.float32)
+    static[:, :3] = normals
+    static[:, 3] = ground
+    static[:, 4] = open_[near].mean(axis=1)
+    static[:, 5] = surf.puddle_field(means)
+    static[:, 6] = np.where(ground, surf.track_field(means), 0.0)
+    node_attrs = []
+    for node in gaussians.nodes:
+        local = node.cloud.means.astype(np.float64)
+        n_local = pca_normals(local)
+        if len(local):  # a node with no lidar return inside its box has no Gaussian to orient
+            out = np.einsum("ij,ij->i", local - local.mean(axis=0), n_local) < 0
+            n_local[out] *= -1.0
+        a = np.zeros((len(local), len(ATTRIBUTES)), np.float32)
+        a[:, :3] = n_local
+        a[:, 4] = 1.0  # a moving object is open to the sky (its roof takes snow)
+        node_attrs.append(a)
+    surf.static_attributes, surf.node_attributes = static, node_attrs
+    surf.facts = {"gaussians": len(gaussians), "static": len(means), "nodes": len(gaussians.nodes),
+                  "ground_fraction": round(float(ground.mean()), 4), "open_fraction": round(float(open_.mean()), 4),
+                  "wheel_path_points": len(lanes_pts)}
+    return surf

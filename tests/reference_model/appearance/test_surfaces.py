@@ -1,0 +1,95 @@
+"""Surface attributes of lidar Gaussians: normals, ground, open sky, wheel paths, noise fields."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+from wcbench.reference_model.appearance.surfaces import (
+    build_surfaces,
+    lane_paths,
+    pca_normals,
+    value_noise,
+)
+
+
+def test_pca_normals_of_a_tilted_plane(rng):
+    n_true = np.array([0.2, -0.3, 0.9])
+    n_true /= np.linalg.norm(n_true)
+    a = np.cross(n_true, [1.0, 0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n_true, a)
+    uv = rng.uniform(-5, 5, (2000, 2))
+    points = uv[:, :1] * a + uv[:, 1:] * b + 3.0
+    normals = pca_normals(points)
+    np.testing.assert_allclose(np.abs(normals @ n_true), 1.0, atol=1e-6)
+
+
+def test_value_noise_is_seeded_bounded_and_smooth(rng):
+    xy = rng.uniform(-50, 50, (5000, 2))
+    a = value_noise(xy, cell_m=4.0, seed=3)
+    assert a.min() >= 0.0 and a.max() <= 1.0 and a.std() > 0.1
+    np.testing.assert_array_equal(a, value_noise(xy, cell_m=4.0, seed=3))
+    assert np.abs(a - value_noise(xy, cell_m=4.0, seed=4)).mean() > 0.1
+    # continuous: 1 cm moves the field by at most the slope bound (1.5 per cell, smoothstep)
+    step = np.abs(value_noise(xy + 0.01, cell_m=4.0, seed=3) - a)
+    assert step.max() < 1.5 * 2 * 0.01 / 4.0 + 1e-9
+
+
+def test_surfaces_of_the_demo_street(demo_scene):
+    surf = build_surfaces(demo_scene)
+    attrs = surf.static_attributes
+    normals = attrs[:, :3]
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    ground = attrs[:, 3] > 0.5
+    assert 0.2 < ground.mean() < 0.95
+    # ground faces up, towards the cameras (the stored normals are averaged over neighbours, so a
+    # ground Gaussian beside a curb or a wall leans a little)
+    up_component = normals[ground] @ surf.up
+    assert np.median(up_component) > 0.98 and np.quantile(up_component, 0.01) > 0.6
+    # the ground lies at the ground height, everything else above it or beside
+    heights = surf.gaussians.static.means.astype(np.float64) @ surf.up
+    np.testing.assert_array_less(heights[ground] - surf.ground_height(surf.gaussians.static.means[ground]), 0.3)
+    # openness: the share of the 8 nearest Gaussians open to the sky
+    assert set(np.unique(attrs[:, 4] * 8).round(4)) <= set(range(9)) and attrs[:, 4].mean() > 0.3
+    # wheel paths are near the cameras' path, off the rest of the ground
+    assert attrs[ground, 6].max() > 0.9 and np.median(attrs[ground, 6]) < 0.5
+    # a frame's attributes turn with the nodes; the static part is the static one
+    cloud, frame_attrs = surf.at_frame(3)
+    assert len(cloud) == len(frame_attrs) and frame_attrs.shape[1] == 7
+    np.testing.assert_array_equal(frame_attrs[:len(attrs)], attrs)
+
+
+def test_lane_paths_run_half_a_track_beside_the_path(demo_scene):
+    up = np.asarray(demo_scene.up, np.float64) / np.linalg.norm(demo_scene.up)
+    points = lane_paths(demo_scene, up=up)
+    centers = np.stack([f.camera.center for f in demo_scene.frames])
+    flat = centers - np.outer(centers @ up, up)
+    pts = points - np.outer(points @ up, up)
+    # the ego's wheels run 0.8 m to each side of every camera position (10 cm sampling)
+    d = np.linalg.norm(flat[:, None, :] - pts[None, :, :], axis=2)
+    np.testing.assert_allclose(d.min(axis=1), 0.8, atol=0.06)
+    # and the lines reach beyond the observed path (earlier and later traffic of the lane)
+    assert np.linalg.norm(pts - flat[0], axis=1).max() > 100.0
+
+
+def test_coverage_sky_stops_at_drawn_surfaces_and_grows_by_colour_to_the_skyline():
+    from wcbench.reference_model.appearance.maps import coverage_sky
+
+    h, w = 40, 60
+    ray_up = np.repeat(np.linspace(1.0, -1.0, h)[:, None], w, 1)  # the horizon in the middle row
+    alpha = np.zeros((h, w), np.float32)
+    alpha[10:, 20:40] = 1.0  # a tower from row 10 down
+    alpha[8:10, 18:42] = 0.3  # its fuzzy, wider render at the top: not solid, but near it
+    sky = coverage_sky(alpha, ray_up)
+    assert sky[0].all() and not sky[h // 2 + 1:].any() and not sky[10:, 20:40].any()
+    assert not sky[8:10, 17:43].any()  # within the dilation of the fuzzy render: not sky without the frame
+    image = np.zeros((h, w, 3), np.float32)
+    image[:] = [0.5, 0.6, 0.9]  # a blue sky
+    image[10:, 20:40] = [0.4, 0.3, 0.3]  # the tower's bricks
+    image[h // 2:] = [0.3, 0.3, 0.3]  # the ground
+    grown = coverage_sky(alpha, ray_up, image=image)
+    assert grown[8:10, 18:20].all() and grown[8:10, 40:42].all()  # the sky's colour next to the tower
+    assert not grown[10:, 20:40].any() and not grown[h // 2 + 1:].any()

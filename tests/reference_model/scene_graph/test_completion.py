@@ -1,0 +1,84 @@
+"""Completing a distance map with the ground plane and vertical walls, against closed forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wcbench.reference_model.scene_graph.completion import (
+    FILL_GROUND,
+    FILL_KNOWN,
+    FILL_SKY,
+    FILL_WALL,
+    complete_distance,
+    ground_height_below,
+)
+
+#: The level camera's optical axis (world +x).
+FORWARD = np.array([1.0, 0.0, 0.0])
+
+
+def _level_camera(h: int = 40, w: int = 60, f: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
+    """Unit world rays of a level camera looking along +x, z up (OpenCV: x right = -y world,
+    y down = -z world, z forward = +x world), and each ray's camera z."""
+    xs = (np.arange(w) + 0.5 - w / 2) / f
+    ys = (np.arange(h) + 0.5 - h / 2) / f
+    cam = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((h, w))), -1)
+    norm = np.linalg.norm(cam, axis=-1)
+    R = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera -> world
+    return (cam / norm[..., None]) @ R.T, 1.0 / norm
+
+
+def test_ground_pixels_meet_the_plane_and_walls_keep_the_camera_depth_of_their_base():
+    rays, z_per_m = _level_camera()
+    h, w = z_per_m.shape
+    up, center = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.6])
+    known = np.zeros((h, w), bool)
+    distance = np.zeros((h, w))
+    # a facade 12 m ahead seen in rows 18-24 of columns 10-19 (camera depth 12 m)
+    known[18:25, 10:20] = True
+    distance[18:25, 10:20] = 12.0 / z_per_m[18:25, 10:20]
+    sky = np.zeros((h, w), bool)
+    sky[:3, 40:] = True
+    out, kind, source = complete_distance(distance, known, sky, rays, center, up, 0.0, forward=FORWARD)
+    below = rays[..., 2] < -1e-3
+    ground = below & ~known
+    np.testing.assert_allclose(out[ground], 1.6 / -rays[ground][:, 2], rtol=1e-12)
+    assert np.all(kind[ground] == FILL_GROUND) and np.all(kind[known] == FILL_KNOWN)
+    # above the facade: the same camera depth (a vertical plane seen by a level camera)
+    wall = kind == FILL_WALL
+    assert wall[:18, 10:20].all()
+    np.testing.assert_allclose((out * z_per_m)[:18, 10:20], 12.0, rtol=1e-9)
+    assert np.all(source[:18, 10:20] == 18)
+    # above the horizon where only the ground lies below: a wall where the ground meets the horizon
+    # (the first row below it, row 20, is 1.6 m x 30 px / 0.5 px = 96 m deep)
+    assert np.all(kind[3:20, 40:] == FILL_WALL)
+    np.testing.assert_allclose((out * z_per_m)[3:20, 40:], 96.0, rtol=1e-9)
+    assert np.all(kind[sky] == FILL_SKY) and np.all(np.isinf(out[sky]))
+
+
+def test_a_gap_in_a_canopy_rises_from_the_nearest_known_pixel_below():
+    rays, z_per_m = _level_camera()
+    h, w = z_per_m.shape
+    known = np.zeros((h, w), bool)
+    distance = np.full((h, w), np.inf)
+    known[2:4, 5] = True  # sparse returns high in a tree, 20 m away
+    distance[2:4, 5] = 20.0 / z_per_m[2:4, 5]
+    known[15:17, 5] = True  # its lower canopy, 6 m away
+    distance[15:17, 5] = 6.0 / z_per_m[15:17, 5]
+    out, kind, _ = complete_distance(distance, known, np.zeros((h, w), bool), rays, np.array([0.0, 0, 1.6]),
+                                     np.array([0.0, 0, 1.0]), 0.0, forward=FORWARD)
+    np.testing.assert_allclose((out * z_per_m)[4:15, 5], 6.0, rtol=1e-9)  # from row 15, not row 3
+    np.testing.assert_allclose((out * z_per_m)[:2, 5], 20.0, rtol=1e-9)
+    assert np.all(kind[4:15, 5] == FILL_WALL)
+
+
+def test_ground_height_below_a_camera():
+    rng = np.random.default_rng(0)
+    ground = np.c_[rng.uniform(-10, 10, (500, 2)), rng.normal(0.0, 0.01, 500)]
+    wall = np.c_[rng.uniform(-10, 10, 200), np.full(200, 8.0), rng.uniform(0, 10, 200)]
+    points = np.concatenate([ground, wall])
+    assert ground_height_below(points, np.array([0.0, 0, 1.7]), np.array([0.0, 0, 1])) == pytest.approx(-0.016,
+                                                                                                      abs=0.01)
+    # nothing near: a car's camera height below the camera
+    assert ground_height_below(points + 100.0, np.array([0.0, 0, 1.7]), np.array([0.0, 0, 1])) == pytest.approx(0.1)
