@@ -210,11 +210,15 @@ class WeatherEditor:
             wet = wet * openness * (1.0 - (1.0 - float(table["track_wetness"])) * m.track)
             wet = np.maximum(wet, puddle) * solid
             base = wet_albedo(base, wet)
-            # the reflection in the wet ground: the scene mirrored about the ground plane, then the
-            # weather's haze along the reflected path
-            refl, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height,
-                                            float(np.sqrt(exposure)), sky_seen)
-            refl = apply_haze(refl, refl_dist, beta=beta, color=haze_color, offset_m=offset)
+            # the reflection in the wet ground: the scene mirrored about the ground plane, under the
+            # overcast light, seen through the haze of the reflected path beyond the ground point
+            # (the pixel's own haze, camera to ground, is added with everything else below)
+            refl, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height, exposure, sky_seen)
+            with np.errstate(invalid="ignore"):
+                beyond = np.where(np.isfinite(m.distance), np.maximum(refl_dist - offset, 0.0)
+                                  - np.maximum(m.distance - offset, 0.0), 0.0)
+            refl = apply_haze(refl, np.maximum(np.nan_to_num(beyond, nan=np.inf), 0.0), beta=beta,
+                              color=haze_color)
             blur = float(table["rough_blur_px"]) * h / 270.0
             rough = cv2.GaussianBlur(refl, (0, 0), blur) if blur > 0 else refl
             cos = np.abs(np.sum(m.rays * m.normal, axis=-1))

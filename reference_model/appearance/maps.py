@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import torch
 
+from wcbench.reference_model.appearance.shading import linear_to_srgb, srgb_to_linear
 from wcbench.reference_model.appearance.surfaces import SurfaceScene
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
@@ -181,7 +182,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
                        sky=sky, covered=covered, rays=rays.astype(np.float32), ground_height=ground_h)
 
 
-def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float, colors_gain: float,
+def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float, exposure: float,
                   background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """What the ground plane mirrors at each pixel: the non-ground lidar surfaces reflected about it.
 
@@ -196,8 +197,8 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
     camera : Camera
     ground_height : float
         The plane's height along ``up`` (m).
-    colors_gain : float
-        Display-value factor on the surfaces' clear colours (the weather's overall light).
+    exposure : float
+        Linear-light factor on the surfaces' clear colours (the weather's overcast exposure).
     background : ndarray [3]
         What the reflected ray sees where it meets no surface (the weather's sky), display RGB.
 
@@ -226,7 +227,7 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
     half = replace(camera, K=np.diag([0.5, 0.5, 1.0]) @ np.asarray(camera.K, np.float64), width=max(1, w // 2),
                    height=max(1, h // 2))
     half = replace(half, K=np.diag([half.width / (0.5 * w), half.height / (0.5 * h), 1.0]) @ half.K)
-    color, alpha, depth = _rasterize(sub, sub.colors * colors_gain, half)
+    color, alpha, depth = _rasterize(sub, linear_to_srgb(srgb_to_linear(sub.colors) * exposure), half)
     _, z_per_m = camera_rays(half)
     a = np.clip(alpha, 0.0, 1.0)[..., None]
     image = color * a + np.asarray(background, np.float32) * (1.0 - a)

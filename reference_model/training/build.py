@@ -67,6 +67,18 @@ def in_any_frustum(means: np.ndarray, views: Sequence[TrainingView], *, margin: 
     return keep
 
 
+def _isotropic_cloud(means: list[np.ndarray], colors: list[np.ndarray], scales: list[np.ndarray],
+                     opacity: float) -> GaussianCloud:
+    """Isotropic Gaussians from per-view lists of centres [n, 3], colours [n, 3] and scales [n]."""
+    if not means:
+        return GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+    m, c, s = np.concatenate(means), np.concatenate(colors), np.concatenate(scales)
+    quats = np.zeros((len(m), 4), np.float32)
+    quats[:, 0] = 1
+    return GaussianCloud(means=m, quats=quats, scales=np.repeat(s[:, None], 3, 1),
+                         opacities=np.full(len(m), opacity, np.float32), colors=np.clip(c, 0, 1))
+
+
 def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int = 3,
               opacity: float = 0.5) -> GaussianCloud:
     """Gaussians far along the rays of pixels that no lidar return reaches (not sky, not objects).
@@ -101,13 +113,7 @@ def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int =
         means.append(world)
         colors.append(sample_image(v.images["clear"], np.stack([xs + 0.5, ys + 0.5], 1)))
         scales.append(np.full(len(xs), dist * stride_px / (2 * v.K[0, 0])))
-    if not means:
-        return GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
-    m, c, s = np.concatenate(means), np.concatenate(colors), np.concatenate(scales)
-    quats = np.zeros((len(m), 4), np.float32)
-    quats[:, 0] = 1
-    return GaussianCloud(means=m, quats=quats, scales=np.repeat(s[:, None], 3, 1),
-                         opacities=np.full(len(m), opacity, np.float32), colors=np.clip(c, 0, 1))
+    return _isotropic_cloud(means, colors, scales, opacity)
 
 
 def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px: int = 6, every: int = 2,
@@ -155,13 +161,7 @@ def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px
         means.append(center + rays[ys_, xs_] * d[:, None])
         colors.append(sample_image(v.images["clear"], np.stack([xs_ + 0.5, ys_ + 0.5], 1)))
         scales.append(d * stride_px / (2 * v.K[0, 0]))
-    if not means:
-        return GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
-    m, c, sc = np.concatenate(means), np.concatenate(colors), np.concatenate(scales)
-    quats = np.zeros((len(m), 4), np.float32)
-    quats[:, 0] = 1
-    return GaussianCloud(means=m, quats=quats, scales=np.repeat(sc[:, None], 3, 1),
-                         opacities=np.full(len(m), opacity, np.float32), colors=np.clip(c, 0, 1))
+    return _isotropic_cloud(means, colors, scales, opacity)
 
 
 def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, *,

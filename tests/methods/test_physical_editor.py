@@ -129,3 +129,12 @@ def test_weathercity_supervision_is_checked_or_reconciled_against_its_physics(tm
     (bare / "fog" / "info.json").unlink()
     _, unverified = _supervision_frames(demo_scene, f"folder:{bare}", ("fog",), 0.0, 0, physics=physics)
     assert unverified["weather_check"]["fog"].startswith("unverified")
+
+
+def test_precipitation_rate_of_every_kind_of_weather():
+    assert Weather(kind="rain", preset="heavy").precipitation_rate() == 25.0
+    assert Weather(kind="snow", rate_mm_h=1.2).precipitation_rate() == 1.2
+    # a fixed-count preset has no rate of its own: the kind's default preset's stands for it
+    assert Weather(kind="rain", preset="paper").precipitation_rate() == 7.6
+    assert Weather(kind="snow", count=5000).precipitation_rate() == 0.5
+    assert Weather(kind="fog").precipitation_rate() == 0.0 and Weather().precipitation_rate() == 0.0
