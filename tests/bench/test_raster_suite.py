@@ -56,3 +56,20 @@ def test_start_cases_time_a_cold_and_a_warm_process() -> None:
     assert (cold["name"], warm["name"]) == ("start_cold", "start_warm")
     assert cold["time_ms"] > 0 and warm["time_ms"] > 0 and warm["default"] is True
     assert warm["cold_over_warm"] == round(cold["time_ms"] / warm["time_ms"], 2)
+
+
+@pytest.mark.slow
+def test_bench_raster_quick_runs_from_the_repository_root(tmp_path) -> None:
+    """Its cold-start case runs `python -c "from wcbench.reference_model.kernel_warmup import ..."` in
+    a subprocess: from the repository root `./wcbench` shadows the installed package, and the
+    checkout's finder must still reach the sibling folders."""
+    import subprocess
+    import sys
+
+    from paths import REPO
+
+    out = tmp_path / "raster.json"
+    done = subprocess.run([sys.executable, "-m", "wcbench", "bench", "raster", "--quick", "--json", str(out)],
+                          cwd=REPO, capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads(out.read_text())["suite"] == "raster"
