@@ -138,3 +138,11 @@ def test_precipitation_rate_of_every_kind_of_weather():
     assert Weather(kind="rain", preset="paper").precipitation_rate() == 7.6
     assert Weather(kind="snow", count=5000).precipitation_rate() == 0.5
     assert Weather(kind="fog").precipitation_rate() == 0.0 and Weather().precipitation_rate() == 0.0
+
+
+def test_jitter_without_filter2d_supervision_is_refused_before_training():
+    from wcbench.methods import get_method
+
+    with pytest.raises(InputError, match="jitter perturbs the filter2d supervision only"):
+        get_method("weathercity", jitter=0.5)  # the default supervision is the physical editor
+    assert get_method("weathercity", supervision="filter2d", jitter=0.5).jitter == 0.5

@@ -90,8 +90,12 @@ def _check_supervision(spec: str, jitter: float) -> float | None:
     Raises
     ------
     InputError
-        A sim-editor severity outside [0, 1], or a ``jitter`` given with sim-editor supervision.
+        A sim-editor severity outside [0, 1], or a ``jitter`` given with sim-editor or physical-editor
+        supervision.
     """
+    if spec == PHYSICAL_EDITOR and jitter:
+        raise InputError(f"--supervision {spec!r}: jitter perturbs the filter2d supervision only (add "
+                         "--supervision filter2d)")
     severity = supervision_severity(spec)
     if severity is not None and jitter:
         raise InputError(f"--supervision {spec!r}: jitter perturbs the filter2d supervision; sim-editor's own "
@@ -120,8 +124,7 @@ def _supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitt
     size = size or scene.image_size
     edited = {w: physics[w] for w in weathers if w in physics}
     if spec == PHYSICAL_EDITOR:
-        if jitter:
-            raise InputError(f"--supervision {spec!r}: jitter perturbs the filter2d supervision only")
+        _check_supervision(spec, jitter)
         frames_f, record, timings = edit_scene(scene, edited, size)
         record["weather_check"] = {w: "consistent: edited with the run's physics" for w in edited}
         record["timings"] = timings  # dropped from the training's key (:func:`train_scene`)
