@@ -25,11 +25,12 @@ import torch
 
 from wcbench.reference_model.appearance.shading import linear_to_srgb, srgb_to_linear
 from wcbench.reference_model.appearance.surfaces import SurfaceScene
+from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 
-__all__ = ["SurfaceMaps", "camera_rays", "coverage_sky", "mirror_render", "refine", "surface_maps"]
+__all__ = ["SurfaceMaps", "coverage_sky", "mirror_render", "refine", "surface_maps"]
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
@@ -68,15 +69,12 @@ class SurfaceMaps:
     ground_height: float
 
 
-def camera_rays(camera: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(unit world rays [H, W, 3], camera-z of each unit ray [H, W]) of a pinhole camera, float64."""
-    K, w, h = np.asarray(camera.K, np.float64), int(camera.width), int(camera.height)
-    xs = (np.arange(w) + 0.5 - K[0, 2]) / K[0, 0]
-    ys = (np.arange(h) + 0.5 - K[1, 2]) / K[1, 1]
-    cam = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((h, w))), -1)
-    norm = np.linalg.norm(cam, axis=-1)
-    R = np.asarray(camera.camera_to_world, np.float64)[:3, :3]
-    return (cam / norm[..., None]) @ R.T, 1.0 / norm
+def _rays(camera: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(unit world rays [H, W, 3] of ``camera``'s pixels, the camera depth of each unit ray [H, W]),
+    float64."""
+    c2w = np.asarray(camera.camera_to_world, np.float64)
+    rays = view_directions(c2w, camera.K, int(camera.width), int(camera.height)).astype(np.float64)
+    return rays, rays @ c2w[:3, 2]
 
 
 def _rasterize(cloud: GaussianCloud, channels: np.ndarray, camera: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -144,7 +142,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     """
     cloud, attrs = surfaces.at_frame(index)
     values, alpha, depth = _rasterize(cloud, attrs, camera)
-    rays, z_per_m = camera_rays(camera)
+    rays, z_per_m = _rays(camera)
     up = surfaces.up
     center = np.asarray(camera.center, np.float64)
     if sky is None:
@@ -228,7 +226,7 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
                    height=max(1, h // 2))
     half = replace(half, K=np.diag([half.width / (0.5 * w), half.height / (0.5 * h), 1.0]) @ half.K)
     color, alpha, depth = _rasterize(sub, linear_to_srgb(srgb_to_linear(sub.colors) * exposure), half)
-    _, z_per_m = camera_rays(half)
+    _, z_per_m = _rays(half)
     a = np.clip(alpha, 0.0, 1.0)[..., None]
     image = color * a + np.asarray(background, np.float32) * (1.0 - a)
     distance = np.where(alpha > _COVERED, depth / np.maximum(z_per_m, 1e-9), 1e6).astype(np.float32)

@@ -137,11 +137,8 @@ def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px
         # the nearest return within half a stride stands for the pixel (lidar is sparser than the image)
         near = cv2.erode(depth, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
         known = np.isfinite(near)
-        xs = (np.arange(w) + 0.5 - v.K[0, 2]) / v.K[0, 0]
-        ys = (np.arange(h) + 0.5 - v.K[1, 2]) / v.K[1, 1]
-        cam = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((h, w))), -1)
-        norm = np.linalg.norm(cam, axis=-1)
-        rays = (cam / norm[..., None]) @ v.camera_to_world[:3, :3].T
+        rays = view_directions(v.camera_to_world, v.K, w, h).astype(np.float64)
+        norm = 1.0 / (rays @ v.camera_to_world[:3, 2])  # ray length per metre of camera depth
         center = v.camera_to_world[:3, 3]
         distance = np.where(known, near * norm, np.inf)
         points = center + rays[v.depth > 0] * (v.depth[v.depth > 0] * norm[v.depth > 0])[:, None]
