@@ -216,6 +216,14 @@ class Metric(ABC):
         """Settings that change the numbers (part of the cache key and of results.json)."""
         return {}
 
+    def required_models(self) -> tuple[str, ...]:
+        """Model-store entries this metric reads its weights from (``()``: none, or injected).
+
+        A run fetches the missing ones before it starts (:mod:`wcbench.core.models.fetch`); the
+        metric still says "skipped" with the reason where they stay missing.
+        """
+        return ()
+
     def requires(self) -> tuple[str, ...]:
         """What scoring needs besides the evaluation side: ``("torch",)`` for a torch backend.
 

@@ -251,6 +251,33 @@ def _train_seconds(info: dict[str, Any] | None) -> float | None:
     return None
 
 
+def _scoring_notes(folders: list[ResultsFolder]) -> list[str]:
+    """Per scene where a method rendered at another size than the scene's frames: the size scored
+    at and those methods' own sizes (``results.json`` ``working_size``), e.g. ``pandaset_002
+    (1920x1080 frames) scored at 960x540; lidar_init's 480x270 frames resized to it``. Facts, not
+    flags: every method of a scene is scored at one size by default (docs/design.md §8, "Scoring");
+    sizes that differ are flagged by the checks."""
+    frames: dict[str, str] = {}
+    at: dict[str, set[str]] = {}
+    resized: dict[str, dict[str, set[str]]] = {}
+    for f in folders:
+        for rec in f.doc.get("working_size") or []:
+            if not (isinstance(rec, dict) and isinstance(rec.get("scene"), str)
+                    and all(isinstance(rec.get(k), list) for k in ("from", "to", "predictions"))):
+                continue
+            scene, own = rec["scene"], "x".join(map(str, rec["predictions"]))
+            frames.setdefault(scene, "x".join(map(str, rec["from"])))
+            at.setdefault(scene, set()).add("x".join(map(str, rec["to"])))
+            if rec.get("predictions_resized") and own != frames[scene]:
+                resized.setdefault(scene, {}).setdefault(f.label, set()).add(own)
+    notes = []
+    for scene in sorted(resized):
+        methods = ", ".join(f"{label}'s {'/'.join(sorted(v))}" for label, v in sorted(resized[scene].items()))
+        notes.append(f"{scene} ({frames[scene]} frames) scored at {', '.join(sorted(at[scene]))}; {methods} "
+                     "frames resized to it")
+    return notes
+
+
 def _runtime_facts(folders: list[ResultsFolder], methods: list[str]) -> list[dict[str, Any]]:
     rows = []
     for m in methods:
@@ -406,7 +433,7 @@ def build_report(
         css=(_TEMPLATES / "report.css").read_text(encoding="utf-8"),
         script=(_TEMPLATES / "report.js").read_text(encoding="utf-8"),
         folders=folders, methods=tb.methods, scenes_list=tb.scenes, weathers=weathers,
-        colors=media.colors, flags=flags, markers=MARKERS, tables=tables,
+        colors=media.colors, flags=flags, markers=MARKERS, tables=tables, scoring=_scoring_notes(folders),
         runtime=_runtime_facts(folders, tb.methods), scenes=scenes, bench=bench_sections,
         provenance=_provenance(folders), display=display, frames=frames, animation_frames=animation_frames,
     )

@@ -8,6 +8,7 @@ the top.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -21,6 +22,9 @@ MARKERS = {"weights": ("\u2020", r"\dag"), "mismatch": ("\u2021", r"\ddag")}
 #: Config keys that name where a file was, not what it holds (their sha256 sits beside them).
 _LOCATION_SUFFIXES = ("_file", "_dir", "_path", "path")
 _HASH_KEYS = ("weights_sha256", "onnx_sha256")
+#: The end of an output's variant when it was scored at another size than its scene's frames
+#: (wcbench/units.py writes it; results.json ``working_size`` gives the details).
+_SCORED_AT = re.compile(r"; scored at (\d+x\d+)$")
 
 
 @dataclass(frozen=True)
@@ -32,8 +36,8 @@ class Flag:
     kind : str
         ``"weights"`` or ``"mismatch"`` (see :data:`MARKERS`).
     topic : str
-        What differs: ``weights``, ``scenes``, ``frames``, ``source``, ``resolution``, ``variant``,
-        ``settings``, ``duplicate``.
+        What differs: ``weights``, ``scenes``, ``frames``, ``source``, ``resolution``, ``size`` (the
+        size numbers were scored at), ``variant``, ``settings``, ``duplicate``.
     message : str
         One sentence for the reader.
     methods, scenes, outputs : frozenset of str or None
@@ -158,11 +162,116 @@ def _listing(values: dict[str, Any]) -> str:
     return "; ".join(f"{k}: {v}" for k, v in values.items())
 
 
+def _split_variant(variant: str) -> tuple[str, str | None]:
+    """(definition, size scored at or ``None`` for the scene's own size) of an output's variant."""
+    m = _SCORED_AT.search(variant)
+    return (variant[: m.start()], m.group(1)) if m else (variant, None)
+
+
+def _grouped(by_label: dict[str, str]) -> list[tuple[list[str], str]]:
+    """(labels, value) with the labels that share a value together, in order of first label."""
+    groups: dict[str, list[str]] = {}
+    for label, value in sorted(by_label.items()):
+        groups.setdefault(value, []).append(label)
+    return [(labels, value) for value, labels in groups.items()]
+
+
+def _fps_flags(folders: list[ResultsFolder]) -> list[Flag]:
+    """A flag for a method whose FPS on one scene were measured at several resolutions (say another
+    tool's ``info.json`` per weather): its means mix them.
+
+    Methods that render at different sizes are not flagged: FPS is a method's speed at the size it
+    renders at, which the report's runtime table gives beside it, as the paper's runtime table gives
+    each method's own inference or rendering speed (docs/design.md §8, "Scoring").
+    """
+    res: dict[tuple[str, str], set[str]] = {}
+    for f in folders:
+        for scene, weathers in sorted(f.doc["results"].items()):
+            for outputs in weathers.values():
+                r = outputs.get("fps")
+                size = ((r or {}).get("extra") or {}).get("resolution") if isinstance(r, dict) else None
+                if size:
+                    res.setdefault((f.label, scene), set()).add("x".join(str(v) for v in size))
+    mixed = {k: v for k, v in sorted(res.items()) if len(v) > 1}
+    if not mixed:
+        return []
+    listing = "; ".join(f"{label} on {scene}: {', '.join(sorted(v))}" for (label, scene), v in mixed.items())
+    return [Flag("mismatch", "resolution", f"FPS of one method measured at different resolutions ({listing})",
+                 outputs=frozenset({"fps"}),
+                 units=frozenset((label, scene, "fps") for label, scene in mixed))]
+
+
+def _definition_flags(folders: list[ResultsFolder], outputs_of: dict[str, set[str]]) -> list[Flag]:
+    """Flags for outputs whose variants differ across methods, grouped by cause: one flag for the
+    sizes numbers were scored at (every output that reads frames differs by that alone), one per
+    metric whose definitions differ otherwise, each definition said once with its methods.
+
+    A number depends on the size it was scored at (LPIPS features, flicker and flows in pixels;
+    docs/design.md §8, "Scoring"), so methods of one scene scored at different sizes do not compare.
+    Scenes of different sizes are not a mismatch: each is compared within itself.
+    """
+    metric_of = {o: m for m, outs in outputs_of.items() for o in outs}
+    # (scene, output) -> label -> variants (a label merged from folders may hold several)
+    seen: dict[tuple[str, str], dict[str, set[str]]] = {}
+    for f in folders:
+        for scene, weathers in sorted(f.doc["results"].items()):
+            for outputs in weathers.values():
+                for output, r in outputs.items():
+                    if isinstance(r, dict):
+                        seen.setdefault((scene, output), {}).setdefault(f.label, set()).add(str(r.get("variant", "")))
+    scene_size: dict[str, str] = {}  # scene -> its frame size
+    for f in folders:
+        for scene in f.doc["results"]:
+            size = f.frame_size(scene)
+            if size is not None:
+                scene_size.setdefault(scene, f"{size[0]}x{size[1]}")
+    sizes: dict[str, dict[str, set[str]]] = {}  # scene -> label -> sizes scored at
+    size_outputs: dict[str, set[str]] = {}  # scene -> outputs whose sizes differ
+    definitions: dict[str, dict[str, set[str]]] = {}  # output -> label -> definitions
+    for (scene, output), by_label in sorted(seen.items()):
+        split = {label: [_split_variant(v) for v in sorted(vs)] for label, vs in by_label.items()}
+        at = {label: {size or scene_size.get(scene, "the scene's size") for _, size in parts}
+              for label, parts in split.items()}
+        if len({tuple(sorted(v)) for v in at.values()}) > 1:
+            size_outputs.setdefault(scene, set()).add(output)
+            for label, v in at.items():
+                sizes.setdefault(scene, {}).setdefault(label, set()).update(v)
+        for label, parts in split.items():
+            definitions.setdefault(output, {}).setdefault(label, set()).update(d for d, _ in parts)
+    flags: list[Flag] = []
+    if sizes:
+        texts: dict[str, list[str]] = {}  # one text per pattern, with the scenes that show it
+        for scene, by_label in sizes.items():
+            text = "; ".join(f"{', '.join(labels)} {value}" for labels, value in
+                             _grouped({label: "/".join(sorted(v)) for label, v in by_label.items()}))
+            texts.setdefault(text, []).append(scene)
+        several = len({s for f in folders for s in f.doc["results"]}) > 1
+        where = "; ".join(text + (f" (on {', '.join(scenes)})" if several else "") for text, scenes in texts.items())
+        units = frozenset((label, scene, output) for scene, outs in size_outputs.items()
+                          for label in sizes[scene] for output in outs)
+        flags.append(Flag("mismatch", "size",
+                          f"scored at different sizes: {where} (what the metrics that read frames give depends "
+                          "on the size: score them at one size, the default, to compare)",
+                          units=units))
+    by_metric: dict[tuple[str, str], list[str]] = {}  # (metric, definitions text) -> outputs
+    for output, by_label in sorted(definitions.items()):
+        if len({tuple(sorted(v)) for v in by_label.values()}) > 1:
+            text = "; ".join(f"{{{', '.join(labels)}}}: {value}" for labels, value in
+                             _grouped({label: " / ".join(sorted(v)) for label, v in by_label.items()}))
+            by_metric.setdefault((metric_of.get(output, output), text), []).append(output)
+    for (_metric, text), outputs in sorted(by_metric.items()):
+        flags.append(Flag("mismatch", "variant", f"{', '.join(outputs)}: different definitions ({text})",
+                          outputs=frozenset(outputs)))
+    return flags
+
+
 def mismatch_flags(folders: list[ResultsFolder], outputs_of: dict[str, set[str]]) -> list[Flag]:
-    """Flags for inputs and definitions that differ across folders (none for a single folder).
+    """Flags for inputs and definitions that differ across folders (none for a single folder),
+    one per cause.
 
     Checks scene sets (per method), frame counts, source frames (sha256) and frame sizes (per
-    scene), the resolution FPS was measured at, and each output's variant and metric settings.
+    scene), the resolutions one method's FPS were measured at, the sizes each scene was scored at,
+    and each metric's definitions (variants) and settings.
     """
     flags: list[Flag] = []
     labels = sorted({f.label for f in folders})
@@ -209,23 +318,8 @@ def mismatch_flags(folders: list[ResultsFolder], outputs_of: dict[str, set[str]]
         if _differs(sizes):
             flags.append(Flag("mismatch", "resolution", f"{scene}: frame sizes differ ({_listing(sizes)})",
                               scenes=frozenset({scene})))
-    fps_res: dict[str, Any] = {}
-    variants: dict[str, dict[str, str]] = {}
-    for f in folders:
-        for _scene, weathers in sorted(f.doc["results"].items()):
-            for _weather, outputs in sorted(weathers.items()):
-                for output, r in sorted(outputs.items()):
-                    variants.setdefault(output, {})[f.label] = str(r.get("variant", ""))
-                    res = (r.get("extra") or {}).get("resolution")
-                    if output == "fps" and res:
-                        fps_res[f.label] = "x".join(str(v) for v in res)
-    if _differs(fps_res):
-        flags.append(Flag("mismatch", "resolution", f"FPS measured at different resolutions ({_listing(fps_res)})",
-                          outputs=frozenset({"fps"})))
-    for output, by_label in sorted(variants.items()):
-        if len(set(by_label.values())) > 1:
-            flags.append(Flag("mismatch", "variant", f"{output}: different definitions ({_listing(by_label)})",
-                              outputs=frozenset({output})))
+    flags += _fps_flags(folders)
+    flags += _definition_flags(folders, outputs_of)
     settings: dict[str, dict[str, str]] = {}
     for f in folders:
         for metric, cfg in f.doc["config"].get("metric_config", {}).items():

@@ -187,6 +187,59 @@ def test_metric_resolution_scores_downscaled_frames_and_says_so(pandaset_root, t
     assert exc.value.code == 2 and "'native' or the longer side in pixels" in capsys.readouterr().err
 
 
+def test_every_method_of_a_scene_is_scored_at_the_scenes_working_size(tmp_path):
+    """A method rendering at half the scene's size is scored at the scene's working size, as one
+    rendering at the scene's size is: the same definitions, the resize recorded; a size asked for
+    on ``evaluate`` is scored there instead."""
+    common = ["--scenes", "demo", "--weathers", "rain", "--frames", "0-3", "--metrics", "temporal_flicker",
+              "fps", "--no-progress"]
+    assert main(["run", "--method", "filter2d", "--scale", "0.5", "--out", str(tmp_path / "half"), *common]) == 0
+    assert main(["run", "--method", "identity", "--out", str(tmp_path / "full"), *common]) == 0
+    half, full = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("half", "full"))
+    rule = {"rule": "scene working size", "sizes": {"demo_street": [320, 180]}}
+    assert half["config"]["scored_at"] == full["config"]["scored_at"] == rule
+    [record] = half["working_size"]
+    assert (record["from"], record["to"], record["predictions"]) == ([320, 180], [320, 180], [160, 90])
+    assert record["predictions_resized"] and record["rule"] == "scene working size"
+    assert "bicubic" in record["interpolation"]
+    assert full["working_size"] == []
+    h, f = (d["results"]["demo_street"]["rain"] for d in (half, full))
+    assert {o: r["variant"] for o, r in h.items()} == {o: r["variant"] for o, r in f.items()}
+    assert not any("scored at" in r["variant"] for r in h.values())
+    assert len(h["temporal_flicker"]["per_frame"]) == 3
+    assert h["fps"]["extra"]["resolution"] == [160, 90]  # FPS stays the method's own, at its render size
+    # evaluate --scale: scored at the size asked for, said in the variants
+    assert main(["evaluate", "--method", "filter2d", "--predictions", str(tmp_path / "half" / "filter2d"),
+                 "--scale", "0.5", "--out", str(tmp_path / "asked"), *common]) == 0
+    asked = json.loads((tmp_path / "asked" / "results.json").read_text())
+    assert asked["config"]["scored_at"] == {"rule": "asked", "sizes": {"demo_street": [160, 90]}}
+    [record] = asked["working_size"]
+    assert (record["to"], record["predictions_resized"], record["rule"]) == ([160, 90], False, "asked")
+    assert asked["results"]["demo_street"]["rain"]["temporal_flicker"]["variant"].endswith("; scored at 160x90")
+
+
+def test_results_scored_under_the_earlier_size_rule_are_never_served_as_up_to_date(tmp_path, capsys):
+    """A results.json of an earlier wcbench (a method scored at its own render size, no
+    ``config.scored_at``) is other settings: refused, never returned as up to date."""
+    from wcbench.core.storage import sha256_json
+    from wcbench.results import results_checksum
+
+    args = ["run", "--method", "filter2d", "--scenes", "demo", "--weathers", "rain", "--frames", "0-3", "--scale",
+            "0.5", "--metrics", "temporal_flicker", "--no-progress", "--out", str(tmp_path / "out")]
+    assert main(args) == 0
+    path = tmp_path / "out" / "results.json"
+    doc = json.loads(path.read_text())
+    del doc["config"]["scored_at"]  # as an earlier wcbench wrote it
+    doc["inputs"]["sha256"] = sha256_json({"inputs": doc["inputs"]["scenes"], "config": doc["config"]})
+    doc["checksum"] = results_checksum(doc)
+    path.write_text(json.dumps(doc))
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "other inputs or settings" in capsys.readouterr().err
+    assert main([*args, "--overwrite"]) == 0
+    assert "scored_at" in json.loads(path.read_text())["config"]
+
+
 def test_worker_threads_and_kept_frames_change_no_number(demo_scene, tmp_path, monkeypatch):
     """The fast scoring path (decoding threads, predictions decoded once by the check and kept, raw
     frames shared by units) against its twin (one thread, every frame decoded where it is used):

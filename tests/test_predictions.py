@@ -190,3 +190,54 @@ def test_a_frame_selection_of_a_video(demo_scene, tmp_path):
     for d, k in zip(decoded, (3, 4, 5)):  # the selected frames, not the first three
         errs = [np.abs(d.astype(float) - f).mean() for f in frames]
         assert int(np.argmin(errs)) == k
+
+
+def test_frames_beyond_the_scene_are_left_out_only_under_a_frame_selection(demo_scene, tmp_path):
+    """A render of a longer sequence (16 numbered frames for a 12-frame scene): refused, naming
+    --frames and --frame-offset; under --frames the scene's frames are read and the others counted."""
+    root = write_prediction_folder(demo_scene, tmp_path / "p", ["rain"])
+    for k in range(12, 16):
+        cv2.imwrite(str(root / "rain" / f"{k:03d}.png"), cv2.imread(str(demo_scene.frames[-1].image_path)))
+    with pytest.raises(InputError, match=r"extra files \['012.png', '013.png', '014.png', '015.png'\]: frames "
+                                         r"12-15 beyond the scene's frames 0-11") as exc:
+        match_predictions(demo_scene, "rain", root)
+    assert "--frames 0-11" in str(exc.value) and "--frame-offset N" in str(exc.value)
+    seq = match_predictions(demo_scene, "rain", root, frames=range(12))
+    assert seq.frame_indices == list(range(12)) and seq.outside_scene == [12, 13, 14, 15]
+    assert seq.left_out() == {"outside_scene": {"count": 4, "frames": "12-15"}}
+    # shifted by --frame-offset -2 (the tool started two frames before the scene): both ends; scene
+    # frames outside the selection are not counted, only frames outside the scene
+    seq = match_predictions(demo_scene, "rain", root, frame_offset=-2, frames=range(10))
+    assert seq.files[0].name == "002.png" and seq.left_out() == {"outside_scene": {"count": 4,
+                                                                                   "frames": "-2 to -1,12-13"}}
+    assert match_predictions(demo_scene, "rain", root, frames=range(3, 6)).outside_scene == [12, 13, 14, 15]
+    # a sequence of the scene's length records nothing left out
+    for k in range(12, 16):
+        (root / "rain" / f"{k:03d}.png").unlink()
+    assert match_predictions(demo_scene, "rain", root).left_out() == {}
+
+
+def test_a_video_longer_than_the_scene_under_a_frame_selection(demo_scene, tmp_path):
+    frames = [_rgb(f.image_path) for f in demo_scene.frames]
+    write_mp4(tmp_path / "rain.mp4", [*frames, *frames[:3]])
+    with pytest.raises(InputError, match="video frames 12-14 fall outside the scene: pass --frames 0-11"):
+        match_predictions(demo_scene, "rain", tmp_path, pattern="{weather}.mp4")
+    seq = match_predictions(demo_scene, "rain", tmp_path, pattern="{weather}.mp4", frames=range(12))
+    assert seq.n_frames == 12 and len(list(seq)) == 12
+    assert seq.left_out() == {"outside_scene": {"count": 3, "frames": "12-14"}}
+
+
+def test_the_highest_step_is_read(demo_scene, tmp_path):
+    """{step} folders side by side are a run's evaluations at several steps: the highest (by number)
+    is read and the others named; under a * level that differs, the places stay ambiguous."""
+    for step in (900, 1000, 20):
+        _copy_frames(demo_scene, tmp_path / "run" / "rain" / f"ckpt_{step}")
+    seq = match_predictions(demo_scene, "rain", tmp_path, pattern="run/{weather}/ckpt_{step}/{frame}.png")
+    assert seq.location.name == "ckpt_1000"
+    assert seq.passed_over == ["run/rain/ckpt_20", "run/rain/ckpt_900"]
+    frames = [_rgb(f.image_path) for f in demo_scene.frames]
+    write_mp4(tmp_path / "vid" / "rain_7.mp4", frames)
+    write_mp4(tmp_path / "vid" / "rain_12.mp4", frames[:5])
+    seq = match_predictions(demo_scene, "rain", tmp_path / "vid", pattern="{weather}_{step}.mp4",
+                            partial_reason="test")
+    assert seq.location.name == "rain_12.mp4" and seq.passed_over == ["rain_7.mp4"]

@@ -5,7 +5,9 @@ per (scene, weather), renders the units of a runnable method when asked (``run``
 checks every prediction before any result is written, scores each unit or reuses its kept result
 (through an executor, :mod:`wcbench.execution`: in this process or on a Dask cluster), then
 writes ``results.csv`` and ``results.json`` last, atomically. An existing ``results.json`` for
-other inputs is never replaced without ``overwrite=True``.
+other inputs is never replaced without ``overwrite=True``. Every method of a scene is scored at
+one size, the scene's working size, whatever size it rendered at (``config.scored_at``; see
+:data:`~wcbench.units.SCORING_RULE`), so the numbers of methods scored separately compare.
 
 Each scene's predictions folder is found by name (:func:`~wcbench.predictions.find_scene_folder`:
 the scene id, its data folder's name or an alias, and reader patterns such as ``{scene}_*``), and
@@ -29,6 +31,7 @@ from wcbench.core.environment import machine_info, package_versions
 from wcbench.core.errors import InputError, ResultsExistError, UnknownNameError
 from wcbench.core.image_io import to_float
 from wcbench.core.locking import FolderLock
+from wcbench.core.models.fetch import fetch_missing, is_offline
 from wcbench.core.storage import (
     atomic_write_json,
     atomic_write_text,
@@ -62,7 +65,7 @@ from wcbench.results import (
     to_csv,
 )
 from wcbench.scenes.sets import normalized_scenes, resolve_scenes
-from wcbench.units import RenderSettings, Scoring, UnitResult, WorkUnit
+from wcbench.units import SCORING_RULE, RenderSettings, Scoring, UnitResult, WorkUnit
 
 
 @dataclass
@@ -93,11 +96,13 @@ class EvaluateConfig:
         Render the units first with the (runnable) method into ``predictions/<scene>/<weather>/``
         (``wcbench run``); ``None`` reads existing files (``wcbench evaluate``).
     metric_resolution : int or None
-        Frames whose longer side exceeds this many pixels are scored area-downscaled to it
-        (:func:`~wcbench.core.working_size.working_size`); ``None`` scores at the predictions' own size.
+        Every unit of a scene is scored at the scene's working size: its frame size, area-downscaled
+        so that the longer side is at most this many pixels
+        (:func:`~wcbench.core.working_size.working_size`); ``None``: at the scene's own frame size.
+        A method's frames of another size are resized to it (:data:`~wcbench.units.SCORING_RULE`).
     score_size : SizeRequest, optional
-        Score at this size (``--scale`` or ``--width/--height``): predictions and scene frames are
-        area-resized to it, and the working resolution does not apply.
+        Score at this size (``evaluate --scale`` or ``--width/--height``): predictions and scene
+        frames are resized to it, and the working resolution does not apply.
     frames : tuple of int, optional
         Score only these scene frames (a contiguous run; ``--frames``); default every frame (a
         runnable method's render of some frames is scored on the frames it lists).
@@ -105,6 +110,9 @@ class EvaluateConfig:
         Decode frames in worker threads; keep decoded frames in memory (the raw frames for the
         scene's other units, the predictions from their check to their scoring)
         (:meth:`~wcbench.units.WorkUnit.score`; off only to measure what they save).
+    offline : bool
+        Fetch no missing weights (also ``$WCBENCH_OFFLINE``); by default the weights the metrics
+        and the method need are fetched before the work starts (:mod:`wcbench.core.models.fetch`).
     """
 
     method: str
@@ -127,6 +135,7 @@ class EvaluateConfig:
     score_size: SizeRequest | None = None
     prefetch_frames: bool = True
     share_frames: bool = True
+    offline: bool = False
 
 
 @dataclass
@@ -149,9 +158,16 @@ def _check_weathers(method: Method, weathers: list[str]) -> None:
                              f"(supports {', '.join(method.info.weathers)})")
 
 
-def _metric_config(names: list[str], options: dict[str, dict[str, Any]]) -> tuple[dict[str, Metric], dict]:
+def _metric_config(names: list[str], options: dict[str, dict[str, Any]], *, method: Method,
+                   offline: bool) -> tuple[dict[str, Metric], dict, dict[str, Any]]:
+    """The metrics, their configs and the record of the weights they and ``method`` need, fetched
+    first where missing (the configs carry the weights' sha256, so they come after the fetch)."""
     metrics = {n: create_metric(n, **options.get(n, {})) for n in names}
-    return metrics, {n: {"class": type(m).__qualname__, "config": m.config()} for n, m in metrics.items()}
+    needed = {name for m in metrics.values() for name in m.required_models()}
+    needed |= set(getattr(method, "required_models", tuple)())
+    fetched = fetch_missing(needed, offline=is_offline(offline))
+    models = {name: outcome.record() for name, outcome in fetched.items()}
+    return metrics, {n: {"class": type(m).__qualname__, "config": m.config()} for n, m in metrics.items()}, models
 
 
 def scene_folders(cfg: EvaluateConfig, method: Method) -> dict[str, SceneFolder]:
@@ -233,6 +249,17 @@ def _open_units(cfg: EvaluateConfig, plan: list[list[WorkUnit]]) -> list[WorkUni
     return units
 
 
+def _scored_at(cfg: EvaluateConfig, units: list[WorkUnit]) -> dict[str, Any]:
+    """The size each scene's frames are scored at and the rule that chose it (``results.json``
+    ``config.scored_at``): ``{"rule": SCORING_RULE or "asked", "sizes": {scene: [w, h]}}``.
+
+    Part of the inputs' hash, so results scored under an earlier rule (a method at its own render
+    size) are never taken as up to date.
+    """
+    sizes = {u.scene.id: list(u.scored_size(cfg.metric_resolution, cfg.score_size)) for u in units}
+    return {"rule": SCORING_RULE if cfg.score_size is None else "asked", "sizes": dict(sorted(sizes.items()))}
+
+
 def _config_record(cfg: EvaluateConfig, method: Method, units: list[WorkUnit], metric_cfg: dict,
                    folders: dict[str, SceneFolder] | None) -> dict[str, Any]:
     return {
@@ -243,6 +270,7 @@ def _config_record(cfg: EvaluateConfig, method: Method, units: list[WorkUnit], m
         "frame_offset": cfg.frame_offset, "fps": cfg.fps, "reader": method.info.defaults,
         "metric_resolution": cfg.metric_resolution, "frames": None if cfg.frames is None else list(cfg.frames),
         "score_size": None if cfg.score_size is None else cfg.score_size.to_json(),
+        "scored_at": _scored_at(cfg, units),
         "unedited_check": method.info.edits_source,
         "scene_folders": {sid: f.record() for sid, f in sorted((folders or {}).items())},
     }
@@ -355,7 +383,8 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None, executor: Exe
 def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Executor) -> EvaluateOutcome:
     method, metric_names, previous = check_out_folder(cfg, method=method)
     results_path = cfg.out / RESULTS_JSON
-    metrics, metric_cfg = _metric_config(metric_names, cfg.metric_options)
+    metrics, metric_cfg, models = _metric_config(metric_names, cfg.metric_options, method=method,
+                                                 offline=cfg.offline)
     folders = None if cfg.render is not None else scene_folders(cfg, method)
     plan = _plan_units(cfg, method, folders)
     if cfg.render is not None:
@@ -385,14 +414,20 @@ def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Execu
                       show_progress=cfg.show_progress)
     outcomes = executor.score(units, scoring, [scoring.key(u) for u in units])
     computed = sum(o.computed for o in outcomes)
-    doc = assemble_results(config, inputs, outcomes)
+    facts = {u.scene.id: u.scene.facts for u in units if u.scene.facts}
+    doc = assemble_results(config, inputs, outcomes, models=models, scene_facts=facts)
     atomic_write_text(cfg.out / RESULTS_CSV, to_csv(doc))
     atomic_write_json(results_path, doc)
     return EvaluateOutcome("computed", results_path, doc, computed, len(units) - computed)
 
 
-def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: list[UnitResult]) -> dict[str, Any]:
-    """The ``results.json`` document from finished units (see :mod:`wcbench.results` for the schema)."""
+def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: list[UnitResult], *,
+                     models: dict[str, Any] | None = None,
+                     scene_facts: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """The ``results.json`` document from finished units (see :mod:`wcbench.results` for the schema);
+    ``models`` records the weights the run needed (sha256, verified, fetched in this run or why not),
+    ``scene_facts`` what each scene's source says of it (:attr:`~wcbench.scenes.scene.Scene.facts`);
+    a source scene that is not clear adds a ``source_weather`` warning."""
     results: dict[str, Any] = {}
     skipped: list[dict[str, Any]] = []
     partial: list[dict[str, Any]] = []
@@ -412,8 +447,12 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "machine": machine_info(), "config": config,
         "inputs": inputs, "results": results, "skipped": skipped, "partial": partial, "resized": resized,
-        "warnings": warnings, "working_size": working,
+        "warnings": warnings, "working_size": working, "models": models or {}, "scene_facts": scene_facts or {},
     })
+    for sid, facts in sorted((scene_facts or {}).items()):
+        if facts.get("source_weather_flag"):
+            doc["warnings"].append({"scene": sid, "weather": "clear", "kind": "source_weather",
+                                    "message": str(facts["source_weather_flag"])})
     doc["checksum"] = results_checksum(doc)
     return doc
 

@@ -9,7 +9,9 @@ Patterns are paths relative to a scene's prediction folder with these tokens:
 ``{stem}``     the source image's file stem (``000_0`` for ``images/000_0.jpg``);
 ``{scene}``    the scene id;
 ``{step}``     any run of digits, e.g. a training step: ``full_set_{step}_rgbs`` matches
-               ``full_set_30000_rgbs`` but not ``full_set_30000_gt_rgbs``;
+               ``full_set_30000_rgbs`` but not ``full_set_30000_gt_rgbs``. When several steps sit
+               side by side, the highest is read (a run's last evaluation) and the others are
+               named in :attr:`PredictionSequence.passed_over`;
 ``*``          any text. In the file name, files are then matched to frames in natural sort order.
 
 Folder components may hold ``{weather}``, ``{scene}``, ``{step}`` and ``*``; a wildcard that
@@ -21,7 +23,9 @@ Frame *i* of a tool (file number minus ``frame_start``, position in natural orde
 is scene frame ``i + frame_offset``. A sequence that does not cover the scene is an error listing
 the missing frames, unless the reader declares that its tool can end early (``partial_reason``):
 then the present frames must be one contiguous run, which is scored, and the missing frames are
-named in the results (never silently).
+named in the results (never silently). Frames a tool wrote beyond the scene (a render of the whole
+sequence where the scene is its first 30 frames) are an error naming ``--frames``: with a frame
+selection they are left out and counted (:attr:`PredictionSequence.outside_scene`).
 """
 
 from __future__ import annotations
@@ -100,6 +104,13 @@ class PredictionSequence:
     video_positions : list of int or None
         For a video scored on some of its frames (``--frames``): the position in the video of
         each prediction; ``None``: every frame of the video, in order.
+    outside_scene : list of int
+        Frames the tool wrote beyond the scene's frames, left out under a frame selection
+        (``--frames``), numbered like scene frames (tool frame *i* is ``i + frame_offset``:
+        30-79 for a 80-frame render of a 30-frame scene).
+    passed_over : list of str
+        Folders of lower steps beside the ``{step}`` folder read (relative to the predictions
+        folder), e.g. ``videos_eval/raw/full_set_20000_rgbs`` when ``full_set_30000_rgbs`` is read.
     """
 
     files: list[Path]
@@ -124,6 +135,8 @@ class PredictionSequence:
             raise InputError(f"{len(unreadable)} prediction file(s) cannot be read by this user "
                              f"(permission denied):\n{listing}{more}")
     video_positions: list[int] | None = None
+    outside_scene: list[int] = field(default_factory=list)
+    passed_over: list[str] = field(default_factory=list)
     _hashes: list[str] | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
@@ -187,6 +200,19 @@ class PredictionSequence:
             self._hashes = [sha256_file(p) for p in self.files]
         return self._hashes
 
+    def left_out(self) -> dict[str, Any]:
+        """What was found and deliberately not read, for the record (``results.json`` inputs):
+        ``outside_scene`` (``{"count", "frames"}``: frames beyond the scene under ``--frames``) and
+        ``passed_over`` (lower ``{step}`` folders), each only when there is any, so that the
+        record of a sequence read whole is unchanged."""
+        out: dict[str, Any] = {}
+        if self.outside_scene:
+            out["outside_scene"] = {"count": len(self.outside_scene),
+                                    "frames": signed_frames_text(self.outside_scene)}
+        if self.passed_over:
+            out["passed_over"] = list(self.passed_over)
+        return out
+
 
 # --------------------------------------------------------------------------- pattern pieces
 def _literal(text: str) -> str:
@@ -203,7 +229,8 @@ def _part_regex(part: str, *, weather: str, scene_id: str, pattern: str, file_na
             raise InputError(f"pattern {pattern!r}: {{{tok}}} may only appear in the file name")
         if tok in used and tok in ("frame", "stem"):
             raise InputError(f"pattern {pattern!r}: {{{tok}}} appears twice in one name")
-        pieces.append({"frame": r"(?P<frame>\d+)", "stem": r"(?P<stem>.+)", "step": r"\d+",
+        step = r"\d+" if "step" in used else r"(?P<step>\d+)"  # a second {step} in one name: digits, no group
+        pieces.append({"frame": r"(?P<frame>\d+)", "stem": r"(?P<stem>.+)", "step": step,
                        "weather": re.escape(weather), "scene": re.escape(scene_id)}[tok])
         used.add(tok)
         pos = m.end()
@@ -218,10 +245,26 @@ def _is_video_name(last: str) -> bool:
     return not tokens & {"frame", "stem"} and Path(_TOKEN.sub("x", last)).suffix.lower() in VIDEO_EXTENSIONS
 
 
+def _highest_step(found: list[tuple[Path, re.Match[str]]], passed_over: list[Path] | None) -> list[Path]:
+    """Of sibling names that differ only in their ``{step}`` digits, the highest step (a run's last
+    evaluation, e.g. WeatherCity's final ``full_set_30000_rgbs`` beside ``full_set_20000_rgbs``);
+    equal steps (``030000``, ``30000``) all stay, to be reported as ambiguous. The others are
+    appended to ``passed_over``."""
+    if len(found) < 2:
+        return [c for c, _ in found]
+    top = max(int(m.group("step")) for _, m in found)
+    kept = [c for c, m in found if int(m.group("step")) == top]
+    if passed_over is not None:
+        passed_over += [c for c, m in found if int(m.group("step")) != top]
+    return kept
+
+
 def _expand(root: Path, parts: Sequence[str], *, weather: str, scene_id: str, pattern: str,
-            files: bool = False) -> list[Path]:
+            files: bool = False, passed_over: list[Path] | None = None) -> list[Path]:
     """Every path under ``root`` matching the components ``parts`` (the last ones are files when
-    ``files``), wildcards expanded, in natural order."""
+    ``files``), wildcards expanded, in natural order. Where a component with ``{step}`` (and no
+    ``*``) matches several siblings, only the highest step is kept (:func:`_highest_step`); the
+    others are appended to ``passed_over``."""
     current = [root]
     for i, part in enumerate(parts):
         want_file = files and i == len(parts) - 1
@@ -235,9 +278,11 @@ def _expand(root: Path, parts: Sequence[str], *, weather: str, scene_id: str, pa
                     nxt.append(cand)
             elif base.is_dir():
                 regex = re.compile(rf"^{body}$")
-                nxt += sorted((c for c in base.iterdir()
-                               if (c.is_file() if want_file else c.is_dir()) and regex.match(c.name)),
-                              key=lambda c: natural_key(c.name))
+                found = sorted(((c, m) for c in base.iterdir()
+                                if (c.is_file() if want_file else c.is_dir()) and (m := regex.match(c.name))),
+                               key=lambda cm: natural_key(cm[0].name))
+                one_step = "step" in used and "*" not in used  # a * level may differ in more than the step
+                nxt += _highest_step(found, passed_over) if one_step else [c for c, _ in found]
         current = nxt
     return current
 
@@ -247,16 +292,20 @@ def _weather_names(weather: str, weather_names: Mapping[str, Sequence[str]]) -> 
     return list(dict.fromkeys([*weather_names.get(weather, ()), weather]))
 
 
-def _locate(root: Path, layout: str, *, names: Sequence[str], scene: Scene) -> list[tuple[Path, str]]:
-    """(folder or video, weather name used) for every place ``layout`` points to that exists."""
+def _locate(root: Path, layout: str, *, names: Sequence[str], scene: Scene,
+            passed_over: list[Path] | None = None) -> list[tuple[Path, str]]:
+    """(folder or video, weather name used) for every place ``layout`` points to that exists
+    (lower ``{step}`` folders passed over are appended to ``passed_over``)."""
     pieces = layout.split("/")
     video = _is_video_name(pieces[-1])
     found: dict[Path, str] = {}
     for name in names:
         if video:
-            hits = _expand(root, pieces, weather=name, scene_id=scene.id, pattern=layout, files=True)
+            hits = _expand(root, pieces, weather=name, scene_id=scene.id, pattern=layout, files=True,
+                           passed_over=passed_over)
         else:
-            hits = _expand(root, pieces[:-1], weather=name, scene_id=scene.id, pattern=layout)
+            hits = _expand(root, pieces[:-1], weather=name, scene_id=scene.id, pattern=layout,
+                           passed_over=passed_over)
         for h in hits:
             found.setdefault(h, name)
     return list(found.items())
@@ -352,14 +401,15 @@ def match_predictions(
     names = _weather_names(weather, weather_names or {})
     n = len(scene.frames)
     chosen: tuple[str, Path, str] | None = None
+    passed: list[Path] = []
     for candidate in layouts:
-        read = candidate
-        hits = _locate(root, read, names=names, scene=scene)
+        read, passed = candidate, []
+        hits = _locate(root, read, names=names, scene=scene, passed_over=passed)
         dropped = _drop_weather_level(candidate) if weather_level_optional else None
         if not hits and dropped is not None:
-            read = dropped
+            read, passed = dropped, []
             # without its weather level, a frames folder counts only if it holds images
-            hits = [(p, w) for p, w in _locate(root, read, names=names, scene=scene)
+            hits = [(p, w) for p, w in _locate(root, read, names=names, scene=scene, passed_over=passed)
                     if p.is_file() or any(c.suffix.lower() in IMAGE_EXTENSIONS for c in p.iterdir())]
         if len(hits) > 1:
             listing = "\n".join(f"  {p}" for p, _ in hits)
@@ -386,18 +436,22 @@ def match_predictions(
         )
     layout, location, _ = chosen
     _check_inside(location, root)
+    # the lower steps beside a folder (or video) on the chosen path, named in the record
+    passed_over = [q.relative_to(root).as_posix() for q in passed
+                   if q.parent in location.parents and q not in location.parents]
     last = layout.split("/")[-1]
     size = scene.image_size
     if _is_video_name(last):
         count = video_frame_count(location)
         pairs = [(location, frame_offset + i) for i in range(count)]
-        found, missing = _check_frames(pairs, scene, where=f"{location}", partial_reason=partial_reason,
-                                       video_count=count, unmatched=[], stem_mode=False,
-                                       frame_start=frame_start, frame_offset=frame_offset, selection=frames)
+        found, missing, outside = _check_frames(
+            pairs, scene, where=f"{location}", partial_reason=partial_reason, video_count=count, unmatched=[],
+            stem_mode=False, frame_start=frame_start, frame_offset=frame_offset, selection=frames)
         return PredictionSequence([location], size, [k for _, k in found], resize=resize,
                                   info=read_info(location.parent), is_video=True, missing=missing,
                                   partial_reason=partial_reason, layout=layout, location=location,
-                                  video_positions=None if frames is None else [k - frame_offset for _, k in found])
+                                  video_positions=None if frames is None else [k - frame_offset for _, k in found],
+                                  outside_scene=outside, passed_over=passed_over)
     where = f"{location} (pattern {layout!r}, weather {weather!r})"
     body, used = _part_regex(last, weather=chosen[2], scene_id=scene.id, pattern=layout, file_name=True)
     if Path(_TOKEN.sub("x", last)).suffix.lower() not in IMAGE_EXTENSIONS:
@@ -413,21 +467,46 @@ def match_predictions(
                          + (f" ({len(ignored)} files ignored by the reader's rules {list(ignore)})" if ignored else ""))
     matched = [(p, m) for p in candidates if (m := regex.match(p.name))]
     unmatched = [p.name for p in candidates if not regex.match(p.name)]
-    stems = {f.image_path.stem: f.index for f in scene.frames}
     if "frame" in used:
         pairs = [(p, int(m.group("frame")) - frame_start + frame_offset) for p, m in matched]
     elif "stem" in used:
-        pairs = [(p, stems.get(m.group("stem"), -1)) for p, m in matched]
+        stems = {f.image_path.stem: f.index for f in scene.frames}
+        if any(m.group("stem") not in stems for _, m in matched):
+            stems = {**_source_frame_numbers(scene), **stems}
+        unmatched += [p.name for p, m in matched if m.group("stem") not in stems]
+        pairs = [(p, stems[m.group("stem")]) for p, m in matched if m.group("stem") in stems]
     else:
         pairs = [(p, frame_offset + i) for i, (p, _) in enumerate(matched)]
-    found, missing = _check_frames(pairs, scene, where=where, partial_reason=partial_reason, video_count=None,
-                                   unmatched=unmatched, stem_mode="stem" in used and "frame" not in used,
-                                   frame_start=frame_start, frame_offset=frame_offset, selection=frames)
+    found, missing, outside = _check_frames(
+        pairs, scene, where=where, partial_reason=partial_reason, video_count=None, unmatched=unmatched,
+        stem_mode="stem" in used and "frame" not in used, frame_start=frame_start, frame_offset=frame_offset,
+        selection=frames)
     for p, _ in found:
         _check_inside(p, root)
     return PredictionSequence([p for p, _ in found], size, [k for _, k in found], resize=resize,
                               info=read_info(location), missing=missing, partial_reason=partial_reason,
-                              layout=layout, location=location, ignored=ignored)
+                              layout=layout, location=location, ignored=ignored, outside_scene=outside,
+                              passed_over=passed_over)
+
+
+def _source_frame_numbers(scene: Scene) -> dict[str, int]:
+    """Stems of every image of the scene's camera in its image folder, numbered like scene frames.
+
+    A scene can be a window of a longer processed sequence (``waymo_5``: the first 30 of about 200
+    frames); an editor run on the whole folder also edits the frames outside the window. drivestudio
+    names images ``{t:03d}_{cam}`` (docs/design.md §3), so in natural order the image ``k`` places
+    after the scene's first frame is scene frame ``k`` (negative before it, ``n`` or more after it).
+    """
+    first = scene.frames[0].image_path
+    camera = first.stem.rpartition("_")[2] if "_" in first.stem else None
+    names = sorted((c.stem for c in first.parent.iterdir()
+                    if c.is_file() and c.suffix.lower() in IMAGE_EXTENSIONS
+                    and (camera is None or ("_" in c.stem and c.stem.rpartition("_")[2] == camera))),
+                   key=natural_key)
+    if first.stem not in names:
+        return {}
+    base = names.index(first.stem)
+    return {stem: i - base for i, stem in enumerate(names)}
 
 
 def _check_inside(path: Path, root: Path) -> None:
@@ -439,34 +518,59 @@ def _check_inside(path: Path, root: Path) -> None:
                          "symlinks out of the predictions folder are not followed")
 
 
+def signed_frames_text(frames: list[int]) -> str:
+    """:func:`~wcbench.results.frames_text` that stays readable with frames before the scene
+    (negative numbers): ``[-5, -4, -3, 20, 21]`` -> ``"-5 to -3,20-21"``."""
+    if not frames or frames[0] >= 0:
+        return frames_text(frames)
+    return ",".join(part if not part.startswith("-") else re.sub(r"^(-\d+)-", r"\1 to ", part)
+                    for part in frames_text(frames).split(","))
+
+
+def _outside_hint(n: int, frame_offset: int, *, stem_mode: bool = False) -> str:
+    """What to pass when a tool wrote frames beyond the scene's (``--frame-offset`` does not apply
+    to files named after the source frames)."""
+    frames = f"pass --frames 0-{n - 1} to score the scene's frames and leave the others out (they are counted " \
+             "in results.json)"
+    if stem_mode:
+        return frames
+    return (frames + ", and --frame-offset N when the tool's first frame is scene frame N (a render from a "
+            "later start_timestep)" + (f"; --frame-offset is {frame_offset} now" if frame_offset else ""))
+
+
 def _check_frames(
     pairs: list[tuple[Path, int]], scene: Scene, *, where: str, partial_reason: str | None, video_count: int | None,
     unmatched: list[str], stem_mode: bool, frame_start: int, frame_offset: int,
     selection: Sequence[int] | None = None,
-) -> tuple[list[tuple[Path, int]], list[int]]:
-    """Check (file, scene frame) pairs against the scene; return the pairs in frame order and the
-    missing frames (allowed only as a missing head or tail when ``partial_reason`` is set). With a
-    ``selection``, only those scene frames are expected; the others' files are left alone."""
+) -> tuple[list[tuple[Path, int]], list[int], list[int]]:
+    """Check (file, scene frame) pairs against the scene; return the pairs in frame order, the
+    missing frames (allowed only as a missing head or tail when ``partial_reason`` is set) and the
+    frames beyond the scene left out. With a ``selection``, only those scene frames are expected;
+    the others' files are left alone, and so are frames beyond the scene (a render of a longer
+    sequence), which are otherwise an error naming ``--frames``."""
     n = len(scene.frames)
     by_frame: dict[int, list[Path]] = {}
     extra = list(unmatched)
+    beyond = sorted({k for _, k in pairs if not 0 <= k < n})
     for p, k in pairs:
         if 0 <= k < n:
             by_frame.setdefault(k, []).append(p)
-        elif video_count is None:
-            extra.append(p.name)
     if selection is not None:
         chosen = set(selection)
         by_frame = {k: v for k, v in by_frame.items() if k in chosen}
     wanted = range(n) if selection is None else sorted(set(selection))
     missing = [k for k in wanted if k not in by_frame]
     if video_count is not None:
-        outside = [i for i, (_, k) in enumerate(pairs) if not 0 <= k < n]
+        outside = [i for i, (_, k) in enumerate(pairs) if not 0 <= k < n] if selection is None else []
         if (missing and partial_reason is None) or outside:
             shift = f" with --frame-offset {frame_offset}" if frame_offset else ""
-            detail = f"; video frames {frames_text(outside)} fall outside the scene{shift}" if outside else ""
+            detail = (f"; video frames {signed_frames_text(outside)} fall outside the scene{shift}: "
+                      f"{_outside_hint(n, frame_offset)}" if outside else "")
+            start = "" if outside or frame_offset else \
+                "; --frame-offset N when the video's first frame is scene frame N"
             raise InputError(f"{where}: video has {video_count} frames, expected {n} (one per scene frame)"
-                             f"{detail}" + (f"; missing scene frames {missing}" if missing and frame_offset else ""))
+                             f"{detail}" + (f"; missing scene frames {missing}" if missing and frame_offset else "")
+                             + start)
     dupes = {k: [p.name for p in v] for k, v in by_frame.items() if len(v) > 1}
     present = sorted(by_frame)
     holes = [k for k in wanted if present[0] <= k <= present[-1] and k not in by_frame] if present else []
@@ -484,7 +588,15 @@ def _check_frames(
                             f"with --frame-offset {frame_offset}; expected names for the others: "
                             f"{[e for k, e in zip(shown, expect) if k >= frame_offset]})")
         else:
-            problems.append(f"missing frames {shown}{inside} (expected names for {kind} {expect})")
+            offset = "" if stem_mode or frame_offset or only_holes else \
+                "; --frame-offset N when the tool's first frame is scene frame N"
+            problems.append(f"missing frames {shown}{inside} (expected names for {kind} {expect}{offset})")
+    if video_count is None and selection is None and beyond:
+        names = [p.name for p, k in pairs if not 0 <= k < n]
+        shown_names = f"{names[:5]} ... ({len(names)} in all)" if len(names) > 5 else str(names)
+        hint = _outside_hint(n, frame_offset, stem_mode=stem_mode)
+        problems.append(f"extra files {shown_names}: frames {signed_frames_text(beyond)} beyond the scene's frames "
+                        f"0-{n - 1} (a render of a longer sequence?): {hint}")
     if extra:
         problems.append(f"extra files {extra}")
     if dupes:
@@ -493,7 +605,7 @@ def _check_frames(
         shift = f" (with --frame-offset {frame_offset}: the tool's frame i is scene frame i{frame_offset:+d})" \
             if frame_offset else ""
         raise InputError(f"{where}: " + "; ".join(problems) + f"; the scene has {n} frames{shift}")
-    return [(by_frame[k][0], k) for k in present], missing
+    return [(by_frame[k][0], k) for k in present], missing, beyond
 
 
 #: Frame rates above this are not a timing but a typo (frames per second).

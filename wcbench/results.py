@@ -12,7 +12,9 @@
       "inputs": {"sha256": hash of everything below,
                  "scenes": {scene: {weather: {"predictions": [sha256...], "source": [...],
                                               "reference": [...] or null, "location", "layout",
-                                              "frames": [scene frame of each prediction], "ignored"}}}},
+                                              "frames": [scene frame of each prediction], "ignored",
+                                              "outside_scene" {"count", "frames"} and "passed_over"
+                                              [folder...] when anything was left out}}}},
                  "files": {scene: {"root", "size": [w, h], "source": [path...],
                                    "weathers": {weather: {"predictions": [path...],
                                                           "reference": [path...] or null}}}}},
@@ -23,6 +25,8 @@
                    "reason"}],
       "resized": [{"scene", "weather", "from": [[w, h]...], "to": [w, h], "interpolation"}],
       "warnings": [{"scene", "weather", "kind", "message", ...}],
+      "models": {entry: {"status", "sha256", "verified", "fetched", "seconds", "reason"}},
+      "scene_facts": {scene: {"source_weather", "source_weather_flag", "undistorted", ...}},
       "checksum": sha256 of the document without this key (a hand-edited file is detected)
     }
 
@@ -35,12 +39,20 @@ early); ``missing`` names the scene frames without a prediction. ``results.csv``
 higher_is_better, n_frames, missing_frames`` (``n_frames``: the frames scored for that scene and
 weather) with status ``ok``, ``null`` or ``skipped`` and
 ``missing_frames`` the missing scene frames of a partial sequence (``25-29``; empty when complete).
-``working_size`` lists the (scene, weather) units scored at another size than the scene's: a
-method's own resolution, or the metric working resolution (``config.metric_resolution``: frames
-whose longer side exceeds it are area-downscaled to it; ``null`` is the native protocol), with
-the scene's frames resized to it; each output's ``variant`` then ends with ``scored at WxH``. The
-keys ``partial``, ``resized``, ``warnings`` and ``working_size`` may be absent from files of
-earlier wcbench versions.
+Every method of a scene is scored at one size: ``config.scored_at`` is ``{"rule", "sizes": {scene:
+[w, h]}}``, the rule ``"scene working size"`` (the scene's frame size within the metric working
+resolution ``config.metric_resolution``: frames whose longer side exceeds it are area-downscaled to
+it; ``null`` is the native protocol, the scene's own size) or ``"asked"`` (``evaluate --scale`` /
+``--width/--height``). ``working_size`` lists the (scene, weather) units where frames were
+resized for scoring: ``{"scene", "weather", "from": scene size, "to": size scored at,
+"predictions": the method's own size, "predictions_resized", "metric_resolution", "rule",
+"interpolation"}``; each output's ``variant`` ends with ``scored at WxH`` when that size is not the
+scene's. ``models`` names the model-store entries the metrics and the method needed, each with its
+status (``installed``, ``fetched`` in this run, ``offline``, ``not-fetchable`` or ``failed``;
+:mod:`wcbench.core.models.fetch`). The keys ``partial``, ``resized``, ``warnings``, ``working_size``
+and ``models`` may be absent from
+files of earlier wcbench versions, and so may ``config.scored_at`` and the ``predictions_resized``
+and ``rule`` of ``working_size`` (those scored a method at its own render size).
 """
 
 from __future__ import annotations

@@ -34,9 +34,15 @@ from wcbench.scenes.scene import Scene
 from wcbench.scenes.sets import SceneRef
 from wcbench.unedited import UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH, UneditedCheck
 
-#: How the scene's frames are resized for a method scored at its own resolution (see
-#: :func:`wcbench.core.image_io.resize_rgb8`), recorded with every such result.
+#: How frames are brought to the size scored at, the scene's and (rendered at another size) the
+#: method's (see :func:`wcbench.core.image_io.resize_rgb8`), recorded with every such result.
 SOURCE_INTERPOLATION = "area (cv2.INTER_AREA) when shrinking, bicubic when enlarging"
+#: Which size a unit is scored at when none is asked for: the scene's working size
+#: (:func:`~wcbench.core.working_size.working_size` of the scene's frame size), whatever size the
+#: method rendered at, so that every method of a scene is scored at one size, as the paper scores
+#: every method at the dataset's frames (docs/design.md §8, "Scoring"). Part of every unit's key:
+#: results scored under an earlier rule (a method at its own render size) are never reused.
+SCORING_RULE = "scene working size"
 #: Folder of ``OUT`` holding one finished result per unit.
 WORK_DIR = ".work"
 #: Frames handed to metrics per update: model metrics batch their inference; 8 frames of 1080p
@@ -167,7 +173,9 @@ class WorkUnit:
 
     def inputs(self) -> dict[str, Any]:
         """sha256 of every input frame (``predictions``, ``source``, ``reference`` or ``None``) and
-        where the predictions were found (``location``, ``layout``, scored ``frames``, ``ignored``)."""
+        where the predictions were found (``location``, ``layout``, scored ``frames``, ``ignored``, and
+        when there are any, frames beyond the scene and lower steps left out: see
+        :meth:`PredictionSequence.left_out`)."""
         refs = self.reference_paths
         if refs is None:
             ref_hashes = None
@@ -179,23 +187,24 @@ class WorkUnit:
         return {"predictions": p.sha256s(), "source": self.source_hashes, "reference": ref_hashes,
                 "info": None if p.info is None else sha256_json(p.info),
                 "location": str(p.location) if p.location else None, "layout": p.layout,
-                "frames": p.frame_indices, "ignored": p.ignored}
+                "frames": p.frame_indices, "ignored": p.ignored, **p.left_out()}
 
     def scored_size(self, resolution: int | None, score_size: SizeRequest | None = None) -> tuple[int, int]:
-        """(width, height) the frames are scored at: ``score_size`` when given, else the predictions'
-        size within the working ``resolution``."""
+        """(width, height) the frames are scored at: ``score_size`` when given, else the scene's
+        working size (:data:`SCORING_RULE`): the scene's frame size within the working
+        ``resolution``, the same for every method of the scene whatever size it rendered at."""
         if score_size is not None:
             return score_size.resolve(self.scene.image_size)
-        return working_size(self._opened().size, resolution)
+        return working_size(self.scene.image_size, resolution)
 
     def key(self, metric_config: dict[str, Any], *, fps: float | None = None, resolution: int | None = None,
             score_size: SizeRequest | None = None) -> str:
         """Cache key of this unit's result: every input that can change a number (each frame's
         sha256, the predictions' ``info.json`` with its timings, the ``--fps`` given, the metric
-        settings, the size scored at and the results schema)."""
+        settings, the size scored at, the rule that chose it and the results schema)."""
         inputs, p = self.inputs(), self._opened()
         return sha256_json({
-            "schema_version": SCHEMA_VERSION, "scene": self.scene.id, "weather": self.weather,
+            "schema_version": SCHEMA_VERSION, "scoring": SCORING_RULE, "scene": self.scene.id, "weather": self.weather,
             "info": p.info, "fps": fps, "working_size": list(self.scored_size(resolution, score_size)),
             "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
             "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
@@ -319,9 +328,10 @@ class WorkUnit:
                 active[name] = m
         needs_ref = refs is not None and any(m.needs_reference for m in active.values())
         reads_frames = any(m.reads_frames for m in active.values())
-        # A method that renders at its own resolution is scored there, and frames larger than the
-        # working resolution are scored downscaled: the scene's frames (and any ground truth) are
-        # resized to that size as they are read.
+        # Every method of a scene is scored at one size, the scene's working size (the paper scores
+        # every method at the dataset's frames; docs/design.md §8, "Scoring"): frames a method
+        # rendered at another size are resized to it, up or down, and so are the scene's frames (and
+        # any ground truth) when the working resolution is below their size, as they are read.
         w, h = self.scored_size(resolution, score_size)
         workers = thread_count() if prefetch_frames else 1
 
@@ -415,10 +425,11 @@ class WorkUnit:
                 "scored": [preds.frame_indices[0], preds.frame_indices[-1]], "missing": preds.missing,
                 "reason": preds.partial_reason,
             }
-        if (w, h) != scene.image_size and reads_frames:
+        if reads_frames and ((w, h) != scene.image_size or (w, h) != preds.size):
             result["working_size"] = {
                 "scene": scene.id, "weather": self.weather, "from": list(scene.image_size), "to": [w, h],
-                "predictions": list(preds.size), "metric_resolution": resolution,
+                "predictions": list(preds.size), "predictions_resized": (w, h) != preds.size,
+                "metric_resolution": resolution, "rule": SCORING_RULE if score_size is None else "asked",
                 "interpolation": SOURCE_INTERPOLATION,
             }
         if preds.native_sizes:

@@ -216,6 +216,12 @@ class _ClipMetric(StoreBacked, Metric):
                     return missing
         return None
 
+    def required_models(self) -> tuple[str, ...]:
+        """The CLIP entry (and the BPE vocabulary where texts are encoded), unless an embedder was injected."""
+        if self._embedder is not None:
+            return ()
+        return (self.model, VOCAB_ENTRY) if self.needs_texts else (self.model,)
+
     def config(self) -> dict[str, Any]:
         """Model, weights hash, backend and preprocessing (crop choice included)."""
         if self._embedder is not None:

@@ -332,6 +332,10 @@ class LPIPS(StoreBacked, Metric):
             return reason
         return self.store.missing_reason(f"lpips-{self.net}")
 
+    def required_models(self) -> tuple[str, ...]:
+        """``lpips-<net>`` unless a distance was injected."""
+        return () if self._distance is not None else (f"lpips-{self.net}",)
+
     def _fn(self) -> tuple[DistanceFn, str]:
         if self._distance is not None:
             return self._distance, "injected"

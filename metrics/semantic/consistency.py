@@ -274,6 +274,10 @@ class SemanticConsistency(StoreBacked, Metric):
         hint = store.entry(self._model_name).source.hint
         return f"{missing} {hint}; converting needs the [model] extra (torch), scoring does not"
 
+    def required_models(self) -> tuple[str, ...]:
+        """The segmenter's entry when it is named (none for an injected one or the lidar labels)."""
+        return (self._model_name,) if self._model_name is not None and self._segment is None else ()
+
     def _segmenter(self) -> Segmenter:
         if self._segment is None:
             assert self._model_name is not None  # labels mode never segments

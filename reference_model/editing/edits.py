@@ -8,8 +8,11 @@ An edit selects objects by track id or class and acts on their nodes at render t
     insert id=5 by=0,4,0                 add a copy of track 5, 4 m along y
 
 or the same as JSON objects (``{"op": "remove", "class": "Car", "except": ["3", "7"]}``; keys
-``op``, ``ids``/``id``, ``class``, ``except``, ``by``). Classes match case-insensitively and
-exactly; a selection that matches no object is an error (a typo would otherwise edit nothing).
+``op``, ``ids``/``id``, ``class``, ``except``, ``by``). Ids are the scene's track ids: drivestudio's
+compact instance ids ``"0"``, ``"1"``, ... (docs/design.md §3). Classes match through the shared
+vocabulary of :mod:`wcbench.core.classes`, case-insensitively: ``class=vehicle``, ``class=Car``
+(PandaSet), ``class=Vehicle`` (Waymo) and ``class=vehicle.car`` (nuScenes) all select the vehicles.
+A selection that matches no object is an error (a typo would otherwise edit nothing).
 Edits apply in order; the result is a :class:`~wcbench.reference_model.model.scene_model.Placement`.
 """
 
@@ -22,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from wcbench.core.classes import canonical_class
 from wcbench.reference_model.model.objects import RigidObject
 from wcbench.reference_model.model.scene_model import Placement
 
@@ -157,12 +161,12 @@ def parse_edits(spec: str | Sequence[str] | Sequence[Mapping[str, Any]]) -> list
 
 
 def _selected(edit: Edit, objects: Mapping[str, RigidObject]) -> list[str]:
-    classes = {c.lower() for c in edit.classes}
+    classes = {canonical_class(c) for c in edit.classes}
     ids = set(edit.ids)
     keys = [k for k, o in objects.items()
-            if (o.track_id in ids or o.class_name.lower() in classes) and o.track_id not in set(edit.exclude)]
+            if (o.track_id in ids or canonical_class(o.class_name) in classes) and o.track_id not in set(edit.exclude)]
     if not keys:
-        known = sorted({o.class_name for o in objects.values()})
+        known = sorted({canonical_class(o.class_name) for o in objects.values()})
         raise ValueError(f"edit {edit.to_json()}: selects no object of the scene graph "
                          f"(classes: {', '.join(known) or 'none'}; {len(objects)} objects)")
     return keys

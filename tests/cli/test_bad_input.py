@@ -201,3 +201,44 @@ def test_an_unknown_method_is_reported_before_a_missing_out(capsys):
     last = capsys.readouterr().err.strip().splitlines()[-1]  # the error line, under the usage
     assert exc.value.code == 2
     assert "unknown method 'contrlnet'" in last and "Did you mean 'controlnet'" in last
+
+
+def _damage(path, how):
+    data = path.read_bytes()
+    if how == "truncated":
+        path.write_bytes(data[: len(data) // 2])
+    else:  # one byte flipped in the middle (inside the compressed data)
+        flipped = bytearray(data)
+        flipped[len(data) // 2] ^= 0xFF
+        path.write_bytes(bytes(flipped))
+
+
+@pytest.mark.parametrize("how", ["truncated", "flipped"])
+def test_damaged_png_gives_one_message_and_no_library_chatter(capfd, preds, tmp_path, how):
+    """libpng prints its own complaint to the terminal (fd 2) when OpenCV decodes a damaged PNG: the
+    file is refused from its chunks first, so the user sees wcbench's one message only."""
+    p = preds / "rain" / "005.png"
+    _damage(p, how)
+    code = main(["evaluate", "--method", "folder", "--scenes", "demo", "--predictions", str(preds),
+                 "--out", str(tmp_path / "o"), "--metrics", "temporal_flicker"])
+    err = capfd.readouterr().err
+    _assert_refused(code, err, tmp_path / "o", str(p), "truncated PNG" if how == "truncated" else "CRC error")
+    assert "libpng" not in err and "WARN" not in err
+    assert err.startswith("wcbench evaluate: error:"), err  # nothing printed before wcbench's message
+
+
+@pytest.mark.parametrize("how", ["truncated", "garbage"])
+def test_damaged_mp4_gives_one_message_and_no_ffmpeg_chatter(capfd, demo_scene, tmp_path, how):
+    root = tmp_path / "videos"
+    video = root / "rain" / "blend.mp4"
+    write_mp4(video, [read_rgb8(f.image_path) for f in demo_scene.frames])
+    if how == "truncated":
+        _damage(video, how)
+    else:
+        video.write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    code = main(["evaluate", "--method", "folder", "--scenes", "demo", "--predictions", str(root),
+                 "--out", str(tmp_path / "o"), "--metrics", "temporal_flicker", "--pattern", "{weather}/blend.mp4"])
+    err = capfd.readouterr().err
+    _assert_refused(code, err, tmp_path / "o", str(video), "damaged or truncated video")
+    assert "moov" not in err.replace("no moov index", "") and "[mov," not in err
+    assert err.startswith("wcbench evaluate: error:"), err  # nothing printed before wcbench's message

@@ -124,7 +124,8 @@ def test_a_render_of_some_frames_is_evaluated_as_is(tmp_path: Path, capsys) -> N
     [scene] = doc["results"]
     assert doc["inputs"]["scenes"][scene]["fog"]["frames"] == [2, 3, 4, 5]
     assert len(doc["results"][scene]["fog"]["temporal_flicker"]["per_frame"]) == 3
-    assert doc["working_size"][0]["to"] == [160, 90]
+    # the render's 160x90 frames are scored at the scene's working size, as every method's are
+    assert (doc["working_size"][0]["predictions"], doc["working_size"][0]["to"]) == ([160, 90], [320, 180])
     # and run takes the same --frames
     assert main(["run", "--method", "identity", "--scenes", "demo", "--frames", "0-3", "--weathers", "clear",
                  "--metrics", "psnr", "--out", str(tmp_path / "run")]) == 0

@@ -57,7 +57,9 @@ def test_run_sizes_a_two_dimensional_method_too(tmp_path: Path, capsys: pytest.C
     info = json.loads((out / "filter2d" / "demo_street" / "rain" / "info.json").read_text())
     assert info["size"] == [160, 90] and [f["index"] for f in info["frames"]] == [0, 1, 2, 3]
     doc = json.loads((out / "results.json").read_text())
-    assert doc["working_size"][0]["to"] == [160, 90]
+    # rendered at 160x90, scored at the scene's working size like every other method of the scene
+    [record] = doc["working_size"]
+    assert (record["predictions"], record["to"], record["predictions_resized"]) == ([160, 90], [320, 180], True)
     assert main(["run", "--method", "filter2d", "--scenes", "demo", "--width", "100",
                  "--out", str(tmp_path / "x")]) == 2
     assert "--width and --height go together" in capsys.readouterr().err

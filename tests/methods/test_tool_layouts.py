@@ -10,13 +10,17 @@ sizes), never wcbench's own conventions, and are read without renaming a file an
   short side 512, sides multiples of 64.
 * ClimateNeRF (Climate_NeRF render.py): ``frames/{:03d}-rgb.png`` beside ``{:03d}-depth.png``,
   ``render_traj.mp4``; effects smog, water, snow.
-* WeatherCity (tools/eval.py, tools/add_weather_effect.py): ``videos_eval/<weather>/
+* WeatherCity (tools/eval.py, tools/train.py, tools/add_weather_effect.py): ``videos_eval/<weather>/
   full_set_<step>_rgbs/{t:03d}_{cam:03d}.png`` beside ``_gt_rgbs`` and ``_depths``, an mp4 a row and
-  a column short, ``raw`` always rendered; ``images/<weather>/effects/effects_{i:03d}.png``.
+  a column short, ``raw`` always rendered; train.py's own final evaluation in ``videos/<weather>/``
+  (no depths; ``images/<w>/step_*`` visualisations beside); ``images/<weather>/effects/
+  effects_{i:03d}.png``; runs to ``end_timestep: -1`` (more frames than the scene, ``--frames``) and
+  from a later ``start_timestep`` (``--frame-offset``).
 * ControlNet writes no files: its documented wcbench convention (``<weather>/<source stem>``),
   short side 512, sides multiples of 64.
 * Qwen-Image: WeatherCity's README layout ``<scene_idx>/images/<weather>/<raw name>.jpg`` in
-  drivestudio's processed folders (``788``, not ``waymo_788``), ~1 megapixel, sides multiples of 32.
+  drivestudio's processed folders (``788``, not ``waymo_788``; PandaSet's ``002``), ~1 megapixel,
+  sides multiples of 32; every image of the folder edited when the scene is a window of it.
 
 Fast: the built-in demo scene (12 frames, 320x180) and a generated 30-frame ``waymo_5`` data root
 (64x48 frames).
@@ -439,17 +443,26 @@ def test_weathercity_step_wildcard_and_other_cameras(waymo_scenes, tmp_path):
     seq = reader.open_predictions(scene, "rain", run)
     assert [p.name for p in seq.files] == [f"{t:03d}_000.png" for t in range(30)]
     assert len(seq.ignored) == 30
-    # {step} is digits only: full_set_best_rgbs is no step, a second step is ambiguous
+    # {step} is digits only: full_set_best_rgbs is no step
     rain = run / "videos_eval" / "rain"
     shutil.copytree(rain / "full_set_30000_rgbs", rain / "full_set_best_rgbs")
-    assert reader.open_predictions(scene, "rain", run).location.name == "full_set_30000_rgbs"
+    seq = reader.open_predictions(scene, "rain", run)
+    assert seq.location.name == "full_set_30000_rgbs" and seq.passed_over == []
+    # eval.py run on an earlier checkpoint too: the highest step is read, the other one named
     shutil.copytree(rain / "full_set_30000_rgbs", rain / "full_set_20000_rgbs")
-    with pytest.raises(InputError, match="matches 2 places for weather 'rain'") as exc:
-        reader.open_predictions(scene, "rain", run)
-    assert "full_set_20000_rgbs" in str(exc.value) and "full_set_30000_rgbs" in str(exc.value)
+    shutil.copytree(rain / "full_set_30000_rgbs", rain / "full_set_100000_rgbs")  # numbers, not text order
+    seq = reader.open_predictions(scene, "rain", run)
+    assert seq.location.name == "full_set_100000_rgbs"
+    assert seq.passed_over == ["videos_eval/rain/full_set_20000_rgbs", "videos_eval/rain/full_set_30000_rgbs"]
+    assert seq.left_out() == {"passed_over": seq.passed_over}
     seq = reader.open_predictions(scene, "rain", run,
                                   pattern="videos_eval/{weather}/full_set_20000_rgbs/{frame}_000.png")
-    assert seq.location.name == "full_set_20000_rgbs"
+    assert seq.location.name == "full_set_20000_rgbs" and seq.passed_over == []
+    # one step under two spellings is no order: ambiguous, both named
+    shutil.copytree(rain / "full_set_100000_rgbs", rain / "full_set_0100000_rgbs")
+    with pytest.raises(InputError, match="matches 2 places for weather 'rain'") as exc:
+        reader.open_predictions(scene, "rain", run)
+    assert "full_set_0100000_rgbs" in str(exc.value) and "full_set_100000_rgbs" in str(exc.value)
 
 
 def test_weathercity_effects_run(waymo_scenes, tmp_path, capsys):
@@ -545,6 +558,197 @@ def test_scene_folder_names_from_the_scene_set(tmp_path):
         find_scene_folder(preds, ref, n_scenes=5, folder_patterns=["{scene}_*"])
 
 
+# --------------------------------------------------------------------------- drivestudio's naming, longer renders
+def _weathercity_train_run(run: Path, scene, weathers: list[str], *, step: int = 30000,
+                           n_frames: int | None = None) -> None:
+    """What tools/train.py leaves in its log dir: setup() makes images/, videos/, metrics/,
+    buffer_maps/ per weather ("raw" first), config.yaml, configs_bk/, backup/; the training loop
+    writes images/<w>/step_<s>_<key>.png visualisations; at the last step do_evaluation (no "_eval"
+    postfix) writes videos/<w>/full_set_<step>_<key>/{t:03d}_000.png and full_set_<step>_<key>.mp4
+    for train.py's render keys (no depths) and metrics/<w>/images_full_<time>.json. ``n_frames``:
+    how many timesteps the run rendered (more than the scene for end_timestep -1)."""
+    frames = _frames(scene)
+    n = n_frames or len(frames)
+    frames = [frames[t % len(frames)] if t < len(frames) else _street(t, scene.image_size, 5) for t in range(n)]
+    w, h = scene.image_size
+    for folder in ("configs_bk", "backup"):
+        (run / folder).mkdir(parents=True, exist_ok=True)
+    for weather in ["raw", *weathers]:
+        for folder in ("images", "videos", "metrics", "buffer_maps"):
+            (run / folder / weather).mkdir(parents=True, exist_ok=True)
+        gt = frames if weather == "raw" else [_edit(f, weather) for f in frames]
+        renders = {"gt_rgbs": gt, "rgbs": [cv2.GaussianBlur(f, (3, 3), 0) for f in gt],
+                   "Background_rgbs": [np.full_like(f, (0, 177, 64)) for f in gt]}
+        base = run / "videos" / weather
+        for key, images in renders.items():
+            for t, img in enumerate(images):
+                _write(base / f"full_set_{step}_{key}" / f"{t:03d}_000.png", img)
+            write_mp4(base / f"full_set_{step}_{key}.mp4", [img[: h - 1, : w - 1] for img in images])
+            _write(run / "images" / weather / f"step_0_{key}.png", images[0])
+        (run / "metrics" / weather / "images_full_2026-01-01_00-00-00.json").write_text(json.dumps({"psnr": 30.0}))
+    (run / "config.yaml").write_text("data:\n  scene_idx: 788\n  start_timestep: 0\n  end_timestep: -1\n")
+
+
+def test_weathercity_training_run_is_read_from_its_final_evaluation(waymo_scenes, tmp_path, capsys):
+    """tools/train.py alone (no tools/eval.py): videos/<w>/full_set_<step>_rgbs/ is read, raw as clear."""
+    scene = waymo_scenes["788"]
+    project = tmp_path / "output" / "waymo_weathercity"
+    run = project / "788_1_cam_000_029"
+    _weathercity_train_run(run, scene, ["rain", "snow"])
+    out = tmp_path / "out"
+    code, stdout, err = _evaluate(capsys, "--method", "weathercity-release", "--scenes", str(scene.root),
+                                  "--predictions", str(project), "--out", str(out), *CHEAP)
+    assert code == 0, err
+    doc = _results(out)
+    assert sorted(doc["results"]["788"]) == ["clear", "rain", "snow"]
+    assert 25 < doc["results"]["788"]["clear"]["psnr"]["value"] < 60  # the raw render against the raw frames
+    rec = doc["inputs"]["scenes"]["788"]["rain"]
+    assert rec["location"] == str(run / "videos" / "rain" / "full_set_30000_rgbs")
+    assert rec["layout"] == "videos/{weather}/full_set_{step}_rgbs/{frame}_000.png"
+    assert rec["frames"] == list(range(30)) and "passed_over" not in rec and "outside_scene" not in rec
+    assert doc["config"]["scene_folders"]["788"]["folder"] == str(run)
+    assert f"scene 788: predictions from {run}" in stdout
+    # training continued to 50000 in the same log dir: the highest step is read, the other named
+    _weathercity_train_run(run, scene, ["rain", "snow"], step=50000)
+    code, _, err = _evaluate(capsys, "--method", "weathercity-release", "--scenes", str(scene.root),
+                             "--predictions", str(project), "--out", str(tmp_path / "out2"), *CHEAP)
+    assert code == 0, err
+    rec = _results(tmp_path / "out2")["inputs"]["scenes"]["788"]["clear"]
+    assert rec["location"] == str(run / "videos" / "raw" / "full_set_50000_rgbs")
+    assert rec["passed_over"] == ["videos/raw/full_set_30000_rgbs"]
+    # tools/eval.py run afterwards: its videos_eval/ is read first
+    _weathercity_eval_run(run, scene, ["rain"], step=50000)
+    seq = get_method("weathercity-release").open_predictions(scene, "rain", run)
+    assert seq.location == run / "videos_eval" / "rain" / "full_set_50000_rgbs"
+    seq = get_method("weathercity-release").open_predictions(scene, "snow", run)  # not in videos_eval/
+    assert seq.location == run / "videos" / "snow" / "full_set_50000_rgbs"
+
+
+def test_weathercity_training_run_killed_before_its_evaluation_says_so(waymo_scenes, tmp_path, capsys):
+    """train.py makes videos/<w>/ at set-up and fills it at its last step: an empty one is explained."""
+    scene = waymo_scenes["788"]
+    run = tmp_path / "788_1_cam_000_029"
+    _weathercity_train_run(run, scene, ["rain"])
+    shutil.rmtree(run / "videos" / "rain")
+    (run / "videos" / "rain").mkdir()
+    code, _, err = _evaluate(capsys, "--method", "weathercity-release", "--scenes", str(scene.root),
+                             "--predictions", str(run), "--weathers", "rain", "--out", str(tmp_path / "out"))
+    assert code == 2 and str(run / "videos" / "rain") in err
+    assert "tools/train.py writes its final evaluation" in err and "tools/eval.py" in err
+
+
+@pytest.fixture
+def pandaset_data(demo_scene, tmp_path) -> Path:
+    """A data root holding ``pandaset_002`` (the demo street's 12 frames stand in for its pixels)."""
+    root = tmp_path / "data"
+    shutil.copytree(demo_scene.root, root / "pandaset_002")
+    return root
+
+
+def test_pandaset_002_is_matched_under_drivestudios_names(pandaset_data, demo_scene, tmp_path, capsys):
+    """drivestudio's PandaSet preprocessing writes processed/002/ (sequence id zero-padded to 3 digits)
+    and its configs select it as data.scene_idx=2: Qwen-Image edits in processed/002/images/<w>/ and a
+    WeatherCity run named after scene_idx 2 are both matched to pandaset_002."""
+    processed = tmp_path / "pandaset" / "processed"
+    size = _about_one_megapixel(*demo_scene.image_size)
+    for f, img in zip(demo_scene.frames, _frames(demo_scene)):
+        _write(processed / "002" / "images" / "raw" / f.image_path.name, img)
+        _write(processed / "002" / "images" / "fog" / f.image_path.name, _tool_size(_edit(img, "fog"), size))
+    (processed / "002" / "lidar").mkdir()
+    (processed / "001" / "images").mkdir(parents=True)  # another processed sequence beside it
+    out = tmp_path / "out"
+    code, stdout, err = _evaluate(capsys, "--method", "qwen-image", "--scenes", "pandaset_002", "--data-root",
+                                  str(pandaset_data), "--predictions", str(processed), "--out", str(out),
+                                  "--metrics", "temporal_flicker")
+    assert code == 0, err
+    folder = _results(out)["config"]["scene_folders"]["pandaset_002"]
+    assert (folder["folder"], folder["matched"]) == (str(processed / "002"), "002") and "alias" in folder["rule"]
+    assert f"scene pandaset_002: predictions from {processed / '002'}" in stdout
+
+    project = tmp_path / "output" / "pandaset_weathercity"
+    _weathercity_eval_run(project / "2_1_cam_000_011", demo_scene, ["rain"])
+    (project / "1_1_cam_000_011").mkdir()
+    out = tmp_path / "out_wc"
+    code, _, err = _evaluate(capsys, "--method", "weathercity-release", "--scenes", "pandaset_002", "--data-root",
+                             str(pandaset_data), "--predictions", str(project), "--out", str(out), *CHEAP)
+    assert code == 0, err
+    doc = _results(out)
+    assert sorted(doc["results"]["pandaset_002"]) == ["clear", "rain"]
+    folder = doc["config"]["scene_folders"]["pandaset_002"]
+    assert (folder["folder"], folder["matched"]) == (str(project / "2_1_cam_000_011"), "2")
+
+
+def test_weathercity_render_of_the_whole_sequence_needs_frames(pandaset_data, demo_scene, tmp_path, capsys):
+    """The dataset configs render to end_timestep -1: a run of a 20-frame sequence holds 000_000 ...
+    019_000 for a 12-frame scene. Refused with the way out named; with --frames 0-11 the scene's
+    frames are read and the 8 others counted."""
+    project = tmp_path / "output" / "pandaset_weathercity"
+    run = project / "2_1_cam_000_019"
+    _weathercity_train_run(run, demo_scene, ["snow"], n_frames=20)
+    args = ["--method", "weathercity-release", "--scenes", "pandaset_002", "--data-root", str(pandaset_data),
+            "--predictions", str(project), *CHEAP]
+    code, _, err = _evaluate(capsys, *args, "--out", str(tmp_path / "refused"))
+    assert code == 2 and not (tmp_path / "refused").exists()
+    assert str(run / "videos") in err and "extra files ['012_000.png'" in err
+    assert "frames 12-19 beyond the scene's frames 0-11" in err and "--frames 0-11" in err and "--frame-offset" in err
+    out = tmp_path / "out"
+    code, _, err = _evaluate(capsys, *args, "--frames", "0-11", "--out", str(out))
+    assert code == 0, err
+    doc = _results(out)
+    for weather in ("clear", "snow"):
+        rec = doc["inputs"]["scenes"]["pandaset_002"][weather]
+        assert rec["frames"] == list(range(12)) and rec["outside_scene"] == {"count": 8, "frames": "12-19"}
+        assert len(doc["results"]["pandaset_002"][weather]["temporal_flicker"]["per_frame"]) == 11
+    assert doc["partial"] == []
+
+
+def test_weathercity_render_from_a_later_start_timestep(waymo_scenes, tmp_path, capsys):
+    """data.start_timestep=5 data.end_timestep=29: 000_000 is timestep 5, 25 frames. The errors name
+    --frame-offset; with it and --frames 5-29 the run is scored on the frames it rendered."""
+    scene = waymo_scenes["788"]
+    run = tmp_path / "788_1_cam_005_029"
+    frames = _frames(scene)
+    for t, img in enumerate(frames[5:]):
+        _write(run / "videos_eval" / "rain" / "full_set_30000_rgbs" / f"{t:03d}_000.png", _edit(img, "rain"))
+    args = ["--method", "weathercity-release", "--scenes", str(scene.root), "--predictions", str(run),
+            "--weathers", "rain", "--metrics", "temporal_flicker"]
+    code, _, err = _evaluate(capsys, *args, "--out", str(tmp_path / "o1"))
+    assert code == 2 and "missing frames [25, 26, 27, 28, 29]" in err
+    assert "--frame-offset N when the tool's first frame is scene frame N" in err
+    code, _, err = _evaluate(capsys, *args, "--frame-offset", "5", "--out", str(tmp_path / "o2"))
+    assert code == 2 and "frames [0, 1, 2, 3, 4] come before the tool's first frame with --frame-offset 5" in err
+    code, _, err = _evaluate(capsys, *args, "--frame-offset", "5", "--frames", "5-29", "--out", str(tmp_path / "o3"))
+    assert code == 0, err
+    rec = _results(tmp_path / "o3")["inputs"]["scenes"]["788"]["rain"]
+    assert rec["frames"] == list(range(5, 30)) and "outside_scene" not in rec
+    seq = get_method("weathercity-release").open_predictions(scene, "rain", run, frame_offset=5, frames=range(5, 30))
+    assert [p.name for p in seq.files[:2]] == ["000_000.png", "001_000.png"] and seq.frame_indices[0] == 5
+
+
+def test_qwen_image_edits_of_the_whole_processed_folder(waymo_root, tmp_path):
+    """WeatherCity's README has every image of the processed folder edited; a scene that is a window
+    of it (start 5, 20 frames) reads its own frames with --frames and counts the others, numbered
+    like scene frames (-5 ... -1 before it, 20 ... 24 after it)."""
+    ref = SceneRef(id="waymo_788", format="drivestudio_waymo", path=waymo_root / "waymo" / "processed" / "training" /
+                   "788", options={"camera": 0, "start": 5, "count": 20})
+    scene = ref.load()
+    assert scene.frames[0].image_path.name == "005_0.jpg"
+    training = tmp_path / "training"
+    for img_path in sorted((ref.path / "images").glob("*_0.jpg")):
+        _write(training / "788" / "images" / "rain" / img_path.name, _edit(read_rgb8(img_path), "rain"))
+    _write(training / "788" / "images" / "rain" / "notes.jpg", np.zeros((8, 8, 3), np.uint8))
+    reader = get_method("qwen-image")
+    with pytest.raises(InputError, match=r"extra files \['notes.jpg'\]"):
+        reader.open_predictions(scene, "rain", training / "788", frames=range(20))
+    (training / "788" / "images" / "rain" / "notes.jpg").unlink()
+    with pytest.raises(InputError, match=r"frames -5 to -1,20-24 beyond the scene's frames 0-19") as exc:
+        reader.open_predictions(scene, "rain", training / "788")
+    assert "--frames 0-19" in str(exc.value) and "--frame-offset" not in str(exc.value)  # names fix the frame
+    seq = reader.open_predictions(scene, "rain", training / "788", frames=range(20))
+    assert [p.name for p in seq.files] == [f"{t:03d}_0.jpg" for t in range(5, 25)]
+    assert seq.left_out() == {"outside_scene": {"count": 10, "frames": "-5 to -1,20-24"}}
+
+
 # --------------------------------------------------------------------------- listing
 def test_methods_list_verbose_shows_each_readers_tree(capsys):
     assert main(["methods", "list", "-v"]) == 0
@@ -557,6 +761,11 @@ def test_methods_list_verbose_shows_each_readers_tree(capsys):
         "images/rain/000_0.jpg",                    # qwen-image
         "reads {weather}/blend/{frame}.jpg, else {weather}/blend.mp4",
         "may end early", "ignores sibling files *-depth.png", "fog as 'smog'", "clear as 'raw'",
+        "videos/raw/ videos/rain/", "tools/train.py's final evaluation",  # weathercity-release, train.py
+        "the highest step is read", "needs --frame-offset N", "need --frames 0-29",
+        "more frames than the scene (a render of a longer sequence): pass --frames",
+        "more frames than the scene (edits of the whole processed folder): pass --frames",
+        "--frame-offset N: the tool's frame i is scene frame i + N",
     ):
         assert needle in listing, needle
     rows = {line.split()[0]: line.split()[1:3] for line in listing.splitlines() if line and not line[0].isspace()}

@@ -18,7 +18,7 @@ TINY = '{"width": 96, "iterations": 24, "voxel_m": 0.5, "densify_from": 8, "dens
 
 
 @pytest.mark.model
-def test_run_weathercity_trains_renders_scores_at_its_resolution_and_records_training(tmp_path):
+def test_run_weathercity_trains_renders_at_its_resolution_scores_and_records_training(tmp_path):
     pytest.importorskip("torch")
     out = tmp_path / "run"
     args = ["run", "--method", "weathercity", "--scenes", "demo", "--profile", "quick", "--out", str(out),
@@ -36,7 +36,11 @@ def test_run_weathercity_trains_renders_scores_at_its_resolution_and_records_tra
     assert np.isfinite(training["holdout"]["mean_psnr"])
     results = json.loads((out / "results.json").read_text())
     clear = results["results"]["demo_street"]["clear"]
-    assert clear["psnr"]["value"] > 20.0  # the trained model against the raw frames, at 96x54
+    # the trained model's 96x54 frames against the raw ones at the scene's working size, as every
+    # method's (20.3 dB here: enlarged 3.3x, they lack the raw frames' detail)
+    assert clear["psnr"]["value"] > 18.0
+    assert [(r["weather"], r["predictions"], r["to"]) for r in results["working_size"]] == [
+        ("clear", [96, 54], [320, 180])]  # fog: only FPS, which reads no frames
     # a second run finds the finished frames: nothing is trained or rendered again
     assert main(args) == 0
     again = json.loads((out / "weathercity" / "demo_street" / "fog" / "info.json").read_text())

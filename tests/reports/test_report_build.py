@@ -159,6 +159,73 @@ def test_mismatched_folders_are_flagged_not_mixed(small, tmp_path):
     assert flicker and all("\u2021" in c["markers"] for c in flicker)
 
 
+def test_methods_scored_at_different_sizes_are_one_line_naming_them(small, tmp_path, capsys):
+    """Results of an earlier wcbench scored a method at its own render size: the report says so in
+    one line naming the methods and sizes (not one box per metric repeating every definition), in
+    the HTML and on the console, and marks the numbers it touches."""
+    def scored_smaller(doc):
+        for weathers in doc["results"].values():
+            for outputs in weathers.values():
+                for name, r in outputs.items():
+                    if name != "fps":  # FPS reads no frames: no size scored at
+                        r["variant"] += "; scored at 32x18"
+
+    rewrite_results(small["grain"], scored_smaller)
+    out = tmp_path / "r.html"
+    assert main(["report", *map(str, small.values()), "-o", str(out)]) == 0
+    expected = "scored at different sizes: grain 32x18; haze, tint 64x36 (on scene_a, scene_b)"
+    printed = [line for line in capsys.readouterr().out.splitlines()
+               if line.startswith("  flagged") and "(weights)" not in line]
+    assert len(printed) == 1 and printed[0].startswith(f"  flagged (size): {expected} ("), printed
+    page = out.read_text()
+    assert page.count('<li class="mismatch">') == 1 and expected in html.unescape(page)
+    assert "different definitions" not in page
+    cells = _numeric(parse_report(out).cells)
+    read = [c for c in cells if c["data-output"] != "fps"]
+    assert read and all("\u2021" in c["markers"] for c in read)
+    assert not any("\u2021" in c["markers"] for c in cells if c["data-output"] == "fps")
+
+
+def test_a_size_mixed_on_one_scene_marks_that_scene_and_the_means(small, tmp_path):
+    def scene_a_smaller(doc):
+        for outputs in doc["results"]["scene_a"].values():
+            for name, r in outputs.items():
+                if name != "fps":
+                    r["variant"] += "; scored at 32x18"
+
+    rewrite_results(small["grain"], scene_a_smaller)
+    out = tmp_path / "r.html"
+    outcome = build_report(list(small.values()), out)
+    [flag] = [f for f in outcome.flags if f.kind == "mismatch"]
+    assert flag.message.startswith("scored at different sizes: grain 32x18; haze, tint 64x36 (on scene_a) (")
+    cells = [c for c in _numeric(parse_report(out).cells) if c["data-output"] == "psnr"]
+    marked = {(c["data-method"], c["data-scene"]) for c in cells if "\u2021" in c["markers"]}
+    assert marked == {(m, s) for m in small for s in ("scene_a", "mean")}
+
+
+def test_fps_at_each_methods_own_render_size_is_shown_not_flagged(small, tmp_path):
+    """FPS is a method's speed at the size it renders at (the runtime table gives it); only one
+    method's FPS measured at several sizes, mixed in its means, is flagged."""
+    def render_larger(doc):
+        for weathers in doc["results"].values():
+            for outputs in weathers.values():
+                outputs["fps"]["extra"]["resolution"] = [128, 72]
+
+    rewrite_results(small["grain"], render_larger)
+    outcome = build_report(list(small.values()), tmp_path / "r.html")
+    assert not [f for f in outcome.flags if f.kind == "mismatch"]
+    assert "128x72" in (tmp_path / "r.html").read_text()
+    # one method's FPS of one scene at two sizes (another tool's info.json per weather): its means mix them
+    def fog_larger(doc):
+        doc["results"]["scene_a"]["fog"]["fps"]["extra"]["resolution"] = [128, 72]
+
+    rewrite_results(small["tint"], fog_larger)
+    outcome = build_report(list(small.values()), tmp_path / "r2.html")
+    [flag] = [f for f in outcome.flags if f.kind == "mismatch"]
+    assert flag.topic == "resolution" and "(tint on scene_a: 128x72, 64x36)" in flag.message
+    assert flag.outputs == {"fps"} and flag.units == {("tint", "scene_a", "fps")}
+
+
 def test_scene_sets_that_differ_are_flagged_on_the_means(small, tmp_path):
     def drop_scene_b(doc):
         for key in ("results",):
@@ -259,6 +326,39 @@ def test_real_run_with_report_flag_writes_a_report_beside_results(tmp_path, caps
     assert sum(src.startswith("data:image/jpeg") for src in parsed.images) == 4
     assert sum(src.startswith(("data:image/webp", "data:image/gif")) for src in parsed.images) == 4
     assert "weights" not in {f for f in re.findall(r"flagged \((\w+)\)", capsys.readouterr().out)}
+
+
+def test_the_readme_report_example_gives_a_report_without_a_flag(tmp_path, capsys):
+    """The README's report example (identity, filter2d and lidar_init run separately on one scene,
+    then one report) on the demo scene: lidar_init renders at a quarter of the scene's size, yet all
+    three are scored at the scene's working size, so nothing differs and nothing is flagged."""
+    pytest.importorskip("torch")  # lidar_init is a reference-model method
+    runs = tmp_path / "runs"
+    for method in ("identity", "filter2d", "lidar_init"):
+        assert main(["run", "--method", method, "--scenes", "demo", "--out", str(runs / method), "--weathers",
+                     "clear,rain", "--frames", "0-3", "--metrics", "psnr", "ssim", "temporal_flicker",
+                     "flow_warping_error", "fps", "--no-progress"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "report.html"
+    assert main(["report", *(str(runs / m) for m in ("identity", "filter2d", "lidar_init")), "-o", str(out),
+                 "--csv", "--latex"]) == 0
+    printed = capsys.readouterr().out
+    assert "flagged" not in printed, printed
+    page = out.read_text()
+    assert '<ul class="flags">' not in page and "No mismatch across results folders" in page
+    cells = _numeric(parse_report(out).cells)
+    assert {c["data-method"] for c in cells} == {"identity", "filter2d", "lidar_init"}
+    assert not any(c["markers"] for c in cells)
+    assert "\\ddag" not in out.with_suffix(".tex").read_text().split("\n\n", 1)[1]
+    lidar = json.loads((runs / "lidar_init" / "results.json").read_text())
+    [record] = [r for r in lidar["working_size"] if r["weather"] == "rain"]
+    assert (record["predictions"], record["to"], record["predictions_resized"]) == ([80, 45], [320, 180], True)
+    # said as a fact, not a flag
+    assert "demo_street (320x180 frames) scored at 320x180; lidar_init's 80x45 frames resized to it." \
+        in html.unescape(page)
+    # FPS stays the method's own: measured at the size it renders at, shown in the runtime table
+    assert lidar["results"]["demo_street"]["rain"]["fps"]["extra"]["resolution"] == [80, 45]
+    assert "<td>80x45</td>" in page
 
 
 def test_report_cli_from_outside_the_source_tree(small, tmp_path):

@@ -45,3 +45,32 @@ def test_demo_scene_is_generated_once(demo_scene):
     again = resolve_scenes("demo")[0].load()
     assert again.root == demo_scene.root
     assert demo_scene.lidar(0).points.shape[0] > 1000
+
+
+@pytest.mark.parametrize("set_name", ["waymo_5", "nuscenes_5", "pandaset_002"])
+def test_drivestudio_scene_indices_are_names_of_the_scene(set_name, tmp_path):
+    """drivestudio writes a scene to a folder named by its index zero-padded to 3 digits and its
+    configs select it by the plain index (data.scene_idx=23 for 023): each spelling names the scene."""
+    from wcbench.predictions import scene_names
+    from wcbench.scenes.sets import _specs
+
+    for s in _specs()[set_name]["scenes"]:
+        (tmp_path / s["path"]).mkdir(parents=True)
+    for ref in get_scene_set(set_name, data_root=tmp_path).scenes:
+        names = {name for name, _ in scene_names(ref)}
+        index = ref.id.rpartition("_")[2]  # waymo_023 -> 023, pandaset_002 -> 002
+        assert {index, str(int(index))} <= names, (ref.id, names)
+
+
+def test_a_name_of_two_scenes_is_refused():
+    from pathlib import Path
+
+    from wcbench.scenes.sets import SceneRef, check_scene_names
+
+    refs = [SceneRef(id="nuscenes_002", format="drivestudio_nuscenes", path=Path("nuscenes/mini/002"), aliases=("2",)),
+            SceneRef(id="pandaset_002", format="drivestudio_nuscenes", path=Path("pandaset_002"),
+                     aliases=("002", "2"))]
+    with pytest.raises(ValueError, match=r"names shared by several scenes \('002': nuscenes_002, pandaset_002; "
+                                         r"'2': nuscenes_002, pandaset_002\)"):
+        check_scene_names("mixed", refs)
+    check_scene_names("one", refs[1:])

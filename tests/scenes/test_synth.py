@@ -143,7 +143,7 @@ def test_moving_boxes_project_into_dynamic_masks(scene0):
 
 
 def test_pedestrians_where_specified(scene0):
-    assert {t.class_name for t in scene0.tracks} == {"Vehicle"}  # scene 0: cars only
+    assert {t.class_name for t in scene0.tracks} == {"vehicle"}  # scene 0: cars only
     with_pedestrian = []
     for spec in synth.SCENES:
         movers = synth.build_content(spec).movers
@@ -231,7 +231,7 @@ def test_synth_3_scenes_with_pedestrians_load(synth_env):
     assert [r.id for r in refs] == ["synth_000", "synth_001", "synth_002"]
     for ref in refs[1:]:
         scene = ref.load()
-        walkers = [t for t in scene.tracks if t.class_name == "Pedestrian"]
+        walkers = [t for t in scene.tracks if t.class_name == "pedestrian"]
         assert len(walkers) == 1 and sorted(scene.references) == ["fog", "rain", "snow"]
         _check_lidar_on_solid_pixels(scene)
         _check_moving_boxes_in_dynamic_masks(scene)

@@ -41,9 +41,9 @@ def metric_resolution(text: str) -> int | None:
 
 
 #: Help of ``--metric-resolution`` (run, evaluate).
-METRIC_RESOLUTION_HELP = (f"score frames whose longer side exceeds PX pixels area-downscaled to it (default "
-                          f"{METRIC_RESOLUTION}, from the time-versus-error table of `wcbench bench metrics`); "
-                          "native: the exact protocol at the frames' own size")
+METRIC_RESOLUTION_HELP = (f"score every method of a scene at the scene's frame size, area-downscaled to PX pixels "
+                          f"on the longer side when larger (default {METRIC_RESOLUTION}, from the time-versus-error "
+                          "table of `wcbench bench metrics`); native: the exact protocol at the scene's frame size")
 
 
 #: Help of ``--frames`` (run, render, evaluate).
@@ -122,6 +122,15 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
                              "or a comma-separated list of both")
     parser.add_argument("--data-root", type=Path, default=None,
                         help="folder holding the datasets (default: $WCBENCH_DATA)")
+
+
+def add_offline_argument(parser: argparse.ArgumentParser) -> None:
+    """``--offline``: fetch no missing weights (also ``WCBENCH_OFFLINE=1``)."""
+    parser.add_argument("--offline", action="store_true",
+                        help="fetch no missing weights (also WCBENCH_OFFLINE=1); by default the weights the "
+                             "metrics and the method need are fetched into the model store first, when their "
+                             "source is pinned (LPIPS, VGG16, the CLIP vocabulary); what stays missing is "
+                             "skipped with the command that installs it")
 
 
 def add_progress_argument(parser: argparse.ArgumentParser) -> None:

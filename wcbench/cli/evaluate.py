@@ -21,8 +21,9 @@ Examples::
     wcbench evaluate --method folder --scenes pandaset_002 --data-root ../shared/data \\
         --predictions my_frames/ --frames 0-9 --scale 0.5 --out results/part   # frames 0-9 at 960x540
 
-Frames larger than 960 px on their longer side are scored downscaled to 960 (``--metric-resolution``;
-``native`` for the exact protocol); ``--scale`` or ``--width/--height`` sets the size scored at.
+Every method of a scene is scored at the scene's working size, its frames resized to it: the scene's
+frame size, downscaled to 960 px on the longer side when larger (``--metric-resolution``; ``native``
+for the exact protocol); ``--scale`` or ``--width/--height`` sets the size scored at.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from wcbench.cli.common import (
     METRIC_RESOLUTION_HELP,
     add_executor_arguments,
     add_frame_and_size_arguments,
+    add_offline_argument,
     add_progress_argument,
     add_scene_arguments,
     executor_from,
@@ -66,6 +68,7 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
                         metavar="PX|native", help=METRIC_RESOLUTION_HELP)
     parser.add_argument("--overwrite", action="store_true", help="replace finished results of other inputs")
     parser.add_argument("--report", action="store_true", help="also write OUT/report.html (see `wcbench report`)")
+    add_offline_argument(parser)
     add_progress_argument(parser)
     add_executor_arguments(parser)
 
@@ -82,8 +85,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frame-offset", type=int, default=0, metavar="N",
                         help="the method's frame i is scene frame i + N (default 0)")
     add_frame_and_size_arguments(parser, size_help="size the frames are scored at, predictions and scene frames "
-                                                   "resized to it (default: the predictions' own size, within "
-                                                   "--metric-resolution)")
+                                                   "resized to it (default: the scene's working size, the "
+                                                   "scene's frame size within --metric-resolution, for every "
+                                                   "method)")
     add_evaluate_options(parser)
 
 
@@ -126,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite, metric_resolution=args.metric_resolution, frames=args.frames,
         score_size=size_request_from(args),
         show_progress=not args.no_progress, metric_options=parse_metric_options(args.metric_option),
+        offline=args.offline,
     )
     with executor_from(args) as executor:
         outcome = evaluate(cfg, executor=executor)

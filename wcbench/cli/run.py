@@ -40,8 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="runnable method (see `wcbench methods list`)")
     add_scene_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="random seed of the method")
-    add_frame_and_size_arguments(parser, size_help="size the method renders at, and the frames are scored at "
-                                                   "(default: the method's own size)")
+    add_frame_and_size_arguments(parser, size_help="size the method renders at (default: the method's own "
+                                                   "size); frames are scored at the scene's working size, as "
+                                                   "every method's are")
     add_evaluate_options(parser)
     add_method_options(parser)
 
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         weathers=split_list(args.weathers) or list(method.info.weathers), metrics=split_list(args.metrics),
         fps=args.fps, data_root=args.data_root, overwrite=args.overwrite, show_progress=not args.no_progress,
         metric_options=parse_metric_options(args.metric_option), metric_resolution=args.metric_resolution,
-        frames=args.frames,
+        frames=args.frames, offline=args.offline,
         render=RenderSettings(seed=args.seed, frames=args.frames, overwrite=args.overwrite,
                               show_progress=not args.no_progress),
     )

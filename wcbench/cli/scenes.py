@@ -26,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the listing."""
+    from wcbench.core.classes import CLASSES
     from wcbench.scenes.sets import list_scene_sets, resolve_scenes
 
     if args.action == "list":
@@ -39,11 +40,22 @@ def run(args: argparse.Namespace) -> int:
         classes: dict[str, int] = {}
         for t in scene.tracks:
             classes[t.class_name] = classes.get(t.class_name, 0) + 1
+        order = {c: n for n, c in enumerate(CLASSES)}
         print(f"{scene.id}: {len(scene)} frames {w}x{h}, {scene.duration:.1f} s, format {scene.source_format}")
         print(f"  folder       {scene.root}")
         print(f"  lidar        {with_lidar}/{len(scene)} frames")
         offset = [round(float(v), 3) for v in scene.world_offset]
         print(f"  up vector    {scene.up.tolist()}  (world re-based by {offset})")
-        print(f"  tracks       {len(scene.tracks)} " + ", ".join(f"{k}: {v}" for k, v in sorted(classes.items())))
+        counts = sorted(classes.items(), key=lambda kv: (order.get(kv[0], len(order)), kv[0]))
+        print(f"  tracks       {len(scene.tracks)} " + ", ".join(f"{k}: {v}" for k, v in counts))
         print(f"  sky masks    {sum(f.sky_mask_path is not None for f in scene.frames)} frames")
+        for key, value in sorted(scene.facts.items()):
+            print(f"  {key + ' ':12s} {value}")
+        if scene.tracks:
+            # drivestudio's compact ids, the ones --edit "... ids=0,3" names; the dataset's own
+            # class and id follow for reference
+            print("  id  class       frames  source class / id")
+            for t in sorted(scene.tracks, key=lambda t: (len(t.id), t.id)):
+                print(f"  {t.id:>3s} {t.class_name:11s} {int(t.frames.min()):3d}-{int(t.frames.max()):<3d}  "
+                      f"{t.source_class or '-'} / {t.source_id or '-'}")
     return 0

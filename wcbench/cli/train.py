@@ -18,7 +18,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wcbench.cli.common import add_progress_argument, add_scene_arguments, parse_key_values, split_list
+from wcbench.cli.common import (
+    add_offline_argument,
+    add_progress_argument,
+    add_scene_arguments,
+    parse_key_values,
+    split_list,
+)
 from wcbench.core.errors import InputError
 
 HELP = "train the weathercity model of each scene (cached for `run`)"
@@ -44,11 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "e.g. iterations=500, budget=200000")
     parser.add_argument("--checkpoint", type=Path, default=None,
                         help="checkpoint folder (one scene only; default: the cache, keyed by the inputs)")
+    add_offline_argument(parser)
     add_progress_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """Train every scene of the set; print and write what each training measured."""
+    from wcbench.core.models.fetch import fetch_missing, is_offline
     from wcbench.core.storage import atomic_write_json, check_writable_folder
     from wcbench.methods.weather_spec import resolve_physics
     from wcbench.methods.weathercity import train_scene
@@ -68,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
     refs = resolve_scenes(args.scenes, data_root=args.data_root)
     if args.checkpoint is not None and len(refs) > 1:
         raise InputError(f"--checkpoint names one folder, but {args.scenes} has {len(refs)} scenes")
+    # the content loss's VGG16, fetched before the first scene trains (skipped with the reason if it stays missing)
+    models = fetch_missing(["vgg16"] if config.content_weight != 0 else [], offline=is_offline(args.offline))
     for ref in refs:
         scene = ref.load()
         bad = [h for h in holdout if not 0 <= h < len(scene)]
@@ -78,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                                   physics=resolve_physics(scene, "auto"), folder=args.checkpoint,
                                   show_progress=not args.no_progress)
         path = args.out / scene.id / "training.json"
-        atomic_write_json(path, facts)
+        atomic_write_json(path, {**facts, "models": {name: o.record() for name, o in models.items()}})
         counts = facts["gaussians"]
         line = (f"{scene.id}: {facts['iterations']} steps in {facts['train_seconds']:.1f} s, "
                 f"{counts['total']} Gaussians ({counts['background']} background, {counts['rigid']} in "

@@ -19,7 +19,7 @@ __all__ = ["METRIC_RESOLUTION", "NATIVE", "SizeRequest", "parse_metric_resolutio
 #: Default working resolution: frames whose longer side exceeds this many pixels are scored
 #: area-downscaled to it (aspect kept).
 METRIC_RESOLUTION: int | None = 960
-#: The word for "score at the frames' own size".
+#: The word for "score at the scene's own frame size" (no working resolution).
 NATIVE = "native"
 
 

@@ -39,7 +39,7 @@ class LidarInitMethod(FrameRenderer):
         Output (width, height); ``scale`` is used when not given.
     scale : float
         Output size as a fraction of the scene's (default 0.25: 480x270 for 1920x1080, the size
-        ``render`` and ``run`` both use unless told otherwise; frames are scored at that size).
+        ``render`` and ``run`` both use unless told otherwise; frames are scored at the scene's working size).
     voxel_m : float
         Voxel size of the lidar initialisation (m).
     init_frames : list of int, optional

@@ -130,6 +130,18 @@ class PatternReader:
         if self.partial_reason:
             lines.append(f"may end early: {self.partial_reason}; the frames present are scored and the missing "
                          "ones named in results.json (partial) and results.csv (missing_frames)")
+        if any("{step}" in lay for lay in self.layouts):
+            lines.append("steps: of several {step} folders side by side the highest is read; the others are "
+                         "named in results.json (inputs: passed_over)")
+        if all("{stem}" in lay for lay in self.layouts):
+            lines.append("more frames than the scene (edits of the whole processed folder): pass --frames with "
+                         "the scene's frames, e.g. 0-29; the others are left out and counted in results.json "
+                         "(inputs: outside_scene)")
+        else:
+            lines.append("more frames than the scene (a render of a longer sequence): pass --frames with the "
+                         "scene's frames, e.g. 0-29; the others are left out and counted in results.json "
+                         "(inputs: outside_scene). --frame-offset N: the tool's frame i is scene frame i + N "
+                         "(its first frame is scene frame N)")
         if self.info.edits_source:
             lines.append("warns when every frame equals its source frame (wrong folder?)")
         folders = ["<scene id>", "<data folder name>", "<alias>", *self.info.scene_folders]

@@ -100,6 +100,10 @@ class FrameRenderer(ABC):
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:  # noqa: B027 - optional hook
         """Per-(scene, weather) set-up before the first frame (not part of frame timings)."""
 
+    def required_models(self) -> tuple[str, ...]:
+        """Model-store entries the method reads (fetched before a run starts; default none)."""
+        return ()
+
     def describe(self) -> dict[str, Any]:
         """Facts known after :meth:`prepare` (model sizes...), added to ``info.json`` parameters."""
         return {}
@@ -119,9 +123,10 @@ class FrameRenderer(ABC):
     ) -> PredictionSequence:
         """Read frames this method wrote (the canonical layout).
 
-        Frames rendered at another size than the scene's (``info.json`` ``size``) are scored at
-        that size, the scene's frames resized to it once (see :meth:`wcbench.units.WorkUnit.score`),
-        unless ``resize`` asks for the predictions to be resized to the scene's size instead. A
+        Frames rendered at another size than the scene's (``info.json`` ``size``) are read at that
+        size and resized to the scene's working size as they are scored, as every method's are (see
+        :meth:`wcbench.units.WorkUnit.score`), unless ``resize`` asks for them to be resized to the
+        scene's size as they are read. A
         render of some frames (``wcbench render --frames``; ``info.json`` lists them) is scored on
         those frames when ``frames`` does not say otherwise.
         """

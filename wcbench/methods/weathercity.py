@@ -14,9 +14,10 @@ that changes it, (3) renders any frame under any weather at its training resolut
 colors of that weather, the weather's sky, rain or snow particles rasterized with the scene, and
 exact Beer-Lambert fog (:mod:`wcbench.reference_model.weather`), optionally with object edits.
 
-It is scored at its training resolution: the scene's frames are resized to it once
-(:meth:`wcbench.units.WorkUnit.score`). ``info.json`` records the training time, the Gaussian
-counts per node, what the scene graph skipped, the supervision, and the whole-frame render FPS.
+Its frames, rendered at the training resolution, are scored at the scene's working size like every
+other method's, resized to it as they are read (:meth:`wcbench.units.WorkUnit.score`).
+``info.json`` records the training time, the Gaussian counts per node, what the scene graph
+skipped, the supervision, and the whole-frame render FPS.
 """
 
 from __future__ import annotations
@@ -431,7 +432,7 @@ class WeatherCityMethod(FrameRenderer):
         ``"truth"`` requires the record; a dict gives the :class:`Weather` fields
         (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
     size : (int, int), optional
-        Render size; default the training size (and scored there).
+        Render size; default the training size (scored at the scene's working size, as every method).
     edits : str or list, optional
         Object edits (``"remove class=Car except ids=3,7"``, a JSON list...).
     content : ContentLoss, None or "auto"
@@ -483,6 +484,10 @@ class WeatherCityMethod(FrameRenderer):
         self._activated: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         self._rays: dict[tuple[bytes, int, int], torch.Tensor] = {}
         self._placement = Placement()
+
+    def required_models(self) -> tuple[str, ...]:
+        """``vgg16`` for the content loss, unless it is off or a loss was passed in."""
+        return ("vgg16",) if self.content == "auto" and self.config.content_weight != 0 else ()
 
     def weather_for(self, kind: str, seed: int, scene: Scene) -> Weather:
         """The physics weather of ``kind`` for ``scene``: its recorded one (seed included) under

@@ -1,6 +1,7 @@
 """Loaders for processed driving scenes on disk.
 
-Two layouts of drivestudio/OmniRe (the format WeatherCity trains on) are read:
+Three layouts of drivestudio/OmniRe (the format WeatherCity trains on) are read, each as
+drivestudio's own preprocessing writes it (docs/design.md §3):
 
 ``drivestudio_waymo`` (``processed/training/NNN/``)
     ``images/{t:03d}_{cam}.jpg``, ``ego_pose/{t:03d}.txt`` (4x4 vehicle-to-world),
@@ -14,8 +15,21 @@ Two layouts of drivestudio/OmniRe (the format WeatherCity trains on) are read:
     axes), ``intrinsics/{cam}.txt``, ``lidar/{t:03d}.bin`` (float32 N x 4: xyz + intensity in the
     lidar frame) with ``lidar_pose/{t:03d}.txt`` (lidar-to-world), optional
     ``lidar_semseg/{t:03d}.bin`` (uint8 per point) + ``classes.json``, ``timestamps.json``.
+``drivestudio_pandaset`` (``processed/NNN/``)
+    ``images/{t:03d}_{cam}.jpg``, ``extrinsics/{t:03d}_{cam}.txt`` (4x4 camera-to-world, OpenCV
+    axes), ``intrinsics/{cam}.txt``, ``ego_pose/{t:03d}.txt`` (lidar-to-world: PandaSet has no ego
+    pose), ``lidar/{t:03d}.bin`` (float32 N x 5 in that frame: xyz, intensity, lidar id).
 
-Both are in a global z-up frame on disk; the loaders re-base every scene so that the first
+drivestudio's Argoverse 2 and nuPlan layouts also hold ``ego_pose/`` and per-camera extrinsics;
+they are recognised and refused by name (:func:`detect_format`).
+
+All layouts also share: ``instances/instances_info.json`` (keys are drivestudio's compact instance
+ids ``"0"``, ``"1"``, ... which become the track ids; the dataset's own id and class name are kept
+as ``source_id`` and ``source_class``; ``class_name`` is the shared class of
+:mod:`wcbench.core.classes`), ``dynamic_masks/all/`` or, preferred when present as drivestudio
+does, ``fine_dynamic_masks/all/``. Lens distortion is removed on load (:mod:`.undistort`).
+
+All are in a global z-up frame on disk; the loaders re-base every scene so that the first
 camera sits at the origin (see :mod:`wcbench.scenes.scene`).
 
 Either layout may hold ground truth per weather (the synthetic scenes of :mod:`wcbench.scenes.synth`
@@ -27,16 +41,20 @@ every selected frame; a partial one is an input error naming the missing files.
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from wcbench.core.classes import canonical_class
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import image_size
 from wcbench.core.validation import expect_dict, finite_number, read_json
 from wcbench.core.weathers import EDITED_WEATHERS
 from wcbench.scenes.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene, check_finite_matrix
+from wcbench.scenes.undistort import copy_folder, has_distortion, undistorted_copy
 
 #: Maps OpenCV camera axes (x right, y down, z forward) to Waymo camera axes (x forward, y left,
 #: z up): camera_to_world_opencv = ego_to_world @ camera_to_ego_waymo @ OPENCV_TO_WAYMO.
@@ -44,7 +62,18 @@ OPENCV_TO_WAYMO = np.array(
     [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
 )
 Z_UP = np.array([0.0, 0.0, 1.0])
-_FRAME_RATE_HZ = 10.0  # both drivestudio layouts are 10 Hz when no timestamps file exists
+_FRAME_RATE_HZ = 10.0  # Waymo, PandaSet and interpolated nuScenes folders are 10 Hz
+#: drivestudio keeps Waymo lidar points whose vehicle-frame x lies in this open interval (m): its
+#: Waymo configs' truncated_min_range / truncated_max_range, which drop the returns behind the car
+#: that no front-facing camera sees.
+WAYMO_LIDAR_CROP_X_M = (-2.0, 80.0)
+#: drivestudio's nuScenes preprocessing names its output ``processed`` at the keyframe rate (2 Hz,
+#: no interpolation) and ``processed_{2(N+1)}Hz`` with N interpolated frames between keyframes.
+_NUSCENES_PROCESSED = re.compile(r"^processed(?:_(\d+(?:\.\d+)?)Hz)?$")
+_NUSCENES_KEYFRAME_HZ = 2.0
+#: Waymo frame_info.json "weather" values (context.stats.weather) that mean clear weather.
+_CLEAR_SOURCE_WEATHER = {"sunny": "clear", "clear": "clear"}
+_warned: set[tuple[str, str]] = set()
 _IMAGE_EXTS = (".jpg", ".jpeg", ".png")
 #: Bounds of plausible scene numbers (docs/design.md §9): focal lengths and principal points in
 #: pixels, distortion coefficients, translations in metres. Outside them a float32 cast or a
@@ -188,10 +217,32 @@ def _select(frames: dict[int, Path], start: int, count: int | None, root: Path) 
     return wanted
 
 
-def _timestamps(root: Path, indices: list[int]) -> list[float]:
+def _warn_once(root: Path, what: str, message: str) -> None:
+    """A ``UserWarning`` the first time this process meets ``what`` of the scene folder ``root``."""
+    key = (str(root), what)
+    if key not in _warned:
+        _warned.add(key)
+        warnings.warn(message, UserWarning, stacklevel=3)
+
+
+def nuscenes_frame_rate(root: Path) -> float | None:
+    """The frame rate (Hz) of a drivestudio nuScenes folder from its path, or ``None``.
+
+    drivestudio writes ``processed_{R}Hz/<split>/NNN`` when it interpolates frames between the
+    2 Hz keyframes, and ``processed/<split>/NNN`` (keyframes only, 2 Hz) when it does not; the
+    ``processed*`` folder is the scene folder's grandparent (parent of the split).
+    """
+    for parent in root.resolve().parents[:3]:
+        m = _NUSCENES_PROCESSED.match(parent.name)
+        if m:
+            return float(m.group(1)) if m.group(1) else _NUSCENES_KEYFRAME_HZ
+    return None
+
+
+def _timestamps(root: Path, indices: list[int], rate_hz: float = _FRAME_RATE_HZ) -> list[float]:
     path = root / "timestamps.json"
     if not path.is_file():
-        return [t / _FRAME_RATE_HZ for t in indices]
+        return [t / rate_hz for t in indices]
     raw = read_json(path, what="timestamps")
     expected = f"one timestamp (seconds) per frame for frames {indices[0]}..{indices[-1]}: a list or {{frame: seconds}}"
     if not isinstance(raw, (list, dict)):
@@ -211,13 +262,28 @@ def _timestamps(root: Path, indices: list[int]) -> list[float]:
     return values
 
 
+def _track_ids(path: Path, keys: list[str]) -> list[str]:
+    """drivestudio's compact instance ids for the keys of ``instances_info.json``.
+
+    drivestudio's preprocessing numbers the instances 0, 1, ... in the order it first meets them
+    and writes those numbers as the keys; files keyed otherwise (raw ids) get the same numbering by
+    file order, which is the order they were met in.
+    """
+    if all(k.isdigit() for k in keys):
+        ids = [str(int(k)) for k in keys]
+        if len(set(ids)) != len(ids):
+            raise InputError(f"{path}: instance keys {keys} repeat a number; expected drivestudio's ids 0, 1, ...")
+        return ids
+    return [str(n) for n in range(len(keys))]
+
+
 def _read_tracks(root: Path, index_map: dict[int, int], offset: np.ndarray) -> list[ObjectTrack]:
     path = root / "instances" / "instances_info.json"
     if not path.is_file():
         return []
     info = expect_dict(read_json(path, what="instances"), path=path, what="a JSON object {instance id: instance}")
     tracks = []
-    for key, obj in info.items():
+    for track_id, (key, obj) in zip(_track_ids(path, list(info)), info.items()):
         obj = expect_dict(obj, path=path, field=f"instance {key}")
         ann = expect_dict(obj.get("frame_annotations"), path=path, field=f"instance {key} frame_annotations")
         try:
@@ -240,13 +306,16 @@ def _read_tracks(root: Path, index_map: dict[int, int], offset: np.ndarray) -> l
             raise InputError(f"{path}: instance {key} has box sizes <= 0 or positions beyond {_TRANSLATION_M:g} m")
         poses = poses[keep].copy()
         poses[:, :3, 3] -= offset
+        source_class = str(obj.get("class_name", "unknown"))
         tracks.append(
             ObjectTrack(
-                id=str(obj.get("id", key)),
-                class_name=str(obj.get("class_name", "unknown")),
+                id=track_id,
+                class_name=canonical_class(source_class),
                 frames=np.array([index_map[int(f)] for f in frames[keep]], dtype=np.int64),
                 object_to_world=poses,
                 box_size=sizes[keep],
+                source_id=str(obj.get("id", key)),
+                source_class=source_class,
             )
         )
     return tracks
@@ -267,6 +336,16 @@ def _class_names(root: Path) -> dict[int, str]:
 
 def _optional(path: Path) -> Path | None:
     return path if path.is_file() else None
+
+
+def _dynamic_mask(root: Path, t: int, camera: int, fine: bool) -> Path | None:
+    """The frame's dynamic mask: ``fine_dynamic_masks/all/`` when the scene has that folder (as
+    drivestudio prefers it), else ``dynamic_masks/all/``; a frame missing from the fine folder
+    falls back to its coarse mask."""
+    name = f"{t:03d}_{camera}.png"
+    if fine and (p := root / "fine_dynamic_masks" / "all" / name).is_file():
+        return p
+    return _optional(root / "dynamic_masks" / "all" / name)
 
 
 def _references(root: Path, indices: list[int], camera: int, size: tuple[int, int]) -> dict[str, list[Path]]:
@@ -302,6 +381,31 @@ def _references(root: Path, indices: list[int], camera: int, size: tuple[int, in
     return out
 
 
+def _source_weather(root: Path) -> dict[str, Any]:
+    """Facts from Waymo's ``frame_info.json`` (drivestudio copies the segment's
+    ``context.stats``: weather, time of day, location); a source scene that is not clear is
+    flagged in the facts and warned about once, since its frames are not clear-weather input."""
+    path = root / "frame_info.json"
+    if not path.is_file():
+        return {}
+    info = expect_dict(read_json(path, what="frame info"), path=path, what="a JSON object (drivestudio frame_info)")
+    facts: dict[str, Any] = {}
+    for key in ("time_of_day", "location"):
+        if isinstance(info.get(key), str):
+            facts[f"source_{key}"] = info[key]
+    raw = info.get("weather")
+    if not isinstance(raw, str) or not raw.strip():
+        return facts
+    weather = _CLEAR_SOURCE_WEATHER.get(raw.strip().lower(), raw.strip().lower())
+    facts["source_weather"] = weather
+    if weather != "clear":
+        flag = (f"{path}: the source scene was recorded in '{raw}' weather, not clear: its frames are not "
+                "clear-weather input, and edits to other weathers start from wet or rainy pixels")
+        facts["source_weather_flag"] = flag
+        _warn_once(root, "weather", flag)
+    return facts
+
+
 def _build_scene(
     root: Path,
     *,
@@ -315,6 +419,8 @@ def _build_scene(
     lidar_paths: list[Path | None],
     lidar_reader: Callable[[Frame, np.ndarray], LidarSweep],
     camera: int,
+    rate_hz: float = _FRAME_RATE_HZ,
+    facts: dict[str, Any] | None = None,
 ) -> Scene:
     width, height = image_size(images[indices[0]])
     for t in indices[1:]:
@@ -322,25 +428,47 @@ def _build_scene(
             raise InputError(
                 f"{images[t]}: image is {image_size(images[t])}, expected {(width, height)} like frame {indices[0]}"
             )
+    facts = dict(facts or {})
     offset = c2w[0][:3, 3].copy()
-    times = _timestamps(root, indices)
+    times = _timestamps(root, indices, rate_hz)
+    fine = (root / "fine_dynamic_masks").is_dir()
+    if fine:
+        facts["dynamic_masks"] = "fine_dynamic_masks"
+    references = _references(root, indices, camera, (width, height))
+    undistort = has_distortion(dist)
+    folder = copy_folder(root, K, dist, (width, height)) if undistort else root
+
+    def pinhole(path: Path | None, *, mask: bool = False) -> Path | None:
+        # drivestudio undistorts images and masks before any pinhole use (docs/design.md §3)
+        if path is None or not undistort:
+            return path
+        return undistorted_copy(path, root, folder, K, dist, mask=mask)
+
+    if undistort:
+        facts["undistorted"] = dict(zip(("k1", "k2", "p1", "p2", "k3"), map(float, dist)))
+        references = {w: [p for p in (pinhole(q) for q in paths) if p is not None] for w, paths in references.items()}
     frames = []
     for k, t in enumerate(indices):
         pose = c2w[k].copy()
         pose[:3, 3] -= offset
-        cam = Camera(K=K, width=width, height=height, camera_to_world=pose, distortion=dist)
+        cam = Camera(K=K, width=width, height=height, camera_to_world=pose, distortion=np.zeros(5))
+        image = pinhole(images[t])
+        assert image is not None
         frames.append(
             Frame(
                 index=k,
                 timestamp=times[k],
                 camera=cam,
-                image_path=images[t],
+                image_path=image,
                 lidar_path=lidar_paths[k],
-                sky_mask_path=_optional(root / "sky_masks" / f"{t:03d}_{camera}.png"),
-                dynamic_mask_path=_optional(root / "dynamic_masks" / "all" / f"{t:03d}_{camera}.png"),
+                sky_mask_path=pinhole(_optional(root / "sky_masks" / f"{t:03d}_{camera}.png"), mask=True),
+                dynamic_mask_path=pinhole(_dynamic_mask(root, t, camera, fine), mask=True),
+                source_image_path=images[t] if undistort else None,
             )
         )
     index_map = {t: k for k, t in enumerate(indices)}
+    if not (root / "timestamps.json").is_file():
+        facts.setdefault("frame_rate_hz", rate_hz)
     return Scene(
         id=scene_id or root.name,
         frames=frames,
@@ -351,7 +479,8 @@ def _build_scene(
         root=root,
         lidar_loader=lambda f: lidar_reader(f, offset),
         class_names=_class_names(root),
-        references=_references(root, indices, camera, (width, height)),
+        references=references,
+        facts=facts,
     )
 
 
@@ -359,6 +488,11 @@ def load_nuscenes_layout(
     root: Path, *, scene_id: str | None = None, camera: int = 0, start: int = 0, count: int | None = None
 ) -> Scene:
     """Load a drivestudio nuScenes-style scene folder (also ``pandaset_002``).
+
+    Frame times come from ``timestamps.json`` when the folder has one. drivestudio writes none (it
+    counts frames), so the rate comes from the folder's path (:func:`nuscenes_frame_rate`:
+    ``processed/`` is 2 Hz keyframes, ``processed_10Hz/`` 10 Hz); a path that tells nothing is
+    taken as 10 Hz with a warning, once per folder.
 
     Parameters
     ----------
@@ -383,6 +517,18 @@ def load_nuscenes_layout(
     lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
     semseg = root / "lidar_semseg"
     orig = dict(zip(range(len(indices)), indices))
+    rate = _FRAME_RATE_HZ
+    facts: dict[str, Any] = {}
+    if not (root / "timestamps.json").is_file():
+        found = nuscenes_frame_rate(root)
+        if found is None:
+            facts["frame_rate_assumed"] = True
+            _warn_once(root, "rate", f"{root}: no timestamps.json and no drivestudio 'processed[_NHz]' folder "
+                       f"in its path: frame times assume {_FRAME_RATE_HZ:g} Hz (drivestudio's processed_10Hz); "
+                       "a folder processed without interpolation is 2 Hz: keep it under 'processed/' or add "
+                       "timestamps.json")
+        else:
+            rate = found
 
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
@@ -400,7 +546,8 @@ def load_nuscenes_layout(
 
     return _build_scene(
         root, scene_id=scene_id, source_format="drivestudio_nuscenes", indices=indices, images=images,
-        c2w=c2w, K=K, dist=dist, lidar_paths=lidar_paths, lidar_reader=read, camera=camera,
+        c2w=c2w, K=K, dist=dist, lidar_paths=lidar_paths, lidar_reader=read, camera=camera, rate_hz=rate,
+        facts=facts,
     )
 
 
@@ -410,9 +557,18 @@ def load_waymo_layout(
     """Load a drivestudio processed Waymo scene folder (``processed/training/NNN``).
 
     Camera extrinsics are camera-to-vehicle in Waymo axes and are converted to OpenCV axes
-    (:data:`OPENCV_TO_WAYMO`); lidar points are in the vehicle frame of their own frame.
-    Parameters as :func:`load_nuscenes_layout`.
+    (:data:`OPENCV_TO_WAYMO`); lidar points are in the vehicle frame of their own frame and, as
+    drivestudio keeps them, only those with vehicle-frame x in :data:`WAYMO_LIDAR_CROP_X_M`.
+    Images and masks are undistorted with the camera's coefficients (:mod:`.undistort`).
+    ``frame_info.json`` gives the source weather (``Scene.facts``). Parameters as
+    :func:`load_nuscenes_layout`.
+
+    Raises
+    ------
+    InputError
+        Also when the folder is drivestudio's Argoverse 2 or nuPlan layout, which look alike.
     """
+    refuse_unread_layouts(root)
     images = _find_frames(root, camera)
     indices = _select(images, start, count, root)
     K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
@@ -420,11 +576,13 @@ def load_waymo_layout(
     ego = [read_pose(root / "ego_pose" / f"{t:03d}.txt", what="vehicle-to-world pose") for t in indices]
     c2w = [e @ cam_to_ego @ OPENCV_TO_WAYMO for e in ego]
     lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
+    lo, hi = WAYMO_LIDAR_CROP_X_M
 
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
         pts = _read_lidar(frame.lidar_path, 14, finite=(0, 1, 2, 3, 4, 5), point=(3, 4, 5),
                           origin=(0, 1, 2)).astype(np.float64)
+        pts = pts[(pts[:, 3] > lo) & (pts[:, 3] < hi)]
         pose = ego[frame.index]
         R, tr = pose[:3, :3], pose[:3, 3] - offset
         return LidarSweep(
@@ -432,8 +590,43 @@ def load_waymo_layout(
             origins=(pts[:, 0:3] @ R.T + tr).astype(np.float32),
         )
 
+    facts = {"lidar_crop_x_m": list(WAYMO_LIDAR_CROP_X_M), **_source_weather(root)}
     return _build_scene(
         root, scene_id=scene_id, source_format="drivestudio_waymo", indices=indices, images=images,
+        c2w=c2w, K=K, dist=dist, lidar_paths=lidar_paths, lidar_reader=read, camera=camera, facts=facts,
+    )
+
+
+def load_pandaset_layout(
+    root: Path, *, scene_id: str | None = None, camera: int = 0, start: int = 0, count: int | None = None
+) -> Scene:
+    """Load a scene folder written by drivestudio's PandaSet preprocessing (``processed/NNN``).
+
+    ``extrinsics/{t:03d}_{cam}.txt`` is the camera-to-world pose of each frame in OpenCV axes
+    (PandaSet's own camera axes; drivestudio's OPENCV2DATASET is the identity); ``ego_pose/`` holds
+    the lidar-to-world pose, with which the float32 N x 5 lidar points (xyz in that frame,
+    intensity, lidar id 0 = 360-degree, 1 = front) move to the world. drivestudio crops no
+    PandaSet lidar and writes no timestamps: frames are 10 Hz (PandaSet's rate). Parameters as
+    :func:`load_nuscenes_layout`.
+    """
+    images = _find_frames(root, camera)
+    indices = _select(images, start, count, root)
+    K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
+    c2w = [read_pose(root / "extrinsics" / f"{t:03d}_{camera}.txt", what="camera-to-world pose") for t in indices]
+    lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
+    orig = dict(zip(range(len(indices)), indices))
+
+    def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
+        assert frame.lidar_path is not None
+        t = orig[frame.index]
+        pts = _read_lidar(frame.lidar_path, 5, finite=(0, 1, 2), point=(0, 1, 2))
+        pose = read_pose(root / "ego_pose" / f"{t:03d}.txt", what="lidar-to-world pose")
+        world = pts[:, :3].astype(np.float64) @ pose[:3, :3].T + (pose[:3, 3] - offset)
+        return LidarSweep(points=world.astype(np.float32), origins=np.broadcast_to(
+            (pose[:3, 3] - offset).astype(np.float32), world.shape).copy())
+
+    return _build_scene(
+        root, scene_id=scene_id, source_format="drivestudio_pandaset", indices=indices, images=images,
         c2w=c2w, K=K, dist=dist, lidar_paths=lidar_paths, lidar_reader=read, camera=camera,
     )
 
@@ -441,26 +634,86 @@ def load_waymo_layout(
 LOADERS: dict[str, Callable[..., Scene]] = {
     "drivestudio_waymo": load_waymo_layout,
     "drivestudio_nuscenes": load_nuscenes_layout,
+    "drivestudio_pandaset": load_pandaset_layout,
 }
+
+#: nuPlan log names, which drivestudio's nuPlan preprocessing uses as scene folder names.
+_NUPLAN_LOG = re.compile(r"^\d{4}\.\d{2}\.\d{2}\.\d{2}\.\d{2}\.\d{2}_veh-\d+")
+
+
+def _camera_ids(root: Path) -> set[int]:
+    images = root / "images"
+    if not images.is_dir():
+        return set()
+    pat = re.compile(r"^\d+_(\d+)$")
+    return {int(m.group(1)) for p in images.iterdir() if (m := pat.match(p.stem))}
+
+
+def _unread_layout(root: Path) -> str | None:
+    """Which of drivestudio's unread layouts (``ego_pose/`` + ``extrinsics/{cam}.txt`` like Waymo)
+    the folder is, from what tells them apart: nuPlan's 8 cameras (ids 0-7) and log-named folders,
+    Argoverse 2's 7 ring cameras (ids 0-6; Waymo has 5), and camera-to-vehicle extrinsics in OpenCV
+    axes (camera y pointing down; Waymo's camera axes have z up)."""
+    cams = _camera_ids(root)
+    if 7 in cams or _NUPLAN_LOG.match(root.name):
+        return "nuPlan"
+    if cams & {5, 6}:
+        return "Argoverse 2"
+    ext = root / "extrinsics" / f"{min(cams) if cams else 0}.txt"
+    if ext.is_file():
+        try:
+            R = np.array(ext.read_text(encoding="utf-8").split(), dtype=np.float64).reshape(4, 4)[:3, :3]
+        except (ValueError, UnicodeDecodeError):
+            return None  # the Waymo loader names the malformed file
+        if R[2, 1] < -0.5 and abs(R[2, 2]) < 0.5:
+            return "Argoverse 2 or nuPlan"
+    return None
+
+
+def refuse_unread_layouts(root: Path) -> None:
+    """Raise when ``root`` is drivestudio's Argoverse 2 or nuPlan layout, which wcbench does not
+    read yet: they share Waymo's folder names, and read as Waymo they would fail later on a
+    misleading file or, worse, load with wrong camera axes.
+
+    Raises
+    ------
+    InputError
+        Naming the layout.
+    """
+    layout = _unread_layout(root)
+    if layout is not None:
+        raise InputError(
+            f"{root}: this is drivestudio's {layout} processed layout, which wcbench does not read yet "
+            "(readable: drivestudio's Waymo, nuScenes and PandaSet layouts; docs/design.md §3)"
+        )
 
 
 def detect_format(root: Path) -> str:
     """Guess the layout of a scene folder from the files it holds.
 
+    ``ego_pose/`` with per-frame ``extrinsics/{t:03d}_{cam}.txt`` is PandaSet; per-frame
+    extrinsics alone nuScenes; ``ego_pose/`` with per-camera ``extrinsics/{cam}.txt`` is Waymo,
+    unless it is Argoverse 2 or nuPlan (:func:`refuse_unread_layouts`).
+
     Raises
     ------
     InputError
-        If the folder is missing or matches no known layout.
+        If the folder is missing, is a layout not read yet, or matches no known layout.
     """
     if not root.is_dir():
         raise InputError(f"{root}: scene folder does not exist")
+    per_frame = (root / "extrinsics").is_dir() and any((root / "extrinsics").glob("[0-9][0-9][0-9]_*.txt"))
     if (root / "ego_pose").is_dir():
+        if per_frame:
+            return "drivestudio_pandaset"
+        refuse_unread_layouts(root)
         return "drivestudio_waymo"
-    if (root / "extrinsics").is_dir() and any((root / "extrinsics").glob("[0-9][0-9][0-9]_*.txt")):
+    if per_frame:
         return "drivestudio_nuscenes"
     raise InputError(
         f"{root}: not a processed scene folder: expected images/ and either ego_pose/ + extrinsics/{{cam}}.txt "
-        "(drivestudio Waymo) or extrinsics/{t:03d}_{cam}.txt (drivestudio nuScenes)"
+        "(drivestudio Waymo), ego_pose/ + extrinsics/{t:03d}_{cam}.txt (drivestudio PandaSet) or "
+        "extrinsics/{t:03d}_{cam}.txt + lidar_pose/ (drivestudio nuScenes)"
     )
 
 
@@ -479,7 +732,7 @@ def load_scene(
     ----------
     path : str or Path
         The scene folder.
-    format : {"drivestudio_waymo", "drivestudio_nuscenes"}, optional
+    format : {"drivestudio_waymo", "drivestudio_nuscenes", "drivestudio_pandaset"}, optional
     scene_id : str, optional
         Id used in outputs; defaults to the folder name.
     camera, start, count

