@@ -7,7 +7,7 @@ compiles nothing):
 * :func:`rasterize_torch` and :func:`project_torch`, the pure-torch twin (:mod:`.raster.torch_twin`);
 * :data:`EPS2D`, the 0.3 px^2 screen-space dilation every rendered Gaussian gets;
 * weather (package :mod:`.weather`): :class:`Weather`, :class:`WeatherRenderer`,
-  :func:`render_weather`, particles (:class:`Wind`, :class:`ParticleField`), fog;
+  particles (:class:`Wind`, :class:`ParticleField`), fog;
 * the scene graph (package :mod:`.scene_graph`): :class:`GaussianCloud`, :class:`SceneGaussians`
   and the lidar initialisation :func:`init_scene_from_lidar`.
 
@@ -35,8 +35,9 @@ if TYPE_CHECKING:
         fog_postprocess,
         gaussian_transmittance,
     )
-    from wcbench.reference_model.weather.particles import ParticleField, ParticleGaussians, ParticleSpec, Wind
-    from wcbench.reference_model.weather.renderer import WeatherFrame, WeatherRenderer, render_weather
+    from wcbench.reference_model.weather.particle_spec import ParticleGaussians, ParticleSpec, Wind
+    from wcbench.reference_model.weather.particles import ParticleField
+    from wcbench.reference_model.weather.renderer import WeatherFrame, WeatherRenderer
 
 # Public name -> module holding it. Package and module names differ from the public names
 # (``raster`` vs ``rasterize``), so importing a submodule never shadows a function here.
@@ -56,14 +57,13 @@ _LAZY = {
     "init_from_lidar": "scene_graph.lidar_init",
     "init_scene_from_lidar": "scene_graph.lidar_init",
     "ParticleField": "weather.particles",
-    "ParticleGaussians": "weather.particles",
-    "ParticleSpec": "weather.particles",
-    "Wind": "weather.particles",
+    "ParticleGaussians": "weather.particle_spec",
+    "ParticleSpec": "weather.particle_spec",
+    "Wind": "weather.particle_spec",
     "Weather": "weather.conditions",
     "WeatherFrame": "weather.renderer",
     "WeatherRenderer": "weather.renderer",
     "load_presets": "weather.conditions",
-    "render_weather": "weather.renderer",
 }
 
 __all__ = [
@@ -89,7 +89,6 @@ __all__ = [
     "project_torch",
     "rasterize",
     "rasterize_torch",
-    "render_weather",
 ]
 
 

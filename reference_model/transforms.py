@@ -1,7 +1,8 @@
 """Rigid transforms of point and Gaussian arrays: quaternions (w, x, y, z) and 3x3 linear maps (numpy).
 
 Shared by the scene graph (object poses), the particles (drop and flake orientations) and the
-renderers. Quaternions are Hamilton, scalar first, as the rasterizer takes them.
+renderers; and the pinhole projection of world points (training views, a scene's lidar depth).
+Quaternions are Hamilton, scalar first, as the rasterizer takes them.
 """
 
 from __future__ import annotations
@@ -10,7 +11,15 @@ import math
 
 import numpy as np
 
-__all__ = ["apply_linear", "quat_from_matrices", "quat_from_matrix", "quat_multiply", "quat_to_matrix"]
+__all__ = [
+    "apply_linear",
+    "lidar_depth",
+    "project_points",
+    "quat_from_matrices",
+    "quat_from_matrix",
+    "quat_multiply",
+    "quat_to_matrix",
+]
 
 
 def apply_linear(points: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -106,3 +115,42 @@ def quat_from_matrices(R: np.ndarray) -> np.ndarray:
         out[:, 1 + c] = (r[:, a, c] + r[:, c, a]) / s
         q[sel] = out
     return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def project_points(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates and camera z of world points (pinhole, pixel centers at +0.5).
+
+    Parameters
+    ----------
+    points : ndarray [N, 3]
+        World (m).
+    world_to_camera : ndarray [4, 4]
+        OpenCV camera axes (x right, y down, z forward).
+    K : ndarray [3, 3]
+        Intrinsics.
+
+    Returns
+    -------
+    uv : ndarray [N, 2]
+        Pixels (x right, y down); not finite where z = 0.
+    z : ndarray [N]
+        Depth along the optical axis (m); <= 0 behind the camera.
+    """
+    p = np.asarray(points, np.float64) @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([p[:, 0] / z * K[0, 0] + K[0, 2], p[:, 1] / z * K[1, 1] + K[1, 2]], 1)
+    return uv, z
+
+
+def lidar_depth(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray, width: int,
+                height: int) -> np.ndarray:
+    """[H, W] float32 z-depth (m) of world points, the nearest per pixel; 0 where none lands."""
+    uv, z = project_points(points, world_to_camera, K)
+    ij = np.floor(uv).astype(np.int64)
+    ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
+    ij, z = ij[ok], z[ok]
+    order = np.argsort(-z)  # far first: the nearest point is written last
+    depth = np.zeros((height, width), np.float32)
+    depth[ij[order, 1], ij[order, 0]] = z[order]
+    return depth

@@ -41,7 +41,7 @@ from .media import (
 from .tables import Display, Table, TableBuilder, to_csv, to_latex
 
 _TEMPLATES = Path(__file__).with_name("templates")
-BENCH_SCHEMA = "wcbench-benchmark"  # wcbench/benchmark.py SCHEMA / SCHEMA_VERSION
+BENCH_SCHEMA = "wcbench-benchmark"  # wcbench/bench/schema.py SCHEMA / SCHEMA_VERSION
 BENCH_SCHEMA_VERSION = 1
 #: Packages whose versions are listed under provenance besides those the results recorded.
 _REPORT_PACKAGES = ("jinja2", "matplotlib")
@@ -217,7 +217,7 @@ def _read_bench(path: Path) -> dict[str, Any]:
     if not isinstance(obj, dict) or (obj.get("schema"), obj.get("schema_version")) != (BENCH_SCHEMA,
                                                                                        BENCH_SCHEMA_VERSION):
         raise InputError(f"{path}: not a {BENCH_SCHEMA} v{BENCH_SCHEMA_VERSION} file (written by `wcbench bench SUITE "
-                         "--json FILE`)")
+                         "--out FILE`)")
     cases = obj.get("cases")
     if not isinstance(cases, list) or not all(isinstance(c, dict) and "knob" in c for c in cases):
         raise InputError(f"{path}: benchmark file without a list of cases with a knob")
@@ -254,7 +254,7 @@ def _train_seconds(info: dict[str, Any] | None) -> float | None:
 def _scoring_notes(folders: list[ResultsFolder]) -> list[str]:
     """Per scene where a method rendered at another size than the scene's frames: the size scored
     at and those methods' own sizes (``results.json`` ``working_size``), e.g. ``pandaset_002
-    (1920x1080 frames) scored at 960x540; lidar_init's 480x270 frames resized to it``. Facts, not
+    (1920x1080 frames) scored at 960x540; lidar-init's 480x270 frames resized to it``. Facts, not
     flags: every method of a scene is scored at one size by default (docs/design.md §8, "Scoring");
     sizes that differ are flagged by the checks."""
     frames: dict[str, str] = {}
@@ -383,7 +383,7 @@ def build_report(
     title : str, optional
         Heading (default: the methods and scenes).
     bench : sequence of path-like
-        Benchmark JSON files (``wcbench bench SUITE --json FILE``) charted as time vs error per knob.
+        Benchmark JSON files (``wcbench bench SUITE --out FILE``) charted as time vs error per knob.
     csv, latex : bool
         Also write ``out`` with suffix ``.csv`` / ``.tex``: every table cell as shown.
     animation_frames : int

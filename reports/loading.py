@@ -2,7 +2,7 @@
 
 The report is built from these files alone (never from scenes or metrics), so it works for methods
 scored separately, on another machine or months apart. The format is the one documented in
-``wcbench/results.py`` (README "results.json"); this module only reads it.
+``wcbench/results.py`` (docs/guide.md, "Results files"); this module only reads it.
 """
 
 from __future__ import annotations

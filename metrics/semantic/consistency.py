@@ -6,8 +6,9 @@ With the confusion matrix n_ij = number of pixels labelled i in seg(I) (source) 
     fwIoU = sum_c (t_c / sum_k t_k) * n_cc / (t_c + sum_i n_ic - n_cc)
 
 (docs/design.md §5). Classes absent from seg(I) have zero weight. Two numbers are reported: the mean of
-per-frame fwIoU (the paper's form) and the fwIoU of the confusion matrix summed over all frames
-("pooled"). Label maps can be given directly (:func:`sem_cs`, or :class:`SemanticConsistency` with
+per-frame fwIoU and the fwIoU of the confusion matrix summed over all frames ("pooled"); the paper
+defines fwIoU per image pair and does not say how it aggregates a sequence, so both are ours.
+Label maps can be given directly (:func:`sem_cs`, or :class:`SemanticConsistency` with
 ``segmenter=None``); otherwise a segmenter callable ``segment(images [B, H, W, 3] float in [0, 1])
 -> labels [B, H, W] int`` is injected, or named from the model store (ADE20K SegFormer /
 UperNet-ConvNeXt, see :mod:`wcbench.metrics.semantic.segmenter`). No torch is imported here.
@@ -179,8 +180,9 @@ def sem_cs(
     ignore_index : int or None
         Label excluded from the counts in both maps.
     reduction : {"mean", "pooled", "none"}
-        ``"mean"``: mean of per-frame fwIoU over frames with counted pixels (the paper's form);
-        ``"pooled"``: fwIoU of the summed confusion matrix; ``"none"``: per-frame values [B].
+        ``"mean"``: mean of per-frame fwIoU over frames with counted pixels; ``"pooled"``: fwIoU
+        of the summed confusion matrix (the paper names neither aggregation: docs/design.md §5);
+        ``"none"``: per-frame values [B].
 
     Returns
     -------

@@ -17,6 +17,7 @@ Flow warping error (docs/design.md §5)
 from __future__ import annotations
 
 import hashlib
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -251,8 +252,8 @@ def temporal_flicker(frames: np.ndarray) -> float:
     return float(np.mean([_mean_abs_diff(f[k + 1], f[k]) for k in range(len(f) - 1)]))
 
 
-def flow_warp_errors(edited: np.ndarray, source: np.ndarray | None = None, *,
-                     flow: str | FlowFn = "dis") -> np.ndarray:
+def flow_warping_errors(edited: np.ndarray, source: np.ndarray | None = None, *,
+                        flow: str | FlowFn = "dis") -> np.ndarray:
     """Per-pair flow warping errors [T - 1] of ``edited`` with flow and mask from ``source``.
 
     ``source`` defaults to ``edited`` itself (the error of a raw video). RGB in [0, 1]; NaN for a
@@ -265,8 +266,8 @@ def flow_warp_errors(edited: np.ndarray, source: np.ndarray | None = None, *,
         [0, 1], mismatched shapes, frames too small for DIS (:data:`DIS_MIN_SIDES`), or a flow that
         is not finite [H, W, 2].
     """
-    e = _sequence(edited, "edited", "flow_warp_error").astype(np.float32)
-    s = e if source is None else _sequence(source, "source", "flow_warp_error").astype(np.float32)
+    e = _sequence(edited, "edited", "flow_warping_error").astype(np.float32)
+    s = e if source is None else _sequence(source, "source", "flow_warping_error").astype(np.float32)
     if e.shape != s.shape:
         raise ValueError(f"edited has shape {e.shape} but source has shape {s.shape}")
     if isinstance(flow, str) and flow not in FLOW_METHODS:
@@ -278,14 +279,41 @@ def flow_warp_errors(edited: np.ndarray, source: np.ndarray | None = None, *,
     return np.asarray(out, np.float64)
 
 
-def flow_warp_error(edited: np.ndarray, source: np.ndarray | None = None, *, flow: str | FlowFn = "dis") -> float:
+def flow_warping_error(edited: np.ndarray, source: np.ndarray | None = None, *,
+                       flow: str | FlowFn = "dis") -> float:
     """Flow warping error E_warp of ``edited`` [T, H, W, 3] with flow and mask from ``source``: the mean
-    of :func:`flow_warp_errors` over pairs with valid pixels (NaN when none has any).
+    of :func:`flow_warping_errors` over pairs with valid pixels (NaN when none has any).
 
-    :class:`FlowWarpingError` accumulates the same per-pair values. Raises as :func:`flow_warp_errors`.
+    The functional form of the ``flow_warping_error`` metric: :class:`FlowWarpingError` accumulates
+    the same per-pair values. Raises as :func:`flow_warping_errors`.
     """
-    errors = flow_warp_errors(edited, source, flow=flow)
+    errors = flow_warping_errors(edited, source, flow=flow)
     return float(np.nanmean(errors)) if np.isfinite(errors).any() else float("nan")
+
+
+def flow_warp_error(edited: np.ndarray, source: np.ndarray | None = None, *, flow: str | FlowFn = "dis") -> float:
+    """Deprecated alias of :func:`flow_warping_error` (the metric's name), kept for one release.
+
+    Warns
+    -----
+    DeprecationWarning
+        Always.
+    """
+    warnings.warn("flow_warp_error is deprecated, use flow_warping_error", DeprecationWarning, stacklevel=2)
+    return flow_warping_error(edited, source, flow=flow)
+
+
+def flow_warp_errors(edited: np.ndarray, source: np.ndarray | None = None, *,
+                     flow: str | FlowFn = "dis") -> np.ndarray:
+    """Deprecated alias of :func:`flow_warping_errors`, kept for one release.
+
+    Warns
+    -----
+    DeprecationWarning
+        Always.
+    """
+    warnings.warn("flow_warp_errors is deprecated, use flow_warping_errors", DeprecationWarning, stacklevel=2)
+    return flow_warping_errors(edited, source, flow=flow)
 
 
 # --------------------------------------------------------------------------- metrics

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
-from wcbench.reference_model.scene_graph.lidar_init import init_scene_from_lidar
+from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, init_scene_from_lidar
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 
 __all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "pca_normals", "value_noise"]
@@ -246,7 +246,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> 
     InputError
         If no lidar point projects into any frame.
     """
-    gaussians = init_scene_from_lidar(scene, voxel_m=voxel_m)
+    gaussians = init_scene_from_lidar(scene, LidarInitOptions(voxel_m=voxel_m))
     up = np.asarray(scene.up, np.float64)
     up = up / np.linalg.norm(up)
     axes = _plane_axes(up)

@@ -48,17 +48,6 @@ CULL_KEYS = {
 }
 
 
-def box_extent_sigmas(opacity: float) -> float:
-    """Half-extent of the pixel box in standard deviations for a Gaussian of this opacity.
-
-    Beyond ``sqrt(2 ln(255 o))`` sigmas ``o * exp(-q / 2)`` is below 1/255, so every pair there would
-    be skipped anyway; the box is the smaller of that and :data:`SIGMA_EXTENT`.
-    """
-    if opacity * 255.0 <= 1.0:
-        return 0.0
-    return min(SIGMA_EXTENT, math.sqrt(2.0 * math.log(255.0 * opacity)))
-
-
 @dataclass
 class RenderOutput:
     """What :func:`rasterize` returns.
@@ -246,7 +235,11 @@ def empty_meta(backend: str, n: int) -> dict[str, Any]:
 
 def cull_counts(reason: torch.Tensor) -> dict[str, int]:
     """Count Gaussians per cull reason; ``reason`` [N] int (0 = visible, else a ``CULL_*`` code)."""
-    counts = torch.bincount(reason.to(torch.int64), minlength=len(CULL_KEYS) + 1).tolist()
+    return counts_meta(torch.bincount(reason.to(torch.int64), minlength=len(CULL_KEYS) + 1).tolist())
+
+
+def counts_meta(counts: list[int]) -> dict[str, int]:
+    """The meta counters from ``counts[code]``, the Gaussians per cull code (0 = visible)."""
     out = {key: int(counts[code]) for code, key in CULL_KEYS.items()}
     out["n_visible"] = int(counts[0])
     return out

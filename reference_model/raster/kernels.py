@@ -5,10 +5,12 @@ Pipeline (forward):
 1. ``_project_kernel`` (parallel over Gaussians, float64 arithmetic): cull (non-finite, near/far,
    degenerate, transparent, off-screen), EWA projection (the 2D determinant from the minors of
    J V R diag(s), ``_cov2d``: needles keep it), conic, per-axis pixel box.
-2. Binning: one global depth sort (numpy's SIMD sort of ``depth_bits << 32 | index``), the
-   compositing data packed into one 64-byte record per Gaussian in that order (``_gather_sorted``),
-   then a stable counting sort into 16x16 tiles (``_tile_counts`` / ``_tile_fill``): every tile
-   list comes out front to back without a per-tile sort.
+2. Binning: the visible set compacted in parallel (``_visible_keys``), one global depth sort (a
+   chunked parallel LSD radix sort of the float bits, ``_radix_sort``), the compositing data packed
+   into one 64-byte record per Gaussian in that order (``_gather_sorted``), then a stable counting
+   sort into 16x16 tiles (per-chunk histograms counted while packing, prefix sums ``_tile_offsets``,
+   scatter ``_tile_fill``): every tile list comes out front to back without a per-tile sort, and
+   every pass is parallel (docs/design.md §8).
 3. ``_render_forward`` (parallel over tiles, heaviest first): Gaussian-major loop over the tile
    list, records prefetched ahead; each box row is evaluated as one 8- or 16-lane vector
    (``_fexp`` is a branch-free float32 exp so that LLVM vectorizes the row). Per-pair math in
@@ -18,10 +20,11 @@ Pipeline (forward):
 Backward: ``_render_backward`` replays the same front-to-back order per tile with the same float
 ops, so every skip and stop decision is the forward's, bit for bit. Since the forward saved its
 float64 sums, the light behind pair i is ``total - running sum up to i``: no back-to-front pass and
-no division chains. Per (tile, Gaussian) entry the gradients go to their own row of a buffer,
-summed per Gaussian afterwards (``_reduce_entries``): no atomics, and results do not depend on the
-thread count. ``_project_backward`` then chains to the 3D parameters. Gradients beyond float32
-saturate at +-3.4e38 (``_sat``) instead of overflowing to Inf (docs/design.md §9).
+no division chains. Per (tile, Gaussian) entry the gradients go to their own row of a buffer, at
+the entry's Gaussian-major position, summed per Gaussian afterwards over consecutive rows
+(``_reduce_entries``): no atomics, and results do not depend on the thread count.
+``_project_backward`` then chains to the 3D parameters. Gradients beyond float32 saturate at
++-3.4e38 (``_sat``) instead of overflowing to Inf (docs/design.md §9).
 
 Vectorization notes (measured: a lane loop that LLVM leaves scalar is ~6x slower): indices are
 unsigned so that numba drops its negative-index wraparound; all per-tile state of a lane loop
@@ -33,6 +36,10 @@ The twin :mod:`.torch_twin` computes the same function with plain torch ops.
 
 from __future__ import annotations
 
+import math
+import threading
+import time
+import weakref
 from typing import Any
 
 import numba
@@ -57,7 +64,7 @@ from wcbench.reference_model.raster.common import (
     SIGMA_EXTENT,
     T_STOP,
     TILE_SIZE,
-    cull_counts,
+    counts_meta,
     empty_meta,
 )
 
@@ -84,6 +91,9 @@ _EXP_LO, _EXP_HI = F32(-87.0), F32(88.0)
 #: further down the chain); the twin does the same (docs/design.md §9).
 _GMAX = float(np.finfo(np.float32).max)
 _GMAX32 = F32(_GMAX)
+#: 255 o above which sqrt(2 ln(255 o)) >= SIGMA_EXTENT for sure (exp(SIGMA_EXTENT^2 / 2), plus a
+#: relative margin far above the log's rounding): the box extent is SIGMA_EXTENT there.
+_KK_SAT = math.exp(0.5 * SIGMA_EXTENT * SIGMA_EXTENT) * (1.0 + 1e-9)
 
 
 @njit(cache=True, inline="always")
@@ -252,10 +262,11 @@ def _project_kernel(
     near: float,
     far: float,
     means2d: np.ndarray,  # out [N, 2] f64
+    means2d_f32: np.ndarray,  # out [N, 2] f32 (the public output: no serial cast afterwards)
     conic: np.ndarray,  # out [N, 3] f32
     depth: np.ndarray,  # out [N] f32
     box: np.ndarray,  # out [N, 4] i32 x0, x1, y0, y1 inclusive
-    ext: np.ndarray,  # out [N, 2] f64
+    radii: np.ndarray,  # out [N, 2] i32 ceil of the box half-extent (px)
     reason: np.ndarray,  # out [N] i8
 ) -> None:
     """Cull and project every Gaussian (float64 arithmetic: per Gaussian it is cheap, and the 2D
@@ -269,12 +280,14 @@ def _project_kernel(
     for i in prange(means.shape[0]):
         means2d[i, 0] = _ZERO
         means2d[i, 1] = _ZERO
+        means2d_f32[i, 0] = _ZERO
+        means2d_f32[i, 1] = _ZERO
         conic[i, 0] = _ONE
         conic[i, 1] = _ZERO
         conic[i, 2] = _ONE
         depth[i] = _ZERO
-        ext[i, 0] = _ZERO
-        ext[i, 1] = _ZERO
+        radii[i, 0] = 0
+        radii[i, 1] = 0
         box[i, 0] = 0
         box[i, 1] = -1
         box[i, 2] = 0
@@ -316,8 +329,12 @@ def _project_kernel(
         if not (o >= _ALPHA_MIN):
             reason[i] = CULL_TRANSPARENT
             continue
-        # Box half-extent in sigmas: see box_extent_sigmas.
-        kk = min(np.sqrt(2.0 * np.log(255.0 * np.float64(o))), SIGMA_EXTENT)
+        # Box half-extent in sigmas: beyond sqrt(2 ln(255 o)) sigmas o exp(-q / 2) < 1/255 and every
+        # pair would be skipped, so the box is the smaller of that and SIGMA_EXTENT. Above _KK_SAT
+        # the log is >= SIGMA_EXTENT^2 / 2 with margin, so the min is SIGMA_EXTENT: the same value
+        # without the scalar log call (most Gaussians are that opaque).
+        o255 = 255.0 * np.float64(o)
+        kk = SIGMA_EXTENT if o255 >= _KK_SAT else min(np.sqrt(2.0 * np.log(o255)), SIGMA_EXTENT)
         ex = min(kk * np.sqrt(a), MAX_EXTENT)
         ey = min(kk * np.sqrt(cc), MAX_EXTENT)
         x0 = int(min(max(np.ceil(mx - ex - 0.5), -1.0), wf))
@@ -334,12 +351,14 @@ def _project_kernel(
         reason[i] = 0
         means2d[i, 0] = mx
         means2d[i, 1] = my
+        means2d_f32[i, 0] = F32(mx)
+        means2d_f32[i, 1] = F32(my)
         conic[i, 0] = cc / det
         conic[i, 1] = -b / det
         conic[i, 2] = a / det
         depth[i] = z
-        ext[i, 0] = ex
-        ext[i, 1] = ey
+        radii[i, 0] = np.int32(np.ceil(ex))
+        radii[i, 1] = np.int32(np.ceil(ey))
         box[i, 0] = x0
         box[i, 1] = x1
         box[i, 2] = y0
@@ -501,36 +520,95 @@ _RADIX_BITS = 11
 _RADIX = 1 << _RADIX_BITS
 
 
-@njit(cache=True, error_model="numpy")
+#: Below this many keys a sort or compaction runs as one chunk (a parallel region costs ~10 us).
+_MIN_CHUNK = 16384
+
+
+def _n_chunks(n: int) -> int:
+    """Chunks of a chunked parallel pass over ``n`` items: one per thread, one for small ``n``.
+
+    Results never depend on it (every chunked pass here writes the same output for any count).
+    """
+    return max(1, min(numba.get_num_threads(), n // _MIN_CHUNK))
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _radix_sort(keys: np.ndarray, idx: np.ndarray, n_chunks: int) -> np.ndarray:
+    """Stable ascending sort of uint32 ``keys`` [M] carrying int64 ``idx`` [M]; returns idx sorted.
+
+    LSD radix in three 11-bit passes. Each pass counts digits per chunk of the input in parallel,
+    takes exclusive prefix sums over (digit, chunk) (2048 x chunks, serial and tiny), then each
+    chunk scatters its keys in input order at its own cursors: the output is the stable order
+    whatever the chunk count. ``keys`` is overwritten.
+    """
+    n = keys.shape[0]
+    keys_out = np.empty(n, np.uint32)
+    idx_out = np.empty(n, np.int64)
+    step = (n + n_chunks - 1) // n_chunks
+    hist = np.zeros((n_chunks, _RADIX), np.int64)
+    for p in range(3):
+        shift = np.uint32(p * _RADIX_BITS)
+        for ch in prange(n_chunks):
+            for b in range(_RADIX):
+                hist[ch, b] = 0
+            for i in range(ch * step, min(n, (ch + 1) * step)):
+                hist[ch, (keys[i] >> shift) & np.uint32(_RADIX - 1)] += 1
+        run = 0
+        for b in range(_RADIX):
+            for ch in range(n_chunks):
+                c = hist[ch, b]
+                hist[ch, b] = run
+                run += c
+        for ch in prange(n_chunks):
+            for i in range(ch * step, min(n, (ch + 1) * step)):
+                d = (keys[i] >> shift) & np.uint32(_RADIX - 1)
+                pos = hist[ch, d]
+                hist[ch, d] = pos + 1
+                keys_out[pos] = keys[i]
+                idx_out[pos] = idx[i]
+        keys, keys_out = keys_out, keys
+        idx, idx_out = idx_out, idx
+    return idx
+
+
 def depth_order(bits: np.ndarray) -> np.ndarray:
-    """Stable ascending order [M] (int64 positions) of uint32 keys [M]: an LSD radix sort in three
-    11-bit passes.
+    """Stable ascending order [M] (int64 positions) of uint32 keys [M] (:func:`_radix_sort`).
 
     Positive float32 depths sort like their bits, and a stable sort keeps ties in index order, so
     ``vis[depth_order(depths[vis].view(uint32))]`` is the (depth, index) order a sort of packed 64-bit
     keys gives, in about a third of the time (2-core CPU, 150k Gaussians).
     """
     n = bits.shape[0]
-    keys = bits.copy()
-    idx = np.arange(n, dtype=np.int64)
-    keys_out = np.empty(n, np.uint32)
-    idx_out = np.empty(n, np.int64)
-    for p in range(3):
-        shift = np.uint32(p * _RADIX_BITS)
-        start = np.zeros(_RADIX + 1, np.int64)
-        for i in range(n):
-            start[((keys[i] >> shift) & np.uint32(_RADIX - 1)) + 1] += 1
-        for b in range(_RADIX):
-            start[b + 1] += start[b]
-        for i in range(n):
-            d = (keys[i] >> shift) & np.uint32(_RADIX - 1)
-            pos = start[d]
-            start[d] = pos + 1
-            keys_out[pos] = keys[i]
-            idx_out[pos] = idx[i]
-        keys, keys_out = keys_out, keys
-        idx, idx_out = idx_out, idx
-    return idx
+    return _radix_sort(np.array(bits, np.uint32), np.arange(n, dtype=np.int64), _n_chunks(n))
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _visible_keys(reason: np.ndarray, depth: np.ndarray, n_chunks: int) -> tuple:
+    """Indices [M] int64 of the visible Gaussians (``reason == 0``) in index order, their depth
+    bits [M] uint32, and the count of each cull reason [n_reasons] (chunked: per-chunk counts, a
+    prefix sum, then each chunk writes at its offset)."""
+    n = reason.shape[0]
+    n_reasons = CULL_OFFSCREEN + 1
+    step = (n + n_chunks - 1) // n_chunks
+    hist = np.zeros((n_chunks, n_reasons), np.int64)
+    for ch in prange(n_chunks):
+        for i in range(ch * step, min(n, (ch + 1) * step)):
+            hist[ch, reason[i]] += 1
+    offs = np.zeros(n_chunks + 1, np.int64)
+    for ch in range(n_chunks):
+        offs[ch + 1] = offs[ch] + hist[ch, 0]
+    m = offs[n_chunks]
+    vis = np.empty(m, np.int64)
+    bits = np.empty(m, np.uint32)
+    dbits = depth.view(np.uint32)
+    for ch in prange(n_chunks):
+        k = offs[ch]
+        for i in range(ch * step, min(n, (ch + 1) * step)):
+            if reason[i] == 0:
+                vis[k] = i
+                bits[k] = dbits[i]
+                k += 1
+    return vis, bits, hist.sum(axis=0)
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -541,77 +619,111 @@ def _gather_sorted(
     prm: np.ndarray,  # out [M, 16] f32 records (see _AX ... _COL)
     pbox: np.ndarray,  # out [M, 4] i32
     pcol: np.ndarray,  # out [M, C] f32
+    tiles_x: int,
+    counts: np.ndarray,  # out [n_chunks, n_tiles] i64 per-chunk tile histograms (zeros on entry)
+    per_g: np.ndarray,  # out [M] i64 tiles of each sorted Gaussian
 ) -> None:
-    """Pack what compositing reads into depth order: a tile list then walks memory forward."""
+    """Pack what compositing reads into depth order (a tile list then walks memory forward), and
+    count the tiles of each Gaussian and of each chunk of the order (the counting sort's first pass,
+    fused: one pass over the sorted Gaussians instead of two).
+
+    The chunks are contiguous runs of the order (``counts.shape[0]`` of them); the caller's
+    arrays, not ones made here, since an array made here would be filled by a parallel loop of its
+    own, scheduled with the caller's chunk size.
+    """
     m = order.shape[0]
-    for s in prange(m):
-        if s + 4 * _PREFETCH < m:  # order jumps through the arrays: fetch ahead
-            ga = order[s + 4 * _PREFETCH]
-            _prefetch(means2d, ga)
-            _prefetch(conic, ga)
-            _prefetch(box, ga)
-            _prefetch(colors, ga)
-            _prefetch(opac, ga)
-            _prefetch(depth, ga)
-        g = order[s]
-        ax = np.floor(means2d[g, 0])  # means2d is float64
-        ay = np.floor(means2d[g, 1])
-        prm[s, _AX] = ax
-        prm[s, _AY] = ay
-        prm[s, _HX] = 0.5 - (means2d[g, 0] - ax)
-        prm[s, _HY] = 0.5 - (means2d[g, 1] - ay)
-        prm[s, _CA] = conic[g, 0]
-        prm[s, _CB] = conic[g, 1]
-        prm[s, _CC] = conic[g, 2]
-        prm[s, _OP] = opac[g]
-        prm[s, _Z] = depth[g]
-        for q in range(4):
-            pbox[s, q] = box[g, q]
-            prm[s, _BX + q] = box[g, q]
-        for q in range(3):
-            prm[s, _COL + q] = colors[g, min(q, colors.shape[1] - 1)]
-        for ch in range(colors.shape[1]):
-            pcol[s, ch] = colors[g, ch]
-
-
-@njit(parallel=True, cache=True, error_model="numpy")
-def _tile_counts(pbox: np.ndarray, tiles_x: int, n_tiles: int, n_chunks: int) -> tuple:
-    """Per-chunk tile histograms [n_chunks, n_tiles] and per-Gaussian tile counts [M] (sorted order)."""
-    m = pbox.shape[0]
-    counts = np.zeros((n_chunks, n_tiles), np.int64)
-    per_g = np.empty(m, np.int64)
+    n_chunks = counts.shape[0]
     step = (m + n_chunks - 1) // n_chunks
-    for ch in prange(n_chunks):
-        for s in range(ch * step, min(m, (ch + 1) * step)):
-            tx0, tx1 = pbox[s, 0] // TS, pbox[s, 1] // TS
-            ty0, ty1 = pbox[s, 2] // TS, pbox[s, 3] // TS
+    for chunk in prange(n_chunks):
+        for s in range(chunk * step, min(m, (chunk + 1) * step)):
+            if s + 4 * _PREFETCH < m:  # order jumps through the arrays: fetch ahead
+                ga = order[s + 4 * _PREFETCH]
+                _prefetch(means2d, ga)
+                _prefetch(conic, ga)
+                _prefetch(box, ga)
+                _prefetch(colors, ga)
+                _prefetch(opac, ga)
+                _prefetch(depth, ga)
+            g = order[s]
+            ax = np.floor(means2d[g, 0])  # means2d is float64
+            ay = np.floor(means2d[g, 1])
+            prm[s, _AX] = ax
+            prm[s, _AY] = ay
+            prm[s, _HX] = 0.5 - (means2d[g, 0] - ax)
+            prm[s, _HY] = 0.5 - (means2d[g, 1] - ay)
+            prm[s, _CA] = conic[g, 0]
+            prm[s, _CB] = conic[g, 1]
+            prm[s, _CC] = conic[g, 2]
+            prm[s, _OP] = opac[g]
+            prm[s, _Z] = depth[g]
+            for q in range(4):
+                pbox[s, q] = box[g, q]
+                prm[s, _BX + q] = box[g, q]
+            for q in range(3):
+                prm[s, _COL + q] = colors[g, min(q, colors.shape[1] - 1)]
+            for ch in range(colors.shape[1]):
+                pcol[s, ch] = colors[g, ch]
+            tx0, tx1 = box[g, 0] // TS, box[g, 1] // TS
+            ty0, ty1 = box[g, 2] // TS, box[g, 3] // TS
             per_g[s] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
-                    counts[ch, ty * tiles_x + tx] += 1
-    return counts, per_g
+                    counts[chunk, ty * tiles_x + tx] += 1
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _tile_offsets(counts: np.ndarray) -> tuple:
+    """From per-chunk tile histograms [n_chunks, n_tiles]: each tile's first entry [n_tiles + 1], each
+    chunk's first slot in each tile [n_chunks, n_tiles] and each chunk's first entry in Gaussian-major
+    order [n_chunks] (the prefix sums of the counting sort; parallel over tiles, one short serial scan)."""
+    n_chunks, n_tiles = counts.shape
+    tile_start = np.zeros(n_tiles + 1, np.int64)
+    cursor0 = np.empty((n_chunks, n_tiles), np.int64)
+    for t in prange(n_tiles):
+        run = 0
+        for ch in range(n_chunks):
+            cursor0[ch, t] = run
+            run += counts[ch, t]
+        tile_start[t + 1] = run
+    for t in range(n_tiles):
+        tile_start[t + 1] += tile_start[t]
+    for t in prange(n_tiles):
+        for ch in range(n_chunks):
+            cursor0[ch, t] += tile_start[t]
+    per_chunk = np.empty(n_chunks, np.int64)
+    for ch in prange(n_chunks):
+        per_chunk[ch] = counts[ch].sum()
+    chunk_base = np.zeros(n_chunks, np.int64)
+    for ch in range(1, n_chunks):
+        chunk_base[ch] = chunk_base[ch - 1] + per_chunk[ch - 1]
+    return tile_start, cursor0, chunk_base
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _tile_fill(
-    pbox: np.ndarray, tiles_x: int, cursor0: np.ndarray, goff: np.ndarray, tile_ids: np.ndarray,
-    entry_pos: np.ndarray,
+    pbox: np.ndarray, tiles_x: int, cursor0: np.ndarray, chunk_base: np.ndarray, goff: np.ndarray,
+    tile_ids: np.ndarray, entry_row: np.ndarray,
 ) -> None:
-    """Counting-sort scatter: each chunk writes its Gaussians (in depth order) at its own cursors."""
+    """Counting-sort scatter: each chunk writes its Gaussians (in depth order) at its own cursors.
+
+    ``chunk_base[ch]`` is the number of entries of the chunks before ``ch``: each chunk runs its part
+    of the exclusive prefix sum ``goff`` (first entry of each Gaussian, Gaussian-major) itself.
+    """
     m = pbox.shape[0]
     n_chunks = cursor0.shape[0]
     step = (m + n_chunks - 1) // n_chunks
     for ch in prange(n_chunks):
         cur = cursor0[ch].copy()
+        e = chunk_base[ch]
         for s in range(ch * step, min(m, (ch + 1) * step)):
             tx0, tx1 = pbox[s, 0] // TS, pbox[s, 1] // TS
             ty0, ty1 = pbox[s, 2] // TS, pbox[s, 3] // TS
-            e = goff[s]
+            goff[s] = e
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
                     t = ty * tiles_x + tx
                     tile_ids[cur[t]] = s
-                    entry_pos[e] = cur[t]
+                    entry_row[cur[t]] = e
                     cur[t] += 1
                     e += 1
 
@@ -938,7 +1050,7 @@ def _bwd_entry(
 @njit(cache=True, error_model="numpy")
 def _entry_sums(S: np.ndarray, rows: int, gy0: int, gy1: int, j0: int, nl: int, nq: int, out: np.ndarray,
                 k: int) -> None:
-    """out[k, q] = sum of gradient plane q over the visited rows and lanes of one entry.
+    """out[k, q] = sum of gradient plane q over the visited rows and lanes of one entry (row ``k``).
 
     Eight independent column accumulators (the SLP vectorizer turns them into one vector), summed
     down the rows, then across: a fixed order, so the result does not depend on threads.
@@ -991,6 +1103,7 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
         g_color: np.ndarray,  # [H, W, C] f32 dL/d(color before background)
         g_alpha: np.ndarray,  # [H, W] f32
         g_dnum: np.ndarray,  # [H, W] f32 dL/d(sum w z)
+        entry_row: np.ndarray,  # [E] i64 row of each tile-list entry in entry_grads (Gaussian-major)
         entry_grads: np.ndarray,  # out [E, 9 + C] f32: mx, my, |mx|, |my|, conic a, b, c, opacity, z, colors
     ) -> None:
         n_ch = pcol.shape[1]
@@ -1006,7 +1119,7 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
             k_end = tile_end[t]
             for k in range(k_end, end):
                 for q in range(nq):
-                    entry_grads[k, q] = _ZERO  # entries the forward never reached
+                    entry_grads[entry_row[k], q] = _ZERO  # entries the forward never reached
             if k_end == start:
                 continue
             S = np.zeros(ugc + n_ch * npx)
@@ -1047,30 +1160,62 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
                 else:
                     rows = _bwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, rgb,
                                       render_depth)
-                _entry_sums(S, rows, gy0, gy1, j0, nl, nq, entry_grads, k)
+                _entry_sums(S, rows, gy0, gy1, j0, nl, nq, entry_grads, entry_row[k])
 
     return kernel
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _reduce_entries(
-    order: np.ndarray, goff: np.ndarray, per_g: np.ndarray, entry_pos: np.ndarray, entry_grads: np.ndarray,
-    out: np.ndarray,  # out [N, 9 + C] f32 per Gaussian; rows of culled Gaussians stay as they are (zero)
+    order: np.ndarray, goff: np.ndarray, per_g: np.ndarray, entry_grads: np.ndarray,
+    reason: np.ndarray,  # [N] i8: rows of culled Gaussians are set to zero
+    g_m2: np.ndarray,  # out [N, 2] f32 dL/d means2d
+    g_abs: np.ndarray,  # out [N, 2] f32 absolute 2D gradient (AbsGS)
+    g_con: np.ndarray,  # out [N, 3] f32 dL/d conic
+    g_op: np.ndarray,  # out [N] f32 dL/d opacity
+    g_z: np.ndarray,  # out [N] f32 dL/d depth
+    g_col: np.ndarray,  # out [N, C] f32 dL/d colors
 ) -> None:
-    """Sum each Gaussian's per-(tile, Gaussian) gradient rows (in tile order: deterministic)."""
+    """Sum each Gaussian's per-(tile, Gaussian) gradient rows (in tile order: deterministic) straight
+    into the per-quantity gradient arrays (no [N, 9 + C] staging array and no serial column copies).
+
+    The backward wrote each entry's row at its Gaussian-major position, so a Gaussian's rows are
+    consecutive (rows ``goff[s]`` to ``goff[s] + per_g[s]``, in tile order) and this pass streams
+    through memory. Each visible Gaussian is one sorted position, summed by one thread: no
+    atomics, and the sums do not depend on the thread count.
+    """
     nq = entry_grads.shape[1]
-    n_e = entry_pos.shape[0]
+    for i in prange(reason.shape[0]):
+        if reason[i] != 0:
+            for q in range(2):
+                g_m2[i, q] = _ZERO
+                g_abs[i, q] = _ZERO
+            for q in range(3):
+                g_con[i, q] = _ZERO
+            g_op[i] = _ZERO
+            g_z[i] = _ZERO
+            for q in range(g_col.shape[1]):
+                g_col[i, q] = _ZERO
     for s in prange(goff.shape[0]):
         e0 = goff[s]
+        e1 = e0 + per_g[s]
         g = order[s]
         for q in range(nq):
-            out[g, q] = _ZERO
-        for e in range(e0, e0 + per_g[s]):
-            if e + 2 * _PREFETCH < n_e:  # the rows sit in different tiles' lists
-                _prefetch(entry_grads, entry_pos[e + 2 * _PREFETCH])
-            row = entry_pos[e]
-            for q in range(nq):
-                out[g, q] = min(max(out[g, q] + entry_grads[row, q], -_GMAX32), _GMAX32)  # saturate
+            acc = _ZERO
+            for e in range(e0, e1):
+                acc = min(max(acc + entry_grads[e, q], -_GMAX32), _GMAX32)  # saturate
+            if q < 2:
+                g_m2[g, q] = acc
+            elif q < 4:
+                g_abs[g, q - 2] = acc
+            elif q < 7:
+                g_con[g, q - 4] = acc
+            elif q == 7:
+                g_op[g] = acc
+            elif q == 8:
+                g_z[g] = acc
+            else:
+                g_col[g, q - _NQ] = acc
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -1120,6 +1265,22 @@ def _replay_pairs(
 _KERNELS: dict[tuple[str, bool, bool, bool], Any] = {}
 #: Tiles per work item of the compositing loops (dynamic scheduling absorbs uneven tiles and busy cores).
 _TILE_CHUNK = 4
+#: Chunks per thread of the counting sort into tiles (see ``RenderJob._bin``).
+_SORT_CHUNKS_PER_THREAD = 8
+#: Fewer tiles than this per thread and the work items shrink to one tile (see :func:`_tile_chunk`).
+_TILES_PER_THREAD = 64
+
+
+def _tile_chunk(n_tiles: int) -> int:
+    """Tiles per work item of the compositing loops for this many tiles and the current threads.
+
+    Four neighbouring tiles per item keep their shared records in cache, but the last items then
+    decide when the loop ends: with 510 tiles (480x270) a greedy schedule of the measured per-tile
+    costs ends 31 % after the ideal at 16 threads with items of 4 tiles, 0.9 % with single tiles
+    (0.02 % either way at 2 threads; docs/design.md §8). Single tiles once a thread gets fewer
+    than ``_TILES_PER_THREAD`` tiles.
+    """
+    return _TILE_CHUNK if n_tiles >= _TILES_PER_THREAD * numba.get_num_threads() else 1
 
 
 def _kernel(which: str, n_channels: int, render_depth: bool) -> Any:
@@ -1142,13 +1303,58 @@ def _kernel(which: str, n_channels: int, render_depth: bool) -> Any:
 # ---------------------------------------------------------------------------------------------------
 
 
-def _aligned_empty(shape: tuple[int, int], dtype: type, align: int = 64) -> np.ndarray:
+def _aligned_empty(shape: tuple[int, ...], dtype: type, align: int = 64) -> np.ndarray:
     """An uninitialised C array whose first element sits on an ``align``-byte boundary."""
     n = int(np.prod(shape))
     itemsize = np.dtype(dtype).itemsize
     raw: np.ndarray = np.empty(n + align // itemsize, dtype)
     skip = (-raw.ctypes.data % align) // itemsize
     return raw[skip:skip + n].reshape(shape)
+
+
+class _ScratchPool:
+    """Large internal arrays of a render, reused by later renders instead of freshly mapped.
+
+    glibc serves allocations above its mmap threshold (32 MiB at most) with fresh pages, which the
+    kernel faults in and zeroes on first touch: ~8 ms for the 83 MB float64 sums of a 1920x1080
+    frame, every call. Arrays of at least ``min_bytes`` come from here; a job gives them back when
+    it is done (its backward, or its garbage collection), and at most ``max_bytes`` wait here.
+    Never used for arrays handed to the caller (images, gradients, per-Gaussian outputs).
+    """
+
+    def __init__(self, min_bytes: int, max_bytes: int) -> None:
+        self.min_bytes, self.max_bytes = min_bytes, max_bytes
+        self._free: list[np.ndarray] = []
+        self._lock = threading.Lock()
+
+    def take(self, shape: tuple[int, ...], dtype: Any, owner: list[np.ndarray]) -> np.ndarray:
+        """An uninitialised C array of ``shape``, 64-byte aligned; its storage is appended to ``owner``."""
+        itemsize = np.dtype(dtype).itemsize
+        nbytes = int(np.prod(shape)) * itemsize
+        if nbytes < self.min_bytes:
+            return _aligned_empty(shape, dtype)
+        raw = None
+        with self._lock:
+            fits = [i for i, b in enumerate(self._free) if nbytes + 64 <= b.nbytes <= 2 * nbytes + 64]
+            if fits:
+                raw = self._free.pop(min(fits, key=lambda i: self._free[i].nbytes))
+        if raw is None:
+            raw = np.empty(nbytes + 64, np.uint8)
+        owner.append(raw)
+        skip = -raw.ctypes.data % 64
+        return raw[skip:skip + nbytes].view(dtype).reshape(shape)
+
+    def give(self, owner: list[np.ndarray]) -> None:
+        """Return the storage listed in ``owner`` (emptied); the oldest beyond ``max_bytes`` is dropped."""
+        with self._lock:
+            self._free.extend(owner)
+            owner.clear()
+            while sum(b.nbytes for b in self._free) > self.max_bytes:
+                self._free.pop(0)
+
+
+#: Arrays of 8 MiB and more (a 1080p frame's sums and entry gradients) are pooled, up to 512 MiB.
+_SCRATCH = _ScratchPool(8 << 20, 512 << 20)
 
 
 def _as_f32(t: torch.Tensor) -> np.ndarray:
@@ -1170,11 +1376,15 @@ class RenderJob:
 
     Attributes
     ----------
-    means2d [N, 2] float64, radii [N, 2] int32, depths [N] float32 : ndarray
-        Per-Gaussian outputs of the projection (zeros for culled Gaussians).
+    means2d [N, 2] float64, means2d_f32 [N, 2] float32, radii [N, 2] int32, depths [N] float32 : ndarray
+        Per-Gaussian outputs of the projection (zeros for culled Gaussians); the job never writes
+        them again, so :func:`rasterize` hands them to torch without a copy.
     meta : dict
         Counters (see :class:`RenderOutput`); ``n_tile_entries`` and ``n_pairs`` are filled by
-        :meth:`forward`.
+        :meth:`forward`; ``phase_ms`` (dict of str to float) the wall time of each phase so far:
+        ``project``, ``sort``, ``bin`` (at :meth:`forward`), ``fwd_blend``, then ``bwd_blend``,
+        ``bwd_reduce`` and ``bwd_project`` (at :meth:`backward`). ``wcbench bench raster`` reads
+        them; what a call spends outside them is the torch glue (docs/design.md §8).
     """
 
     def __init__(
@@ -1193,97 +1403,120 @@ class RenderJob:
         self.n_channels = self.colors.shape[1]
         self.render_depth = render_depth
         n = self.means.shape[0]
+        # Pooled internal arrays (acc_img, records, tile lists), returned when the job is collected.
+        self._scratch: list[np.ndarray] = []
+        weakref.finalize(self, _SCRATCH.give, self._scratch)
         self.means2d = np.empty((n, 2))
+        self.means2d_f32 = np.empty((n, 2), np.float32)
         self.conic = np.empty((n, 3), np.float32)
         self.depths = np.empty(n, np.float32)
         self.box = np.empty((n, 4), np.int32)
-        self.ext = np.empty((n, 2))
+        self.radii = np.empty((n, 2), np.int32)
         self.reason = np.empty(n, np.int8)
+        t0 = time.perf_counter()
         if n:
             _project_kernel(self.means, self.quats, self.scales, self.opac, self.colors, self.V, self.tvec,
-                            self.intr, width, height, float(near), float(far), self.means2d,
-                            self.conic, self.depths, self.box, self.ext, self.reason)
-        self.radii = np.ceil(self.ext).astype(np.int32)
+                            self.intr, width, height, float(near), float(far), self.means2d, self.means2d_f32,
+                            self.conic, self.depths, self.box, self.radii, self.reason)
+        # The visible set and the cull counters in one chunked parallel pass (docs/design.md §8).
+        self._vis, self._vis_bits, counts = _visible_keys(self.reason, self.depths, _n_chunks(n))
         self.meta: dict[str, Any] = empty_meta("numba", n)
-        self.meta.update(cull_counts(torch.from_numpy(self.reason)))
+        self.meta.update(counts_meta(counts.tolist()))
+        self.phase_ms: dict[str, float] = {"project": 1e3 * (time.perf_counter() - t0)}
+        self.meta["phase_ms"] = self.phase_ms
 
     def _bin(self) -> None:
         self.tiles_x = -(-self.width // TS)
         self.tiles_y = -(-self.height // TS)
         n_tiles = self.tiles_x * self.tiles_y
-        vis = np.flatnonzero(self.reason == 0)
+        t0 = time.perf_counter()
         # One global front-to-back sort (ties by index): positive float32 bits sort like the floats.
-        self.order = vis[depth_order(np.ascontiguousarray(self.depths[vis]).view(np.uint32))].astype(np.int64)
-        m = len(self.order)
-        self.prm = _aligned_empty((m, _NPRM), np.float32)
+        m = len(self._vis)
+        self.order = _radix_sort(self._vis_bits, self._vis, _n_chunks(m))  # overwrites both inputs
+        del self._vis, self._vis_bits
+        t1 = time.perf_counter()
+        self.phase_ms["sort"] = 1e3 * (t1 - t0)
+        self.prm = _SCRATCH.take((m, _NPRM), np.float32, self._scratch)
         self.pbox = np.empty((m, 4), np.int32)
         self.pcol = np.empty((m, self.n_channels), np.float32)
-        n_chunks = max(1, min(4 * numba.get_num_threads(), m // 4096 + 1))
+        # Chunks of the counting sort: contiguous runs of the depth order, several per thread and
+        # handed out one at a time, because near Gaussians cover more tiles than far ones and the
+        # first runs cost the most (equal static shares measured 1.6-1.8x from 1 to 2 threads).
+        n_chunks = max(1, min(_SORT_CHUNKS_PER_THREAD * numba.get_num_threads(), m // 2048 + 1))
+        counts = np.zeros((n_chunks, n_tiles), np.int64)
+        self.per_g = np.empty(m, np.int64)
         if m:
-            _gather_sorted(self.order, self.means2d, self.conic, self.opac, self.depths, self.box, self.colors,
-                           self.prm, self.pbox, self.pcol)
-        counts, self.per_g = _tile_counts(self.pbox, self.tiles_x, n_tiles, n_chunks)
-        per_tile = counts.sum(0)
-        self.tile_start = np.zeros(n_tiles + 1, np.int64)
-        np.cumsum(per_tile, out=self.tile_start[1:])
-        cursor0 = self.tile_start[:-1][None, :] + (np.cumsum(counts, 0) - counts)
-        self.goff = np.zeros(m, np.int64)
-        if m > 1:
-            np.cumsum(self.per_g[:-1], out=self.goff[1:])
+            with numba.parallel_chunksize(1):
+                _gather_sorted(self.order, self.means2d, self.conic, self.opac, self.depths, self.box, self.colors,
+                               self.prm, self.pbox, self.pcol, self.tiles_x, counts, self.per_g)
+        self.tile_start, cursor0, chunk_base = _tile_offsets(counts)
+        self.goff = np.empty(m, np.int64)
         n_entries = int(self.tile_start[-1])
-        self.tile_ids = np.empty(n_entries, np.int32)
-        self.entry_pos = np.empty(n_entries, np.int64)
-        _tile_fill(self.pbox, self.tiles_x, np.ascontiguousarray(cursor0), self.goff, self.tile_ids,
-                   self.entry_pos)
+        self.tile_ids = _SCRATCH.take((n_entries,), np.int32, self._scratch)
+        self.entry_row = _SCRATCH.take((n_entries,), np.int64, self._scratch)
+        with numba.parallel_chunksize(1):
+            _tile_fill(self.pbox, self.tiles_x, cursor0, chunk_base, self.goff, self.tile_ids, self.entry_row)
         # Even tiles, then odd ones, handed out in chunks of a few: neighbouring tiles share Gaussians
         # (records stay in cache; heaviest-first order measured 1.6x slower), and sky and street rows
         # are spread over both threads.
         tiles = np.arange(n_tiles, dtype=np.int64)
         self.tile_order = np.concatenate([tiles[0::2], tiles[1::2]])
         self.meta["n_tile_entries"] = n_entries
+        self.phase_ms["bin"] = 1e3 * (time.perf_counter() - t1)
 
     def forward(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Composite: color before background [H, W, C], alpha [H, W], sum(w z) [H, W] (float32)."""
         self._bin()
+        t0 = time.perf_counter()
         h, w, c = self.height, self.width, self.n_channels
-        self.acc_img = np.empty((h, w, c + 2))
+        self.acc_img = _SCRATCH.take((h, w, c + 2), np.float64, self._scratch)
         color = np.empty((h, w, c), np.float32)
         alpha = np.empty((h, w), np.float32)
         dnum = np.zeros((h, w) if self.render_depth else (1, 1), np.float32)
         n_tiles = len(self.tile_order)
         self.tile_end = np.empty(n_tiles, np.int64)
         tile_pairs = np.zeros(n_tiles, np.int64)
-        with numba.parallel_chunksize(_TILE_CHUNK):
+        with numba.parallel_chunksize(_tile_chunk(n_tiles)):
             _kernel("forward", self.n_channels, self.render_depth)(
                 self.tile_start, self.tile_ids, self.tile_order, self.prm, self.pcol, w, h, self.tiles_x,
                 self.acc_img, color, alpha, dnum, self.tile_end, tile_pairs)
         self.meta["n_pairs"] = int(tile_pairs.sum())
+        self.phase_ms["fwd_blend"] = 1e3 * (time.perf_counter() - t0)
         return color, alpha, dnum
 
     def backward(
         self, g_color: np.ndarray, g_alpha: np.ndarray, g_dnum: np.ndarray
     ) -> tuple[np.ndarray, ...]:
         """Gradients for (means, quats, scales, opacities, colors, means2d, means2d_abs)."""
+        t0 = time.perf_counter()
         n, c = self.means.shape[0], self.n_channels
-        entry_grads = np.empty((len(self.tile_ids), _NQ + c), np.float32)
+        local: list[np.ndarray] = []
+        entry_grads = _SCRATCH.take((len(self.tile_ids), _NQ + c), np.float32, local)
         if not self.render_depth:
             g_dnum = np.zeros((1, 1), np.float32)
-        with numba.parallel_chunksize(_TILE_CHUNK):
+        with numba.parallel_chunksize(_tile_chunk(len(self.tile_order))):
             _kernel("backward", self.n_channels, self.render_depth)(
                 self.tile_start, self.tile_ids, self.tile_order, self.tile_end, self.prm, self.pcol, self.width,
-                self.height, self.tiles_x, self.acc_img, g_color, g_alpha, g_dnum, entry_grads)
-        per = np.zeros((n, _NQ + c), np.float32)
-        _reduce_entries(self.order, self.goff, self.per_g, self.entry_pos, entry_grads, per)
+                self.height, self.tiles_x, self.acc_img, g_color, g_alpha, g_dnum, self.entry_row, entry_grads)
+        t1 = time.perf_counter()
+        g_m2, g_abs = np.empty((n, 2), np.float32), np.empty((n, 2), np.float32)
+        g_con, g_col = np.empty((n, 3), np.float32), np.empty((n, c), np.float32)
+        g_op, g_z = np.empty(n, np.float32), np.empty(n, np.float32)
+        if n:
+            _reduce_entries(self.order, self.goff, self.per_g, entry_grads, self.reason, g_m2, g_abs,
+                            g_con, g_op, g_z, g_col)
+        _SCRATCH.give(local)
+        t2 = time.perf_counter()
         g_means = np.empty((n, 3), np.float32)
         g_quats = np.empty((n, 4), np.float32)
         g_scales = np.empty((n, 3), np.float32)
         if n:
             _project_backward(self.means, self.quats, self.scales, self.V, self.tvec, self.intr, self.width,
-                              self.height, self.reason, np.ascontiguousarray(per[:, 0:2]),
-                              np.ascontiguousarray(per[:, 4:7]), np.ascontiguousarray(per[:, 8]),
-                              g_means, g_quats, g_scales)
-        return (g_means, g_quats, g_scales, np.ascontiguousarray(per[:, 7]), np.ascontiguousarray(per[:, _NQ:]),
-                np.ascontiguousarray(per[:, 0:2]), np.ascontiguousarray(per[:, 2:4]))
+                              self.height, self.reason, g_m2, g_con, g_z, g_means, g_quats, g_scales)
+        out = (g_means, g_quats, g_scales, g_op, g_col, g_m2, g_abs)
+        t3 = time.perf_counter()
+        self.phase_ms.update(bwd_blend=1e3 * (t1 - t0), bwd_reduce=1e3 * (t2 - t1), bwd_project=1e3 * (t3 - t2))
+        return out
 
     def composited_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """The (Gaussian, pixel) pairs the forward composited, grouped by pixel, front to back.

@@ -206,9 +206,10 @@ def rasterize(
     _announce_compile(mod)
     job = mod.RenderJob(means, quats, scales, opacities, colors, viewmat_t, K_t, int(width), int(height),
                         near=float(near), far=float(far), render_depth=render_depth)
-    means2d = torch.from_numpy(job.means2d.astype(np.float32))
-    radii = torch.from_numpy(job.radii.copy())
-    depths = torch.from_numpy(job.depths.copy())
+    # The projection's own arrays, not copies: the job only reads them from here on.
+    means2d = torch.from_numpy(job.means2d_f32)
+    radii = torch.from_numpy(job.radii)
+    depths = torch.from_numpy(job.depths)
     params = (means, quats, scales, opacities, colors)
     grads_on = torch.is_grad_enabled() and any(t.requires_grad for t in params)
     means2d_abs = None

@@ -132,7 +132,8 @@ def _boxes(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Pixel boxes [N, 4] int64 (x0, x1, y0, y1 inclusive, clipped) and half-extents [N, 2] (px)."""
     op = opacities.to(torch.float64).clamp_min(ALPHA_MIN)
-    # Beyond sqrt(2 ln(255 o)) sigmas every pair would be skipped (alpha < 1/255): see box_extent_sigmas.
+    # Beyond sqrt(2 ln(255 o)) sigmas o exp(-q / 2) < 1/255 and every pair would be skipped: the box is
+    # the smaller of that and SIGMA_EXTENT sigmas.
     k = torch.sqrt(2.0 * torch.log(255.0 * op)).clamp_max(SIGMA_EXTENT)
     ext = torch.stack([k * torch.sqrt(cov[:, 0]), k * torch.sqrt(cov[:, 2])], -1).clamp_max(MAX_EXTENT)
     # Pixel i (center i + 0.5) is in the box when |i + 0.5 - mx| <= ext_x.

@@ -34,10 +34,12 @@ from wcbench.reference_model.scene_graph.nodes import RigidNode, SceneGaussians
 from wcbench.reference_model.transforms import apply_linear
 
 __all__ = [
+    "LidarInitOptions",
     "colored_lidar_points",
     "estimate_sky_color",
     "init_from_lidar",
     "init_scene_from_lidar",
+    "moving_tracks",
     "sample_image",
     "voxel_downsample",
 ]
@@ -179,78 +181,34 @@ def colored_lidar_points(
     return np.concatenate(pts_all), np.concatenate(col_all), np.concatenate(frame_all)
 
 
-@dataclass(frozen=True)
-class _Options:
-    """Checked options shared by :func:`init_from_lidar` and :func:`init_scene_from_lidar`."""
-
-    voxel_m: float
-    opacity: float
-    knn: int
-    scale_factor: float
-    min_scale_m: float
-    max_scale_m: float
-    max_angular_scale: float
-    min_points: int
-
-    @classmethod
-    def make(
-        cls,
-        *,
-        voxel_m: float,
-        opacity: float,
-        knn: int,
-        scale_factor: float,
-        min_scale_m: float | None,
-        max_scale_m: float,
-        max_angular_scale: float,
-        min_points: int,
-    ) -> _Options:
-        if not voxel_m > 0 or math.isinf(voxel_m):
-            raise ValueError(f"voxel_m must be a positive finite size (m), got {voxel_m}")
-        if not 0 < opacity <= 1:
-            raise ValueError(f"opacity must be in (0, 1], got {opacity}")
-        if knn < 1:
-            raise ValueError(f"knn must be >= 1, got {knn}")
-        if not scale_factor > 0:
-            raise ValueError(f"scale_factor must be > 0, got {scale_factor}")
-        if not max_angular_scale > 0:
-            raise ValueError(f"max_angular_scale must be > 0 radians, got {max_angular_scale}")
-        if min_points < 1:
-            raise ValueError(f"min_points must be >= 1, got {min_points}")
-        low = voxel_m / 5.0 if min_scale_m is None else float(min_scale_m)
-        if not 0 < low <= max_scale_m:
-            raise ValueError(f"need 0 < min_scale_m <= max_scale_m, got {low}, {max_scale_m}")
-        return cls(voxel_m, opacity, knn, scale_factor, low, max_scale_m, max_angular_scale, min_points)
-
-    def cloud(
-        self, points: np.ndarray, colors: np.ndarray, ranges: np.ndarray, *, voxel_m: float | None = None
-    ) -> GaussianCloud:
-        """Voxel-downsampled isotropic Gaussians of colored points seen at ``ranges`` (m)."""
-        voxel = self.voxel_m if voxel_m is None else voxel_m
-        values = np.concatenate([colors, ranges[:, None]], 1)
-        means, avg, counts = voxel_downsample(points, values, voxel)
-        rgb, rng = avg[:, :3], avg[:, 3]
-        spacing = _knn_scale(means, self.knn)
-        # A lone return far from any other is noise (a bird, a spray droplet, a multipath hit); as
-        # a Gaussian as wide as its distance to the neighbours it would be a blob in front of the
-        # camera. Dense voxels and points with close neighbours stay.
-        keep = (counts >= self.min_points) | (spacing <= 3.0 * voxel)
-        means, rgb, rng, spacing = means[keep], rgb[keep], rng[keep], spacing[keep]
-        # No wider than a fixed angle seen from the sensor: sparse far points may grow, near ones
-        # (a few centimetres of lidar spacing) may not.
-        upper = np.minimum(self.max_scale_m, self.max_angular_scale * rng)
-        scales = np.clip(self.scale_factor * spacing, min(self.min_scale_m, voxel / 5.0), None)
-        scales = np.maximum(np.minimum(scales, upper), min(self.min_scale_m, voxel / 5.0))
-        n = len(means)
-        quats = np.zeros((n, 4), np.float32)
-        quats[:, 0] = 1.0
-        return GaussianCloud(
-            means=means,
-            quats=quats,
-            scales=np.repeat(scales[:, None], 3, axis=1),
-            opacities=np.full(n, self.opacity, np.float32),
-            colors=np.clip(rgb, 0.0, 1.0),
-        )
+def _cloud(opts: LidarInitOptions, points: np.ndarray, colors: np.ndarray, ranges: np.ndarray, *,
+           voxel_m: float | None = None) -> GaussianCloud:
+    """Voxel-downsampled isotropic Gaussians of colored points seen at ``ranges`` (m)."""
+    voxel = opts.voxel_m if voxel_m is None else voxel_m
+    values = np.concatenate([colors, ranges[:, None]], 1)
+    means, avg, counts = voxel_downsample(points, values, voxel)
+    rgb, rng = avg[:, :3], avg[:, 3]
+    spacing = _knn_scale(means, opts.knn)
+    # A lone return far from any other is noise (a bird, a spray droplet, a multipath hit); as
+    # a Gaussian as wide as its distance to the neighbours it would be a blob in front of the
+    # camera. Dense voxels and points with close neighbours stay.
+    keep = (counts >= opts.min_points) | (spacing <= 3.0 * voxel)
+    means, rgb, rng, spacing = means[keep], rgb[keep], rng[keep], spacing[keep]
+    # No wider than a fixed angle seen from the sensor: sparse far points may grow, near ones
+    # (a few centimetres of lidar spacing) may not.
+    upper = np.minimum(opts.max_scale_m, opts.max_angular_scale * rng)
+    scales = np.clip(opts.scale_factor * spacing, min(opts.min_scale, voxel / 5.0), None)
+    scales = np.maximum(np.minimum(scales, upper), min(opts.min_scale, voxel / 5.0))
+    n = len(means)
+    quats = np.zeros((n, 4), np.float32)
+    quats[:, 0] = 1.0
+    return GaussianCloud(
+        means=means,
+        quats=quats,
+        scales=np.repeat(scales[:, None], 3, axis=1),
+        opacities=np.full(n, opts.opacity, np.float32),
+        colors=np.clip(rgb, 0.0, 1.0),
+    )
 
 
 def _ranges(scene: Any, points: np.ndarray, frame: np.ndarray) -> np.ndarray:
@@ -260,7 +218,7 @@ def _ranges(scene: Any, points: np.ndarray, frame: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ij,ij->i", d, d))
 
 
-def _moving_tracks(scene: Any, threshold_m: float) -> list[Any]:
+def moving_tracks(scene: Any, threshold_m: float = 0.5) -> list[Any]:
     """Tracks whose box center moves more than ``threshold_m`` over the sequence."""
     out = []
     for track in scene.tracks:
@@ -303,31 +261,16 @@ def _split_moving(
     return static, members
 
 
-def init_from_lidar(
-    scene: Any,
-    *,
-    voxel_m: float = 0.2,
-    frames: Iterable[int] | None = None,
-    opacity: float = 0.9,
-    knn: int = 3,
-    scale_factor: float = 0.5,
-    min_scale_m: float | None = None,
-    max_scale_m: float = 0.5,
-    max_angular_scale: float = 0.02,
-    min_points: int = 2,
-    moving_objects: str = "drop",
-    moving_threshold_m: float = 0.5,
-    box_margin_m: float = 0.2,
-) -> GaussianCloud:
-    """Static Gaussians from a scene's lidar, colored by its images.
+@dataclass(frozen=True)
+class LidarInitOptions:
+    """How Gaussians are initialised from the lidar (:func:`init_from_lidar`, :func:`init_scene_from_lidar`).
 
-    Parameters
+    Attributes
     ----------
-    scene : wcbench.scenes.scene.Scene
     voxel_m : float
-        Voxel edge of the downsampling (m).
-    frames : iterable of int, optional
-        Frames whose sweeps to use (default: all that have one).
+        Voxel edge of the downsampling of the static cloud (m).
+    node_voxel_m : float
+        Voxel edge of the object clouds of :func:`init_scene_from_lidar` (m); finer, objects are small.
     opacity : float
         Initial opacity in (0, 1]. 0.9 renders a viewable scene; 3DGS training starts from 0.1.
     knn : int
@@ -345,14 +288,73 @@ def init_from_lidar(
     min_points : int
         A voxel with fewer raw points is dropped when its nearest neighbours are farther than 3
         voxels (isolated returns: noise).
-    moving_objects : {"drop", "keep"}
-        ``"drop"`` removes the points inside the boxes of moving tracks (see
-        :func:`init_scene_from_lidar` to keep them as rigid nodes); ``"keep"`` accumulates every
-        sweep as is (moving objects leave trails).
     moving_threshold_m : float
         A track whose box center moves more than this is moving (m).
     box_margin_m : float
         Growth of the boxes when cutting points out (m).
+
+    Raises
+    ------
+    ValueError
+        On out-of-range options (on construction).
+    """
+
+    voxel_m: float = 0.2
+    node_voxel_m: float = 0.1
+    opacity: float = 0.9
+    knn: int = 3
+    scale_factor: float = 0.5
+    min_scale_m: float | None = None
+    max_scale_m: float = 0.5
+    max_angular_scale: float = 0.02
+    min_points: int = 2
+    moving_threshold_m: float = 0.5
+    box_margin_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        if not self.voxel_m > 0 or math.isinf(self.voxel_m):
+            raise ValueError(f"voxel_m must be a positive finite size (m), got {self.voxel_m}")
+        if not self.node_voxel_m > 0:
+            raise ValueError(f"node_voxel_m must be > 0 metres, got {self.node_voxel_m}")
+        if not 0 < self.opacity <= 1:
+            raise ValueError(f"opacity must be in (0, 1], got {self.opacity}")
+        if self.knn < 1:
+            raise ValueError(f"knn must be >= 1, got {self.knn}")
+        if not self.scale_factor > 0:
+            raise ValueError(f"scale_factor must be > 0, got {self.scale_factor}")
+        if not self.max_angular_scale > 0:
+            raise ValueError(f"max_angular_scale must be > 0 radians, got {self.max_angular_scale}")
+        if self.min_points < 1:
+            raise ValueError(f"min_points must be >= 1, got {self.min_points}")
+        if not 0 < self.min_scale <= self.max_scale_m:
+            raise ValueError(f"need 0 < min_scale_m <= max_scale_m, got {self.min_scale}, {self.max_scale_m}")
+
+    @property
+    def min_scale(self) -> float:
+        """``min_scale_m``, or a fifth of ``voxel_m`` when it is not set (m)."""
+        return self.voxel_m / 5.0 if self.min_scale_m is None else float(self.min_scale_m)
+
+
+def init_from_lidar(
+    scene: Any,
+    options: LidarInitOptions | None = None,
+    *,
+    frames: Iterable[int] | None = None,
+    moving_objects: str = "drop",
+) -> GaussianCloud:
+    """Static Gaussians from a scene's lidar, colored by its images.
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+    options : LidarInitOptions, optional
+        Voxel size, opacity, scales, noise and moving-object settings (default: its defaults).
+    frames : iterable of int, optional
+        Frames whose sweeps to use (default: all that have one).
+    moving_objects : {"drop", "keep"}
+        ``"drop"`` removes the points inside the boxes of moving tracks (see
+        :func:`init_scene_from_lidar` to keep them as rigid nodes); ``"keep"`` accumulates every
+        sweep as is (moving objects leave trails).
 
     Returns
     -------
@@ -364,59 +366,37 @@ def init_from_lidar(
     InputError
         If the scene has no lidar point inside any camera image.
     ValueError
-        On out-of-range options.
+        On an unknown ``moving_objects``.
     """
     if moving_objects not in ("drop", "keep"):
         raise ValueError(f"moving_objects must be 'drop' or 'keep', got {moving_objects!r}")
-    opts = _Options.make(
-        voxel_m=voxel_m,
-        opacity=opacity,
-        knn=knn,
-        scale_factor=scale_factor,
-        min_scale_m=min_scale_m,
-        max_scale_m=max_scale_m,
-        max_angular_scale=max_angular_scale,
-        min_points=min_points,
-    )
+    opts = options or LidarInitOptions()
     points, colors, frame = colored_lidar_points(scene, frames=frames)
     if len(points) == 0:
         raise InputError(f"scene {scene.id!r} ({scene.root}): no lidar point projects into any camera image")
     ranges = _ranges(scene, points, frame)
     if moving_objects == "drop":
         static, _ = _split_moving(
-            scene, points, frame, _moving_tracks(scene, moving_threshold_m), box_margin_m
+            scene, points, frame, moving_tracks(scene, opts.moving_threshold_m), opts.box_margin_m
         )
         points, colors, ranges = points[static], colors[static], ranges[static]
-    return opts.cloud(points, colors, ranges)
+    return _cloud(opts, points, colors, ranges)
 
 
 def init_scene_from_lidar(
     scene: Any,
+    options: LidarInitOptions | None = None,
     *,
-    voxel_m: float = 0.2,
-    node_voxel_m: float = 0.1,
     frames: Iterable[int] | None = None,
-    opacity: float = 0.9,
-    knn: int = 3,
-    scale_factor: float = 0.5,
-    min_scale_m: float | None = None,
-    max_scale_m: float = 0.5,
-    max_angular_scale: float = 0.02,
-    min_points: int = 2,
-    moving_threshold_m: float = 0.5,
-    box_margin_m: float = 0.2,
 ) -> SceneGaussians:
     """Static Gaussians plus one rigid node per moving track, from the lidar and images.
 
     Parameters
     ----------
     scene : wcbench.scenes.scene.Scene
-    voxel_m : float
-        Voxel edge of the static cloud (m).
-    node_voxel_m : float
-        Voxel edge of the object clouds (m); finer, objects are small.
-    frames, opacity, knn, scale_factor, min_scale_m, max_scale_m, max_angular_scale, min_points,
-    moving_threshold_m, box_margin_m
+    options : LidarInitOptions, optional
+        As in :func:`init_from_lidar`; the object clouds use ``node_voxel_m``.
+    frames : iterable of int, optional
         As in :func:`init_from_lidar`.
 
     Returns
@@ -428,25 +408,14 @@ def init_scene_from_lidar(
     InputError
         If the scene has no lidar point inside any camera image.
     """
-    opts = _Options.make(
-        voxel_m=voxel_m,
-        opacity=opacity,
-        knn=knn,
-        scale_factor=scale_factor,
-        min_scale_m=min_scale_m,
-        max_scale_m=max_scale_m,
-        max_angular_scale=max_angular_scale,
-        min_points=min_points,
-    )
-    if not node_voxel_m > 0:
-        raise ValueError(f"node_voxel_m must be > 0 metres, got {node_voxel_m}")
+    opts = options or LidarInitOptions()
     points, colors, frame = colored_lidar_points(scene, frames=frames)
     if len(points) == 0:
         raise InputError(f"scene {scene.id!r} ({scene.root}): no lidar point projects into any camera image")
     ranges = _ranges(scene, points, frame)
-    tracks = _moving_tracks(scene, moving_threshold_m)
-    static, members = _split_moving(scene, points, frame, tracks, box_margin_m)
-    static_cloud = opts.cloud(points[static], colors[static], ranges[static])
+    tracks = moving_tracks(scene, opts.moving_threshold_m)
+    static, members = _split_moving(scene, points, frame, tracks, opts.box_margin_m)
+    static_cloud = _cloud(opts, points[static], colors[static], ranges[static])
     nodes = []
     for ti, idx in members.items():
         track = tracks[ti]
@@ -457,7 +426,7 @@ def init_scene_from_lidar(
             sel = point_frame == f
             T = np.asarray(track.object_to_world[frame_to_k[int(f)]], np.float64)
             local[sel] = apply_linear(points[idx[sel]] - T[:3, 3], T[:3, :3])
-        cloud = opts.cloud(local, colors[idx], ranges[idx], voxel_m=node_voxel_m)
+        cloud = _cloud(opts, local, colors[idx], ranges[idx], voxel_m=opts.node_voxel_m)
         nodes.append(
             RigidNode(
                 track_id=str(track.id),

@@ -33,7 +33,7 @@ from wcbench.reference_model.scene_graph.completion import (
     ground_height_below,
 )
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
-from wcbench.reference_model.scene_graph.lidar_init import init_scene_from_lidar, sample_image
+from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, init_scene_from_lidar, sample_image
 from wcbench.reference_model.training.config import TrainConfig
 from wcbench.reference_model.training.views import TrainingView
 
@@ -183,9 +183,9 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         Gaussian counts per node type, what was skipped and why.
     """
     frames = [v.frame for v in views]
-    graph = init_scene_from_lidar(scene, voxel_m=config.voxel_m, node_voxel_m=config.node_voxel_m,
-                                  frames=frames, opacity=config.init_opacity,
-                                  moving_threshold_m=config.moving_threshold_m)
+    options = LidarInitOptions(voxel_m=config.voxel_m, node_voxel_m=config.node_voxel_m, opacity=config.init_opacity,
+                               moving_threshold_m=config.moving_threshold_m)
+    graph = init_scene_from_lidar(scene, options, frames=frames)
     clouds = [graph.static]
     n_far = 0
     if config.far_points:

@@ -7,7 +7,7 @@ accumulated per Gaussian over the steps where it is visible. Every ``densify_int
 - Gaussians whose mean statistic exceeds ``densify_grad`` are **cloned** (small ones: a copy at the
   same place) or **split** (larger than ``split_scale`` x the scene extent: two Gaussians sampled
   from the original, scales / 1.6), the largest statistics first while the budget allows;
-- Gaussians with opacity below ``prune_opacity`` or wider than a tenth of the scene extent are
+- Gaussians with opacity below ``prune_opacity`` or wider than ``max_scale_m`` (the trainer: 0.3 x the scene extent) are
   **pruned**.
 
 The optimizer's moments follow every change (kept rows keep theirs, new rows start at zero), as
@@ -97,8 +97,10 @@ class DensifyStats:
 
     def add(self, grad_norm: torch.Tensor, visible: torch.Tensor) -> None:
         """Accumulate one step's |grad| [N] of the visible Gaussians [N] bool."""
-        self.grad[visible] += grad_norm[visible]
-        self.count[visible] += 1
+        # Dense masked adds, not boolean indexing: no nonzero / gather / scatter per node and step,
+        # and the same sums (x + 0 is x for the non-negative statistics).
+        self.grad += torch.where(visible, grad_norm, 0.0)
+        self.count += visible
 
     def mean(self) -> torch.Tensor:
         """[N] mean statistic over the steps each Gaussian was visible (0 if never)."""

@@ -31,6 +31,7 @@ from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import BACKGROUND, WeatherCityModel
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize
+from wcbench.reference_model.raster.threads import threads as thread_pools
 from wcbench.reference_model.training.config import TrainConfig
 from wcbench.reference_model.training.densify import DensifyStats, NodeOptimizer, densify_and_prune
 from wcbench.reference_model.training.losses import (
@@ -63,6 +64,12 @@ class StepLog:
     psnr_clear: float
     gaussians: int
     seconds: float
+    #: Wall time (ms) of the step's phases: ``data`` (view, targets), ``render`` (the model's forward:
+    #: scene graph, decoders, sky, rasterizer), ``losses`` (their forward), ``backward`` (every
+    #: backward, the rasterizer's included), ``stats`` (densification statistics), ``optimizer``,
+    #: ``densify`` and ``log``; ``raster`` holds the rasterizer's own phases (``RenderJob.phase_ms``).
+    phase_ms: dict[str, float] = field(default_factory=dict)
+    raster_ms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -93,6 +100,10 @@ class Trainer:
     hazes : mapping of str to Haze, optional
         The physics haze of each edited weather, composed into its render when
         ``config.through_haze`` (:mod:`~wcbench.reference_model.model.haze`).
+    threads : int, optional
+        Threads of numba, torch and BLAS together while :meth:`train` runs
+        (:func:`~wcbench.reference_model.raster.threads.set_threads`, restored after it); ``None``
+        leaves the pools as they are.
     """
 
     model: WeatherCityModel
@@ -101,6 +112,7 @@ class Trainer:
     content: ContentLoss | None = None
     hazes: Mapping[str, Haze] | None = None
     rasterizer: Callable[..., Any] = rasterize
+    threads: int | None = None
     step_index: int = 0
     history: list[StepLog] = field(default_factory=list)
     densify_log: list[dict[str, Any]] = field(default_factory=list)
@@ -183,10 +195,12 @@ class Trainer:
         all_weathers = len(self.weathers) > 1 and it % max(cfg.weather_interval, 1) == 0
         weathers = self.weathers if all_weathers else ("clear",)
         want_depth = cfg.depth_weight > 0 and tv.depth is not None
+        target = tv.targets["clear"] if len(weathers) == 1 else torch.cat([tv.targets[w] for w in weathers], -1)
+        marks = [("data", time.perf_counter())]
         render = self.model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, weathers,
                                    sky_grid=tv.grid, depth=want_depth, absgrad=True, rasterizer=self.rasterizer,
                                    hazes=self.hazes if cfg.through_haze else None)
-        target = torch.cat([tv.targets[w] for w in weathers], -1)
+        marks.append(("render", time.perf_counter()))
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
         terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
         logged: dict[str, float] = {f"rgb_{w}": float(x) for w, x in zip(weathers, per_weather.detach())}
@@ -209,20 +223,32 @@ class Trainer:
             terms.append((cfg.deform_weight, pen))
             logged["deform"] = float(pen.detach())
         loss = weighted_sum(terms)
+        marks.append(("losses", time.perf_counter()))
         loss.backward()
+        marks.append(("backward", time.perf_counter()))
         self._accumulate(render, v.width, v.height)
+        marks.append(("stats", time.perf_counter()))
         self._decay_means_lr()
         self.optimizer.step()
         self.optimizer.zero_grad()
         self.step_index += 1
+        marks.append(("optimizer", time.perf_counter()))
         if cfg.densify_from <= self.step_index <= cfg.densify_until and self.step_index % cfg.densify_interval == 0:
             self.densify()
+        marks.append(("densify", time.perf_counter()))
         with torch.no_grad():
             quality = psnr(render.image("clear").detach(), tv.targets["clear"])
-        seconds = time.perf_counter() - start
+        end = time.perf_counter()
+        marks.append(("log", end))
+        seconds = end - start
         self.train_seconds += seconds
+        phases, prev = {}, start
+        for name, t in marks:
+            phases[name] = 1e3 * (t - prev)
+            prev = t
         log = StepLog(step=it, frame=v.frame, loss=float(loss.detach()), terms=logged, psnr_clear=quality,
-                      gaussians=self.model.counts()["total"], seconds=seconds)
+                      gaussians=self.model.counts()["total"], seconds=seconds, phase_ms=phases,
+                      raster_ms=dict(render.raster.meta.get("phase_ms", {})))
         self.history.append(log)
         return log
 
@@ -271,14 +297,15 @@ class Trainer:
         ``checkpoint`` every ``config.checkpoint_interval`` steps and at the end."""
         stop = self.config.iterations if until is None else until
         logs = []
-        while self.step_index < stop:
-            log = self.step()
-            logs.append(log)
-            if callback is not None:
-                callback(log)
-            if checkpoint is not None and (self.step_index % self.config.checkpoint_interval == 0
-                                           or self.step_index == stop):
-                checkpoint(self)
+        with thread_pools(self.threads):
+            while self.step_index < stop:
+                log = self.step()
+                logs.append(log)
+                if callback is not None:
+                    callback(log)
+                if checkpoint is not None and (self.step_index % self.config.checkpoint_interval == 0
+                                               or self.step_index == stop):
+                    checkpoint(self)
         return logs
 
 

@@ -20,14 +20,14 @@ import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_float
+from wcbench.reference_model.scene_graph.lidar_init import moving_tracks
+from wcbench.reference_model.transforms import lidar_depth, project_points
 
 __all__ = [
     "TrainingView",
     "box_mask",
     "build_views",
     "derive_sky_mask",
-    "lidar_depth",
-    "moving_tracks",
     "resize_float",
 ]
 
@@ -99,27 +99,6 @@ def resize_float(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(img, tuple(size), interpolation=interp)
 
 
-def _project(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    p = np.asarray(points, np.float64) @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
-    z = p[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.stack([p[:, 0] / z * K[0, 0] + K[0, 2], p[:, 1] / z * K[1, 1] + K[1, 2]], 1)
-    return uv, z
-
-
-def lidar_depth(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray, width: int,
-                height: int) -> np.ndarray:
-    """[H, W] float32 z-depth (m) of world points, the nearest per pixel; 0 where none lands."""
-    uv, z = _project(points, world_to_camera, K)
-    ij = np.floor(uv).astype(np.int64)
-    ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
-    ij, z = ij[ok], z[ok]
-    order = np.argsort(-z)  # far first: the nearest point is written last
-    depth = np.zeros((height, width), np.float32)
-    depth[ij[order, 1], ij[order, 0]] = z[order]
-    return depth
-
-
 def derive_sky_mask(points: np.ndarray, camera_to_world: np.ndarray, K: np.ndarray, width: int, height: int,
                     *, up: np.ndarray, dilate_px: int = 3, boxes: np.ndarray | None = None) -> np.ndarray:
     """Sky pixels of a view without a sky mask: above the horizon, no lidar return nearby, and
@@ -143,7 +122,7 @@ def derive_sky_mask(points: np.ndarray, camera_to_world: np.ndarray, K: np.ndarr
     ndarray [H, W] bool
     """
     w2c = np.linalg.inv(np.asarray(camera_to_world, np.float64))
-    uv, z = _project(points, w2c, K)
+    uv, z = project_points(points, w2c, K)
     ij = np.floor(uv).astype(np.int64)
     ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
     solid = np.zeros((height, width), np.uint8)
@@ -164,16 +143,6 @@ def derive_sky_mask(points: np.ndarray, camera_to_world: np.ndarray, K: np.ndarr
     return np.isin(labels, top[top > 0]) if n > 1 else candidate
 
 
-def moving_tracks(scene: Any, threshold_m: float = 0.5) -> list[Any]:
-    """Tracks whose box center moves more than ``threshold_m`` over the sequence."""
-    out = []
-    for track in scene.tracks:
-        centers = np.asarray(track.object_to_world, np.float64)[:, :3, 3]
-        if len(centers) and np.linalg.norm(centers - centers[0], axis=1).max() > threshold_m:
-            out.append(track)
-    return out
-
-
 def box_mask(tracks: Sequence[Any], frame: int, world_to_camera: np.ndarray, K: np.ndarray, width: int,
              height: int) -> np.ndarray:
     """[H, W] bool: pixels inside the projected boxes of ``tracks`` at ``frame`` (boxes in front only)."""
@@ -186,7 +155,7 @@ def box_mask(tracks: Sequence[Any], frame: int, world_to_camera: np.ndarray, K: 
         k = int(hit[0])
         T = np.asarray(track.object_to_world[k], np.float64)
         corners = (signs * np.asarray(track.box_size[k], np.float64) / 2) @ T[:3, :3].T + T[:3, 3]
-        uv, z = _project(corners, world_to_camera, K)
+        uv, z = project_points(corners, world_to_camera, K)
         if not np.all(z > 0.1):
             continue  # partly behind the camera: its projection is not a box
         hull = cv2.convexHull(np.round(uv).astype(np.int32))

@@ -20,7 +20,8 @@ import numpy as np
 
 from wcbench.core.weathers import WEATHERS
 from wcbench.reference_model.weather.fog import density_from_visibility
-from wcbench.reference_model.weather.particles import ParticleField, ParticleSpec, Wind, haze_density
+from wcbench.reference_model.weather.particle_spec import ParticleSpec, Wind
+from wcbench.reference_model.weather.particles import ParticleField, haze_density
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -50,7 +50,7 @@ def _splitmix(x):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
 
 @numba.njit(cache=True, inline="always")
 def _hash_uniform(seed, index, counter, stream):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Mirrors :func:`.particles._hash_uniform`."""
+    """Mirrors :func:`.hashing.hash_uniform`."""
     x = seed * _M1
     x = _splitmix(x ^ np.uint64(index))
     x = _splitmix(x ^ np.uint64(np.int64(counter)))
@@ -190,7 +190,7 @@ def field_kernel(  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _dilation_factor(mx, my, mz, qw, qx, qy, qz, sx, sy, sz, W, fx, fy, eps2d):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Mirrors :func:`.particles.particle_dilation_compensation` for one Gaussian (float64)."""
+    """Mirrors :func:`.particle_geometry.particle_dilation_compensation` for one Gaussian (float64)."""
     qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     w, x, y, z = qw / qn, qx / qn, qy / qn, qz / qn
     R00, R01, R02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)

@@ -18,9 +18,13 @@ least ``min_diameter_mm`` in the box are simulated; above ``max_particles`` each
 for k = physical / simulated drops and its opacity becomes 1 - (1 - a)^k (the optical depth of k
 independent drops; equal to k a for faint drops). Every simulated drop or flake draws its own
 diameter from the distribution (inverse CDF of a seeded stream), and its size and fall speed follow
-from it. Rain and snow beyond the box are haze, with the extinction coefficient of the rate: see
-:func:`precipitation_extinction` (empirical relations by default, :func:`extinction_coefficient`
-for the geometric-optics form).
+from it. Rain and snow beyond the box are haze, with the extinction coefficient of the rate
+(:func:`haze_density`).
+
+The parts live beside this module: the drop-size distributions, fall speeds and extinction in
+:mod:`.microphysics`, the spec and the frame's Gaussians in :mod:`.particle_spec`, orientations,
+view checks and the dilation compensation in :mod:`.particle_geometry`, the counter-based hash of
+the wrap re-draw in :mod:`.hashing`.
 
 All lengths are metres, times seconds, diameters millimetres; colors float RGB in [0, 1]
 (the images' values, as everywhere in wcbench).
@@ -33,739 +37,49 @@ numba passes (``fast=True``, the default when numba imports) and the tests compa
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
 from wcbench.reference_model._numba_backend import load_numba_kernels
-from wcbench.reference_model.transforms import apply_linear, quat_multiply, quat_to_matrix
+from wcbench.reference_model.transforms import apply_linear, quat_multiply
+from wcbench.reference_model.weather.hashing import hash_uniform
+from wcbench.reference_model.weather.microphysics import (
+    extinction_coefficient,
+    number_density,
+    precipitation_extinction,
+    rain_fall_speed,
+    sample_diameters,
+    size_distribution,
+    snow_fall_speed,
+)
+from wcbench.reference_model.weather.particle_geometry import (
+    check_view,
+    horizontal_basis,
+    particle_dilation_compensation,
+    quat_about_z,
+    quat_from_axis_to,
+    random_quaternions,
+)
+from wcbench.reference_model.weather.particle_spec import (
+    MAX_F32_MAGNITUDE,
+    SHORT_OVER_LONG,
+    ParticleGaussians,
+    ParticleSpec,
+    Wind,
+)
 
-__all__ = [
-    "ParticleField",
-    "ParticleGaussians",
-    "ParticleSpec",
-    "Wind",
-    "extinction_coefficient",
-    "haze_density",
-    "horizontal_basis",
-    "number_density",
-    "particle_dilation_compensation",
-    "precipitation_extinction",
-    "quat_from_axis_to",
-    "rain_extinction",
-    "rain_fall_speed",
-    "sample_diameters",
-    "size_distribution",
-    "snow_extinction",
-    "snow_fall_speed",
-]
+__all__ = ["ParticleField", "haze_density"]
 
-KINDS = ("rain", "snow")
 _KIND_CODE = {"rain": 1, "snow": 2}
 _TURB_MODES = 3  # sinusoids per axis of the snow flutter
 _TURB_FREQ_HZ = (0.2, 1.0)  # flutter frequencies of falling aggregates
-_SHORT_OVER_LONG = 0.625  # the paper flake's axis ratio, 0.004 / 0.0064
 _MAX_SINGLE_OPACITY = 0.99  # the rasterizer's clamp; (1 - a)^k needs a < 1
-#: Largest magnitude of a position, speed or length written to the float32 Gaussians (an eighth of
-#: float32's range: sums of a few such terms stay finite; docs/design.md §9).
-_MAX_F32_MAGNITUDE = 4e37
 #: Largest |omega t| of the flutter and spin phases: the fast path's sine is exact for |x| < 1e7.
 _MAX_PHASE_RAD = 1e6
 #: Vertical wrap counts are exact integers up to 2^52 box heights (float64), then int64.
 _MAX_WRAPS = 2.0**52
-#: Shortest standard deviation of a particle Gaussian (m): normal in float32, and a streak's
-#: length stays > 0 (its opacity is scaled by width / length).
-_MIN_SIGMA_M = 1e-30
-#: (N0, exponent of R in N0, Lambda coefficient, exponent of R in Lambda): Marshall-Palmer (1948)
-#: for rain, Gunn-Marshall (1958) for snow (melted diameters).
-_DSD_DEFAULTS = {"rain": (8000.0, 0.0, 4.1, -0.21), "snow": (3800.0, -0.87, 2.55, -0.48)}
-#: Rain extinction beta = a R^b km^-1 with R in mm/h (Weber et al. 2015): (a, b).
-RAIN_EXTINCTION_KM = (0.312, 0.67)
-#: Snow aggregates of Rasmussen et al. (1999): (C3 = flake density x diameter in g cm^-2, fall
-#: speed in m/s). Dry aggregates fall at ~1 m/s, wet or rimed ones at ~2 m/s.
-SNOW_AGGREGATES = {"dry": (0.017, 1.0), "wet": (0.072, 2.0)}
-#: Haze models per kind; the first is the default.
-HAZE_MODELS = {"rain": ("weber2015", "geometric"), "snow": ("rasmussen1999_dry", "rasmussen1999_wet", "geometric")}
-
-
-# --------------------------------------------------------------------------------------------
-# Physics of the drop population
-
-
-def size_distribution(kind: str, rate_mm_h: float, spec: ParticleSpec | None = None) -> tuple[float, float]:
-    """Exponential drop-size distribution N(D) = N0 exp(-Lambda D) for a precipitation rate.
-
-    Parameters
-    ----------
-    kind : {"rain", "snow"}
-        Rain uses Marshall-Palmer (N0 = 8000 m^-3 mm^-1, Lambda = 4.1 R^-0.21 mm^-1); snow uses
-        Gunn-Marshall on melted diameters (N0 = 3800 R^-0.87, Lambda = 2.55 R^-0.48).
-    rate_mm_h : float
-        Liquid-water precipitation rate R (mm/h), >= 0.
-    spec : ParticleSpec, optional
-        Takes the coefficients from ``spec`` instead of the defaults above.
-
-    Returns
-    -------
-    n0 : float
-        Intercept (m^-3 mm^-1); 0 when the rate is 0.
-    lam : float
-        Slope Lambda (mm^-1); ``inf`` when the rate is 0.
-
-    Raises
-    ------
-    ValueError
-        If ``kind`` is unknown or ``rate_mm_h`` is negative or not finite.
-    """
-    if kind not in KINDS:
-        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    if not math.isfinite(rate_mm_h) or rate_mm_h < 0:
-        raise ValueError(f"rate_mm_h must be a finite rate >= 0 mm/h, got {rate_mm_h}")
-    a0, b0, a1, b1 = (
-        _DSD_DEFAULTS[kind] if spec is None else (spec.dsd_n0, spec.dsd_n0_b, spec.dsd_lambda_a, spec.dsd_lambda_b)
-    )
-    if rate_mm_h == 0:
-        return 0.0, math.inf
-    try:
-        n0, lam = float(a0 * rate_mm_h**b0), float(a1 * rate_mm_h**b1)
-    except OverflowError:
-        n0 = lam = math.inf
-    if not (0 <= n0 < math.inf and 0 < lam < math.inf):
-        raise ValueError(f"the {kind} size distribution at {rate_mm_h} mm/h is not representable: N0 = {n0}, "
-                         f"Lambda = {lam} (coefficients {a0}, {b0}, {a1}, {b1})")
-    return n0, lam
-
-
-def number_density(n0: float, lam: float, d_min_mm: float, d_max_mm: float = math.inf) -> float:
-    """Drops per cubic metre with diameter in [d_min, d_max] for N(D) = N0 exp(-Lambda D).
-
-    Parameters
-    ----------
-    n0 : float
-        m^-3 mm^-1.
-    lam : float
-        mm^-1 (``inf`` gives 0).
-    d_min_mm, d_max_mm : float
-        Diameter range (mm).
-
-    Returns
-    -------
-    float
-        m^-3.
-    """
-    if n0 <= 0 or not math.isfinite(lam) or d_max_mm <= d_min_mm:
-        return 0.0
-    upper = 0.0 if math.isinf(d_max_mm) else math.exp(-lam * d_max_mm)
-    return float(n0 / lam * (math.exp(-lam * d_min_mm) - upper))
-
-
-def sample_diameters(u: np.ndarray, lam: float, d_min_mm: float, d_max_mm: float) -> np.ndarray:
-    """Inverse-CDF sampling of the exponential distribution truncated to [d_min, d_max].
-
-    Parameters
-    ----------
-    u : ndarray [N]
-        Uniform numbers in [0, 1).
-    lam : float
-        Slope (mm^-1), > 0.
-    d_min_mm, d_max_mm : float
-        Truncation (mm).
-
-    Returns
-    -------
-    ndarray [N] float64
-        Diameters (mm).
-    """
-    span = -math.expm1(-lam * (d_max_mm - d_min_mm))  # CDF mass inside the range, precise for small lam
-    return d_min_mm - np.log1p(-np.asarray(u, np.float64) * span) / lam
-
-
-def rain_fall_speed(d_mm: np.ndarray | float) -> np.ndarray:
-    """Terminal fall speed of raindrops, v(D) = 9.65 - 10.3 exp(-0.6 D) m/s (Atlas et al. 1973).
-
-    Parameters
-    ----------
-    d_mm : ndarray [N] or float
-        Equivalent diameter (mm).
-
-    Returns
-    -------
-    ndarray [N] float64
-        m/s, clipped at 0 (the fit goes negative below 0.1 mm).
-    """
-    return np.maximum(9.65 - 10.3 * np.exp(-0.6 * np.asarray(d_mm, np.float64)), 0.0)
-
-
-def snow_fall_speed(d_mm: np.ndarray | float) -> np.ndarray:
-    """Fall speed of snow aggregates, v = 0.8 D^0.16 m/s (Locatelli & Hobbs 1974), in [0.5, 1.5].
-
-    Parameters
-    ----------
-    d_mm : ndarray [N] or float
-        Flake extent (mm).
-
-    Returns
-    -------
-    ndarray [N] float64
-        m/s.
-    """
-    return np.clip(0.8 * np.power(np.maximum(np.asarray(d_mm, np.float64), 1e-6), 0.16), 0.5, 1.5)
-
-
-def extinction_coefficient(n0: float, lam: float, *, size_ratio: float = 1.0) -> float:
-    """Optical extinction coefficient of an exponential drop population (geometric optics).
-
-    beta = integral Q_ext (pi/4) (r D)^2 N(D) dD with Q_ext = 2 (large-particle limit) gives
-    beta = pi r^2 N0 / Lambda^3 (with the mm units converted). Heavy rain (25 mm/h) gives
-    2.8e-3 m^-1, a visibility 2.996 / beta of about 1 km.
-
-    Parameters
-    ----------
-    n0 : float
-        m^-3 mm^-1.
-    lam : float
-        mm^-1 (``inf`` gives 0).
-    size_ratio : float
-        Optical extent / distribution diameter (snow: flake / melted diameter).
-
-    Returns
-    -------
-    float
-        beta (m^-1).
-    """
-    if n0 <= 0 or not math.isfinite(lam):
-        return 0.0
-    # Products and quotients, not powers: a power that overflows raises instead of giving Inf.
-    return float(math.pi * size_ratio * size_ratio * n0 / lam / lam / lam * 1e-6)  # mm^2 -> m^2
-
-
-def _check_rate(rate_mm_h: float) -> None:
-    if not (math.isfinite(rate_mm_h) and rate_mm_h >= 0):
-        raise ValueError(f"rate_mm_h must be a finite rate >= 0 mm/h, got {rate_mm_h}")
-
-
-def rain_extinction(rate_mm_h: float) -> float:
-    """Extinction coefficient of rain from its rate: beta = 0.312 R^0.67 km^-1.
-
-    The relation is the one of Weber, Jolivet, Gilet & Ghazanfarpour (2015), "A multiscale model for
-    rain rendering in real-time", Computers & Graphics 50, 61-70 (doi:10.1016/j.cag.2015.04.007),
-    also used by Halder, Lalonde & de Charette (2019, "Physics-based rendering for improving
-    robustness to rain"): an empirical extinction coefficient in km^-1 for R in mm/h. The
-    geometric-optics extinction of the Marshall-Palmer population, pi N0 / Lambda^3 =
-    0.365 R^0.63 km^-1 (:func:`extinction_coefficient`, ``haze_model="geometric"``), is 3-13 %
-    higher between 25 and 2.5 mm/h.
-
-    Parameters
-    ----------
-    rate_mm_h : float
-        Rain rate R (mm/h), finite and >= 0.
-
-    Returns
-    -------
-    float
-        beta (m^-1): 5.8e-4 at 2.5 mm/h, 1.2e-3 at 7.6 mm/h, 2.7e-3 at 25 mm/h (visibilities
-        2.996 / beta of 5.2, 2.5 and 1.1 km).
-
-    Raises
-    ------
-    ValueError
-        If ``rate_mm_h`` is negative or not finite.
-    """
-    _check_rate(rate_mm_h)
-    a, b = RAIN_EXTINCTION_KM
-    return float(a * rate_mm_h**b * 1e-3)  # km^-1 -> m^-1; b < 1, so no finite rate overflows
-
-
-def snow_extinction(rate_mm_h: float, *, aggregates: str = "dry") -> float:
-    """Extinction coefficient of snowfall from its liquid-equivalent rate (Rasmussen et al. 1999).
-
-    Rasmussen, Vivekanandan, Cole, Myers & Masters (1999), "The estimation of snowfall rate using
-    visibility", J. Appl. Meteor. 38, 1542-1563, derive for aggregates whose density falls as
-    rho_s = C3 / D (D the flake's maximum dimension) and which fall at one speed v_t, with the
-    large-particle extinction efficiency 2: beta = (pi / 2) int D^2 N(D) dD and
-    S = (pi C3 v_t / (6 rho_w)) int D^2 N(D) dD, so
-
-        beta = 3 rho_w S / (C3 v_t),
-
-    whatever the size distribution (they write it S = 1.3 C3 v_t / Vis with Koschmieder's
-    Vis = 3.912 / beta). Dry aggregates: C3 = 0.017 g cm^-2, v_t = 1 m/s, 4.9 km^-1 per mm/h; wet
-    or rimed: C3 = 0.072 g cm^-2, v_t = 2 m/s, 0.58 km^-1 per mm/h (:data:`SNOW_AGGREGATES`). The
-    two are 8.5x apart; Rasmussen et al. observed visibilities a factor 3-10 apart for one rate.
-    The form is re-derived above; the constants are as a secondary summary of the paper quotes
-    them, and give the visibilities it reports at 2 mm/h (0.3 km dry, 2.6 km wet) as 2.996 / beta.
-
-    Parameters
-    ----------
-    rate_mm_h : float
-        Liquid-equivalent snowfall rate S (mm/h), finite and >= 0.
-    aggregates : {"dry", "wet"}
-        Which aggregates' constants to use.
-
-    Returns
-    -------
-    float
-        beta (m^-1): for dry snow 2.5e-3 at 0.5 mm/h and 1.2e-2 at 2.5 mm/h (visibilities
-        2.996 / beta of 1.2 km and 245 m).
-
-    Raises
-    ------
-    ValueError
-        If ``rate_mm_h`` is negative or not finite, or ``aggregates`` is unknown.
-    """
-    _check_rate(rate_mm_h)
-    if aggregates not in SNOW_AGGREGATES:
-        raise ValueError(f"aggregates must be one of {sorted(SNOW_AGGREGATES)}, got {aggregates!r}")
-    c3_g_cm2, v_t = SNOW_AGGREGATES[aggregates]
-    rate_m_s = rate_mm_h * (1e-3 / 3600.0)  # liquid water
-    c3_m = c3_g_cm2 * 1e-2  # g cm^-2 over rho_w = 1 g cm^-3: a length (cm -> m)
-    return float(3.0 * rate_m_s / (c3_m * v_t))
-
-
-def precipitation_extinction(kind: str, rate_mm_h: float, *, model: str | None = None,
-                             spec: ParticleSpec | None = None) -> float:
-    """Extinction coefficient (m^-1) of rain or snow at a rate, by one of :data:`HAZE_MODELS`.
-
-    Parameters
-    ----------
-    kind : {"rain", "snow"}
-    rate_mm_h : float
-        Rain or liquid-equivalent snowfall rate (mm/h), finite and >= 0.
-    model : str, optional
-        ``"weber2015"`` (rain, :func:`rain_extinction`), ``"rasmussen1999_dry"`` or
-        ``"rasmussen1999_wet"`` (snow, :func:`snow_extinction`), or ``"geometric"`` (either kind:
-        :func:`extinction_coefficient` of the size distribution, with the flake ratio for snow).
-        Default: the kind's first model (the empirical relation).
-    spec : ParticleSpec, optional
-        Distribution coefficients and flake ratio for ``"geometric"`` (default: Marshall-Palmer,
-        Gunn-Marshall with a flake 4x its melted diameter).
-
-    Returns
-    -------
-    float
-        beta (m^-1), 0 at a rate of 0.
-
-    Raises
-    ------
-    ValueError
-        If ``kind`` or ``model`` is unknown, or the rate is negative or not finite.
-    """
-    if kind not in KINDS:
-        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    model = HAZE_MODELS[kind][0] if model is None else model
-    if model not in HAZE_MODELS[kind]:
-        raise ValueError(f"haze_model for {kind} must be one of {HAZE_MODELS[kind]}, got {model!r}")
-    _check_rate(rate_mm_h)
-    if model == "weber2015":
-        return rain_extinction(rate_mm_h)
-    if model.startswith("rasmussen1999_"):
-        return snow_extinction(rate_mm_h, aggregates=model.removeprefix("rasmussen1999_"))
-    n0, lam = size_distribution(kind, rate_mm_h, spec)
-    ratio = 1.0 if kind == "rain" else (spec.flake_ratio if spec is not None else 4.0)
-    return extinction_coefficient(n0, lam, size_ratio=ratio)
-
-
-# --------------------------------------------------------------------------------------------
-# Geometry helpers
-
-
-def horizontal_basis(up: np.ndarray, heading: np.ndarray | None = None) -> np.ndarray:
-    """Right-handed orthonormal basis (e1, e2, up) with e1, e2 horizontal.
-
-    Parameters
-    ----------
-    up : ndarray [3]
-        Up vector of the world (normalised here).
-    heading : ndarray [3], optional
-        Direction e1 should follow (projected onto the horizontal plane), e.g. the first
-        camera's viewing direction; defaults to the world axis least aligned with ``up``.
-
-    Returns
-    -------
-    ndarray [3, 3] float64
-        Rows e1, e2 = up x e1, up.
-
-    Raises
-    ------
-    ValueError
-        If ``up`` is not a finite non-zero 3-vector.
-    """
-    u = np.asarray(up, np.float64).reshape(-1)
-    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u / max(np.abs(u).max(), 1e-300)) < 1e-9:
-        raise ValueError(f"up must be a finite non-zero 3-vector, got {up!r}")
-    u = u / np.abs(u).max()  # first to ~1: the norm of a huge vector would overflow
-    u = u / np.linalg.norm(u)
-    candidates = [] if heading is None else [np.asarray(heading, np.float64).reshape(3)]
-    candidates.append(np.eye(3)[int(np.argmin(np.abs(u)))])
-    for h in candidates:
-        e1 = h - (h @ u) * u
-        if np.all(np.isfinite(e1)) and np.linalg.norm(e1) > 1e-6:
-            e1 = e1 / np.linalg.norm(e1)
-            return np.stack([e1, np.cross(u, e1), u])
-    raise AssertionError("unreachable: the least aligned axis is never parallel to up")
-
-
-def quat_from_axis_to(v: np.ndarray) -> np.ndarray:
-    """Quaternions [N, 4] rotating the local z axis onto the line of each ``v`` [N, 3].
-
-    The Gaussian is symmetric, so z is mapped onto +v or -v, whichever needs the smaller turn;
-    this avoids the singular 180-degree case for rain falling along -z.
-    """
-    v = np.asarray(v, np.float64)
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    d = np.where(n > 1e-12, v / np.maximum(n, 1e-300), np.array([0.0, 0.0, 1.0]))
-    d = d * np.where(d[..., 2:3] < 0, -1.0, 1.0)
-    # Half-way quaternion between z and d: (1 + z.d, z x d), with z.d >= 0 so never degenerate.
-    q = np.stack([1.0 + d[..., 2], -d[..., 1], d[..., 0], np.zeros_like(d[..., 0])], -1)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def _quat_about_z(angle: np.ndarray) -> np.ndarray:
-    half = 0.5 * np.asarray(angle, np.float64)
-    zero = np.zeros_like(half)
-    return np.stack([np.cos(half), zero, zero, np.sin(half)], -1)
-
-
-def _random_quaternions(u: np.ndarray) -> np.ndarray:
-    """Uniformly random rotations from u [N, 3] in [0, 1) (Shoemake 1992)."""
-    a, b, c = u[:, 0], 2 * np.pi * u[:, 1], 2 * np.pi * u[:, 2]
-    r1, r2 = np.sqrt(1 - a), np.sqrt(a)
-    return np.stack([r2 * np.cos(c), r1 * np.sin(b), r1 * np.cos(b), r2 * np.sin(c)], -1)
-
-
-def _hash_uniform(seed: int, index: np.ndarray, counter: np.ndarray, stream: int) -> np.ndarray:
-    """Counter-based uniform numbers in [0, 1): splitmix64 of (seed, index, counter, stream).
-
-    Used for the horizontal re-draw on wrap, so that the value for wrap n of particle i never
-    depends on which frames were rendered before.
-    """
-    with np.errstate(over="ignore"):
-        x = np.uint64(seed & 0xFFFFFFFFFFFFFFFF) * np.uint64(0x9E3779B97F4A7C15)
-        x = _splitmix64(x ^ np.asarray(index).astype(np.uint64))
-        x = _splitmix64(x ^ np.asarray(counter).astype(np.int64).astype(np.uint64))
-        x = _splitmix64(x ^ np.uint64(stream))
-    return (x >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
-
-
-def _splitmix64(x: np.ndarray) -> np.ndarray:
-    with np.errstate(over="ignore"):
-        x = np.asarray(x, np.uint64) + np.uint64(0x9E3779B97F4A7C15)
-        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        return x ^ (x >> np.uint64(31))
-
-
-def particle_dilation_compensation(
-    means: np.ndarray,
-    quats: np.ndarray,
-    scales: np.ndarray,
-    viewmat: np.ndarray,
-    K: np.ndarray,
-    *,
-    eps2d: float,
-) -> np.ndarray:
-    """Opacity factor sqrt(det Sigma / det(Sigma + eps I)) per Gaussian (gsplat "antialiased").
-
-    The rasterizer dilates every 2D covariance by ``eps2d`` px^2; a raindrop a tenth of a pixel
-    wide would grow several-fold in coverage, and by a resolution-dependent amount. Scaling its
-    opacity by this factor keeps its integrated coverage.
-
-    Parameters
-    ----------
-    means : ndarray [M, 3]
-        World (m).
-    quats : ndarray [M, 4]
-        wxyz.
-    scales : ndarray [M, 3]
-        Standard deviations (m).
-    viewmat : ndarray [4, 4]
-        World-to-camera (OpenCV axes).
-    K : ndarray [3, 3]
-        Intrinsics.
-    eps2d : float
-        The rasterizer's dilation (px^2).
-
-    Returns
-    -------
-    ndarray [M] float32
-        In (0, 1]; 1 where the projection is degenerate (such Gaussians are culled anyway).
-    """
-    if len(means) == 0:
-        return np.zeros(0, np.float32)
-    W = np.asarray(viewmat, np.float64)
-    cam = apply_linear(np.asarray(means, np.float64), W[:3, :3].T) + W[:3, 3]
-    x, y, z = cam[:, 0], cam[:, 1], np.maximum(cam[:, 2], 1e-6)
-    fx, fy = K[0, 0], K[1, 1]
-    J = np.zeros((len(cam), 2, 3))
-    J[:, 0, 0], J[:, 0, 2] = fx / z, -fx * x / z**2
-    J[:, 1, 1], J[:, 1, 2] = fy / z, -fy * y / z**2
-    M = quat_to_matrix(quats) * np.asarray(scales, np.float64)[:, None, :]
-    T = J @ W[:3, :3] @ M
-    c00 = np.einsum("ij,ij->i", T[:, 0], T[:, 0])
-    c11 = np.einsum("ij,ij->i", T[:, 1], T[:, 1])
-    # det(T T^T) as the sum of the squared 2x2 minors of T (Cauchy-Binet), not c00 c11 - c01^2:
-    # for a long thin streak that difference is rounding noise of either sign (docs/design.md §9).
-    det = ((T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0]) ** 2
-           + (T[:, 0, 0] * T[:, 1, 2] - T[:, 0, 2] * T[:, 1, 0]) ** 2
-           + (T[:, 0, 1] * T[:, 1, 2] - T[:, 0, 2] * T[:, 1, 1]) ** 2)
-    det_d = det + eps2d * (c00 + c11) + eps2d * eps2d
-    factor = np.sqrt(det / np.maximum(det_d, 1e-30))
-    return np.where(np.isfinite(factor), np.clip(factor, 0.0, 1.0), 1.0).astype(np.float32)
-
-
-# --------------------------------------------------------------------------------------------
-# Parameters
-
-
-@dataclass(frozen=True)
-class Wind:
-    """A uniform wind.
-
-    Attributes
-    ----------
-    speed_m_s : float
-        Magnitude (m/s), >= 0.
-    tilt_deg : float
-        Angle of the wind vector below the horizontal plane (degrees, in [-90, 90]); positive
-        blows downward (a descending gust), negative upward.
-    azimuth_deg : float
-        Horizontal direction the wind blows *toward*, counter-clockwise seen from above, from the
-        basis axis e1 (the first camera's horizontal viewing direction in a rendered scene).
-    """
-
-    speed_m_s: float = 0.0
-    tilt_deg: float = 0.0
-    azimuth_deg: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("speed_m_s", "tilt_deg", "azimuth_deg"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"wind {name} must be finite, got {getattr(self, name)}")
-        if not 0 <= self.speed_m_s <= _MAX_F32_MAGNITUDE:
-            raise ValueError(f"wind speed_m_s must be in [0, {_MAX_F32_MAGNITUDE:g}], got {self.speed_m_s}")
-        if not -90.0 <= self.tilt_deg <= 90.0:
-            raise ValueError(f"wind tilt_deg must be in [-90, 90], got {self.tilt_deg}")
-
-    def vector(self, basis: np.ndarray) -> np.ndarray:
-        """[3] wind velocity in world coordinates (m/s) for a :func:`horizontal_basis`."""
-        tilt, az = math.radians(self.tilt_deg), math.radians(self.azimuth_deg)
-        e1, e2, up = np.asarray(basis, np.float64)
-        horizontal = math.cos(az) * e1 + math.sin(az) * e2
-        return self.speed_m_s * (math.cos(tilt) * horizontal - math.sin(tilt) * up)
-
-
-@dataclass(frozen=True)
-class ParticleSpec:
-    """Everything that defines a rain or snow particle population (see ``presets.toml``).
-
-    Either ``rate_mm_h`` (physical: density, sizes and speeds from the size distribution) or
-    ``count`` (fixed count with fixed ``scale_m``/``opacity``, the paper's settings) is used;
-    ``count`` wins when both are set. ``haze_model`` picks the extinction of the haze beyond the
-    box (:data:`HAZE_MODELS`; ``None`` is the kind's empirical relation).
-    """
-
-    kind: str = "rain"
-    rate_mm_h: float | None = None
-    count: int | None = None
-    max_particles: int = 40000
-    dsd_n0: float = 8000.0
-    dsd_n0_b: float = 0.0
-    dsd_lambda_a: float = 4.1
-    dsd_lambda_b: float = -0.21
-    min_diameter_mm: float = 0.5
-    max_diameter_mm: float = 6.0
-    flake_ratio: float = 1.0
-    radius_m: float = 10.0
-    below_m: float = 3.0
-    above_m: float = 5.0
-    fade_m: float = 1.0
-    min_distance_m: float = 0.3
-    color: tuple[float, float, float] = (0.75, 0.76, 0.8)
-    opacity: float = 0.6
-    scale_m: tuple[float, float, float] | None = None
-    fall_speed_m_s: float | None = None
-    stretch_with_exposure: bool = True
-    turbulence_m_s: float = 0.0
-    spin_rad_s: float = 0.0
-    haze: bool = True
-    haze_color: tuple[float, float, float] = (0.6, 0.62, 0.66)
-    haze_model: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
-        if self.haze_model is None:  # the kind's empirical relation
-            object.__setattr__(self, "haze_model", HAZE_MODELS[self.kind][0])
-        if self.haze_model not in HAZE_MODELS[self.kind]:
-            raise ValueError(f"haze_model for {self.kind} must be one of {HAZE_MODELS[self.kind]}, "
-                             f"got {self.haze_model!r}")
-        if self.rate_mm_h is None and self.count is None:
-            raise ValueError("a particle spec needs rate_mm_h (physical) or count (fixed)")
-        if self.rate_mm_h is not None and (not math.isfinite(self.rate_mm_h) or self.rate_mm_h < 0):
-            raise ValueError(f"rate_mm_h must be a finite rate >= 0 mm/h, got {self.rate_mm_h}")
-        if self.count is not None and self.count < 0:
-            raise ValueError(f"count must be >= 0, got {self.count}")
-        if self.max_particles < 0:
-            raise ValueError(f"max_particles must be >= 0, got {self.max_particles}")
-        # Every number finite (NaN fails every comparison below): docs/design.md §9.
-        for name in ("min_diameter_mm", "max_diameter_mm", "flake_ratio", "dsd_n0", "dsd_lambda_a"):
-            if not 0 < getattr(self, name) < math.inf:
-                raise ValueError(f"{name} must be finite and > 0, got {getattr(self, name)}")
-        # Lengths of the box are float32 positions and are squared in float64.
-        for name in ("radius_m", "below_m", "above_m"):
-            if not 0 < getattr(self, name) <= _MAX_F32_MAGNITUDE:
-                raise ValueError(f"{name} must be in (0, {_MAX_F32_MAGNITUDE:g}] m, got {getattr(self, name)}")
-        for name in ("fade_m", "min_distance_m"):
-            if not 0 <= getattr(self, name) <= _MAX_F32_MAGNITUDE:
-                raise ValueError(f"{name} must be in [0, {_MAX_F32_MAGNITUDE:g}] m, got {getattr(self, name)}")
-        for name in ("turbulence_m_s", "spin_rad_s"):
-            if not 0 <= getattr(self, name) <= _MAX_F32_MAGNITUDE:
-                raise ValueError(f"{name} must be in [0, {_MAX_F32_MAGNITUDE:g}], got {getattr(self, name)}")
-        for name in ("dsd_n0_b", "dsd_lambda_b"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
-        if not 0.0 <= self.opacity <= 1.0:
-            raise ValueError(f"opacity must be in [0, 1], got {self.opacity}")
-        if not self.min_diameter_mm < self.max_diameter_mm:
-            raise ValueError(
-                f"need 0 < min_diameter_mm < max_diameter_mm, got {self.min_diameter_mm}, {self.max_diameter_mm}"
-            )
-        for name in ("color", "haze_color"):
-            rgb = getattr(self, name)
-            if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
-                raise ValueError(f"{name} must be RGB in [0, 1], got {rgb}")
-        if self.scale_m is not None and (len(self.scale_m) != 3 or not all(_MIN_SIGMA_M <= v <= _MAX_F32_MAGNITUDE
-                                                                          for v in self.scale_m)):
-            raise ValueError(f"scale_m must be three lengths in [{_MIN_SIGMA_M:g}, {_MAX_F32_MAGNITUDE:g}] m "
-                             f"(float32), got {self.scale_m}")
-        if self.count is None:  # sizes from the drop-size distribution: sigma = D / 4 (times the flake ratio)
-            ratio = self.flake_ratio if self.kind == "snow" else 1.0
-            short = _SHORT_OVER_LONG if self.kind == "snow" else 1.0
-            lo = self.min_diameter_mm * 1e-3 / 4.0 * ratio * short
-            hi = self.max_diameter_mm * 1e-3 / 4.0 * ratio
-            if not (_MIN_SIGMA_M <= lo and hi <= _MAX_F32_MAGNITUDE):
-                raise ValueError(f"diameters in [{self.min_diameter_mm}, {self.max_diameter_mm}] mm give particle "
-                                 f"sizes in [{lo:.3g}, {hi:.3g}] m, outside [{_MIN_SIGMA_M:g}, "
-                                 f"{_MAX_F32_MAGNITUDE:g}] m (float32)")
-        if self.count is not None and (self.scale_m is None or self.fall_speed_m_s is None):
-            raise ValueError("a fixed-count spec needs scale_m and fall_speed_m_s")
-        if self.fall_speed_m_s is not None and not abs(self.fall_speed_m_s) <= _MAX_F32_MAGNITUDE:
-            raise ValueError(f"fall_speed_m_s must be finite, within +-{_MAX_F32_MAGNITUDE:g} m/s, "
-                             f"got {self.fall_speed_m_s}")
-
-    @classmethod
-    def from_mapping(cls, kind: str, values: Mapping[str, Any]) -> ParticleSpec:
-        """Build a spec from a preset table; unknown keys raise ``ValueError`` naming them.
-
-        ``drop_opacity`` (rain) and ``flake_opacity`` (snow) map to ``opacity`` unless the table
-        sets ``opacity`` itself (fixed presets).
-        """
-        known = {f.name for f in fields(cls)}
-        values = dict(values)
-        for alias in ("drop_opacity", "flake_opacity"):
-            if alias in values:
-                v = values.pop(alias)
-                values.setdefault("opacity", v)
-        values.pop("default_preset", None)
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"unknown {kind} particle settings {unknown}; known: {sorted(known)}")
-        for key in ("color", "haze_color", "scale_m"):
-            if values.get(key) is not None:
-                values[key] = tuple(float(x) for x in values[key])
-        if values.get("count") is not None:
-            values["count"] = int(values["count"])
-        return cls(kind=kind, **{k: v for k, v in values.items() if k != "kind"})
-
-    @property
-    def box_size(self) -> np.ndarray:
-        """[3] box edge lengths along (e1, e2, up), metres."""
-        return np.array([2 * self.radius_m, 2 * self.radius_m, self.below_m + self.above_m])
-
-    @property
-    def box_low(self) -> np.ndarray:
-        """[3] lower box corner relative to the camera center along (e1, e2, up), metres."""
-        return np.array([-self.radius_m, -self.radius_m, -self.below_m])
-
-    @property
-    def physical(self) -> bool:
-        """Whether sizes and counts come from the drop-size distribution."""
-        return self.count is None
-
-
-@dataclass
-class ParticleGaussians:
-    """Particles of one frame as Gaussians (float32 numpy arrays).
-
-    Attributes
-    ----------
-    means : ndarray [M, 3]
-        World positions (m).
-    quats : ndarray [M, 4]
-        Rotations (w, x, y, z), unit.
-    scales : ndarray [M, 3]
-        Standard deviations along the local axes (m).
-    opacities : ndarray [M]
-        In [0, 1].
-    colors : ndarray [M, 3]
-        RGB in [0, 1].
-    particle : ndarray [M] int64
-        Index of the particle each Gaussian belongs to (a flake has three).
-    velocity : ndarray [M, 3]
-        World velocity of the particle (m/s).
-    """
-
-    means: np.ndarray
-    quats: np.ndarray
-    scales: np.ndarray
-    opacities: np.ndarray
-    colors: np.ndarray
-    particle: np.ndarray
-    velocity: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.means.shape[0])
-
-    def subset(self, keep: np.ndarray) -> ParticleGaussians:
-        """The Gaussians selected by a boolean mask or index array ``keep``."""
-        return ParticleGaussians(
-            **{f.name: getattr(self, f.name)[keep] for f in fields(self)}  # type: ignore[arg-type]
-        )
-
-    def head(self, k: int) -> ParticleGaussians:
-        """Views of the first ``k`` Gaussians (no copy)."""
-        return ParticleGaussians(
-            **{f.name: getattr(self, f.name)[:k] for f in fields(self)}  # type: ignore[arg-type]
-        )
-
-    @staticmethod
-    def allocate(n: int) -> ParticleGaussians:
-        """Uninitialised buffers for ``n`` Gaussians (see :meth:`ParticleField.gaussians`)."""
-        e = np.empty
-        return ParticleGaussians(
-            e((n, 3), np.float32),
-            e((n, 4), np.float32),
-            e((n, 3), np.float32),
-            e(n, np.float32),
-            e((n, 3), np.float32),
-            e(n, np.int64),
-            e((n, 3), np.float32),
-        )
-
-    @staticmethod
-    def empty() -> ParticleGaussians:
-        """No Gaussians (clear weather, zero rate)."""
-        z = np.zeros
-        return ParticleGaussians(
-            z((0, 3), np.float32),
-            z((0, 4), np.float32),
-            z((0, 3), np.float32),
-            z(0, np.float32),
-            z((0, 3), np.float32),
-            z(0, np.int64),
-            z((0, 3), np.float32),
-        )
 
 
 # --------------------------------------------------------------------------------------------
@@ -821,8 +135,8 @@ class ParticleField:
         spec = self.spec
         self.basis = horizontal_basis(self.up, self.heading)
         self.anchor_ = np.zeros(3) if self.anchor is None else np.asarray(self.anchor, np.float64).reshape(3)
-        if not np.all(np.abs(self.anchor_) <= _MAX_F32_MAGNITUDE):
-            raise ValueError(f"anchor must be a finite position within +-{_MAX_F32_MAGNITUDE:g} m, got {self.anchor!r}")
+        if not np.all(np.abs(self.anchor_) <= MAX_F32_MAGNITUDE):
+            raise ValueError(f"anchor must be a finite position within +-{MAX_F32_MAGNITUDE:g} m, got {self.anchor!r}")
         volume = math.prod(spec.box_size.tolist())
         if spec.physical:
             assert spec.rate_mm_h is not None
@@ -878,11 +192,11 @@ class ParticleField:
         if not math.isfinite(self.haze_density()):
             raise ValueError(f"the haze of {spec.kind} at {spec.rate_mm_h} mm/h has no finite extinction coefficient")
         speed_bound = self._speed_max + self._flutter_speed
-        if not speed_bound <= _MAX_F32_MAGNITUDE:
+        if not speed_bound <= MAX_F32_MAGNITUDE:
             raise ValueError(f"particle speeds up to {speed_bound:.3g} m/s (wind, fall and flutter) exceed "
-                             f"{_MAX_F32_MAGNITUDE:g} m/s, beyond float32")
+                             f"{MAX_F32_MAGNITUDE:g} m/s, beyond float32")
         # Flake orientation: random rotation, then spin about its normal (local z).
-        self.orientation = _random_quaternions(rng.random((n, 3)))
+        self.orientation = random_quaternions(rng.random((n, 3)))
         self.spin_rate = spec.spin_rad_s * rng.standard_normal(n)
         self._phase_rate = max(float(np.abs(self.spin_rate).max()) if n else 0.0,
                                float(freq.max()) if n and spec.turbulence_m_s > 0 else 0.0)
@@ -909,8 +223,8 @@ class ParticleField:
                              f"reach {abs(t) * self._phase_rate:.3g} rad, more than {_MAX_PHASE_RAD:g}")
         spec = self.spec
         extent = float(np.abs(spec.box_size).max())
-        if not float(np.abs(c).max()) + extent <= _MAX_F32_MAGNITUDE:
-            raise ValueError(f"camera_center {c.tolist()} is beyond +-{_MAX_F32_MAGNITUDE:g} m (float32 positions)")
+        if not float(np.abs(c).max()) + extent <= MAX_F32_MAGNITUDE:
+            raise ValueError(f"camera_center {c.tolist()} is beyond +-{MAX_F32_MAGNITUDE:g} m (float32 positions)")
         travel = float(np.linalg.norm(c - self.anchor_)) + self._speed_max * abs(t) + self._flutter_reach + extent
         if not travel <= _MAX_WRAPS * spec.box_size[2]:
             raise ValueError(f"t = {t} s and camera_center put the particles {travel:.3g} m from the field's anchor, "
@@ -988,7 +302,7 @@ class ParticleField:
             # A vertical wrap re-draws the horizontal position; the hash keeps it a pure function
             # of (seed, particle, wrap count), whatever frames were rendered before.
             for axis in (0, 1):
-                unwrapped[moved, axis] += size[axis] * _hash_uniform(self.seed, moved, wraps[moved], axis)
+                unwrapped[moved, axis] += size[axis] * hash_uniform(self.seed, moved, wraps[moved], axis)
         # u - floor(u / size) size, not np.mod: the same operations as the numba kernel.
         rel = unwrapped - np.floor(unwrapped / size) * size + lo
         return apply_linear(rel, self.basis) + c, wraps
@@ -1076,7 +390,7 @@ class ParticleField:
             shift,
             spec.box_size,
             spec.box_low,
-            np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF),  # the reference's _hash_uniform takes these bits
+            np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF),  # the reference's hash_uniform takes these bits
             self.basis,
             c,
             spec.radius_m**2,
@@ -1204,17 +518,17 @@ class ParticleField:
         if out is not None and len(out) < self.max_gaussians:
             raise ValueError(f"out holds {len(out)} Gaussians, this field needs up to {self.max_gaussians}")
         if view is not None:
-            _check_view(view, near)
+            check_view(view, near)
         c = np.asarray(camera_center, np.float64).reshape(-1)
         self._check_frame(t, c)
         cam_vel = np.zeros(3) if camera_velocity is None else np.asarray(camera_velocity, np.float64).reshape(-1)
-        if cam_vel.shape != (3,) or not np.all(np.abs(cam_vel) <= _MAX_F32_MAGNITUDE):
-            raise ValueError(f"camera_velocity must be a finite [3] velocity within +-{_MAX_F32_MAGNITUDE:g} m/s, "
+        if cam_vel.shape != (3,) or not np.all(np.abs(cam_vel) <= MAX_F32_MAGNITUDE):
+            raise ValueError(f"camera_velocity must be a finite [3] velocity within +-{MAX_F32_MAGNITUDE:g} m/s, "
                              f"got {camera_velocity!r}")
         cam_speed = float(np.linalg.norm(cam_vel))
         reach = self.max_extent(exposure_s=exposure_s, camera_speed=cam_speed)
-        if not (self._speed_max + self._flutter_speed + cam_speed <= _MAX_F32_MAGNITUDE
-                and reach <= _MAX_F32_MAGNITUDE):
+        if not (self._speed_max + self._flutter_speed + cam_speed <= MAX_F32_MAGNITUDE
+                and reach <= MAX_F32_MAGNITUDE):
             raise ValueError(f"streaks of {reach:.3g} m (speeds up to {self._speed_max + cam_speed:.3g} m/s over "
                              f"{exposure_s} s) are beyond float32")
         if self.count == 0:
@@ -1265,7 +579,7 @@ class ParticleField:
             fx, fy = float(view[1][0][0]), float(view[1][1][1])
         if spec.physical:
             size_ratio = spec.flake_ratio if spec.kind == "snow" else 1.0
-            short_ratio = _SHORT_OVER_LONG if spec.kind == "snow" else 1.0
+            short_ratio = SHORT_OVER_LONG if spec.kind == "snow" else 1.0
             scale_m = np.ones(3)
         else:
             assert spec.scale_m is not None
@@ -1349,7 +663,7 @@ class ParticleField:
                 base = np.repeat((self.diameter_mm[keep] * 1e-3 / 4.0)[:, None], 3, axis=1)  # sigma = D / 4
             else:
                 long = self.diameter_mm[keep] * spec.flake_ratio * 1e-3 / 4.0
-                base = np.stack([long, long * _SHORT_OVER_LONG, long * _SHORT_OVER_LONG], 1)
+                base = np.stack([long, long * SHORT_OVER_LONG, long * SHORT_OVER_LONG], 1)
         else:
             assert spec.scale_m is not None
             base = np.broadcast_to(np.asarray(spec.scale_m, np.float64), (keep.size, 3)).copy()
@@ -1370,7 +684,7 @@ class ParticleField:
         else:
             angle = self.spin_rate[keep] * t
             arms = np.arange(3) * (np.pi / 3.0)  # three arms at 60 degrees
-            spin = _quat_about_z(angle[:, None] + arms[None, :])  # [K, 3, 4]
+            spin = quat_about_z(angle[:, None] + arms[None, :])  # [K, 3, 4]
             quats = quat_multiply(self.orientation[keep][:, None, :], spin).reshape(-1, 4)
             scales = np.repeat(base, 3, axis=0)
             means = np.repeat(pos, 3, axis=0)
@@ -1426,20 +740,6 @@ class ParticleField:
             "seed": int(self.seed),
         }
 
-
-def _check_view(view: tuple[np.ndarray, np.ndarray, int, int], near: float) -> None:
-    """A view is a finite world-to-camera matrix, finite intrinsics with positive focal lengths and
-    a positive integer size; ``near`` is finite (docs/design.md §9)."""
-    W, K, width, height = view
-    Wm, Km = np.asarray(W, np.float64), np.asarray(K, np.float64)
-    if Wm.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(Wm)):
-        raise ValueError(f"view: the world-to-camera matrix must be finite [4, 4], got shape {Wm.shape}")
-    if Km.shape != (3, 3) or not np.all(np.isfinite(Km)) or not (Km[0, 0] > 0 and Km[1, 1] > 0):
-        raise ValueError(f"view: K must be finite [3, 3] intrinsics with positive focal lengths, got {Km.tolist()}")
-    if int(width) != width or int(height) != height or width < 1 or height < 1:
-        raise ValueError(f"view: width and height must be positive integers, got {width} x {height}")
-    if not math.isfinite(near):
-        raise ValueError(f"near must be finite metres, got {near}")
 
 
 # --------------------------------------------------------------------------------------------

@@ -31,15 +31,15 @@ from wcbench.reference_model.weather.fog import (
     transmitted_channels,
     visibility_from_density,
 )
-from wcbench.reference_model.weather.particles import ParticleField, ParticleGaussians, particle_dilation_compensation
+from wcbench.reference_model.weather.particle_spec import ParticleGaussians
+from wcbench.reference_model.weather.particles import ParticleField
 
 __all__ = [
+    "GaussianArrays",
     "GaussianSet",
     "WeatherFrame",
     "WeatherRenderer",
     "camera_velocity",
-    "particle_dilation_compensation",
-    "render_weather",
     "scale_camera",
 ]
 
@@ -47,6 +47,19 @@ __all__ = [
 class GaussianSet(Protocol):
     """Anything with the five Gaussian arrays (e.g. a
     :class:`~wcbench.reference_model.scene_graph.gaussians.GaussianCloud`)."""
+
+    means: Any  # [N, 3] world (m)
+    quats: Any  # [N, 4] wxyz
+    scales: Any  # [N, 3] (m)
+    opacities: Any  # [N] in [0, 1]
+    colors: Any  # [N, 3] RGB in [0, 1]
+
+
+@dataclass
+class GaussianArrays:
+    """The five Gaussian arrays as given (numpy arrays or torch tensors, not copied): a
+    :class:`GaussianSet` for callers that hold loose arrays (a frame's decoded Gaussians, a
+    generated scene)."""
 
     means: Any  # [N, 3] world (m)
     quats: Any  # [N, 4] wxyz
@@ -243,9 +256,12 @@ class WeatherRenderer:
 
     @property
     def background_visible(self) -> bool:
-        """Whether a ``background_image`` can show in this weather's frames. Under fog (either mode)
-        the background is at infinite distance, seen through a transmittance of 0: it contributes
-        nothing, so a caller need not compute one (a sky lookup per pixel, ~4 ms at 480x270)."""
+        """Whether a ``background_image`` can show in this weather's frames. Under any fog or haze
+        (extinction ``beta`` > 0: fog in either mode, and the haze of rain and snow beyond the
+        particle box, so every edited weather of the default presets; not the ``paper`` rain and
+        snow, which have no haze) the background is at infinite distance, seen through a
+        transmittance of 0: it contributes nothing, so a caller need not compute one (a sky lookup
+        per pixel, ~4 ms at 480x270). Only clear weather and haze-free precipitation show it."""
         return not self.beta > 0
 
     def info(self) -> dict[str, Any]:
@@ -477,32 +493,3 @@ class WeatherRenderer:
         }
         return WeatherFrame(image=image, alpha=alpha, depth=depth, info=info, timings_ms=timings)
 
-
-def render_weather(
-    gaussians: GaussianSet,
-    camera: Any,
-    weather: Weather,
-    *,
-    t: float,
-    up: np.ndarray,
-    heading: np.ndarray | None = None,
-    anchor: np.ndarray | None = None,
-    background: np.ndarray | None = None,
-    camera_velocity: np.ndarray | None = None,
-    rasterizer: Callable[..., Any] | None = None,
-) -> WeatherFrame:
-    """Render one frame of ``gaussians`` seen by ``camera`` under ``weather`` at time ``t``.
-
-    A functional form of :class:`WeatherRenderer` (same parameters); for sequences build the
-    renderer once.
-    """
-    renderer = WeatherRenderer(
-        gaussians,
-        weather,
-        up=up,
-        heading=heading,
-        anchor=anchor,
-        background=background,
-        rasterizer=rasterizer,
-    )
-    return renderer.render(camera, t, camera_velocity=camera_velocity)

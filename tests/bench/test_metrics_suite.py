@@ -13,7 +13,7 @@ pytest.importorskip("torch")
 pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
 
-from wcbench.bench.models import timed_methods
+from wcbench.bench.metric_models import timed_methods
 from wcbench.bench.schema import validate_benchmark
 from wcbench.cli import main
 
@@ -27,7 +27,7 @@ CLIP_S_FP32_TOL = 1e-5
 #: int8 weights and activations move embeddings by ~1e-2 relative; CLIP-S, a cosine near 1 for
 #: random weights, by far less (measured ~3e-5).
 CLIP_S_INT8_TOL = 1e-2
-#: float32 networks of a few dozen layers: onnxruntime vs torch logits (as tests/metrics/test_segmenters.py).
+#: float32 networks of a few dozen layers: onnxruntime vs torch logits (as tests/metrics/semantic/test_segmenters.py).
 LOGITS_ATOL = 1e-4
 LABEL_AGREEMENT = 0.999
 

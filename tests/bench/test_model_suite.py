@@ -18,7 +18,13 @@ def test_bench_model_quick_runs_and_reports_every_case() -> None:
     validate_benchmark(obj)
     cases = {c["name"]: c for c in obj["cases"]}
     assert {"plain", "weathercity", "weathercity_half", "one_pass_vs_per_weather", "skip_frustum_cull",
-            "skip_static_tracks", "skip_unsupervised_weather", "content_interval_2", "content_interval_8"} <= set(cases)
+            "skip_static_tracks", "skip_unsupervised_weather", "content_interval_2", "content_interval_8",
+            "profile_step"} <= set(cases)
+    profile = cases["profile_step"]
+    assert profile["threads"] == [1, 2] and profile["non_raster_speedup"] > 0
+    assert set(profile["phases"]) == {"data", "scene_graph", "decoders", "sky", "raster_fwd", "losses", "raster_bwd",
+                                      "backward_rest", "stats", "optimizer", "densify", "log", "total", "non_raster"}
+    assert profile["phases"]["raster_fwd"]["ms"]["1"] > 0 and profile["phases"]["densify"]["ms"]["1"] >= 0
     for name in ("plain", "weathercity", "weathercity_half", "content_interval_2"):
         assert 15.0 < cases[name]["error"] < 60.0 and cases[name]["steps"] > 0
     # the baseline gets the method's wall clock (it steps until the clock has passed)

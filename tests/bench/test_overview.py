@@ -103,4 +103,4 @@ def test_options_of_bench_all_are_refused_elsewhere(tmp_path: Path, capsys) -> N
     assert main(["bench", "all", "--json", str(tmp_path / "x.json")]) == 2
     assert "writes every suite's JSON into --out" in capsys.readouterr().err
     assert main(["bench", "metrics", "--summary-only"]) == 2
-    assert "--summary-only goes with `bench all`" in capsys.readouterr().err
+    assert "--summary-only goes with `bench --all`" in capsys.readouterr().err

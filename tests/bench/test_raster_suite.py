@@ -10,6 +10,8 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("numba")
 
+from wcbench.bench.phases import amdahl_serial, amdahl_speedup, parse_threads, phase_table
+from wcbench.bench.raster import RASTER_PHASES
 from wcbench.bench.schema import validate_benchmark
 
 FIELDS = ("name", "gaussians", "width", "height", "pairs", "fwd_ms", "bwd_ms", "ref_fwd_ms", "ref_bwd_ms",
@@ -28,8 +30,16 @@ def test_quick_run_without_data_root(tmp_path: Path) -> None:
     validate_benchmark(obj)
     assert obj["suite"] == "raster"
     names = [c["name"] for c in obj["cases"]]
-    assert [n[:2] for n in names] == ["d_", "a_", "b_", "c_"]
+    assert [n[:2] for n in names] == ["d_", "a_", "b_", "pr", "c_"]
     assert "synthetic" in names[2] and any("pandaset_002 unavailable" in n for n in obj["notes"])
+    profile = obj["cases"].pop(3)
+    assert profile["name"] == "profile_b_240x135" and profile["threads"] == [1, 2]
+    rows = profile["phases"]
+    assert list(rows) == [*RASTER_PHASES, "total"]
+    assert abs(sum(rows[k]["ms"]["1"] for k in RASTER_PHASES) - rows["total"]["ms"]["1"]) < 1e-2
+    for row in rows.values():
+        assert 0.0 <= row["serial"] <= 1.0 and row["speedup"] > 0 and row["projected_16t"] >= 1.0
+    assert any("Amdahl projection" in n for n in obj["notes"])
     for case in obj["cases"]:
         for key in FIELDS:
             assert key in case, f"{case['name']} lacks {key}"
@@ -73,3 +83,30 @@ def test_bench_raster_quick_runs_from_the_repository_root(tmp_path) -> None:
                           cwd=REPO, capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     assert json.loads(out.read_text())["suite"] == "raster"
+
+
+def test_amdahl_serial_fraction_and_projection_invert_each_other() -> None:
+    for f in (0.0, 0.05, 0.1, 0.5, 1.0):
+        assert amdahl_serial(amdahl_speedup(f, 2), 2) == pytest.approx(f)
+    # the numbers: 1.81x from 1 to 2 threads is ~10 % serial, which caps 16 threads near 6x
+    f = amdahl_serial(1.81, 2)
+    assert f == pytest.approx(0.105, abs=1e-3) and amdahl_speedup(f, 16) == pytest.approx(6.21, abs=0.01)
+    assert amdahl_serial(2.5, 2) == 0.0 and amdahl_serial(0.5, 2) == 1.0  # clamped: noise, contention
+
+
+def test_parse_threads_takes_a_list_and_rejects_what_cannot_be_a_profile() -> None:
+    assert parse_threads(None) == [1, 2] and parse_threads("1,2,4,8,16") == [1, 2, 4, 8, 16]
+    assert parse_threads([2, 4]) == [2, 4]
+    for bad in ("1", "0,2", "1,1", "a,b"):
+        with pytest.raises(ValueError):
+            parse_threads(bad)
+
+
+def test_phase_table_reports_medians_speedups_and_says_the_projection_is_one() -> None:
+    samples = {1: [{"a": 9.0, "b": 1.0, "total": 10.0}] * 3, 2: [{"a": 4.5, "b": 1.0, "total": 5.5}] * 3}
+    fields, lines = phase_table("t", samples, [1, 2], ["a", "b"], "total")
+    rows = fields["phases"]
+    assert rows["a"]["speedup"] == 2.0 and rows["a"]["serial"] == 0.0 and rows["a"]["projected_16t"] == 16.0
+    assert rows["b"]["serial"] == 1.0 and rows["b"]["projected_16t"] == 1.0 and rows["b"]["share"] == 0.1
+    assert rows["total"]["serial"] == pytest.approx(0.1, abs=1e-4)
+    assert "projection" in lines[0] and len(lines) == 2 + 3

@@ -35,7 +35,7 @@ def test_the_table_fits_the_terminal_and_says_what_it_left_for_the_json():
     assert header[:6] == ["name", "knob", "value", "time_ms", "error", "error_unit"]
     assert "often" in header and "rare" not in header  # fields most cases fill go first
     left = 32 - (len(header) - 6)
-    assert lines[-2] == f"({left} more fields per case in the JSON: --json FILE)" and lines[-1] == "note: n"
+    assert lines[-2] == f"({left} more fields per case in the JSON: --out FILE)" and lines[-1] == "note: n"
     everything = report.format_table(width=None).splitlines()
     assert len(everything[0].split()) == 6 + 32 and "more field" not in everything[-2]
 

@@ -29,11 +29,11 @@ NOT_HERE_PATTERNS = {
     r"--predictions (my_frames|cn_out|controlnet_out|fresco_rain)/": "needs another tool's outputs",
     r"--scenes pandaset_002 --data-root \.\./shared/data --out runs/wc\b|--out runs/wc-edit|--out runs/train\b":
         "trains the default profile (about 7 minutes each): measured by `wcbench bench model` instead",
-    r"^wcbench bench (all|model|metrics|raster|weather|report|scale|validity)\b":
+    r"^wcbench bench (--all|all|model|metrics|raster|weather|report|scale|validity)\b":
         "benchmarks (measured, not smoke-tested)",
     r"^wcbench models pull|^wcbench models import": "downloads weights or needs a checkpoint file",
     r"^wcbench report runs/identity": "needs the three pandaset runs of the report section",
-    r"--out runs/(identity|filter2d|lidar_init)$": "the report section's 1080p runs (`run --method identity "
+    r"--out runs/(identity|filter2d|lidar[_-]init)$": "the report section's 1080p runs (`run --method identity "
         "--scenes pandaset_002 ... --weathers clear` stands for them)",
 }
 

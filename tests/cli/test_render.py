@@ -37,7 +37,7 @@ def test_cli_render_smoke_on_pandaset(tmp_path: Path) -> None:
 
     # Frames 16 and 17 have no lidar sweep: the scene comes from the sweeps of 15 and 19.
     common = {
-        "weather": "rain",
+        "weathers": "rain",
         "preset": "heavy",
         "frames": "16-17",
         "width": 96,
@@ -46,19 +46,19 @@ def test_cli_render_smoke_on_pandaset(tmp_path: Path) -> None:
         "seed": 3,
     }
     assert render.run(_args(tmp_path, **common)) == 0
-    folder = tmp_path / "lidar_init" / "pandaset_002" / "rain"
+    folder = tmp_path / "lidar-init" / "pandaset_002" / "rain"
     info = json.loads((folder / "info.json").read_text())
     assert [f["file"] for f in info["frames"]] == ["016.png", "017.png"]
     for f in info["frames"]:
         assert sha256_file(folder / f["file"]) == f["sha256"]
         assert f["info"]["particles_in_view"] > 0
     assert (
-        info["method"] == "lidar_init"
+        info["method"] == "lidar-init"
         and info["weather"] == "rain"
         and info["timings"]["resolution"] == [96, 54]
     )
     assert info["parameters"]["renderer"]["particles"]["capped"] is True
-    assert (tmp_path / "lidar_init" / "pandaset_002" / "rain.mp4").stat().st_size > 0
+    assert (tmp_path / "lidar-init" / "pandaset_002" / "rain.mp4").stat().st_size > 0
     # Same settings: up to date; a damaged frame is re-rendered identically (pure function of the seed).
     assert render.run(_args(tmp_path, **common)) == 0
     (folder / "016.png").write_bytes(b"torn")
@@ -69,7 +69,7 @@ def test_cli_render_smoke_on_pandaset(tmp_path: Path) -> None:
         render.run(_args(tmp_path, **{**common, "preset": "light"}))
     # Frame 17 alone is frame 17 of the sequence.
     assert render.run(_args(tmp_path / "alone", **{**common, "frames": "17"})) == 0
-    alone = json.loads((tmp_path / "alone/lidar_init/pandaset_002/rain/info.json").read_text())
+    alone = json.loads((tmp_path / "alone/lidar-init/pandaset_002/rain/info.json").read_text())
     assert alone["frames"][0]["sha256"] == info["frames"][1]["sha256"]
 
 
@@ -89,21 +89,21 @@ def test_cli_parses_frames_and_rejects_bad_input() -> None:
     from wcbench.cli import render
 
     render.add_arguments(parser)
-    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weather", "snow", "--wind", "4,20,30"])
-    w = _weather(args)
+    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weathers", "snow", "--wind", "4,20,30"])
+    w = _weather(args, "snow")
     assert (w.wind.speed_m_s, w.wind.tilt_deg, w.wind.azimuth_deg) == (4.0, 20.0, 30.0)
-    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weather", "snow", "--wind", "4,20"])
+    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weathers", "snow", "--wind", "4,20"])
     with pytest.raises(InputError, match="--wind"):
-        _weather(args)
-    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weather", "fog", "--visibility", "-3"])
+        _weather(args, "snow")
+    args = parser.parse_args(["--scenes", "x", "--out", "y", "--weathers", "fog", "--visibility", "-3"])
     with pytest.raises(InputError, match="visibility_m"):
-        _weather(args)
+        _weather(args, "fog")
 
 
 def test_method_option_that_render_sets_itself_is_refused_by_name(tmp_path, capsys):
     from wcbench.cli import main
 
-    code = main(["render", "--scenes", "demo", "--weather", "rain", "--out", str(tmp_path), "--no-progress",
+    code = main(["render", "--scenes", "demo", "--weathers", "rain", "--out", str(tmp_path), "--no-progress",
                  "--method-option", "weathers={}"])
     assert code == 2
     assert "--method-option weathers: set by render's own options" in capsys.readouterr().err
@@ -114,11 +114,11 @@ def test_a_render_of_some_frames_is_evaluated_as_is(tmp_path: Path, capsys) -> N
     from wcbench.cli import main
 
     out = tmp_path / "renders"
-    assert main(["render", "--scenes", "demo", "--weather", "fog", "--visibility", "40", "--frames", "2-5",
+    assert main(["render", "--scenes", "demo", "--weathers", "fog", "--visibility", "40", "--frames", "2-5",
                  "--scale", "0.5", "--no-video", "--out", str(out)]) == 0
     results = tmp_path / "results"
     # no --frames and no --resize: the render's info.json says which frames and what size
-    assert main(["evaluate", "--method", "lidar_init", "--scenes", "demo", "--predictions", str(out / "lidar_init"),
+    assert main(["evaluate", "--method", "lidar-init", "--scenes", "demo", "--predictions", str(out / "lidar-init"),
                  "--metrics", "temporal_flicker", "--out", str(results)]) == 0
     doc = json.loads((results / "results.json").read_text())
     [scene] = doc["results"]

@@ -6,7 +6,7 @@ Writes ``clip_tiny_visual.onnx`` (pixels [B, 3, 32, 32] -> [B, 8]) and ``clip_ti
 (tokens [B, 77] int64, ids < 512, the largest id of a row marks its end -> [B, 8]) beside this
 script. The model is the real CLIP architecture (``wcbench.metrics.clip.pytorch.model.ClipModel``) at toy
 sizes with seeded random weights, so the files carry no trained weights and regenerate the same
-numbers; ``tests/metrics/test_clip_onnx.py`` checks them against torch.
+numbers; ``tests/metrics/clip/test_onnx.py`` checks them against torch.
 """
 
 from __future__ import annotations

@@ -104,11 +104,11 @@ def test_a_contradicting_weather_is_refused_with_both_values():
 def test_weathercity_supervision_is_checked_or_reconciled_against_its_physics(tmp_path, demo_scene):
     from wcbench.methods import get_method
     from wcbench.methods.filter2d import Filter2DMethod
-    from wcbench.methods.weathercity import _supervision_frames
+    from wcbench.methods.scene_training import supervision_frames
 
     physics = {"fog": Weather(kind="fog", visibility_m=150.0)}
     # filter2d fogs at the physics' visibility, and says so
-    frames, record = _supervision_frames(demo_scene, "filter2d", ("fog",), 0.0, 0, physics=physics)
+    frames, record = supervision_frames(demo_scene, "filter2d", ("fog",), 0.0, 0, physics=physics)
     assert record["weather_check"]["fog"].startswith("reconciled: filter2d fogs at the physics' visibility 150 m")
     assert record["parameters"]["fog"]["visibility_m"] == pytest.approx(150.0)
     own = Filter2DMethod(effects=False).render_frame(demo_scene, "fog", 4, seed=0)
@@ -119,15 +119,15 @@ def test_weathercity_supervision_is_checked_or_reconciled_against_its_physics(tm
     editor.render(demo_scene, "fog", edits / "fog", show_progress=False)
     with pytest.raises(InputError, match=r"fog[/\\]info\.json: its fog was made with visibility 60 m, the run's "
                                          r"physics fog has visibility 150 m"):
-        _supervision_frames(demo_scene, f"physical-editor:{edits}", ("fog",), 0.0, 0, physics=physics)
-    _, ok = _supervision_frames(demo_scene, f"physical-editor:{edits}", ("fog",), 0.0, 0,
+        supervision_frames(demo_scene, f"physical-editor:{edits}", ("fog",), 0.0, 0, physics=physics)
+    _, ok = supervision_frames(demo_scene, f"physical-editor:{edits}", ("fog",), 0.0, 0,
                                 physics={"fog": Weather(kind="fog", visibility_m=60.0)})
     assert ok["weather_check"]["fog"].startswith("consistent")
     # ...and a folder that records none is used, marked unverified
     bare = tmp_path / "bare"
     shutil.copytree(edits, bare)
     (bare / "fog" / "info.json").unlink()
-    _, unverified = _supervision_frames(demo_scene, f"folder:{bare}", ("fog",), 0.0, 0, physics=physics)
+    _, unverified = supervision_frames(demo_scene, f"folder:{bare}", ("fog",), 0.0, 0, physics=physics)
     assert unverified["weather_check"]["fog"].startswith("unverified")
 
 

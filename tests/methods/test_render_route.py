@@ -16,14 +16,14 @@ def test_render_and_run_give_identical_frames(tmp_path: Path, capsys: pytest.Cap
     pytest.importorskip("torch")
     pytest.importorskip("numba")
     run_out, render_out = tmp_path / "run", tmp_path / "render"
-    assert main(["run", "--method", "lidar_init", "--scenes", "demo", "--out", str(run_out), "--weathers", "rain",
+    assert main(["run", "--method", "lidar-init", "--scenes", "demo", "--out", str(run_out), "--weathers", "rain",
                  "--metrics", "temporal_flicker", "--no-progress"]) == 0
-    # no size given to either: the method's own size (lidar_init: a quarter of the scene's)
-    assert main(["render", "--scenes", "demo", "--weather", "rain", "--out", str(render_out),
+    # no size given to either: the method's own size (lidar-init: a quarter of the scene's)
+    assert main(["render", "--scenes", "demo", "--weathers", "rain", "--out", str(render_out),
                  "--no-video", "--no-progress"]) == 0
     capsys.readouterr()
-    a = run_out / "lidar_init" / "demo_street" / "rain"
-    b = render_out / "lidar_init" / "demo_street" / "rain"
+    a = run_out / "lidar-init" / "demo_street" / "rain"
+    b = render_out / "lidar-init" / "demo_street" / "rain"
     frames = sorted(p.name for p in a.glob("*.png"))
     assert len(frames) == 12 and frames == sorted(p.name for p in b.glob("*.png"))
     for name in frames:
@@ -35,7 +35,7 @@ def test_render_and_run_give_identical_frames(tmp_path: Path, capsys: pytest.Cap
 
 
 def test_render_refuses_a_method_without_physics_weather(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["render", "--method", "filter2d", "--scenes", "demo", "--weather", "rain", "--out", str(tmp_path)])
+    code = main(["render", "--method", "filter2d", "--scenes", "demo", "--weathers", "rain", "--out", str(tmp_path)])
     assert code == 2
     err = capsys.readouterr().err
     assert "method 'filter2d' takes no option weathers" in err
@@ -43,8 +43,8 @@ def test_render_refuses_a_method_without_physics_weather(tmp_path: Path, capsys:
 
 
 def test_method_options_are_checked_before_construction() -> None:
-    pytest.importorskip("torch")  # lidar_init is a reference-model method
-    assert {"weathers", "size", "scale", "voxel_m", "init_frames"} <= set(method_options("lidar_init"))
+    pytest.importorskip("torch")  # lidar-init is a reference-model method
+    assert {"weathers", "size", "scale", "voxel_m", "init_frames"} <= set(method_options("lidar-init"))
     assert method_options("identity") == []
     with pytest.raises(InputError, match="takes no option voxel"):
         get_method("filter2d", voxel=0.1)

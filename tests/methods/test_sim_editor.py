@@ -188,7 +188,7 @@ def test_supervision_option_parses_a_severity_and_refuses_a_bad_one(truth_scene)
 
 def test_weathercity_takes_sim_editor_supervision(truth_scene):
     pytest.importorskip("torch")
-    from wcbench.methods.weathercity import _supervision_frames
+    from wcbench.methods.scene_training import supervision_frames
 
     with pytest.raises(InputError, match=r"must be in \[0, 1\]"):
         get_method("weathercity", supervision="sim-editor:2")
@@ -196,11 +196,11 @@ def test_weathercity_takes_sim_editor_supervision(truth_scene):
         get_method("weathercity", supervision="sim-editor:0.3", jitter=0.5)
     assert get_method("weathercity", supervision="sim-editor:0.3").parameters("rain")["supervision"] == \
         "sim-editor:0.3"
-    frames, record = _supervision_frames(truth_scene, "sim-editor:0.3", ("rain",), 0.0, 0)
+    frames, record = supervision_frames(truth_scene, "sim-editor:0.3", ("rain",), 0.0, 0)
     assert record["method"] == "sim-editor" and record["severity"] == 0.3 and len(frames["rain"]) == 12
     assert record["weather_check"] == {"rain": "unverified: the scene records no weather of its truth"}
     # the filter2d record: its settings and how its weather relates to the physics
-    _, f2d = _supervision_frames(truth_scene, "filter2d", ("rain",), 0.0, 0)
+    _, f2d = supervision_frames(truth_scene, "filter2d", ("rain",), 0.0, 0)
     assert set(f2d) == {"method", "effects", "jitter", "seed", "parameters", "weather_check"}
     with pytest.raises(InputError, match="'filter2d', sim-editor\\[:SEVERITY\\] or READER:DIR"):
-        _supervision_frames(truth_scene, "nowhere", ("rain",), 0.0, 0)
+        supervision_frames(truth_scene, "nowhere", ("rain",), 0.0, 0)

@@ -7,7 +7,7 @@ import pytest
 from metric_tester import check_metric
 from sequences import translated_sequence
 
-from wcbench.metrics import flow_warp_error, psnr, ssim, temporal_flicker
+from wcbench.metrics import flow_warping_error, psnr, ssim, temporal_flicker
 from wcbench.metrics.base import MetricContext
 from wcbench.metrics.fps import FPS
 from wcbench.metrics.pixel.psnr import PSNR
@@ -19,7 +19,7 @@ FUNCTIONAL = {
     PSNR: {"psnr": lambda p, s, r: psnr(p, r)},
     SSIM: {"ssim": lambda p, s, r: ssim(p, r)},
     TemporalFlicker: {"temporal_flicker": lambda p, s, r: temporal_flicker(p)},
-    FlowWarpingError: {"flow_warping_error": lambda p, s, r: flow_warp_error(p, s)},
+    FlowWarpingError: {"flow_warping_error": lambda p, s, r: flow_warping_error(p, s)},
 }
 
 

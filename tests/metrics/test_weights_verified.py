@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore
+from wcbench.core.models.catalogue import ModelEntry, ModelSource
+from wcbench.core.models.store import ModelStore
 from wcbench.core.storage import sha256_bytes
 from wcbench.metrics.clip.score import ClipScore
 

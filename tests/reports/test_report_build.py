@@ -172,7 +172,7 @@ def test_methods_scored_at_different_sizes_are_one_line_naming_them(small, tmp_p
 
     rewrite_results(small["grain"], scored_smaller)
     out = tmp_path / "r.html"
-    assert main(["report", *map(str, small.values()), "-o", str(out)]) == 0
+    assert main(["report", *map(str, small.values()), "--out", str(out)]) == 0
     expected = "scored at different sizes: grain 32x18; haze, tint 64x36 (on scene_a, scene_b)"
     printed = [line for line in capsys.readouterr().out.splitlines()
                if line.startswith("  flagged") and "(weights)" not in line]
@@ -329,32 +329,32 @@ def test_real_run_with_report_flag_writes_a_report_beside_results(tmp_path, caps
 
 
 def test_the_readme_report_example_gives_a_report_without_a_flag(tmp_path, capsys):
-    """The README's report example (identity, filter2d and lidar_init run separately on one scene,
-    then one report) on the demo scene: lidar_init renders at a quarter of the scene's size, yet all
+    """The report example of docs/guide.md (identity, filter2d and lidar-init run separately on one scene,
+    then one report) on the demo scene: lidar-init renders at a quarter of the scene's size, yet all
     three are scored at the scene's working size, so nothing differs and nothing is flagged."""
-    pytest.importorskip("torch")  # lidar_init is a reference-model method
+    pytest.importorskip("torch")  # lidar-init is a reference-model method
     runs = tmp_path / "runs"
-    for method in ("identity", "filter2d", "lidar_init"):
+    for method in ("identity", "filter2d", "lidar-init"):
         assert main(["run", "--method", method, "--scenes", "demo", "--out", str(runs / method), "--weathers",
                      "clear,rain", "--frames", "0-3", "--metrics", "psnr", "ssim", "temporal_flicker",
                      "flow_warping_error", "fps", "--no-progress"]) == 0
     capsys.readouterr()
     out = tmp_path / "report.html"
-    assert main(["report", *(str(runs / m) for m in ("identity", "filter2d", "lidar_init")), "-o", str(out),
+    assert main(["report", *(str(runs / m) for m in ("identity", "filter2d", "lidar-init")), "--out", str(out),
                  "--csv", "--latex"]) == 0
     printed = capsys.readouterr().out
     assert "flagged" not in printed, printed
     page = out.read_text()
     assert '<ul class="flags">' not in page and "No mismatch across results folders" in page
     cells = _numeric(parse_report(out).cells)
-    assert {c["data-method"] for c in cells} == {"identity", "filter2d", "lidar_init"}
+    assert {c["data-method"] for c in cells} == {"identity", "filter2d", "lidar-init"}
     assert not any(c["markers"] for c in cells)
     assert "\\ddag" not in out.with_suffix(".tex").read_text().split("\n\n", 1)[1]
-    lidar = json.loads((runs / "lidar_init" / "results.json").read_text())
+    lidar = json.loads((runs / "lidar-init" / "results.json").read_text())
     [record] = [r for r in lidar["working_size"] if r["weather"] == "rain"]
     assert (record["predictions"], record["to"], record["predictions_resized"]) == ([80, 45], [320, 180], True)
     # said as a fact, not a flag
-    assert "demo_street (320x180 frames) scored at 320x180; lidar_init's 80x45 frames resized to it." \
+    assert "demo_street (320x180 frames) scored at 320x180; lidar-init's 80x45 frames resized to it." \
         in html.unescape(page)
     # FPS stays the method's own: measured at the size it renders at, shown in the runtime table
     assert lidar["results"]["demo_street"]["rain"]["fps"]["extra"]["resolution"] == [80, 45]
@@ -363,7 +363,7 @@ def test_the_readme_report_example_gives_a_report_without_a_flag(tmp_path, capsy
 
 def test_report_cli_from_outside_the_source_tree(small, tmp_path):
     """As a user would: the console entry point, relative paths, exports beside the HTML."""
-    res = subprocess.run([sys.executable, "-m", "wcbench", "report", "tint", "haze", "-o", "out/report.html",
+    res = subprocess.run([sys.executable, "-m", "wcbench", "report", "tint", "haze", "--out", "out/report.html",
                           "--csv", "--latex", "--animation-frames", "2"], cwd=tmp_path, capture_output=True,
                          text=True)
     assert res.returncode == 0, res.stderr

@@ -59,10 +59,10 @@ def test_missing_or_edited_results_csv(small, tmp_path):
 
 
 def test_cli_exit_code_2_and_message(tmp_path, capsys):
-    assert main(["report", str(tmp_path), "-o", str(tmp_path / "r.html")]) == 2
+    assert main(["report", str(tmp_path), "--out", str(tmp_path / "r.html")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("wcbench report: error:") and "no results.json" in err
-    assert main(["report", str(tmp_path), "-o", str(tmp_path)]) == 2
+    assert main(["report", str(tmp_path), "--out", str(tmp_path)]) == 2
     assert "is a folder" in capsys.readouterr().err
 
 

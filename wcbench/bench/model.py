@@ -32,13 +32,21 @@ temporal_<weather>    weathercity trained on ``filter2d`` supervision with ``jit
                       sequence) of its renders of every frame (decoded weather, no particles, no
                       physics fog), against ``supervision_error`` of the jittered frames it learnt
                       from and ``raw_error`` of the raw sequence itself
+profile_step          the per-phase profile of a training step of the default profile at each thread
+                      count of ``threads`` (numba, torch and BLAS set together; default 1,2), rounds
+                      interleaving the counts: data, scene graph, decoders, sky, the rasterizer's
+                      forward and backward, losses, the rest of the backward, densification
+                      statistics, optimizer, densification (one per ``densify_interval`` steps,
+                      amortised), and ``non_raster`` (everything but the rasterizer); per phase the
+                      speed-up from the first count to the second, its Amdahl serial fraction and a
+                      *projected* 16-thread speed-up (docs/design.md §8)
 skip_<what>           what a skip of the scene graph saves: the median time of a training step of a
                       model built with the skip (``time_ms``) and without it (``without_ms``):
                       dropping Gaussians outside every training frustum, keeping tracks that do not
                       move in the background, and not training a weather without supervision
 
 ``error`` is the held-out PSNR (dB, higher is better): this suite reports quality, not a deviation.
-Set ``WCBENCH_BENCH_MODEL_GROUPS`` to run some of the groups ``headline,temporal,knobs,skips``
+Set ``WCBENCH_BENCH_MODEL_GROUPS`` to run some of the groups ``headline,temporal,knobs,skips,profile``
 (default all; the headline and the temporal group each train the default profile, the knobs take
 about 4 minutes each), and ``WCBENCH_BENCH_MODEL_KNOBS`` to a comma-separated list of knob case
 names to run only those.
@@ -46,6 +54,7 @@ names to run only those.
 
 from __future__ import annotations
 
+import copy
 import os
 import statistics
 import time
@@ -58,13 +67,16 @@ import numpy as np
 import torch
 
 from wcbench.bench.overview import pareto_flags
+from wcbench.bench.phases import parse_threads, phase_table, run_interleaved
 from wcbench.bench.schema import BenchCase, BenchReport
 from wcbench.core.errors import InputError
-from wcbench.methods.weathercity import WeatherCityMethod, content_loss_for, training_inputs
-from wcbench.metrics.temporal.flicker import flow_warp_error
+from wcbench.methods.scene_training import content_loss_for, training_inputs
+from wcbench.methods.weathercity import WeatherCityMethod
+from wcbench.metrics.temporal.flicker import flow_warping_error
 from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.sky import view_directions
-from wcbench.reference_model.scene_graph.lidar_init import estimate_sky_color, init_scene_from_lidar
+from wcbench.reference_model.raster.threads import threads as thread_count
+from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.training.build import build_model
 from wcbench.reference_model.training.config import TrainConfig, make_config
 from wcbench.reference_model.training.losses import ContentLoss
@@ -179,8 +191,8 @@ def _one_pass_case(model: Any, views: list[TrainingView], repeats: int) -> Bench
 def _plain_case(scene: Scene, base: TrainConfig, train_views: list[TrainingView], held: list[TrainingView],
                 seconds: float) -> BenchCase:
     """The calibration baseline on the same lidar initialisation, for the same clock."""
-    graph = init_scene_from_lidar(scene, voxel_m=base.voxel_m, node_voxel_m=base.node_voxel_m,
-                                  frames=[v.frame for v in train_views], opacity=base.init_opacity)
+    options = LidarInitOptions(voxel_m=base.voxel_m, node_voxel_m=base.node_voxel_m, opacity=base.init_opacity)
+    graph = init_scene_from_lidar(scene, options, frames=[v.frame for v in train_views])
     plain = PlainOptimisation(graph, train_views, background=estimate_sky_color(scene))
     evals, steps, spent = _timed_training(plain.step, [seconds / 2, seconds], lambda: plain.evaluate(held))
     return BenchCase(
@@ -201,6 +213,105 @@ def _step_ms(scene: Scene, train_views: list[TrainingView], views: list[Training
     for _ in range(2):  # warm-up, and step 0 renders every weather whatever the interval
         trainer.step()
     return 1e3 * statistics.median(trainer.step().seconds for _ in range(steps)), model.counts()["total"]
+
+
+#: Rows of the training-step profile (see the module docstring), in step order.
+STEP_PHASES = ("data", "scene_graph", "decoders", "sky", "raster_fwd", "losses", "raster_bwd", "backward_rest",
+               "stats", "optimizer", "densify", "log")
+
+
+class _Stopwatch:
+    """Sums the wall time of a module's forward calls (forward pre-hook to forward hook)."""
+
+    def __init__(self, module: torch.nn.Module):
+        self.ms = 0.0
+        self._t = 0.0
+        self._handles = [module.register_forward_pre_hook(self._start), module.register_forward_hook(self._stop)]
+
+    def _start(self, *_: Any) -> None:
+        self._t = time.perf_counter()
+
+    def _stop(self, *_: Any) -> None:
+        self.ms += 1e3 * (time.perf_counter() - self._t)
+
+    def take(self) -> float:
+        ms, self.ms = self.ms, 0.0
+        return ms
+
+    def remove(self) -> None:
+        for h in self._handles:
+            h.remove()
+
+
+def _profile_case(scene: Scene, train_views: list[TrainingView], views: list[TrainingView], config: TrainConfig,
+                  weathers: tuple[str, ...], content: Any, counts: list[int], *, rounds: int,
+                  hazes: dict[str, Haze] | None = None) -> tuple[BenchCase, list[str]]:
+    """Per-phase profile of a training step at each thread count (see the module docstring).
+
+    Each round runs two steps per count (a weather step and a clear one follow each other when
+    ``weather_interval`` is 2, so both kinds are sampled alike); densification is disabled in the
+    steps and timed once per count on a copy of the trainer, then divided by ``densify_interval``.
+    """
+    model, _ = build_model(scene, train_views, config, weathers=weathers)
+    trainer = Trainer(model, views, replace(config, densify_from=10**9, weather_interval=2), content=content,
+                      hazes=hazes)
+    decoders, sky = _Stopwatch(model.decoders), _Stopwatch(model.sky)
+    raster_fwd = [0.0]
+    inner = trainer.rasterizer
+
+    def timed_raster(*args: Any, **kwargs: Any) -> Any:
+        t = time.perf_counter()
+        out = inner(*args, **kwargs)
+        raster_fwd[0] += 1e3 * (time.perf_counter() - t)
+        return out
+
+    trainer.rasterizer = timed_raster
+
+    def once() -> dict[str, float]:
+        ph: dict[str, float] = {}
+        for _ in range(2):
+            raster_fwd[0] = 0.0
+            log = trainer.step()
+            p = log.phase_ms
+            dec, sk = decoders.take(), sky.take()
+            bwd = sum(v for k, v in log.raster_ms.items() if k.startswith("bwd_"))
+            row = {"data": p["data"], "decoders": dec, "sky": sk, "raster_fwd": raster_fwd[0],
+                   "scene_graph": p["render"] - dec - sk - raster_fwd[0], "losses": p["losses"], "raster_bwd": bwd,
+                   "backward_rest": p["backward"] - bwd, "stats": p["stats"], "optimizer": p["optimizer"],
+                   "log": p["log"]}
+            for k, v in row.items():
+                ph[k] = ph.get(k, 0.0) + v / 2
+        return ph
+
+    samples, effective = run_interleaved(once, counts, rounds)
+    decoders.remove()
+    sky.remove()
+    # One densification per count, each on its own copy of the model, optimizer and statistics the
+    # rounds accumulated (the views, targets and content network are shared, not copied).
+    for n in counts:
+        twin = copy.copy(trainer)
+        twin.model, twin.optimizer, twin.stats = copy.deepcopy((trainer.model, trainer.optimizer, trainer.stats))
+        twin.generator = torch.Generator().set_state(trainer.generator.get_state())
+        twin.densify_log = []
+        with thread_count(n):
+            t = time.perf_counter()
+            twin.densify()
+            ms = 1e3 * (time.perf_counter() - t) / max(config.densify_interval, 1)
+        for ph in samples[n]:
+            ph["densify"] = ms
+    for ph in (ph for runs in samples.values() for ph in runs):
+        ph["total"] = sum(ph[k] for k in STEP_PHASES)
+        ph["non_raster"] = ph["total"] - ph["raster_fwd"] - ph["raster_bwd"]
+    fields, lines = phase_table(f"profile_step: a training step ({model.counts()['total']} Gaussians, "
+                                f"{config.size_for(scene.image_size)[0]}x{config.size_for(scene.image_size)[1]})",
+                                samples, effective, [*STEP_PHASES, "non_raster"], "total")
+    whole, rest = fields["phases"]["total"], fields["phases"]["non_raster"]
+    case = BenchCase(name="profile_step", knob="threads", value=",".join(map(str, counts)),
+                     time_ms=whole["ms"][str(counts[0])], error=None, error_unit="-",
+                     extra={"speedup": whole["speedup"], "serial": whole["serial"],
+                            "projected_16t": whole["projected_16t"], "non_raster_speedup": rest["speedup"],
+                            "gaussians": model.counts()["total"], **fields})
+    return case, lines
 
 
 def _skip_cases(scene: Scene, base: TrainConfig, train_views: list[TrainingView], views: list[TrainingView],
@@ -241,7 +352,7 @@ def _temporal_cases(scene: Scene, base: TrainConfig, content: Any, *, jitter: fl
     trainer.train()
     spent = time.perf_counter() - t
     raw = np.stack([v.images["clear"] for v in views])
-    raw_error = flow_warp_error(raw)
+    raw_error = flow_warping_error(raw)
     grids = [model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
              for v in views]
     out = []
@@ -252,8 +363,8 @@ def _temporal_cases(scene: Scene, base: TrainConfig, content: Any, *, jitter: fl
                              depth=False).images.clamp(0, 1).numpy()
                 for v, grid in zip(views, grids)])
         supervision = np.stack([v.images[weather] for v in views])
-        error = flow_warp_error(renders, raw)
-        sup_error = flow_warp_error(supervision, raw)
+        error = flow_warping_error(renders, raw)
+        sup_error = flow_warping_error(supervision, raw)
         out.append(BenchCase(
             name=f"temporal_{weather}", knob="jitter", value=jitter, time_ms=1e3 * spent, error=error,
             error_unit="flow_warp_error", extra={
@@ -300,7 +411,7 @@ def _pareto(cases: list[BenchCase]) -> None:
         c.extra["pareto"] = flag
 
 
-def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
+def run(*, data_root: Path | None, quick: bool = False, threads: str | list[int] | None = None) -> BenchReport:
     """Run the suite.
 
     Parameters
@@ -309,17 +420,20 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
         Folder holding ``pandaset_002`` (else the demo street, and a note says so).
     quick : bool
         A smoke run: the ``quick`` profile and two knob cases; not a measurement.
+    threads : str or list of int, optional
+        Thread counts of ``profile_step`` (default ``1,2``; the first is the baseline).
 
     Returns
     -------
     BenchReport
         Suite ``"model"`` (see the module docstring).
     """
-    groups = set(os.environ.get("WCBENCH_BENCH_MODEL_GROUPS", "headline,temporal,knobs,skips").split(","))
-    bad_groups = groups - {"headline", "temporal", "knobs", "skips"}
+    groups = set(os.environ.get("WCBENCH_BENCH_MODEL_GROUPS", "headline,temporal,knobs,skips,profile").split(","))
+    bad_groups = groups - {"headline", "temporal", "knobs", "skips", "profile"}
     if bad_groups:
         raise InputError(f"WCBENCH_BENCH_MODEL_GROUPS: unknown groups {sorted(bad_groups)}; "
-                         "known: headline, temporal, knobs, skips")
+                         "known: headline, temporal, knobs, skips, profile")
+    counts = parse_threads(threads)
     chosen = os.environ.get("WCBENCH_BENCH_MODEL_KNOBS")
     knobs = _KNOBS[:2] if quick else _KNOBS
     if chosen:  # checked before any work
@@ -348,6 +462,11 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
     torch.manual_seed(0)
     content, content_note = content_loss_for(base, None)
     report.notes.append(f"content loss: {content_note}")
+    if "profile" in groups:
+        case, table = _profile_case(scene, train_views, views, base, inputs.trained, content, counts,
+                                    rounds=2 if quick else 8, hazes=inputs.hazes)
+        report.cases.append(case)
+        report.notes += table
     if "skips" in groups:
         report.cases += _skip_cases(scene, base, train_views, views, inputs.trained, content, steps=3 if quick else 8,
                                     hazes=inputs.hazes)

@@ -1,7 +1,7 @@
-"""``wcbench bench all``: every suite, one table, and a time-versus-error chart per knob.
+"""``wcbench bench --all``: every suite, one table, and a time-versus-error chart per knob.
 
 :func:`run_all` runs the suites one after another (each writes ``OUT/<suite>.json``, as ``wcbench
-bench SUITE --json`` does), then :func:`summarize` reads the JSON files alone and writes
+bench SUITE --out`` does), then :func:`summarize` reads the JSON files alone and writes
 
 ``OUT/summary.md``      one table of every case (suite, case, knob, value, time, error) with the
                         defaults marked and whether each default is on the Pareto front of its knob
@@ -32,7 +32,7 @@ __all__ = ["HIGHER_IS_BETTER_UNITS", "pareto_flags", "pareto_front", "run_all", 
 
 #: Error units where a larger ``error`` is better (the model suite reports quality as PSNR).
 HIGHER_IS_BETTER_UNITS = frozenset({"psnr_db"})
-#: Suites ``bench all`` runs, in this order (the slowest last).
+#: Suites ``bench --all`` runs, in this order (the slowest last).
 ALL_SUITES = ("metrics", "raster", "weather", "report", "scale", "validity", "model")
 
 
@@ -112,7 +112,7 @@ def summarize(folder: Path) -> dict[str, Any]:
             raise ValueError(f"{path}: not a wcbench benchmark JSON: {exc}") from None
         reports.append(obj)
     if not reports:
-        raise ValueError(f"{folder}: no benchmark JSON files (run `wcbench bench all --out {folder}` first)")
+        raise ValueError(f"{folder}: no benchmark JSON files (run `wcbench bench --all --out {folder}` first)")
     lines = ["# wcbench benchmarks", "",
              "Every suite's cases; `default` marks the shipped setting, `front` whether a case is on the",
              "Pareto front of time against error among its knob's cases (PSNR: higher is better).", ""]
@@ -173,10 +173,10 @@ def run_all(suites: dict[str, Callable[..., BenchReport]], *, out: Path, data_ro
     out.mkdir(parents=True, exist_ok=True)
     seconds = {}
     for name, run in suites.items():
-        echo(f"bench all: {name} ...")
+        echo(f"bench --all: {name} ...")
         t = time.perf_counter()
         report = run(data_root=data_root, quick=quick)
         seconds[name] = round(time.perf_counter() - t, 1)
         report.write(out / f"{name}.json")
-        echo(f"bench all: {name} done in {seconds[name]:.0f} s ({len(report.cases)} cases)")
+        echo(f"bench --all: {name} done in {seconds[name]:.0f} s ({len(report.cases)} cases)")
     return {**summarize(out), "seconds": seconds}

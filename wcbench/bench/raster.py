@@ -9,6 +9,14 @@ b. the real workload: the lidar of ``pandaset_002`` (every sweep, voxelised at 0
    the same count and depth statistics when the data is absent;
 c. 40k rain streaks (scale [0.0025, 0.0025, 0.075] m, opacity 0.13) within 10 m, at 480x270;
 d. 1M Gaussians at 1920x1080, forward only, fast path only, with peak memory;
+profile_<case>_<size>: the per-phase profile of one rasterizer call (forward + backward of case b,
+   at 480x270 and at 1920x1080) at each thread count of ``threads`` (numba, torch and BLAS set
+   together, :func:`~wcbench.reference_model.raster.threads.set_threads`): the median time of
+   each phase (projection, depth sort, tile binning, forward blend, backward blend, the
+   per-Gaussian reduction of the backward, backward projection, and the torch glue: the rest of
+   the call), its speed-up from the first to the second thread count, the serial fraction that
+   speed-up implies (Amdahl) and, from that fraction, a *projected* speed-up at 16 threads. The
+   rounds interleave the thread counts, so load drifts hit them alike; the notes print the table;
 start_cold, start_warm: a new process that imports wcbench and runs every numba kernel once
    (:func:`~wcbench.reference_model.kernel_warmup.compile_kernels`, what ``wcbench compile`` does)
    with an empty numba cache, then again with the cache the first run wrote: what a fresh
@@ -39,6 +47,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from wcbench.bench.phases import parse_threads, phase_table, run_interleaved
 from wcbench.bench.schema import BenchCase, BenchReport
 from wcbench.reference_model.raster.kernels import RenderJob
 from wcbench.reference_model.raster.rasterizer import rasterize
@@ -281,6 +290,53 @@ def _case_memory(name: str, spec: dict[str, Any], *, repeats: int) -> BenchCase:
                      error_unit="abs", extra=extra)
 
 
+#: Phases of :attr:`RenderJob.phase_ms`, in pipeline order; ``glue`` is the rest of the call.
+RASTER_PHASES = ("project", "sort", "bin", "fwd_blend", "bwd_blend", "bwd_reduce", "bwd_project", "glue")
+
+
+def _profile_case(name: str, spec: dict[str, Any], counts: list[int], rounds: int) -> tuple[BenchCase, list[str]]:
+    """Per-phase profile of forward + backward of ``spec`` at each thread count (see the module docstring)."""
+    width, height = spec["size"]
+    m, q, s, o, c = spec["params"]
+    weights = _loss_weights(width, height, c.shape[1])
+
+    def once() -> dict[str, float]:
+        for p in spec["params"]:
+            p.grad = None
+        t0 = time.perf_counter()
+        out = rasterize(m, q, s, o, c, spec["viewmat"], spec["K"], width, height, backend="numba")
+        assert out.depth is not None  # render_depth is on
+        loss = (out.color * weights[0]).sum() + (out.alpha * weights[1]).sum() + (out.depth * weights[2]).sum()
+        loss.backward()
+        total = 1e3 * (time.perf_counter() - t0)
+        phases = dict(out.meta["phase_ms"])
+        return {**phases, "glue": total - sum(phases.values()), "total": total}
+
+    samples, effective = run_interleaved(once, counts, rounds)
+    fields, lines = phase_table(f"{name}: {len(m)} Gaussians at {width}x{height}, forward + backward",
+                                samples, effective, RASTER_PHASES, "total")
+    whole = fields["phases"]["total"]
+    case = BenchCase(name=name, knob="threads", value=",".join(map(str, counts)), time_ms=whole["ms"][str(counts[0])],
+                     error=None, error_unit="-",
+                     extra={"gaussians": len(m), "width": width, "height": height, "speedup": whole["speedup"],
+                            "serial": whole["serial"], "projected_16t": whole["projected_16t"], **fields})
+    return case, lines
+
+
+def _profile_cases(spec: dict[str, Any], label: str, counts: list[int], *, quick: bool) -> tuple[list[BenchCase],
+                                                                                                  list[str]]:
+    """The profile of case b at its size and, outside ``quick``, at 1920x1080 (K scaled by 4)."""
+    sizes = [spec["size"]] if quick else [REAL_SIZE, (1920, 1080)]
+    cases, lines = [], []
+    for width, height in sizes:
+        k = np.array(spec["K"], np.float64) * np.array([[width / spec["size"][0]], [height / spec["size"][1]], [1.0]])
+        sized = {**spec, "size": (width, height), "K": k}
+        case, text = _profile_case(f"profile_{label}_{width}x{height}", sized, counts, 1 if quick else 9)
+        cases.append(case)
+        lines += text
+    return cases, lines
+
+
 def _start_cases() -> list[BenchCase]:
     """A cold and a warm process start of the kernels (the numba cache in a fresh temporary folder)."""
     code = "from wcbench.reference_model.kernel_warmup import compile_kernels; compile_kernels()"
@@ -297,7 +353,7 @@ def _start_cases() -> list[BenchCase]:
                       {"default": True, "cold_over_warm": round(cold / warm, 2)})]
 
 
-def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
+def run(*, data_root: pathlib.Path | None, quick: bool = False, threads: str | list[int] | None = None) -> BenchReport:
     """Run the rasterizer benchmark.
 
     Parameters
@@ -307,12 +363,18 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
         with the same count and depth statistics (said in the notes).
     quick : bool
         Shrink every case (a smoke test of the schema, not a measurement).
+    threads : str or list of int, optional
+        Thread counts of the per-phase profile, e.g. ``"1,2,4,8,16"`` (default ``1,2``): the first
+        is the baseline, the speed-up and serial fraction compare it with the second, and every
+        count gets its own time column. Counts above the machine's run at its count (said in the
+        table).
 
     Returns
     -------
     BenchReport
         Suite ``"raster"``; one case per workload with the fields listed in the module docstring.
     """
+    counts = parse_threads(threads)
     report = BenchReport(suite="raster")
     repeats = 1 if quick else 5
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -354,6 +416,9 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False) -> BenchReport:
         spec["size"] = (240, 135)
         spec["K"] = np.array(spec["K"]) * np.array([[0.5], [0.5], [1.0]])
     report.cases.append(_case(name, spec, repeats=repeats, with_twin=True))
+    profiles, table = _profile_cases(spec, name.split("_")[0], counts, quick=quick)
+    report.cases += profiles
+    report.notes += table
 
     n_c, size_c = (4_000, (240, 135)) if quick else (40_000, REAL_SIZE)
     report.cases.append(_case(f"c_rain_{n_c // 1000}k", _rain(n_c, *size_c, seed=2), repeats=repeats,

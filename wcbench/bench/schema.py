@@ -146,7 +146,7 @@ class BenchReport:
         lines = ["  ".join(k.ljust(w) for k, w in zip(keys, widths)).rstrip()]
         lines += ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in rows]
         if left_out:
-            lines.append(f"({left_out} more field{'' if left_out == 1 else 's'} per case in the JSON: --json FILE)")
+            lines.append(f"({left_out} more field{'' if left_out == 1 else 's'} per case in the JSON: --out FILE)")
         lines += [f"note: {n}" for n in self.notes]
         return "\n".join(lines)
 

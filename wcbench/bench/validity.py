@@ -7,7 +7,7 @@ it (CLIP-S, CLIP-DS, Sem-CS) and the temporal ones (flicker, flow warping error,
 Cases
 -----
 ``<entry>``
-    One method (``identity``, ``filter2d``, ``physical-editor``, ``lidar_init`` outside ``--quick``),
+    One method (``identity``, ``filter2d``, ``physical-editor``, ``lidar-init`` outside ``--quick``),
     one severity of
     the simulated editor (``sim-editor_<s>``) or the truth itself (``truth``: severity 0),
     rendered and scored on every scene of the set and every edited weather: the mean of each
@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import spearmanr
 
-from wcbench.bench.models import private_caches
+from wcbench.bench.metric_models import private_caches
 from wcbench.bench.schema import BenchCase, BenchReport
 from wcbench.evaluation import EvaluateConfig, evaluate
 from wcbench.methods import get_method
@@ -119,7 +119,7 @@ def _entries(quick: bool) -> list[tuple[str, str, dict[str, Any]]]:
                                                   ("identity", "identity", {}), ("filter2d", "filter2d", {}),
                                                   ("physical-editor", "physical-editor", {})]
     if not quick:
-        out.append(("lidar_init", "lidar_init", {}))
+        out.append(("lidar-init", "lidar-init", {}))
     out += [(f"sim-editor_{s:g}", "sim-editor", {"severity": s}) for s in severities]
     return out
 

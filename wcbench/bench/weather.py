@@ -31,10 +31,10 @@ from wcbench.bench.schema import BenchCase, BenchReport
 from wcbench.reference_model.raster.common import EPS2D
 from wcbench.reference_model.raster.rasterizer import numba_available
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
-from wcbench.reference_model.scene_graph.lidar_init import estimate_sky_color, init_scene_from_lidar
+from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.fog import compose_exact, transmitted_channels
-from wcbench.reference_model.weather.particles import Wind
+from wcbench.reference_model.weather.particle_spec import Wind
 from wcbench.reference_model.weather.renderer import WeatherRenderer, scale_camera
 from wcbench.scenes.loaders import load_scene
 from wcbench.scenes.scene import Camera
@@ -96,7 +96,7 @@ def _synthetic_scene(n: int, seed: int = 0) -> tuple[Any, Any, np.ndarray]:
 def _real_scene(root: Path, n: int) -> tuple[Any, Any, np.ndarray, Any]:
     """The lidar initialisation of pandaset_002 at frame 10, subsampled to ``n`` Gaussians."""
     scene = load_scene(root)
-    gaussians = init_scene_from_lidar(scene, voxel_m=0.17).at_frame(10)
+    gaussians = init_scene_from_lidar(scene, LidarInitOptions(voxel_m=0.17)).at_frame(10)
     if len(gaussians) > n:
         keep = np.sort(np.random.default_rng(0).choice(len(gaussians), n, replace=False))
         gaussians = gaussians.subset(keep)

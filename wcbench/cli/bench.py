@@ -5,15 +5,19 @@ yardsticks of docs/design.md §8); they never assert times.
 
 Examples::
 
-    wcbench bench list
-    wcbench bench metrics --json bench/metrics.json
-    wcbench bench raster --data-root ../shared/data --json bench/raster.json
-    wcbench bench all --data-root ../shared/data --out bench/      # every suite, summary.md, charts/
-    wcbench bench all --summary-only --out bench/                 # table and charts from the JSON files
+    wcbench bench --list
+    wcbench bench metrics --out bench/metrics.json
+    wcbench bench raster --data-root ../shared/data --out bench/raster.json
+    wcbench bench validity --quick --out bench/          # a folder: writes bench/validity.json
+    wcbench bench --all --data-root ../shared/data --out bench/     # every suite, summary.md, charts/
+    wcbench bench --all --summary-only --out bench/                # table and charts from the JSON files
 
-``all`` runs every suite (the model suite alone takes over an hour; ``--quick`` a few minutes),
+``--all`` runs every suite (the model suite alone takes over an hour; ``--quick`` a few minutes),
 writes ``OUT/<suite>.json``, then ``OUT/summary.md`` (one table, defaults and their place on the
 Pareto front) and ``OUT/charts/<suite>-<knob>.png`` (time against error per knob).
+
+``bench list`` / ``bench all`` and ``--json FILE`` are the deprecated spellings of ``--list``,
+``--all`` and ``--out FILE``.
 """
 
 from __future__ import annotations
@@ -23,50 +27,94 @@ import sys
 from pathlib import Path
 
 from wcbench.bench import SUITES
+from wcbench.cli.common import (
+    add_data_root_argument,
+    add_deprecated_alias,
+    add_output_argument,
+    used_deprecated,
+    warn_deprecated,
+)
 from wcbench.core.errors import InputError, UnknownNameError
 from wcbench.core.registry import LazyRegistry
 
 HELP = "run a benchmark suite (speed vs error)"
 
+#: Folder of ``--all`` when no ``--out`` is given.
+ALL_DEFAULT_OUT = Path("bench")
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``SUITE [--json FILE] [--data-root DIR] [--quick]``."""
-    parser.add_argument("suite", help="suite name, `all`, or `list`")
-    parser.add_argument("--json", type=Path, default=None, help="write the benchmark JSON here")
-    parser.add_argument("--out", type=Path, default=Path("bench"),
-                        help="with `all`: folder of the suites' JSON, summary.md and charts/ (default: bench)")
+    """``SUITE | --list | --all``, ``[--out FILE|DIR] [--data-root DIR] [--quick] [--summary-only]``."""
+    parser.add_argument("suite", nargs="?", default=None, help="suite name (see --list)")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--list", action="store_true", help="list the suites and exit")
+    which.add_argument("--all", action="store_true",
+                       help="run every suite, then write OUT/summary.md and OUT/charts/")
+    add_output_argument(parser, help="one suite: the benchmark JSON file (OUT ending in .json) or a folder for "
+                                     "OUT/<suite>.json (default: write none); with --all: folder of the "
+                                     f"suites' JSON, summary.md and charts/ (default: {ALL_DEFAULT_OUT})")
+    add_deprecated_alias(parser, "--json", use="--out", dest="out", type=Path, metavar="FILE")
     parser.add_argument("--summary-only", action="store_true",
-                        help="with `all`: rebuild summary.md and charts/ from the JSON files in --out, run nothing")
-    parser.add_argument("--data-root", type=Path, default=None,
-                        help="dataset folder for real-data cases (default: $WCBENCH_DATA)")
+                        help="with --all: rebuild summary.md and charts/ from the JSON files in --out, run nothing")
+    add_data_root_argument(parser, what=", for real-data cases")
     parser.add_argument("--quick", action="store_true", help="small sizes: a smoke run, not a measurement")
+    parser.add_argument("--threads", default=None, metavar="N,N,...",
+                        help="raster and model: thread counts of the per-phase profile, the first the baseline "
+                             "(default 1,2; e.g. 1,2,4,8,16)")
+
+
+def _json_path(out: Path, suite: str) -> Path:
+    """The JSON file ``--out`` names for one suite: OUT itself when it ends in .json, else OUT/<suite>.json."""
+    return out if out.suffix.lower() == ".json" else out / f"{suite}.json"
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the suite, print its table, write the JSON."""
+    """Run the suite, print its table, write the JSON (or list the suites, or run them all)."""
     from wcbench.core.storage import check_writable_folder
     from wcbench.scenes.sets import data_root_from
 
     suites: LazyRegistry = LazyRegistry("benchmark", SUITES)  # entry points add suites of other packages
-    if args.suite == "list":
+    if args.suite in ("list", "all") and args.suite not in suites:  # the old spellings
+        warn_deprecated(f"`wcbench bench {args.suite}`", f"`wcbench bench --{args.suite}`")
+        setattr(args, args.suite, True)
+        args.suite = None
+    if args.list and args.all:
+        raise InputError("--list and --all go alone: give one")
+    if args.suite is not None and (args.list or args.all):
+        raise InputError(f"give a suite name, --list or --all, not both ({args.suite!r} and "
+                         f"{'--list' if args.list else '--all'})")
+    if args.list:
         for name in suites.names():
             print(f"{name:10s} {SUITES.get(name, '(entry point)')}")
         return 0
-    if args.suite == "all":
-        if args.json:
-            raise InputError("--json names one suite's file; `bench all` writes every suite's JSON into --out")
+    if args.all:
+        if used_deprecated(args, "--json"):
+            raise InputError("--json names one suite's file; `bench --all` writes every suite's JSON into --out")
         return _run_all(args, suites)
+    if args.suite is None:
+        raise InputError(f"expected a suite name ({', '.join(suites.names())}), --list or --all")
     if args.summary_only:
-        raise InputError("--summary-only goes with `bench all`")
+        raise InputError("--summary-only goes with `bench --all`")
     if args.suite not in suites:
-        raise UnknownNameError("benchmark suite", args.suite, [*suites.names(), "all"])
-    if args.json:
-        check_writable_folder(args.json.parent, what="folder of the benchmark JSON")
-    report = suites.get(args.suite)(data_root=data_root_from(args.data_root), quick=args.quick)
+        raise UnknownNameError("benchmark suite", args.suite, suites.names())
+    path = None if args.out is None else _json_path(args.out, args.suite)
+    if path is not None:
+        check_writable_folder(path.parent, what="folder of the benchmark JSON")
+    options = {}
+    if args.threads is not None:
+        if args.suite not in ("raster", "model"):
+            raise InputError(f"--threads goes with `bench raster` and `bench model`, not {args.suite!r}")
+        from wcbench.bench.phases import parse_threads
+
+        try:
+            options["threads"] = parse_threads(args.threads)
+        except ValueError as exc:
+            raise InputError(f"--threads: {exc}") from None
+    report = suites.get(args.suite)(data_root=data_root_from(args.data_root), quick=args.quick, **options)
     print(report.format_table())
-    if args.json:
-        report.write(args.json)
-        print(f"wrote {args.json}")
+    if path is not None:
+        report.write(path)
+        print(f"wrote {path}")
     sys.stdout.flush()
     for what in report.stand_ins:
         print(f"WARNING: stand-in data: {what} (these numbers are not the documented ones; "
@@ -79,18 +127,19 @@ def _run_all(args: argparse.Namespace, suites: LazyRegistry) -> int:
     from wcbench.core.storage import check_writable_folder
     from wcbench.scenes.sets import data_root_from
 
-    check_writable_folder(args.out, what="benchmark folder")
+    out = ALL_DEFAULT_OUT if args.out is None else args.out
+    check_writable_folder(out, what="benchmark folder")
     try:
         if args.summary_only:
-            done = summarize(args.out)
+            done = summarize(out)
         else:
             order = [n for n in ALL_SUITES if n in suites] + [n for n in suites.names() if n not in ALL_SUITES]
-            done = run_all({n: suites.get(n) for n in order}, out=args.out,
+            done = run_all({n: suites.get(n) for n in order}, out=out,
                            data_root=data_root_from(args.data_root), quick=args.quick,
                            echo=lambda line: print(line, file=sys.stderr, flush=True))
     except ValueError as exc:
         raise InputError(str(exc)) from None
-    print(f"wrote {args.out / 'summary.md'} and {len(done['charts'])} charts in {args.out / 'charts'}")
+    print(f"wrote {out / 'summary.md'} and {len(done['charts'])} charts in {out / 'charts'}")
     for suite, knob, case in done["off_front"]:
         print(f"default off its Pareto front: {suite} / {knob}: {case}")
     sys.stdout.flush()

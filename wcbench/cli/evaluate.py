@@ -16,8 +16,8 @@ Examples::
         --predictions fresco_rain/ --weathers rain --out results/fresco    # FRESCO's save_path itself
     wcbench evaluate --method controlnet --scenes waymo_5 --predictions controlnet_out/ \\
         --out results/controlnet --executor dask --scheduler tcp://HOST:8786   # on a Dask cluster
-    wcbench evaluate --method lidar_init --scenes pandaset_002 --data-root ../shared/data \\
-        --predictions renders/lidar_init --out results/render    # a `wcbench render` output, as it is
+    wcbench evaluate --method lidar-init --scenes pandaset_002 --data-root ../shared/data \\
+        --predictions renders/lidar-init --out results/render    # a `wcbench render` output, as it is
     wcbench evaluate --method folder --scenes pandaset_002 --data-root ../shared/data \\
         --predictions my_frames/ --frames 0-9 --scale 0.5 --out results/part   # frames 0-9 at 960x540
 
@@ -38,8 +38,10 @@ from wcbench.cli.common import (
     add_executor_arguments,
     add_frame_and_size_arguments,
     add_offline_argument,
+    add_output_argument,
     add_progress_argument,
     add_scene_arguments,
+    add_weathers_argument,
     executor_from,
     frame_rate,
     method_name,
@@ -55,9 +57,8 @@ HELP = "score a method's frames (results.json, results.csv)"
 
 def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
     """Options shared by ``evaluate`` and ``run``."""
-    parser.add_argument("--out", type=Path, required=True, help="output folder for results.json / results.csv")
-    parser.add_argument("--weathers", nargs="+", default=None,
-                        help="weathers to score (default: every weather found / supported)")
+    add_output_argument(parser, required=True, help="output folder for results.json / results.csv")
+    add_weathers_argument(parser, help="weathers to score (default: every weather found / supported)")
     parser.add_argument("--metrics", nargs="+", default=None, help="metrics (default: see `wcbench metrics list`)")
     parser.add_argument("--fps", type=frame_rate, default=None, help="frame rate to report if info.json has none")
     parser.add_argument("--metric-option", action="append", default=[], metavar="METRIC.KEY=VALUE",

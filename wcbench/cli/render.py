@@ -8,22 +8,26 @@ parameters, timings, per-frame sha256), plus ``OUT/<method>/<scene>/<weather>.mp
 
 Examples::
 
-    wcbench render --scenes pandaset_002 --weather rain --preset heavy --out renders
-    wcbench render --scenes ../shared/data/pandaset_002 --weather fog --visibility 60 --out renders
-    wcbench render --scenes pandaset_002 --weather snow --wind 4,20,30 --frames 0-9 --out renders
-    wcbench render --method weathercity --scenes pandaset_002 --weather rain --preset heavy --scale 0.5 \\
+    wcbench render --scenes pandaset_002 --weathers rain --preset heavy --out renders
+    wcbench render --scenes ../shared/data/pandaset_002 --weathers fog --visibility 60 --out renders
+    wcbench render --scenes pandaset_002 --weathers snow --wind 4,20,30 --frames 0-9 --out renders
+    wcbench render --scenes pandaset_002 --weathers rain snow fog --out renders      # each at its preset
+    wcbench render --method weathercity --scenes pandaset_002 --weathers rain --preset heavy --scale 0.5 \\
         --edit "remove class=Car" --out renders
 
 A finished folder rendered with the same settings is left alone; one rendered with other settings
 is kept unless ``--overwrite``. A killed render resumes (frames are pure functions of the seed).
 
 With ``--method weathercity`` the scene is the trained WeatherCity model instead (trained first,
-or loaded from the cache; ``--profile``, ``--supervision``, ``--edit`` and ``--method-option`` as
-for ``run``), rendered at any size.
+or loaded from the cache; the method options ``--method-option``, ``--profile``, ``--supervision``,
+``--jitter``, ``--ablation``, ``--holdout`` and ``--edit`` as for ``run``), rendered at any size.
+
+The weather options (``--preset``, ``--rate``, ``--visibility``...) apply to every weather of
+``--weathers``.
 
 ``render`` is a front of the units of work ``wcbench run`` renders through: the same method, seed,
 weather and size give the same frames either way: both take ``--frames`` and ``--scale`` or
-``--width/--height`` and default to the method's own size (``lidar_init``: a quarter of the
+``--width/--height`` and default to the method's own size (``lidar-init``: a quarter of the
 scene's, 480x270 for 1920x1080), and both record the size and settings in info.json. A render of
 some frames is scored as it is by ``wcbench evaluate`` (its info.json lists the frames and size).
 """
@@ -35,14 +39,18 @@ from pathlib import Path
 from typing import Any
 
 from wcbench.cli.common import (
+    add_deprecated_alias,
     add_frame_and_size_arguments,
     add_method_options,
+    add_output_argument,
     add_progress_argument,
     add_scene_arguments,
+    add_weathers_argument,
     method_name,
     method_options_from,
     parse_frame_spec,
     size_request_from,
+    weathers_from,
 )
 from wcbench.core.errors import InputError
 from wcbench.core.weathers import WEATHERS
@@ -53,12 +61,14 @@ HELP = "render a scene under rain, snow or fog (lidar-initialised Gaussians + we
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``wcbench render``."""
     add_scene_arguments(parser)
-    parser.add_argument("--out", type=Path, required=True, help="output root of the prediction layout")
-    parser.add_argument("--weather", required=True, choices=WEATHERS)
+    add_output_argument(parser, required=True, help="output root of the prediction layout")
+    add_weathers_argument(parser, help="weathers to render (required), each with the weather options below")
+    add_deprecated_alias(parser, "--weather", use="--weathers", dest="weathers", metavar="WEATHER",
+                         convert=lambda value: [value])
     parser.add_argument(
         "--preset",
         default=None,
-        help="preset of the weather (rain: light moderate heavy paper; snow: light heavy paper; "
+        help="preset of the weathers (rain: light moderate heavy paper; snow: light heavy paper; "
         "fog: light moderate dense paper)",
     )
     parser.add_argument("--rate", type=float, default=None, help="rain/snow rate in mm/h (liquid water)")
@@ -83,15 +93,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="particle seed")
     add_frame_and_size_arguments(parser, size_help="size of the rendered frames (default: the method's own, "
-                                                   "as `run`: 480x270 for 1920x1080 with lidar_init)")
+                                                   "as `run`: 480x270 for 1920x1080 with lidar-init)")
     parser.add_argument("--voxel", type=float, default=None,
                         help="voxel size of the lidar initialisation (m; default: the method's, 0.2)")
     parser.add_argument(
         "--init-frames", default=None, help="frames whose lidar sweeps build the scene (default: all)"
     )
     parser.add_argument(
-        "--method", default="lidar_init", type=method_name,
-        help="runnable method drawing physics weather on a reconstructed scene (default: lidar_init)",
+        "--method", default="lidar-init", type=method_name,
+        help="runnable method drawing physics weather on a reconstructed scene (default: lidar-init)",
     )
     parser.add_argument("--no-video", action="store_true", help="do not write the mp4")
     parser.add_argument(
@@ -129,7 +139,14 @@ def _floats(text: str | None, count: int, option: str) -> tuple[float, ...] | No
     return values
 
 
-def _weather(args: argparse.Namespace) -> Any:
+def _weather(args: argparse.Namespace, kind: str) -> Any:
+    """The physics :class:`Weather` of ``kind`` the weather options of ``args`` describe.
+
+    Raises
+    ------
+    InputError
+        On malformed ``--wind``/``--fog-color`` or Weather fields ``kind`` refuses (a preset it lacks).
+    """
     from wcbench.reference_model.weather.conditions import Weather
     from wcbench.reference_model.weather.particles import Wind
 
@@ -137,7 +154,7 @@ def _weather(args: argparse.Namespace) -> Any:
     fog_color = _floats(args.fog_color, 3, "--fog-color")
     try:
         return Weather(
-            kind=args.weather,
+            kind=kind,
             preset=args.preset,
             rate_mm_h=args.rate,
             count=args.count,
@@ -150,12 +167,26 @@ def _weather(args: argparse.Namespace) -> Any:
             fog_mode=args.fog_mode,
         )
     except ValueError as exc:
-        raise InputError(f"weather: {exc}") from None
+        raise InputError(f"weather {kind}: {exc}") from None
+
+
+def _weathers(args: argparse.Namespace) -> list[str]:
+    """The weathers of ``--weathers`` (or the deprecated ``--weather``).
+
+    Raises
+    ------
+    InputError
+        When none is given; UnknownNameError on an unknown weather.
+    """
+    kinds = weathers_from(args.weathers)
+    if not kinds:
+        raise InputError(f"--weathers is required: one or more of {', '.join(WEATHERS)}, e.g. --weathers rain")
+    return list(dict.fromkeys(kinds))
 
 
 def _method_options(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
-    """Options of the method: the weather, and the scene settings that were given."""
-    options: dict[str, Any] = {"weathers": {args.weather: _weather(args)}}
+    """Options of the method: the weathers, and the scene settings that were given."""
+    options: dict[str, Any] = {"weathers": {kind: _weather(args, kind) for kind in _weathers(args)}}
     if args.voxel is not None:
         options["voxel_m"] = args.voxel
     if args.init_frames is not None:
@@ -171,10 +202,12 @@ def run(args: argparse.Namespace) -> int:
     from wcbench.units import RenderSettings, WorkUnit
 
     get_method(args.method)  # an unknown name fails before any scene is loaded
+    kinds = _weathers(args)
+    for kind in kinds:  # bad weather options fail before any scene is loaded or folder made
+        _weather(args, kind)
     check_writable_folder(args.out)
-    weather = _weather(args)
     size = size_request_from(args)
-    settings_base = {"seed": weather.seed, "overwrite": args.overwrite, "video": not args.no_video,
+    settings_base = {"seed": args.seed, "overwrite": args.overwrite, "video": not args.no_video,
                      "show_progress": not args.no_progress}
     for ref in resolve_scenes(args.scenes, data_root=data_root_from(args.data_root)):
         scene = ref.load()
@@ -183,14 +216,15 @@ def run(args: argparse.Namespace) -> int:
         clash = sorted(set(options) & set(given))
         if clash:
             raise InputError(f"--method-option {', '.join(clash)}: set by render's own options "
-                             "(--weather/--preset..., --voxel, --init-frames)")
+                             "(--weathers/--preset..., --voxel, --init-frames)")
         method = get_method(args.method, **options, **given)
         method.request_size(size)  # type: ignore[attr-defined]  # runnable: the unit renders it
-        unit = WorkUnit(method, scene, weather.kind, Path(args.out) / method.info.name / scene.id)
         settings = RenderSettings(frames=tuple(parse_frames(args.frames, len(scene))), **settings_base)
-        info = unit.render(settings)
-        print(
-            f"{info['status']}: {unit.root / unit.weather} ({len(info['frames'])} frames, "
-            f"{info['timings']['median_frame_ms']:.1f} ms/frame median)"
-        )
+        for kind in kinds:
+            unit = WorkUnit(method, scene, kind, Path(args.out) / method.info.name / scene.id)
+            info = unit.render(settings)
+            print(
+                f"{info['status']}: {unit.root / unit.weather} ({len(info['frames'])} frames, "
+                f"{info['timings']['median_frame_ms']:.1f} ms/frame median)"
+            )
     return 0

@@ -8,9 +8,12 @@ months apart go into one report. It opens from a file:// URL and makes no networ
 
 Examples::
 
-    wcbench report runs/identity runs/filter2d -o report.html
-    wcbench report runs/* -o paper/report.html --csv --latex
-    wcbench report runs/a --bench bench/raster.json bench/metrics.json -o report.html
+    wcbench report runs/identity runs/filter2d --out report.html
+    wcbench report runs/* --out paper/report.html --csv --latex
+    wcbench report runs/a --bench bench/raster.json bench/metrics.json --out report.html
+
+``-o`` and ``--output`` are deprecated spellings of ``--out``. Results written under a method's
+old name (``lidar_init``) are read as they are.
 """
 
 from __future__ import annotations
@@ -18,15 +21,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from wcbench.cli.common import add_deprecated_alias, add_output_argument
+
 HELP = "build an HTML report (tables, frames, provenance) from results folders"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``RESULTS_DIR... -o FILE [--csv] [--latex] [--bench FILE...] [--title T] [--animation-frames N]``."""
+    """``RESULTS_DIR... [--out FILE] [--csv] [--latex] [--bench FILE...] [--title T] [--animation-frames N]``."""
     parser.add_argument("results", nargs="+", type=Path, metavar="RESULTS_DIR",
                         help="--out folder of `wcbench run` or `wcbench evaluate` (several are merged)")
-    parser.add_argument("-o", "--output", type=Path, default=Path("report.html"),
-                        help="HTML file to write (default: report.html)")
+    add_output_argument(parser, default=Path("report.html"), help="HTML file to write (default: report.html)")
+    add_deprecated_alias(parser, "-o", "--output", use="--out", dest="out", type=Path, metavar="OUT")
     add_report_options(parser)
 
 
@@ -37,7 +42,7 @@ def add_report_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--latex", action="store_true",
                         help="also write the tables as LaTeX (booktabs) beside the HTML")
     parser.add_argument("--bench", nargs="+", type=Path, default=[], metavar="FILE",
-                        help="benchmark JSON files (`wcbench bench SUITE --json FILE`) to chart as time vs error")
+                        help="benchmark JSON files (`wcbench bench SUITE --out FILE`) to chart as time vs error")
     parser.add_argument("--title", default=None, help="report heading (default: methods and scenes)")
     parser.add_argument("--animation-frames", type=int, default=12, metavar="N",
                         help="frames per animated sequence, 0-12 (0: none; default 12)")
@@ -64,5 +69,5 @@ def write_report(results: list[Path], output: Path, *, title: str | None = None,
 
 def run(args: argparse.Namespace) -> int:
     """Build the report."""
-    return write_report(list(args.results), args.output, title=args.title, bench=args.bench, csv=args.csv,
+    return write_report(list(args.results), args.out, title=args.title, bench=args.bench, csv=args.csv,
                         latex=args.latex, animation_frames=args.animation_frames, frames=not args.no_frames)

@@ -10,7 +10,8 @@ Examples::
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+
+from wcbench.cli.common import add_data_root_argument
 
 HELP = "list scene sets or show one"
 
@@ -21,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub.add_parser("list", help="list the built-in scene sets")
     show = sub.add_parser("show", help="load a scene set or folder and describe its scenes")
     show.add_argument("name", help="scene set name or scene folder path")
-    show.add_argument("--data-root", type=Path, default=None, help="dataset folder (default: $WCBENCH_DATA)")
+    add_data_root_argument(show)
 
 
 def run(args: argparse.Namespace) -> int:

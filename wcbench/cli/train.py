@@ -9,45 +9,70 @@ Examples::
 
     wcbench train --scenes demo --profile quick --out runs/train
     wcbench train --scenes pandaset_002 --data-root ../shared/data --holdout 5,15,25 --out runs/train
-    wcbench train --scenes pandaset_002 --data-root ../shared/data --ablation no-wgs --setting iterations=500
+    wcbench train --scenes pandaset_002 --data-root ../shared/data --ablation no-wgs \\
+        --method-option settings.iterations=500
     wcbench train --scenes pandaset_002 --data-root ../shared/data --supervision qwen-image:edits/
+
+``train`` takes the method options of ``wcbench run --method weathercity`` spelled alike
+(``--profile``, ``--supervision``, ``--jitter``, ``--ablation``, ``--holdout`` and
+``--method-option KEY=VALUE``), so that ``run`` with the same options finds the trained model.
+Options that only concern rendering (``edits``, ``size``) are refused. ``--setting KEY=VALUE`` is
+the deprecated spelling of ``--method-option settings.KEY=VALUE``.
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from wcbench.cli.common import (
+    add_deprecated_alias,
+    add_method_options,
     add_offline_argument,
+    add_output_argument,
     add_progress_argument,
     add_scene_arguments,
-    parse_key_values,
-    split_list,
+    method_options_from,
 )
 from wcbench.core.errors import InputError
 
 HELP = "train the weathercity model of each scene (cached for `run`)"
 
+#: The method options of weathercity that concern training (the others, edits and size, only rendering).
+TRAINING_OPTIONS = ("ablation", "holdout", "jitter", "profile", "settings", "supervision", "weathers")
+
+
+def training_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The weathercity method options ``args`` give, read as ``run`` reads them, ``holdout`` as ints.
+
+    Raises
+    ------
+    InputError
+        On an option that only concerns rendering, or a malformed ``holdout``.
+    """
+    options = method_options_from(args)
+    other = sorted(set(options) - set(TRAINING_OPTIONS))
+    if other:
+        raise InputError(f"train: method option {', '.join(other)} concerns rendering, not training (give it to "
+                         f"`wcbench run` or `wcbench render`); train takes {', '.join(TRAINING_OPTIONS)}")
+    holdout = options.get("holdout")
+    if holdout is not None:
+        values = holdout if isinstance(holdout, (list, tuple)) else [holdout]
+        if not all(isinstance(h, int) and not isinstance(h, bool) for h in values):
+            raise InputError(f"--holdout: expected frame numbers, e.g. 5,15,25, got {holdout!r}")
+        options["holdout"] = tuple(values)
+    return options
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``wcbench train``."""
     add_scene_arguments(parser)
-    parser.add_argument("--out", type=Path, default=Path("runs/train"),
+    add_output_argument(parser, default=Path("runs/train"),
                         help="where OUT/<scene>/training.json goes (default: runs/train)")
-    parser.add_argument("--profile", default="default", help="training profile: default, quick")
-    parser.add_argument("--ablation", default="", help="named ablation: no-wgs, no-content-loss")
-    parser.add_argument("--supervision", default="physical-editor",
-                        help="edited frames to learn from: physical-editor (built in, the default), filter2d "
-                             "(built in), sim-editor[:SEVERITY] (needs ground-truth scenes, e.g. synth_1) or "
-                             "READER:DIR")
-    parser.add_argument("--jitter", type=float, default=0.0,
-                        help="per-frame perturbation of the filter2d supervision, 0..1 (default 0)")
-    parser.add_argument("--holdout", nargs="*", default=None, metavar="FRAME",
-                        help="frames left out of training and scored (e.g. 5,15,25)")
-    parser.add_argument("--setting", action="append", default=[], metavar="KEY=VALUE",
-                        help="training setting overriding the profile, repeatable (VALUE as JSON), "
-                             "e.g. iterations=500, budget=200000")
+    group = add_method_options(parser, edit=False)
+    add_deprecated_alias(group, "--setting", use="--method-option settings.KEY=VALUE", dest="setting",
+                         metavar="KEY=VALUE", append=True, help="a training setting overriding the profile")
     parser.add_argument("--checkpoint", type=Path, default=None,
                         help="checkpoint folder (one scene only; default: the cache, keyed by the inputs)")
     add_offline_argument(parser)
@@ -58,19 +83,25 @@ def run(args: argparse.Namespace) -> int:
     """Train every scene of the set; print and write what each training measured."""
     from wcbench.core.models.fetch import fetch_missing, is_offline
     from wcbench.core.storage import atomic_write_json, check_writable_folder
-    from wcbench.methods.weather_spec import resolve_physics
-    from wcbench.methods.weathercity import train_scene
+    from wcbench.methods.scene_training import train_scene
+    from wcbench.methods.weather_spec import parse_weathers, resolve_physics
     from wcbench.reference_model.training.config import make_config
     from wcbench.scenes.sets import resolve_scenes
 
+    options = training_options(args)
     try:
-        holdout = tuple(int(h) for h in (split_list(args.holdout) or []))
-        settings = parse_key_values(args.setting, option="--setting", example="iterations=500")
-        config = make_config(args.profile, ablation=args.ablation, holdout=holdout, **settings)
-    except ValueError as exc:
+        settings = options.get("settings") or {}
+        if not isinstance(settings, dict):
+            raise ValueError(f"settings must be a dict of training settings, got {settings!r}")
+        config = make_config(options.get("profile", "default"), ablation=options.get("ablation", ""),
+                             holdout=options.get("holdout", ()), **settings)
+        jitter = float(options.get("jitter", 0.0))
+    except (TypeError, ValueError) as exc:
         raise InputError(f"train: {exc}") from None
-    if not 0.0 <= args.jitter <= 1.0:
-        raise InputError(f"--jitter must be in [0, 1], got {args.jitter}")
+    if not 0.0 <= jitter <= 1.0:
+        raise InputError(f"--jitter must be in [0, 1], got {jitter}")
+    supervision = str(options.get("supervision", "physical-editor"))
+    weathers = parse_weathers(options.get("weathers"), who="train")
     if args.out is not None:
         check_writable_folder(args.out)
     refs = resolve_scenes(args.scenes, data_root=args.data_root)
@@ -80,12 +111,12 @@ def run(args: argparse.Namespace) -> int:
     models = fetch_missing(["vgg16"] if config.content_weight != 0 else [], offline=is_offline(args.offline))
     for ref in refs:
         scene = ref.load()
-        bad = [h for h in holdout if not 0 <= h < len(scene)]
+        bad = [h for h in config.holdout if not 0 <= h < len(scene)]
         if bad:
             raise InputError(f"--holdout {bad}: {scene.id} has frames 0..{len(scene) - 1}")
-        # the physics `run --method weathercity` renders with by default, so that it finds this model
-        _, _, facts = train_scene(scene, config, supervision=args.supervision, jitter=args.jitter,
-                                  physics=resolve_physics(scene, "auto"), folder=args.checkpoint,
+        # the physics `run --method weathercity` renders with (same weathers option), so that it finds this model
+        _, _, facts = train_scene(scene, config, supervision=supervision, jitter=jitter,
+                                  physics=resolve_physics(scene, weathers), folder=args.checkpoint,
                                   show_progress=not args.no_progress)
         path = args.out / scene.id / "training.json"
         atomic_write_json(path, {**facts, "models": {name: o.record() for name, o in models.items()}})

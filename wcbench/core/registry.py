@@ -2,12 +2,14 @@
 
 A registry maps a name to an import string, so listing names imports nothing heavy. Entry points
 in the group ``wcbench.<kind>`` extend the built-ins; a duplicate name is an error, and a miss
-suggests close names.
+suggests close names. A renamed component keeps its old name as a deprecated alias for a release:
+:meth:`LazyRegistry.canonical` maps it to the new name (with a :class:`DeprecationWarning`).
 """
 
 from __future__ import annotations
 
 import importlib
+import warnings
 from collections.abc import Iterator, Mapping
 from importlib import metadata
 from typing import Any, Generic, TypeVar
@@ -45,11 +47,18 @@ class LazyRegistry(Generic[T]):
         entry-point group ``wcbench.<kind>s``.
     builtins : Mapping[str, str]
         Built-in names and their ``"module:attr"`` import strings.
+    aliases : Mapping[str, str], optional
+        Deprecated old name -> current name. An alias resolves like its name (with a
+        :class:`DeprecationWarning`) and is not listed by :meth:`names`.
     """
 
-    def __init__(self, kind: str, builtins: Mapping[str, str]):
+    def __init__(self, kind: str, builtins: Mapping[str, str], aliases: Mapping[str, str] | None = None):
         self.kind = kind
         self._specs: dict[str, str] = dict(builtins)
+        self.aliases: dict[str, str] = dict(aliases or {})
+        bad = sorted(a for a, name in self.aliases.items() if a in self._specs or name not in self._specs)
+        if bad:
+            raise ValueError(f"{kind} aliases {bad}: an alias must not be a name and must point to one")
         self._loaded: dict[str, T] = {}
         self._entry_points_read = False
 
@@ -81,7 +90,29 @@ class LazyRegistry(Generic[T]):
         return sorted(set(self._specs) | set(self._loaded))
 
     def __contains__(self, name: object) -> bool:
-        return name in self.names()
+        """Whether ``name`` is registered (a deprecated alias counts)."""
+        return name in self.aliases or name in self.names()
+
+    def is_alias(self, name: str) -> bool:
+        """Whether ``name`` is a deprecated alias (an old name of a component)."""
+        return name in self.aliases and name not in self._specs and name not in self._loaded
+
+    def canonical(self, name: str, *, warn: bool = True) -> str:
+        """The current name of ``name``: itself, or the name a deprecated alias stands for.
+
+        Parameters
+        ----------
+        name : str
+            A registered name or a deprecated alias (anything else is returned unchanged).
+        warn : bool
+            Issue a :class:`DeprecationWarning` when ``name`` is an alias.
+        """
+        if not self.is_alias(name):
+            return name
+        new = self.aliases[name]
+        if warn:
+            warnings.warn(f"{self.kind} name {name!r} is deprecated, use {new!r}", DeprecationWarning, stacklevel=3)
+        return new
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names())
@@ -89,11 +120,14 @@ class LazyRegistry(Generic[T]):
     def get(self, name: str) -> T:
         """Resolve ``name``, importing its module on first use.
 
+        A deprecated alias resolves to its current name, with a :class:`DeprecationWarning`.
+
         Raises
         ------
         UnknownNameError
             If no such name is registered (with close-name suggestions).
         """
+        name = self.canonical(name)
         if name in self._loaded:
             return self._loaded[name]
         self._read_entry_points()

@@ -2,6 +2,8 @@
 
 Built-ins are listed here as import strings; packages add their own through the entry-point
 group ``wcbench.methods`` (a callable returning a :class:`~wcbench.methods.protocol.Method`).
+Method names use one separator, the hyphen (``lidar-init``, ``sim-editor``, ``qwen-image``); the
+old spellings (``lidar_init``, ``sim_editor``...) are deprecated aliases (:data:`METHOD_ALIASES`).
 """
 
 from __future__ import annotations
@@ -14,6 +16,10 @@ from wcbench.core.registry import LazyRegistry
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import Method, MethodInfo, RunnableMethod
 
+#: Deprecated method names (one release): the underscore spellings of the hyphenated names.
+METHOD_ALIASES = {"lidar_init": "lidar-init", "sim_editor": "sim-editor", "physical_editor": "physical-editor",
+                  "qwen_image": "qwen-image", "weathercity_release": "weathercity-release"}
+
 _READERS = ("folder", "controlnet", "turboedit", "fresco", "qwen-image", "climatenerf", "weathercity-release")
 
 METHODS: LazyRegistry = LazyRegistry(
@@ -23,11 +29,19 @@ METHODS: LazyRegistry = LazyRegistry(
         "filter2d": "wcbench.methods.filter2d:Filter2DMethod",
         "sim-editor": "wcbench.methods.sim_editor:SimEditorMethod",
         "physical-editor": "wcbench.methods.physical_editor:PhysicalEditorMethod",
-        "lidar_init": "wcbench.methods.lidar_init:LidarInitMethod",
+        "lidar-init": "wcbench.methods.lidar_init:LidarInitMethod",
         "weathercity": "wcbench.methods.weathercity:WeatherCityMethod",
         **{name: f"wcbench.methods.readers:{name.replace('-', '_')}" for name in _READERS},
     },
+    aliases=METHOD_ALIASES,
 )
+
+
+def canonical_method_name(name: str) -> str:
+    """The current name of method ``name``: itself, or the hyphenated name of an old underscore
+    spelling (``lidar_init`` -> ``lidar-init``; no warning: results written under an old name are
+    read as the method's)."""
+    return METHODS.canonical(name, warn=False)
 
 
 #: What to install for a method whose code needs a missing package.
@@ -57,7 +71,7 @@ def method_options(name: str) -> list[str]:
     ------
     UnknownNameError, MethodUnavailableError
     """
-    params = inspect.signature(_factory(name)).parameters
+    params = inspect.signature(_factory(METHODS.canonical(name))).parameters
     return [p for p, v in params.items() if v.kind in (v.KEYWORD_ONLY, v.POSITIONAL_OR_KEYWORD)]
 
 
@@ -70,9 +84,15 @@ def get_method(name: str, **options: Any) -> Method:
         With close-name suggestions.
     InputError
         If the method does not take one of ``options`` (the message lists the ones it takes).
+
+    Warns
+    -----
+    DeprecationWarning
+        When ``name`` is an old spelling (``lidar_init``); the method of the current name is returned.
     MethodUnavailableError
         If its code needs a package that is not installed.
     """
+    name = METHODS.canonical(name)
     factory = _factory(name)
     unknown = sorted(set(options) - set(method_options(name)))
     if unknown:
@@ -90,6 +110,6 @@ def is_runnable(method: Method) -> bool:
 
 
 __all__ = [
-    "METHODS", "WEATHERS", "Method", "MethodInfo", "MethodUnavailableError", "RunnableMethod", "get_method",
-    "is_runnable", "method_options",
+    "METHODS", "METHOD_ALIASES", "WEATHERS", "Method", "MethodInfo", "MethodUnavailableError", "RunnableMethod",
+    "canonical_method_name", "get_method", "is_runnable", "method_options",
 ]

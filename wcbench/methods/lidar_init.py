@@ -1,9 +1,9 @@
-"""``lidar_init``: the untrained reference scene under physics-driven weather, as a runnable method.
+"""``lidar-init``: the untrained reference scene under physics-driven weather, as a runnable method.
 
 The scene is the lidar initialisation training starts from (static Gaussians plus one rigid node
 per moving object, colored from the images, see :mod:`wcbench.reference_model.scene_graph.lidar_init`);
 rain and snow particles are rasterized with it and fog is composed on top
-(:mod:`wcbench.reference_model.weather`). ``wcbench render`` and ``wcbench run --method lidar_init``
+(:mod:`wcbench.reference_model.weather`). ``wcbench render`` and ``wcbench run --method lidar-init``
 both render it through the same units of work (:mod:`wcbench.units`).
 """
 
@@ -20,7 +20,7 @@ from wcbench.core.progress import phase
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
-from wcbench.reference_model.scene_graph.lidar_init import estimate_sky_color, init_scene_from_lidar
+from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
 from wcbench.scenes.scene import Scene
@@ -64,11 +64,11 @@ class LidarInitMethod(FrameRenderer):
         self.weathers = dict(weathers or {})
         self.size, self.scale, self.voxel_m, self.init_frames = size, scale, voxel_m, init_frames
         self.info = MethodInfo(
-            name="lidar_init",
+            name="lidar-init",
             description="Untrained lidar-initialised Gaussians + physics weather (particles, Beer-Lambert fog)",
             kind="runnable",
             weathers=WEATHERS,
-            layout="writes <out>/lidar_init/<scene>/<weather>/{frame:03d}.png + info.json",
+            layout="writes <out>/lidar-init/<scene>/<weather>/{frame:03d}.png + info.json",
             requires=("torch",),
         )
         self._scene_key: tuple[str, str] | None = None
@@ -99,8 +99,9 @@ class LidarInitMethod(FrameRenderer):
         key = (scene.id, str(scene.root))
         if self._scene_key != key:
             try:
-                with phase(f"lidar_init {scene.id}: Gaussians from {len(scene)} lidar sweeps"):
-                    self._gaussians = init_scene_from_lidar(scene, voxel_m=self.voxel_m, frames=self.init_frames)
+                with phase(f"lidar-init {scene.id}: Gaussians from {len(scene)} lidar sweeps"):
+                    self._gaussians = init_scene_from_lidar(scene, LidarInitOptions(voxel_m=self.voxel_m),
+                                                            frames=self.init_frames)
             except ValueError as exc:
                 raise InputError(f"{scene.root}: cannot initialise Gaussians from lidar: {exc}") from None
             self._background = estimate_sky_color(scene)

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from wcbench.core.errors import InputError
+from wcbench.reference_model.transforms import lidar_depth
 
 FloatArray = np.ndarray  # float32 or float64 numpy array; shapes in the docstrings
 
@@ -247,21 +248,15 @@ class Scene:
     def lidar_depth(self, frame: int) -> FloatArray:
         """[H, W] float32 sparse depth (metres along z) from the frame's own sweep; 0 = no return.
 
-        Where several points hit one pixel the nearest wins.
+        Where several points hit one pixel the nearest wins
+        (:func:`wcbench.reference_model.transforms.lidar_depth`).
         """
         f = self.frames[frame]
         cam = f.camera
-        depth = np.zeros((cam.height, cam.width), np.float32)
         sweep = self.lidar(f)
         if sweep is None:
-            return depth
-        uv, z = cam.project(sweep.points)
-        ij = np.floor(uv).astype(np.int64)
-        ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < cam.width) & (ij[:, 1] >= 0) & (ij[:, 1] < cam.height)
-        ij, z = ij[ok], z[ok]
-        order = np.argsort(-z)  # far first, so the nearest point is written last
-        depth[ij[order, 1], ij[order, 0]] = z[order]
-        return depth
+            return np.zeros((cam.height, cam.width), np.float32)
+        return lidar_depth(sweep.points, cam.world_to_camera, cam.K, cam.width, cam.height)
 
     def reference_paths(self, weather: str) -> list[Path] | None:
         """Ground-truth image paths for ``weather``, or ``None`` when the scene has no truth."""

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from wcbench.core.models.store import check_torchscript
+from wcbench.core.models.torchscript import check_torchscript
 from wcbench.core.storage import atomic_path
 from wcbench.metrics.clip.config import ClipArch
 

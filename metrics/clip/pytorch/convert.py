@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wcbench.core.models.store import ModelEntry
+from wcbench.core.models.catalogue import ModelEntry
 from wcbench.metrics.clip.config import ClipArch, get_arch
 from wcbench.metrics.clip.pytorch.checkpoints import (
     CheckpointError,

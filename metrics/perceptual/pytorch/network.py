@@ -20,7 +20,7 @@ import os
 import torch
 from torch import nn
 
-from wcbench.core.models.vgg16 import VGG16Features
+from wcbench.core.models.vgg16 import VGG16Features, frozen_with_weights
 from wcbench.metrics.onnx_export import export_onnx
 from wcbench.metrics.perceptual.spec import CHANNELS, LPIPS_SCALE, LPIPS_SHIFT, NETS, NORM_EPS, VGG_LAYERS
 
@@ -106,14 +106,7 @@ def load_lpips_torch(path: str | os.PathLike[str], *, net: str = "alex") -> LPIP
     model = LPIPSNet(net)
     state = {k.replace(".model.1.", "."): v for k, v in load_file(p).items()}
     state = {f"net.{k}" if k.startswith("features.") else k: v for k, v in state.items()}
-    wanted = model.state_dict().keys()
-    missing = sorted(set(wanted) - state.keys())
-    if missing:
-        raise ValueError(f"{p}: LPIPS-{net} weights lack {missing[:4]}")
-    model.load_state_dict({k: state[k] for k in wanted})
-    for prm in model.parameters():
-        prm.requires_grad_(False)
-    return model.eval()
+    return frozen_with_weights(model, state, f"{p}: LPIPS-{net}")
 
 
 def export_lpips_onnx(

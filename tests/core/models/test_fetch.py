@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from wcbench.core.models.catalogue import ModelEntry, ModelSource, load_registry
 from wcbench.core.models.fetch import fetch_missing, is_offline
-from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore, load_registry
+from wcbench.core.models.store import ModelStore
 
 
 def sha(data: bytes) -> str:

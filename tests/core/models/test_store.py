@@ -18,22 +18,15 @@ from pathlib import Path
 import pytest
 
 from wcbench.core.errors import InputError, UnknownNameError, WcbenchError
-from wcbench.core.models.store import (
-    MANIFEST,
-    ModelEntry,
+from wcbench.core.models.catalogue import ModelEntry, ModelSource, builtin_catalogues, load_registry
+from wcbench.core.models.store import MANIFEST, ModelStore, default_root, extract_members
+from wcbench.core.models.store_errors import (
     ModelMissingError,
-    ModelSource,
-    ModelStore,
     ModelStoreError,
     SourceMismatchError,
     UntrustedTorchScriptError,
-    builtin_catalogues,
-    check_torchscript,
-    default_root,
-    extract_members,
-    is_torchscript_archive,
-    load_registry,
 )
+from wcbench.core.models.torchscript import check_torchscript, is_torchscript_archive
 from wcbench.core.registry import import_string
 
 

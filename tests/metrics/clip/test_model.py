@@ -14,13 +14,9 @@ import numpy as np  # noqa: E402
 from paths import DATA  # noqa: E402
 
 from wcbench.core.errors import InputError  # noqa: E402
-from wcbench.core.models.store import (  # noqa: E402
-    ModelEntry,
-    ModelSource,
-    ModelStore,
-    ModelStoreError,
-    UntrustedTorchScriptError,
-)
+from wcbench.core.models.catalogue import ModelEntry, ModelSource  # noqa: E402
+from wcbench.core.models.store import ModelStore  # noqa: E402
+from wcbench.core.models.store_errors import ModelStoreError, UntrustedTorchScriptError  # noqa: E402
 from wcbench.metrics.clip.config import CLIP_ARCHS, ClipArch, get_arch  # noqa: E402
 from wcbench.metrics.clip.encoder import ClipEncoder  # noqa: E402
 from wcbench.metrics.clip.pytorch.backend import TorchClipBackend  # noqa: E402

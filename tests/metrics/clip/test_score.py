@@ -17,7 +17,8 @@ import pytest
 from metric_tester import check_metric
 from paths import DATA
 
-from wcbench.core.models.store import ModelEntry, ModelSource, ModelStore
+from wcbench.core.models.catalogue import ModelEntry, ModelSource
+from wcbench.core.models.store import ModelStore
 from wcbench.metrics.base import MetricContext
 from wcbench.metrics.clip.encoder import ClipEncoder
 from wcbench.metrics.clip.onnx_backend import OnnxClipBackend

@@ -15,8 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from registry import registry_unreachable
 
-from wcbench.core.models.store import ModelStore, ModelStoreError
+from wcbench.core.models.store import ModelStore
+from wcbench.core.models.store_errors import ModelStoreError
 from wcbench.core.storage import sha256_file
 from wcbench.metrics.clip.config import CLIP_ARCHS
 from wcbench.metrics.clip.score import DEFAULT_PROMPTS, load_weather_prompts
@@ -39,7 +41,7 @@ def vocab_path(request: pytest.FixtureRequest) -> Path:
         try:
             store.pull(VOCAB_ENTRY)
         except ModelStoreError as exc:
-            pytest.skip(f"CLIP vocabulary not fetchable here: {exc}")
+            registry_unreachable(f"CLIP vocabulary not fetchable here: {exc}")
     return store.path(VOCAB_ENTRY)
 
 
@@ -153,7 +155,7 @@ def test_archs_match_open_clip_model_configs(request: pytest.FixtureRequest) -> 
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         wheels = sorted(folder.glob("open_clip_torch-3.3.0-*.whl"))
         if proc.returncode != 0 or not wheels:
-            pytest.skip(f"open-clip-torch wheel not fetchable here: {proc.stderr.strip()[-200:]}")
+            registry_unreachable(f"open-clip-torch wheel not fetchable here: {proc.stderr.strip()[-200:]}")
     assert sha256_file(wheels[0]) == source.dist_sha256
     with zipfile.ZipFile(wheels[0]) as zf:
         for name, arch in CLIP_ARCHS.items():

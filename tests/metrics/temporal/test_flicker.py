@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from sequences import translated_sequence
 
-from wcbench.metrics import flow_warp_error, temporal_flicker
+from wcbench.metrics import flow_warping_error, temporal_flicker
 from wcbench.metrics.temporal.flicker import FlowWarpingError, consistency_mask, dis_flow, warp
 
 #: docs/design.md §5: our SSIM equals skimage's with these settings to 1e-12.
@@ -48,14 +48,25 @@ def test_dis_flow_recovers_a_translation():
     assert np.median(core[..., 1]) == pytest.approx(0.0, abs=0.1)
 
 
-def test_flow_warp_error_zero_on_static_and_small_on_translation():
+def test_flow_warping_error_zero_on_static_and_small_on_translation():
     seq = translated_sequence()
     static = np.repeat(seq[:1], 4, axis=0)
-    assert flow_warp_error(static) == pytest.approx(0.0, abs=1e-12)
-    assert flow_warp_error(seq) < 1e-3
+    assert flow_warping_error(static) == pytest.approx(0.0, abs=1e-12)
+    assert flow_warping_error(seq) < 1e-3
     # an edit that does not move with the scene is penalised
     frozen_edit = np.repeat(seq[:1], 4, axis=0)
-    assert flow_warp_error(frozen_edit, seq) > 10 * flow_warp_error(seq)
+    assert flow_warping_error(frozen_edit, seq) > 10 * flow_warping_error(seq)
+
+
+def test_flow_warp_error_is_a_deprecated_alias_of_the_metric_name():
+    import wcbench.metrics as m
+    from wcbench.metrics.temporal import flicker
+
+    seq = translated_sequence(n=3)
+    with pytest.warns(DeprecationWarning, match="flow_warp_error is deprecated, use flow_warping_error"):
+        assert m.flow_warp_error(seq) == flow_warping_error(seq)
+    with pytest.warns(DeprecationWarning, match="use flow_warping_errors"):
+        np.testing.assert_array_equal(flicker.flow_warp_errors(seq), flicker.flow_warping_errors(seq))
 
 
 def test_consistency_mask_flags_inconsistent_flow_and_borders():
@@ -132,7 +143,7 @@ def test_fewer_than_two_frames_one_rule_for_both_metrics(n):
     from wcbench.metrics.temporal.flicker import TemporalFlicker
 
     seq = np.zeros((n, 16, 16, 3))
-    for fn in (temporal_flicker, flow_warp_error):
+    for fn in (temporal_flicker, flow_warping_error):
         with pytest.raises(ValueError, match=f"needs at least 2 frames, got {n}"):
             fn(seq)
     ctx = MetricContext(weather="rain", n_frames=n, has_reference=False)
@@ -148,16 +159,16 @@ def test_dis_flow_names_the_size_it_needs():
     for h, w in ((11, 11), (5, 40), (40, 7)):
         seq = rng.random((2, h, w, 3)).astype(np.float32)
         with pytest.raises(ValueError, match=rf"8 px on the short side and 12 px on the long side, got {h}x{w}"):
-            flow_warp_error(seq)
+            flow_warping_error(seq)
         m = FlowWarpingError()
         with pytest.raises(ValueError, match="dis flow needs frames"):
             m.update(seq, source=seq)
         # Farneback takes any size, down to one pixel (no gradient across a 1-px axis): a static
         # smooth sequence has zero error there
         ramp = np.linspace(0.2, 0.8, h * w).reshape(1, h, w, 1) * np.ones((3, 1, 1, 3))
-        assert flow_warp_error(ramp, flow="farneback") == pytest.approx(0.0, abs=1e-6)  # float32 flow noise
+        assert flow_warping_error(ramp, flow="farneback") == pytest.approx(0.0, abs=1e-6)  # float32 flow noise
     one = np.linspace(0.2, 0.8, 9).reshape(1, 1, 9, 1) * np.ones((3, 1, 1, 3))
-    assert flow_warp_error(one, flow="farneback") == pytest.approx(0.0, abs=1e-6)
+    assert flow_warping_error(one, flow="farneback") == pytest.approx(0.0, abs=1e-6)
     m = FlowWarpingError(flow="farneback")
     m.update(one, source=one)
     assert m.compute()["flow_warping_error"].value == pytest.approx(0.0, abs=1e-6)
@@ -174,7 +185,7 @@ def test_a_flow_callable_must_return_finite_offsets_of_the_frame_size():
 
     for flow, what in ((nan_flow, "non-finite"), (small_flow, r"shape \(4, 4, 2\)")):
         with pytest.raises(ValueError, match=f"finite .H, W, 2. = .20, 24, 2. pixel offsets, got .*{what}"):
-            flow_warp_error(seq, flow=flow)
+            flow_warping_error(seq, flow=flow)
 
 
 def test_a_sequence_keeps_one_frame_size_across_batches():

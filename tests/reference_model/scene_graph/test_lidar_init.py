@@ -11,6 +11,7 @@ from paths import PANDASET
 
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import (
+    LidarInitOptions,
     estimate_sky_color,
     init_from_lidar,
     init_scene_from_lidar,
@@ -117,7 +118,7 @@ def test_gaussian_cloud_checks_shapes_and_round_trips(tmp_path: Path) -> None:
 
 def test_static_gaussians_take_the_image_colors_and_drop_moving_objects(tmp_path: Path) -> None:
     scene = make_scene(tmp_path)
-    cloud = init_from_lidar(scene, voxel_m=0.1)
+    cloud = init_from_lidar(scene, LidarInitOptions(voxel_m=0.1))
     assert len(cloud) > 100
     on_wall = np.abs(cloud.means[:, 2] - 8.0) < 0.05
     assert on_wall.all()  # the moving cube is cut out
@@ -127,13 +128,13 @@ def test_static_gaussians_take_the_image_colors_and_drop_moving_objects(tmp_path
     np.testing.assert_array_equal(cloud.quats, np.tile([1.0, 0, 0, 0], (len(cloud), 1)))
     # 3DGS scale: half the spacing (0.1 m voxels), clipped by 0.02 rad times the range (>= 8 m here).
     assert np.median(cloud.scales) == pytest.approx(0.5 * 0.1, rel=0.25)
-    kept = init_from_lidar(scene, voxel_m=0.1, moving_objects="keep")
+    kept = init_from_lidar(scene, LidarInitOptions(voxel_m=0.1), moving_objects="keep")
     assert len(kept) > len(cloud)  # the cube's three positions smear in as a trail
 
 
 def test_moving_objects_become_rigid_nodes_posed_per_frame(tmp_path: Path) -> None:
     scene = make_scene(tmp_path)
-    sg = init_scene_from_lidar(scene, voxel_m=0.1, node_voxel_m=0.1)
+    sg = init_scene_from_lidar(scene, LidarInitOptions(voxel_m=0.1, node_voxel_m=0.1))
     assert len(sg.nodes) == 1 and sg.nodes[0].track_id == "car"
     local = sg.nodes[0].cloud.means
     assert np.abs(local).max() < 0.55  # in the box frame, around its center
@@ -151,7 +152,7 @@ def test_moving_objects_become_rigid_nodes_posed_per_frame(tmp_path: Path) -> No
 
 def test_isolated_noise_returns_are_dropped(tmp_path: Path) -> None:
     scene = make_scene(tmp_path, noise_point=True)
-    cloud = init_from_lidar(scene, voxel_m=0.1)
+    cloud = init_from_lidar(scene, LidarInitOptions(voxel_m=0.1))
     assert np.linalg.norm(cloud.means - [0.3, 0.2, 2.0], axis=1).min() > 1.0
 
 
@@ -166,7 +167,7 @@ def test_real_scene_initialisation(tmp_path: Path) -> None:
     from wcbench.scenes.loaders import load_scene
 
     scene = load_scene(PANDASET)
-    cloud = init_from_lidar(scene, frames=[15, 16], voxel_m=0.3)  # 16 has no sweep: skipped
+    cloud = init_from_lidar(scene, LidarInitOptions(voxel_m=0.3), frames=[15, 16])  # 16 has no sweep: skipped
     assert len(cloud) > 10_000
     for name in ("means", "scales", "colors", "opacities"):
         assert np.all(np.isfinite(getattr(cloud, name)))

@@ -163,3 +163,19 @@ def test_separable_training_ssim_equals_the_2d_window():
     c1, c2 = 0.01**2, 0.03**2
     ref = (((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))).mean(dim=(0, 2, 3))
     torch.testing.assert_close(training_ssim(a, b), ref, atol=1e-12, rtol=0)
+
+
+def test_a_step_times_its_phases_and_train_sizes_the_thread_pools_for_its_run(demo, demo_views):
+    from wcbench.reference_model.raster.threads import get_threads
+
+    trainer = _trainer(demo, demo_views, iterations=2, densify_from=10**6)
+    trainer.threads = 1
+    before = get_threads()
+    seen = []
+    logs = trainer.train(callback=lambda log: seen.append(get_threads()["numba"]))
+    assert seen == [1, 1] and get_threads() == before
+    log = logs[-1]
+    assert list(log.phase_ms) == ["data", "render", "losses", "backward", "stats", "optimizer", "densify", "log"]
+    assert all(v >= 0 for v in log.phase_ms.values())
+    assert sum(log.phase_ms.values()) == pytest.approx(1e3 * log.seconds, rel=1e-6)
+    assert {"project", "sort", "bin", "fwd_blend", "bwd_blend", "bwd_reduce", "bwd_project"} <= set(log.raster_ms)

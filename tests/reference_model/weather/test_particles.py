@@ -9,12 +9,8 @@ import pytest
 
 from wcbench.reference_model.transforms import quat_to_matrix
 from wcbench.reference_model.weather.conditions import Weather, load_presets, preset_names
-from wcbench.reference_model.weather.particles import (
-    ParticleField,
-    ParticleSpec,
-    Wind,
+from wcbench.reference_model.weather.microphysics import (
     extinction_coefficient,
-    horizontal_basis,
     number_density,
     precipitation_extinction,
     rain_extinction,
@@ -24,6 +20,9 @@ from wcbench.reference_model.weather.particles import (
     snow_extinction,
     snow_fall_speed,
 )
+from wcbench.reference_model.weather.particle_geometry import horizontal_basis
+from wcbench.reference_model.weather.particle_spec import ParticleSpec, Wind
+from wcbench.reference_model.weather.particles import ParticleField
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 # Positions are float64 closed forms; the only error is rounding of O(100 m) coordinates.
@@ -367,7 +366,7 @@ def test_fast_sin_and_cos_match_libm() -> None:
 )
 def test_fast_gaussians_match_the_numpy_reference(kind: str, preset: str, overrides: dict) -> None:
     """Positions, culling, shapes, opacities (with the dilation compensation) and buffers."""
-    from wcbench.reference_model.weather.particles import ParticleGaussians
+    from wcbench.reference_model.weather.particle_spec import ParticleGaussians
 
     _numba_kernels_or_skip()
     K = np.array([[250.0, 0, 160], [0, 250.0, 90], [0, 0, 1]])
@@ -408,7 +407,7 @@ def test_fast_gaussians_match_the_numpy_reference(kind: str, preset: str, overri
 
 
 def test_gaussians_reject_a_small_buffer_and_compensation_without_view() -> None:
-    from wcbench.reference_model.weather.particles import ParticleGaussians
+    from wcbench.reference_model.weather.particle_spec import ParticleGaussians
 
     f = field("snow", "paper")
     with pytest.raises(ValueError, match="needs up to 48000"):
@@ -595,7 +594,7 @@ def test_seeds_beyond_64_bits_give_the_same_particles_on_both_paths() -> None:
 def test_long_thin_streaks_get_the_same_dilation_factor_on_both_paths() -> None:
     """Streaks 1e6 times longer than wide: det(Sigma) from the minors (Cauchy-Binet), not
     c00 c11 - c01^2, which is rounding noise there; fast and numpy paths agree."""
-    from wcbench.reference_model.weather.particles import particle_dilation_compensation
+    from wcbench.reference_model.weather.particle_geometry import particle_dilation_compensation
 
     _numba_kernels_or_skip()
     K = np.array([[250.0, 0, 160], [0, 250.0, 90], [0, 0, 1]])

@@ -9,7 +9,7 @@ pytest.importorskip("torch")
 
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.conditions import Weather
-from wcbench.reference_model.weather.particles import ParticleGaussians, Wind
+from wcbench.reference_model.weather.particle_spec import ParticleGaussians, Wind
 from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
 from wcbench.scenes.scene import Camera
 
@@ -193,7 +193,7 @@ def test_dilation_compensation_keeps_a_thin_streaks_coverage_resolution_independ
     streak.quats[:] = [np.cos(np.pi / 4), np.sin(np.pi / 4), 0, 0]
     empty = GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
     from wcbench.reference_model.raster.common import EPS2D
-    from wcbench.reference_model.weather.renderer import particle_dilation_compensation
+    from wcbench.reference_model.weather.particle_geometry import particle_dilation_compensation
 
     coverage = {}
     for compensate in (True, False):

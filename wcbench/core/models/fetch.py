@@ -23,12 +23,8 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlparse
 
-from wcbench.core.models.store import (
-    ModelStore,
-    ModelStoreError,
-    SourceMismatchError,
-    UntrustedTorchScriptError,
-)
+from wcbench.core.models.store import ModelStore
+from wcbench.core.models.store_errors import ModelStoreError, SourceMismatchError, UntrustedTorchScriptError
 
 __all__ = ["FETCH_TIMEOUT_S", "OFFLINE_ENV", "FetchOutcome", "fetch_missing", "is_offline"]
 

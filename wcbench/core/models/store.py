@@ -27,7 +27,9 @@ refused (nothing is installed) unless the caller asks for an unverified install;
 pin installs as unverified, and metrics record ``weights_verified`` from :meth:`ModelStore.source_verified`.
 A TorchScript archive (compiled code that ``torch.jit.load`` runs) is refused before any converter
 sees it unless the caller passes ``trust_torchscript=True``; converters ask
-:func:`check_torchscript`, which knows the files trusted for the install running.
+:func:`~wcbench.core.models.torchscript.check_torchscript`, which knows the files trusted for the
+install running. The catalogues are parsed by :mod:`.catalogue`, the TorchScript checks are
+:mod:`.torchscript`, the errors :mod:`.store_errors`.
 
 Nothing here imports torch; converters import what they need when they run. Two processes
 installing the same entry at once are not locked against each other; :meth:`ModelStore.verify`
@@ -36,9 +38,7 @@ detects a mixed result.
 
 from __future__ import annotations
 
-import contextvars
 import datetime as _dt
-import functools
 import json
 import os
 import shutil
@@ -49,204 +49,28 @@ import tempfile
 import urllib.error
 import urllib.request
 import zipfile
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from importlib import metadata, resources
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from wcbench.core.errors import InputError, UnknownNameError, WcbenchError
+from wcbench.core.errors import UnknownNameError, WcbenchError
+from wcbench.core.models.catalogue import Converter, ModelEntry, builtin_catalogues, converter_name, load_registry
+from wcbench.core.models.store_errors import (
+    ModelMissingError,
+    ModelStoreError,
+    SourceMismatchError,
+    UntrustedTorchScriptError,
+)
+from wcbench.core.models.torchscript import is_torchscript_archive, torchscript_refusal, trusted_key, trusting
 from wcbench.core.registry import import_string
 from wcbench.core.storage import atomic_write_json, sha256_file
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on Python 3.10 only
-    import tomli as tomllib
+__all__ = ["MANIFEST", "ModelStore", "StoreBacked", "VerifyResult", "default_root", "extract_members"]
 
-#: File name of a catalogue: every file of this name shipped inside the wcbench package is read.
-CATALOGUE_FILE = "models.toml"
 MANIFEST = "manifest.json"
-SOURCE_KINDS = ("url", "pip", "import")
 _DOWNLOAD_TIMEOUT_S = 30.0
 _CHUNK = 1 << 20
-
-#: What a converter is called with: the fetched or imported files (in the order the entry's source
-#: lists them; one file for url and import sources), an empty folder to write the entry's files
-#: into (at least ``entry.file``), and the entry itself (its ``options`` carry converter settings).
-Converter = Callable[[Sequence[Path], Path, "ModelEntry"], None]
-
-
-class ModelStoreError(WcbenchError):
-    """A model could not be fetched, imported or verified (the message says what to do)."""
-
-
-class ModelMissingError(ModelStoreError):
-    """A model's files are not installed in the store."""
-
-
-class SourceMismatchError(ModelStoreError, InputError):
-    """A downloaded or imported file is not the one the entry pins (its sha256 differs)."""
-
-
-class UntrustedTorchScriptError(ModelStoreError, InputError):
-    """A TorchScript archive was given without ``trust_torchscript`` (loading it would run its code)."""
-
-
-# -- TorchScript ------------------------------------------------------------------------------
-
-#: Resolved paths of the TorchScript archives the user trusted for the install running in this
-#: context. Converters are called as ``converter(sources, out_dir, entry)``, so the trust reaches
-#: the function that would load the archive through this variable (see :func:`check_torchscript`).
-_TRUSTED_TORCHSCRIPT: contextvars.ContextVar[frozenset[str]] = contextvars.ContextVar(
-    "wcbench_trusted_torchscript", default=frozenset()
-)
-
-
-def is_torchscript_archive(path: str | os.PathLike[str]) -> bool:
-    """Whether ``path`` is a TorchScript archive, from its zip listing alone (nothing is unpickled).
-
-    A TorchScript archive is a zip holding ``<root>/constants.pkl`` or compiled code under
-    ``<root>/code/``; a ``torch.save`` checkpoint is a zip too but holds neither.
-    """
-    try:
-        if not zipfile.is_zipfile(path):
-            return False
-        with zipfile.ZipFile(path) as zf:
-            names = zf.namelist()
-    except (OSError, zipfile.BadZipFile):
-        return False
-    for name in names:
-        parts = name.split("/")
-        if parts[-1] == "constants.pkl" or "code" in parts[:-1]:
-            return True
-    return False
-
-
-def _path_key(path: str | os.PathLike[str]) -> str:
-    return str(Path(path).resolve())
-
-
-def torchscript_refusal(path: str | os.PathLike[str]) -> str:
-    """The sentence every refusal of a TorchScript archive uses."""
-    return (
-        f"{path} is a TorchScript archive: loading it runs the code it contains, so wcbench does not "
-        "load it by default. Pass --trust-torchscript (python: trust_torchscript=True) only for a file "
-        "from a trusted source, or convert a plain state dict instead (safetensors, or a .pt/.bin "
-        "written by torch.save of a state dict)"
-    )
-
-
-def check_torchscript(path: str | os.PathLike[str], *, trusted: bool = False) -> bool:
-    """Whether ``path`` is a TorchScript archive that may be loaded; refuse an untrusted one.
-
-    Parameters
-    ----------
-    path : path-like
-        The file about to be read.
-    trusted : bool
-        The caller's explicit trust (``--trust-torchscript``). A file trusted for the model-store
-        install running in this context (:meth:`ModelStore.import_file` / :meth:`ModelStore.pull`
-        with ``trust_torchscript=True``) is trusted too.
-
-    Returns
-    -------
-    bool
-        ``True``: a trusted TorchScript archive; ``False``: not a TorchScript archive.
-
-    Raises
-    ------
-    UntrustedTorchScriptError
-        For a TorchScript archive nobody trusted (it is never opened beyond its zip listing).
-    """
-    if not is_torchscript_archive(path):
-        return False
-    if trusted or _path_key(path) in _TRUSTED_TORCHSCRIPT.get():
-        return True
-    raise UntrustedTorchScriptError(torchscript_refusal(path))
-
-
-@dataclass(frozen=True)
-class ModelSource:
-    """Where an entry's files come from.
-
-    Attributes
-    ----------
-    kind : str
-        ``"url"`` (download one file), ``"pip"`` (members of a package file on a registry) or
-        ``"import"`` (no download; ``wcbench models import`` only).
-    url : str or None
-        For ``url``: the file's address.
-    sha256 : str or None
-        For ``url``: pinned sha256 of the published file. Pull and import refuse a file that
-        differs; without a pin the entry installs as unverified (the measured hash is recorded).
-    requirement : str or None
-        For ``pip``: ``"package==version"`` (exact pins only).
-    dist : str
-        For ``pip``: ``"wheel"`` or ``"sdist"``.
-    dist_sha256 : str or None
-        For ``pip``: pinned sha256 of the wheel or sdist file.
-    members : tuple of (str, str)
-        For ``pip``: (path inside the archive, pinned sha256) pairs, in converter order. Paths are
-        as listed by ``unzip -l`` / ``tar tf`` (an sdist's start with ``name-version/``).
-    hint : str
-        Where to get a file for ``wcbench models import`` by hand (shown in error messages).
-    torchscript : bool
-        For ``url``: the published file is a TorchScript archive, which installs only with the
-        user's ``--trust-torchscript`` (loading it runs its code).
-    """
-
-    kind: str
-    url: str | None = None
-    sha256: str | None = None
-    requirement: str | None = None
-    dist: str = "wheel"
-    dist_sha256: str | None = None
-    members: tuple[tuple[str, str], ...] = ()
-    hint: str = ""
-    torchscript: bool = False
-
-    @property
-    def fetch_on_use(self) -> bool:
-        """Whether a run may fetch this source unasked: a download pinned to a sha256 that needs
-        no decision of the user (no TorchScript to trust, nothing unverified to allow)."""
-        if self.kind == "pip":
-            return self.dist_sha256 is not None
-        return self.kind == "url" and self.sha256 is not None and not self.torchscript
-
-
-@dataclass(frozen=True)
-class ModelEntry:
-    """One named model in the registry (see ``models.toml`` for the TOML form).
-
-    Attributes
-    ----------
-    name : str
-        What ``wcbench models pull/import`` take.
-    kind : str
-        Free-text family (``"clip"``, ``"tokenizer"``, ``"segmenter"``...), for listing only.
-    description : str
-        One line for ``wcbench models list``.
-    file : str
-        The main file inside the entry's folder (:meth:`ModelStore.path`).
-    source : ModelSource
-    converter : str, callable or None
-        ``"module:attr"`` of a :data:`Converter` (or, in registries built in code, the function);
-        ``None`` stores the single source file as ``file``.
-    options : mapping
-        Free settings for the converter (architecture, activation...).
-    registry : str
-        The TOML file that defined the entry (for error messages).
-    """
-
-    name: str
-    kind: str
-    description: str
-    file: str
-    source: ModelSource
-    converter: str | Converter | None = None
-    options: Mapping[str, Any] = field(default_factory=dict)
-    registry: str = ""
 
 
 @dataclass(frozen=True)
@@ -264,99 +88,6 @@ class VerifyResult:
     detail: str = ""
 
 
-def _need(table: Mapping[str, Any], key: str, where: str) -> Any:
-    if key not in table:
-        raise ValueError(f"{where}: missing key {key!r}")
-    return table[key]
-
-
-def _parse_source(table: Mapping[str, Any], where: str) -> ModelSource:
-    kind = _need(table, "kind", where)
-    if kind not in SOURCE_KINDS:
-        raise ValueError(f"{where}: source kind must be one of {SOURCE_KINDS}, got {kind!r}")
-    hint = str(table.get("hint", ""))
-    if kind == "url":
-        return ModelSource(
-            kind=kind, url=str(_need(table, "url", where)), sha256=table.get("sha256"), hint=hint,
-            torchscript=bool(table.get("torchscript", False)),
-        )
-    if kind == "pip":
-        req = str(_need(table, "requirement", where))
-        if "==" not in req:
-            raise ValueError(f"{where}: pip requirement must pin an exact version, got {req!r}")
-        dist = table.get("dist", "wheel")
-        if dist not in ("wheel", "sdist"):
-            raise ValueError(f"{where}: dist must be 'wheel' or 'sdist', got {dist!r}")
-        members = _need(table, "members", where)
-        if not isinstance(members, Mapping) or not members:
-            raise ValueError(f"{where}: members must be a table of 'path inside archive' = 'sha256'")
-        return ModelSource(
-            kind=kind,
-            requirement=req,
-            dist=dist,
-            dist_sha256=table.get("dist_sha256"),
-            members=tuple((str(k), str(v)) for k, v in members.items()),
-            hint=hint,
-        )
-    return ModelSource(kind=kind, hint=hint)
-
-
-#: Entry-point group naming the packages that ship a catalogue (``models.toml``) of their weights.
-CATALOGUE_GROUP = "wcbench.model_catalogues"
-
-
-@functools.lru_cache(maxsize=1)
-def builtin_catalogues() -> tuple[Path, ...]:
-    """The catalogue files of every package registered in the entry-point group ``wcbench.model_catalogues``.
-
-    Each library keeps the catalogue of the weights it uses beside its code (``metrics/models.toml``,
-    ``reference_model/models.toml``) and names its package in that group (see ``pyproject.toml``),
-    so the core names no library and other distributions can add catalogues. Sorted by
-    entry-point name.
-    """
-    out = []
-    for ep in sorted(metadata.entry_points(group=CATALOGUE_GROUP), key=lambda e: e.name):
-        path = Path(str(resources.files(ep.value).joinpath(CATALOGUE_FILE)))
-        if not path.is_file():
-            raise ValueError(f"entry point {ep.name!r} of {CATALOGUE_GROUP}: {ep.value} has no {CATALOGUE_FILE}")
-        out.append(path)
-    return tuple(out)
-
-
-def load_registry(paths: Iterable[str | os.PathLike[str]] | None = None) -> dict[str, ModelEntry]:
-    """Read model entries from TOML files.
-
-    Parameters
-    ----------
-    paths : iterable of path-like, optional
-        Registry files read in order; default :func:`builtin_catalogues`. A name defined twice
-        is an error.
-
-    Raises
-    ------
-    ValueError
-        On a malformed entry or a duplicate name (the message names the file and the entry).
-    """
-    entries: dict[str, ModelEntry] = {}
-    for path in builtin_catalogues() if paths is None else [Path(p) for p in paths]:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-        for name, table in data.get("models", {}).items():
-            where = f"{path} [models.{name}]"
-            if name in entries:
-                raise ValueError(f"{where}: model {name!r} already defined in {entries[name].registry}")
-            entries[name] = ModelEntry(
-                name=name,
-                kind=str(_need(table, "kind", where)),
-                description=str(table.get("description", "")),
-                file=str(_need(table, "file", where)),
-                source=_parse_source(_need(table, "source", where), f"{where}.source"),
-                converter=table.get("converter"),
-                options=dict(table.get("options", {})),
-                registry=str(path),
-            )
-    return entries
-
 
 def default_root() -> Path:
     """``$WCBENCH_MODELS`` if set, else ``platformdirs.user_cache_dir("wcbench")/models``."""
@@ -366,12 +97,6 @@ def default_root() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("wcbench")) / "models"
-
-
-def _converter_name(conv: str | Converter | None) -> str | None:
-    if conv is None or isinstance(conv, str):
-        return conv
-    return f"{getattr(conv, '__module__', '?')}:{getattr(conv, '__qualname__', repr(conv))}"
 
 
 def _safe_member(name: str) -> bool:
@@ -585,7 +310,7 @@ class ModelStore:
                     raise UntrustedTorchScriptError(
                         f"{entry.name}: {torchscript_refusal(label)}; nothing was installed"
                     )
-                trusted.add(_path_key(path))
+                trusted.add(trusted_key(path))
         return frozenset(trusted)
 
     def _install(
@@ -610,16 +335,14 @@ class ModelStore:
                 converter: Converter = (
                     import_string(entry.converter) if isinstance(entry.converter, str) else entry.converter
                 )
-                token = _TRUSTED_TORCHSCRIPT.set(trusted)
                 try:
-                    converter(list(sources), staging, entry)
+                    with trusting(trusted):
+                        converter(list(sources), staging, entry)
                 except WcbenchError:
                     raise
                 except (ValueError, KeyError, OSError, RuntimeError, ImportError) as exc:
                     names = ", ".join(str(p) for p in sources)
                     raise ModelStoreError(f"cannot install {entry.name} from {names}: {exc}") from exc
-                finally:
-                    _TRUSTED_TORCHSCRIPT.reset(token)
             else:
                 if len(sources) != 1:
                     raise ModelStoreError(f"{entry.name}: no converter, so exactly one source file is needed")
@@ -627,7 +350,7 @@ class ModelStore:
             files = sorted(p.relative_to(staging).as_posix() for p in staging.rglob("*") if p.is_file())
             if entry.file not in files:
                 raise ModelStoreError(
-                    f"{entry.name}: converter {_converter_name(entry.converter)} did not write {entry.file!r}"
+                    f"{entry.name}: converter {converter_name(entry.converter)} did not write {entry.file!r}"
                 )
             hashes = {f: sha256_file(staging / f) for f in files}
             final = self.root / entry.name
@@ -649,7 +372,7 @@ class ModelStore:
                     "kind": entry.kind,
                     "file": entry.file,
                     "files": hashes,
-                    "converter": _converter_name(entry.converter),
+                    "converter": converter_name(entry.converter),
                     "options": dict(entry.options),
                     "installed": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                     **provenance,

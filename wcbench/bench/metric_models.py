@@ -48,7 +48,9 @@ import numpy as np
 
 from wcbench.bench.schema import BenchCase
 from wcbench.core.image_io import read_rgb8, to_float
-from wcbench.core.models.store import ModelStore, ModelStoreError, load_registry
+from wcbench.core.models.catalogue import load_registry
+from wcbench.core.models.store import ModelStore
+from wcbench.core.models.store_errors import ModelStoreError
 from wcbench.core.parallel import thread_count
 from wcbench.core.storage import sha256_file
 from wcbench.core.weathers import EDITED_WEATHERS

@@ -1,0 +1,386 @@
+"""Training the WeatherCity model of a scene: its supervision, its inputs, the cache and the record.
+
+The ``weathercity`` method (:mod:`wcbench.methods.weathercity`) renders a trained model; ``wcbench
+train`` trains without rendering. Both train through :func:`train_scene`: (1) the edited frames of
+every weather from a supervision method (the built-in ``physical-editor`` by default, ``filter2d``,
+``sim-editor[:SEVERITY]`` on scenes with ground truth, or another tool's frames read from a folder,
+``READER:DIR``), each checked against the run's one weather spec (:mod:`.weather_spec`); (2) the
+training views and the haze each edited weather's render is composed through
+(:mod:`wcbench.reference_model.training`, :mod:`wcbench.reference_model.model.haze`); (3) the
+scene graph built from the lidar and trained, cached under a key over every input that changes it
+and resumed from its last checkpoint.
+
+It lives beside the methods because its supervision is other methods' frames.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wcbench.core.errors import InputError
+from wcbench.core.models.store import ModelStore
+from wcbench.core.models.vgg16 import load_vgg16_features
+from wcbench.core.paths import cache_dir
+from wcbench.core.progress import progress
+from wcbench.core.storage import sha256_file, sha256_json
+from wcbench.methods import get_method
+from wcbench.methods.filter2d import FOG_VISIBILITY_M as FILTER2D_VISIBILITY_M
+from wcbench.methods.filter2d import Filter2DMethod
+from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
+from wcbench.methods.physical_editor import edit_scene
+from wcbench.methods.sim_editor import supervision_frames as sim_editor_frames
+from wcbench.methods.sim_editor import supervision_severity
+from wcbench.methods.weather_spec import (
+    check_consistent,
+    has_truth_weather,
+    physics_record,
+    resolve_physics,
+    truth_physics,
+)
+from wcbench.predictions import INFO_FILE
+from wcbench.reference_model.model.haze import Haze
+from wcbench.reference_model.model.scene_model import WeatherCityModel
+from wcbench.reference_model.training.build import build_model
+from wcbench.reference_model.training.checkpoint import load_checkpoint, read_checkpoint_info, save_checkpoint
+from wcbench.reference_model.training.config import TrainConfig
+from wcbench.reference_model.training.losses import ContentLoss
+from wcbench.reference_model.training.trainer import Trainer, evaluate_views
+from wcbench.reference_model.training.views import TrainingView, build_views
+from wcbench.reference_model.weather.conditions import Weather
+from wcbench.reference_model.weather.fog import visibility_from_density
+from wcbench.scenes.scene import Scene
+
+__all__ = ["VERSION", "TrainingInputs", "check_supervision", "content_loss_for", "supervision_frames",
+           "train_scene", "training_hazes", "training_inputs"]
+
+#: Bumped whenever training or rendering changes what a cached model or a frame would be.
+VERSION = "1"
+#: VGG16 layer of the content loss ("relu4_1-level" features; docs/design.md §6).
+CONTENT_LAYERS = ("relu4_1",)
+
+
+def check_supervision(spec: str, jitter: float) -> float | None:
+    """The sim-editor severity of ``spec`` (``None``: another source); refuses a jitter it would ignore.
+
+    Raises
+    ------
+    InputError
+        A sim-editor severity outside [0, 1], or a ``jitter`` given with sim-editor or physical-editor
+        supervision.
+    """
+    if spec == PHYSICAL_EDITOR and jitter:
+        raise InputError(f"--supervision {spec!r}: jitter perturbs the filter2d supervision only (add "
+                         "--supervision filter2d)")
+    severity = supervision_severity(spec)
+    if severity is not None and jitter:
+        raise InputError(f"--supervision {spec!r}: jitter perturbs the filter2d supervision; sim-editor's own "
+                         "knob is its severity (sim-editor:SEVERITY)")
+    return severity
+
+
+def supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitter: float, seed: int, *,
+                        physics: Mapping[str, Weather] | None = None, size: tuple[int, int] | None = None
+                        ) -> tuple[dict[str, list[np.ndarray]], dict[str, Any]]:
+    """Edited frames per weather from ``spec`` (``physical-editor``, ``filter2d``, ``sim-editor[:SEVERITY]``
+    or ``READER:DIR``) and a record of them, each weather checked against the run's ``physics``.
+
+    The record's ``weather_check`` says per weather how the supervision's weather relates to the
+    physics: ``"consistent"`` (made from the same spec, or recorded and equal), ``"reconciled: ..."``
+    (a built-in editor set to the physics' values) or ``"unverified: ..."`` (a folder that records
+    no weather). A recorded contradiction is refused.
+
+    Raises
+    ------
+    InputError
+        A malformed ``spec``, a missing folder, or a supervision whose weather contradicts the physics.
+    """
+    frames: dict[str, list[np.ndarray]] = {}
+    physics = physics if physics is not None else resolve_physics(scene, "presets")
+    size = size or scene.image_size
+    edited = {w: physics[w] for w in weathers if w in physics}
+    if spec == PHYSICAL_EDITOR:
+        check_supervision(spec, jitter)
+        frames_f, record, timings = edit_scene(scene, edited, size)
+        record["weather_check"] = {w: "consistent: edited with the run's physics" for w in edited}
+        record["timings"] = timings  # dropped from the training's key (:func:`train_scene`)
+        return {w: list(v) for w, v in frames_f.items()}, record
+    if spec == "filter2d":
+        fog = edited.get("fog")
+        beta = fog.haze()[0] if fog is not None else 0.0
+        visibility = visibility_from_density(beta) if beta > 0 else None
+        f2d = Filter2DMethod(effects=False, jitter=jitter, visibility_m=visibility)
+        for w in weathers:
+            frames[w] = [f2d.render_frame(scene, w, k, seed=seed) for k in range(len(scene))]
+        check = {w: "unverified: filter2d's rain and snow are a 2D grade with no rate" for w in weathers if w != "fog"}
+        if "fog" in weathers:
+            check["fog"] = (f"reconciled: filter2d fogs at the physics' visibility {visibility:.4g} m (its own "
+                            f"default: {FILTER2D_VISIBILITY_M:g} m)" if visibility else "unverified: no fog haze")
+        record = {"method": "filter2d", "effects": False, "jitter": jitter, "seed": seed,
+                  "parameters": {w: f2d.parameters(w) for w in weathers}, "weather_check": check}
+        return frames, record
+    severity = check_supervision(spec, jitter)
+    if severity is not None:  # the simulated editor's frames of the scene's truth (synth scenes)
+        truth = truth_physics(scene) if has_truth_weather(scene) else {}
+        for w in edited:
+            if w in truth:
+                check_consistent(w, edited[w], physics_record(truth[w]),
+                                 source=f"--supervision {spec} ({Path(scene.root) / 'truth' / 'weather.json'})")
+        frames, record = sim_editor_frames(scene, severity, weathers, seed)
+        record["weather_check"] = {w: "consistent: the truth's weather" if w in truth else
+                                   "unverified: the scene records no weather of its truth" for w in weathers}
+        return frames, record
+    reader_name, sep, folder = spec.partition(":")
+    if not sep or not folder:
+        raise InputError(f"--supervision {spec!r}: expected {PHYSICAL_EDITOR!r}, 'filter2d', "
+                         "sim-editor[:SEVERITY] or READER:DIR (e.g. qwen-image:edits/)")
+    reader = get_method(reader_name)
+    root = Path(folder).expanduser()
+    if not root.is_dir():
+        raise InputError(f"--supervision {spec!r}: {root} is not a folder")
+    scene_root = root / scene.id if (root / scene.id).is_dir() else root
+    hashes: dict[str, list[str]] = {}
+    missing: dict[str, str] = {}
+    checked: dict[str, str] = {}
+    for w in weathers:
+        if w not in reader.info.weathers:
+            missing[w] = f"{reader_name} does not produce {w}"
+            continue
+        checked[w] = _check_folder_weather(scene_root / w / INFO_FILE, w, edited.get(w))
+        try:
+            seq = reader.open_predictions(scene, w, scene_root, resize=True)
+        except InputError as exc:
+            missing[w] = str(exc).splitlines()[0]
+            continue
+        if len(seq) != len(scene) or getattr(seq, "missing", None):
+            missing[w] = f"{len(seq)} frames for a scene of {len(scene)}"
+            continue
+        frames[w] = list(seq)
+        hashes[w] = seq.sha256s()
+    return frames, {"method": reader_name, "folder": str(scene_root.resolve()), "sha256": hashes,
+                    "not_supervised": missing, "weather_check": {w: c for w, c in checked.items() if w in frames}}
+
+
+def _check_folder_weather(info_path: Path, kind: str, physics: Weather | None) -> str:
+    """``"consistent"`` when the folder's ``info.json`` records the physics it was made with
+    (``parameters.physics``) and it matches; ``"unverified: ..."`` when it records none.
+
+    Raises
+    ------
+    InputError
+        The recorded weather contradicts ``physics`` (both values named).
+    """
+    if physics is None:
+        return "unverified: no physics weather of this kind in the run"
+    try:
+        doc = json.loads(info_path.read_text(encoding="utf-8")) if info_path.is_file() else {}
+    except (OSError, ValueError):
+        doc = {}
+    record = (doc.get("parameters") or {}).get("physics") if isinstance(doc, dict) else None
+    if not isinstance(record, dict):
+        return "unverified: the folder records no weather (info.json parameters.physics)"
+    check_consistent(kind, physics, record, source=str(info_path))
+    return f"consistent: {info_path} records the run's physics"
+
+
+def content_loss_for(config: TrainConfig, store: ModelStore | None) -> tuple[ContentLoss | None, str]:
+    """The content loss on the real VGG16 weights, or ``None`` and why it is skipped."""
+    if config.content_weight == 0:
+        return None, "off (no-content-loss ablation)"
+    store = store if store is not None else ModelStore()
+    if not store.available("vgg16"):
+        return None, f"skipped: {store.missing_message('vgg16')}"
+    features = load_vgg16_features(store=store, layers=CONTENT_LAYERS)
+    return ContentLoss(features, size=config.content_size), (
+        f"VGG16 {','.join(CONTENT_LAYERS)} at {config.content_size[0]}x{config.content_size[1]}, "
+        f"every {config.content_interval * config.weather_interval} steps (sha256 {store.sha256('vgg16')})"
+    )
+
+
+def training_hazes(config: TrainConfig, physics: Mapping[str, Weather], weathers: tuple[str, ...]) -> dict[str, Haze]:
+    """The haze each edited weather's training render is composed through (none unless
+    ``config.through_haze``): that of its physics weather, or of the kind's default one."""
+    if not config.through_haze:
+        return {}
+    return {w: Haze.of(physics.get(w, Weather(kind=w))) for w in weathers if w != "clear"}
+
+
+@dataclass
+class TrainingInputs:
+    """What a training of a scene is made from (see :func:`training_inputs`).
+
+    Attributes
+    ----------
+    views : list of TrainingView
+        Every frame's view at the training size (held-out frames included).
+    trained : tuple of str
+        ``"clear"`` and the supervised weathers (those the model gets decoders for).
+    supervision : dict
+        Record of the supervision (method, settings or folder and hashes, weathers missing).
+    view_facts : dict
+        How the views were made (:func:`build_views`).
+    sources : list of str
+        sha256 of the scene's frames.
+    hazes : dict of str to Haze
+        The haze of each trained edited weather (:func:`training_hazes`).
+    """
+
+    views: list[TrainingView]
+    trained: tuple[str, ...]
+    supervision: dict[str, Any]
+    view_facts: dict[str, Any]
+    sources: list[str]
+    hazes: dict[str, Haze] = field(default_factory=dict)
+
+
+def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = PHYSICAL_EDITOR, jitter: float = 0.0,
+                    weathers: tuple[str, ...] = ("rain", "snow", "fog"),
+                    physics: Mapping[str, Weather] | None = None) -> TrainingInputs:
+    """The views (raw frames, edits of every supervised weather, lidar depth, sky and object masks)
+    of ``scene`` at ``config``'s training size, and the haze of each weather's physics (``physics``;
+    the kind's default weather where it has none).
+
+    Raises
+    ------
+    InputError
+        On a malformed ``supervision`` or a folder that does not exist.
+    """
+    size = config.size_for(scene.image_size)
+    physics = dict(physics) if physics is not None else resolve_physics(scene, "presets")
+    frames, sup_record = supervision_frames(scene, supervision, weathers, jitter, config.seed, physics=physics,
+                                             size=size)
+    trained = ("clear", *[w for w in weathers if w in frames])
+    views, view_facts = build_views(scene, size=size, supervision={w: frames[w] for w in trained if w != "clear"})
+    return TrainingInputs(views=views, trained=trained, supervision=sup_record, view_facts=view_facts,
+                          sources=[sha256_file(f.image_path) for f in scene.frames],
+                          hazes=training_hazes(config, physics, trained))
+
+
+def train_scene(
+    scene: Scene,
+    config: TrainConfig,
+    *,
+    supervision: str = PHYSICAL_EDITOR,
+    jitter: float = 0.0,
+    weathers: tuple[str, ...] = ("rain", "snow", "fog"),
+    physics: Mapping[str, Weather] | None = None,
+    folder: Path | None = None,
+    store: ModelStore | None = None,
+    content: ContentLoss | str | None = "auto",
+    show_progress: bool = True,
+    log: Any = print,
+) -> tuple[WeatherCityModel, list[TrainingView], dict[str, Any]]:
+    """Train (or load the cached) WeatherCity model of ``scene``.
+
+    Parameters
+    ----------
+    scene : Scene
+    config : TrainConfig
+    supervision : str
+        ``"physical-editor"`` (default), ``"filter2d"``, ``"sim-editor"`` / ``"sim-editor:SEVERITY"``
+        (the simulated editor's frames of the scene's ground truth) or ``READER:DIR``.
+    jitter : float
+        Per-frame perturbation strength of the ``filter2d`` supervision (refused with sim-editor's).
+    weathers : tuple of str
+        Edited weathers to train (clear is always trained); those without supervision are not.
+    physics : mapping of str to Weather, optional
+        The physics weathers the model will be rendered under: the built-in supervision edits with
+        them and their haze is composed into the training renders (``config.through_haze``).
+        Default: each kind's default preset.
+    folder : Path, optional
+        Where the checkpoint goes; default the cache folder ``weathercity/<scene>-<key>``.
+    store : ModelStore, optional
+        Where the VGG16 weights of the content loss come from.
+    content : ContentLoss, None or "auto"
+        The content loss to use (tests inject a small network); ``"auto"``: the real VGG16 when
+        installed, else the term is skipped and the reason recorded.
+    show_progress : bool
+    log : callable
+        Where one-line phase messages go.
+
+    Returns
+    -------
+    model : WeatherCityModel
+    views : list of TrainingView
+        Every frame's view (held-out frames included).
+    facts : dict
+        What was built, skipped and measured (``info.json``).
+    """
+    start = time.perf_counter()
+    size = config.size_for(scene.image_size)
+    log(f"weathercity {scene.id}: {size[0]}x{size[1]} views, supervision from {supervision}")
+    inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers,
+                             physics=physics)
+    views, trained = inputs.views, inputs.trained
+    content_loss: ContentLoss | None
+    if isinstance(content, str):
+        if content != "auto":
+            raise ValueError(f"content must be a ContentLoss, None or 'auto', got {content!r}")
+        content_loss, content_note = content_loss_for(config, store)
+    else:
+        content_loss, content_note = content, "injected" if content is not None else "off"
+    made = {k: v for k, v in inputs.supervision.items() if k != "timings"}  # what makes the frames, not how fast
+    key = sha256_json({"version": VERSION, "scene": scene.id, "sources": inputs.sources, "config": config.to_json(),
+                       "supervision": made, "trained": trained, "content": content_note,
+                       "hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
+                       "lidar": [str(f.lidar_path) for f in scene.frames]})
+    folder = folder or cache_dir() / "weathercity" / f"{scene.id}-{key[:16]}"
+    log(f"weathercity {scene.id}: building the scene graph")
+    train_views = [v for v in views if v.frame not in config.holdout]
+    model, graph_facts = build_model(scene, train_views, config, weathers=trained)
+
+    def make_trainer(m: WeatherCityModel) -> Trainer:
+        return Trainer(m, views, config, content=content_loss, hazes=inputs.hazes)
+
+    info = read_checkpoint_info(folder)
+    if info is not None and info.get("key") == key:
+        trainer = load_checkpoint(folder, model=model, views=views, make_trainer=make_trainer)
+        resumed = trainer.step_index
+    else:
+        trainer, resumed = make_trainer(model), 0
+    prep_s = time.perf_counter() - start
+    if trainer.step_index < config.iterations:
+        if resumed:
+            log(f"weathercity {scene.id}: resuming at step {resumed} of {config.iterations}")
+        bar = progress(range(trainer.step_index, config.iterations), desc=f"training {scene.id}",
+                       total=config.iterations - trainer.step_index, enabled=show_progress, unit="step")
+        steps = iter(bar)
+        next(steps, None)  # the bar counts a step each time the next one is asked for
+
+        def on_step(s: Any) -> None:
+            next(steps, None)
+            if hasattr(bar, "set_postfix") and s.step % 10 == 0:
+                bar.set_postfix(loss=f"{s.loss:.4f}", psnr=f"{s.psnr_clear:.2f}", gaussians=s.gaussians)
+
+        trainer.train(callback=on_step, checkpoint=lambda t: save_checkpoint(t, folder, extra={"key": key}))
+        if hasattr(bar, "close"):
+            bar.close()
+    held = [v for v in views if v.frame in config.holdout]
+    facts: dict[str, Any] = {
+        "version": VERSION,
+        "config": config.to_json(),
+        "key": key,
+        "checkpoint": str(folder),
+        "supervision": inputs.supervision,
+        "trained_weathers": list(trained),
+        "not_trained": sorted(set(weathers) - set(trained)),
+        "content_loss": content_note,
+        "training_hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
+        "views": inputs.view_facts,
+        "scene_graph": graph_facts,
+        "gaussians": model.counts(),
+        "iterations": trainer.step_index,
+        "resumed_at": resumed,
+        "train_seconds": round(trainer.train_seconds, 3),
+        "prepare_seconds": round(prep_s, 3),
+        "densify": trainer.densify_log[-1] if trainer.densify_log else None,
+    }
+    if held:
+        facts["holdout"] = evaluate_views(model, held)
+    return model, views, facts

@@ -1,0 +1,243 @@
+"""Writing a synthetic scene in drivestudio's Waymo layout with its truth beside it, and the cache
+of generated scenes (docs/design.md §3)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from wcbench.core.errors import InputError
+from wcbench.core.image_io import to_uint8
+from wcbench.core.paths import cache_dir
+from wcbench.core.progress import announce
+from wcbench.core.storage import dumps_json
+from wcbench.scenes.loaders import OPENCV_TO_WAYMO
+from wcbench.scenes.scene import Camera
+from wcbench.scenes.synth.content import Content, build_content
+from wcbench.scenes.synth.geometry import rigid_transform
+from wcbench.scenes.synth.layout import (
+    FOCAL,
+    FPS,
+    GLOBAL_ORIGIN,
+    HEIGHT,
+    MARKER,
+    N_FRAMES,
+    SCENES,
+    SPEED,
+    TRUTH_WEATHERS,
+    VERSION,
+    WIDTH,
+    scene_folder,
+)
+from wcbench.scenes.synth.lidar import lidar_sweep
+from wcbench.scenes.synth.truth import TruthRenderer, reference_model
+
+__all__ = ["ensure_synth_1", "ensure_synth_3", "ensure_synth_scenes", "write_synth_scene"]
+
+
+def _png(path: Path, image: np.ndarray) -> None:
+    """Write uint8 RGB [H, W, 3] or a uint8 mask [H, W] as PNG (OpenCV's encoder is deterministic)."""
+    img = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    path.write_bytes(buf.tobytes())
+
+
+def _savetxt(path: Path, values: np.ndarray) -> None:
+    """A matrix as text in numpy's default format (as drivestudio writes it): fixed, so deterministic."""
+    np.savetxt(path, values, fmt="%.18e")
+
+
+def _dynamic_masks(content: Content, k: int, camera: Camera, lidar_world: np.ndarray, shift: np.ndarray
+                   ) -> dict[str, np.ndarray]:
+    """drivestudio's dynamic masks of frame ``k``: per class group, the 2D bounding rectangle of the
+    projected box corners of objects moving faster than 1 m/s, skipping objects with a corner
+    behind the camera or without a lidar point in their box (occluded)."""
+    masks = {g: np.zeros((HEIGHT, WIDTH), np.uint8) for g in ("all", "human", "vehicle")}
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
+    for m in content.movers:
+        if np.linalg.norm(m.velocity[k][:2]) <= 1.0:
+            continue
+        T = m.poses[k]
+        local = (lidar_world - T[:3, 3]) @ T[:3, :3]
+        if not np.any(np.all(np.abs(local) <= m.size / 2, axis=1)):
+            continue
+        corners = (signs * m.size / 2) @ T[:3, :3].T + T[:3, 3] - shift
+        uv, z = camera.project(corners)
+        if not np.all(z > 0):
+            continue
+        u = np.clip(uv[:, 0], 0, WIDTH)
+        v = np.clip(uv[:, 1], 0, HEIGHT)
+        if u.max() - u.min() == 0 or v.max() - v.min() == 0:
+            continue
+        group = "human" if m.class_name == "Pedestrian" else "vehicle"
+        for g in ("all", group):
+            masks[g][int(v.min()):int(v.max()), int(u.min()):int(u.max())] = 255
+    return masks
+
+
+def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> dict[str, Any]:
+    """Generate synthetic scene ``index`` into ``root`` in drivestudio's Waymo layout, with truth frames.
+
+    Writes ``images/{t:03d}_0.png``, ``ego_pose/{t:03d}.txt``, ``extrinsics/0.txt``,
+    ``intrinsics/0.txt``, ``lidar/{t:03d}.bin``, ``sky_masks/{t:03d}_0.png``,
+    ``dynamic_masks/{all,human,vehicle}/{t:03d}_0.png``, ``instances/instances_info.json`` and
+    ``frame_instances.json``, ``truth/{rain,snow,fog}/{t:03d}_0.png``, ``truth/weather.json`` and,
+    last, ``synth.json`` (docs/design.md §3).
+
+    Parameters
+    ----------
+    root : Path
+        Folder to write into; created if missing, must hold no scene yet.
+    index : int
+        Scene number in :data:`SCENES`.
+    n_frames : int
+        Frames to write (the first ones; fewer only for quick checks: the scene sets use all).
+
+    Returns
+    -------
+    dict
+        What was written: Gaussian counts (static, moving, per frame), lidar points per frame,
+        pedestrian, presets (the contents of ``synth.json``).
+
+    Raises
+    ------
+    InputError
+        Without torch (the reference model renders the frames).
+    """
+    spec = SCENES[index]
+    content = build_content(spec)
+    root = Path(root)
+    for sub in ("images", "ego_pose", "extrinsics", "intrinsics", "lidar", "sky_masks", "dynamic_masks/all",
+                "dynamic_masks/human", "dynamic_masks/vehicle", "instances",
+                *(f"truth/{w}" for w in TRUTH_WEATHERS)):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+
+    K = np.array([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
+    _savetxt(root / "intrinsics" / "0.txt", np.array([FOCAL, FOCAL, WIDTH / 2, HEIGHT / 2, 0, 0, 0, 0, 0], float))
+    _savetxt(root / "extrinsics" / "0.txt", content.camera_to_vehicle)
+    global_offset = rigid_transform(np.eye(3), GLOBAL_ORIGIN)
+    c2w = [e @ content.camera_to_vehicle @ OPENCV_TO_WAYMO for e in content.ego]
+    # Rendered where the loaders put the scene: the first camera at the origin (docs/design.md §2),
+    # so a method using the same physics and seed sees the same particles.
+    shift = c2w[0][:3, 3].copy()
+    cameras = []
+    for k in range(N_FRAMES):
+        pose = c2w[k].copy()
+        pose[:3, 3] -= shift
+        cameras.append(Camera(K=K, width=WIDTH, height=HEIGHT, camera_to_world=pose))
+    truth = TruthRenderer(content, cameras, np.arange(N_FRAMES) / FPS, shift)
+
+    counts: dict[str, list[int]] = {"lidar_points": [], "gaussians": []}
+    for k, cam in enumerate(cameras[:n_frames]):
+        frames, n_gaussians = truth.frame(k)
+        for w, frame in frames.items():
+            image = to_uint8(np.asarray(frame.image, np.float64))  # float64 math: the bytes VERSION 1 shipped
+            if w == "clear":
+                _png(root / "images" / f"{k:03d}_0.png", image)
+                _png(root / "sky_masks" / f"{k:03d}_0.png", np.where(frame.alpha < 0.5, 255, 0).astype(np.uint8))
+            else:
+                _png(root / "truth" / w / f"{k:03d}_0.png", image)
+        _savetxt(root / "ego_pose" / f"{k:03d}.txt", global_offset @ content.ego[k])
+        sweep = lidar_sweep(content, k)
+        sweep.tofile(root / "lidar" / f"{k:03d}.bin")
+        world = sweep[:, 3:6].astype(np.float64) @ content.ego[k][:3, :3].T + content.ego[k][:3, 3]
+        for group, mask in _dynamic_masks(content, k, cam, world, shift).items():
+            _png(root / "dynamic_masks" / group / f"{k:03d}_0.png", mask)
+        counts["lidar_points"].append(len(sweep))
+        counts["gaussians"].append(n_gaussians)
+
+    instances: dict[str, Any] = {}
+    frame_instances: dict[str, list[int]] = {str(k): [] for k in range(n_frames)}
+    for n, m in enumerate(content.movers):
+        instances[str(n)] = {
+            "id": f"{scene_folder(index)}_{m.id}",
+            "class_name": m.class_name,
+            "frame_annotations": {
+                "frame_idx": list(range(n_frames)),
+                "obj_to_world": [(global_offset @ p).tolist() for p in m.poses[:n_frames]],
+                "box_size": [m.size.tolist()] * n_frames,
+            },
+        }
+        for k in range(n_frames):
+            frame_instances[str(k)].append(n)
+    (root / "instances" / "instances_info.json").write_text(json.dumps(instances, indent=4), encoding="utf-8")
+    (root / "instances" / "frame_instances.json").write_text(json.dumps(frame_instances, indent=4),
+                                                             encoding="utf-8")
+
+    (root / "truth" / "weather.json").write_text(dumps_json(truth.record()), encoding="utf-8")
+
+    moving = [m for m in content.movers if m.moving]
+    summary = {
+        "version": VERSION, "scene": scene_folder(index), "seed": spec.seed, "curvature_per_m": spec.curvature,
+        "pedestrian": spec.pedestrian, "moving_objects": [m.id for m in moving],
+        "parked_cars": sum(not m.moving for m in content.movers),
+        "frames": n_frames, "fps": FPS, "image_size": [WIDTH, HEIGHT], "focal_px": FOCAL, "speed_m_s": SPEED,
+        "gaussians": {"static": len(content.static), "per_frame": counts["gaussians"][0],
+                      "moving": counts["gaussians"][0] - len(content.static)},
+        "lidar_points": counts["lidar_points"], "truth_weathers": TRUTH_WEATHERS,
+        "global_origin_m": GLOBAL_ORIGIN.tolist(),
+    }
+    (root / MARKER).write_text(dumps_json(summary), encoding="utf-8")
+    return summary
+
+
+def ensure_synth_scenes(count: int) -> Path:
+    """Build synthetic scenes 0 .. ``count`` - 1 once into the cache folder; return the folder holding them.
+
+    Each scene is written into a temporary folder and renamed into place, so a killed build never
+    leaves half a scene and concurrent builders race safely (the loser finds the winner's scene).
+
+    Parameters
+    ----------
+    count : int
+        Number of scenes (1 to ``len(SCENES)``).
+
+    Returns
+    -------
+    Path
+        ``<cache>/scenes/synth-v{VERSION}``; scene k is its sub-folder ``synth_{k:03d}``.
+
+    Raises
+    ------
+    InputError
+        When a scene must be generated and torch is missing, or an incomplete folder is in the way.
+    """
+    parent = cache_dir() / "scenes" / f"synth-v{VERSION}"
+    for spec in SCENES[:count]:
+        root = parent / scene_folder(spec.index)
+        if (root / MARKER).is_file():
+            continue
+        reference_model()  # fail before any work when torch is missing
+        announce(f"generating synthetic scene {root.name} (first use only)")
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=parent))
+        try:
+            write_synth_scene(tmp, spec.index)
+            try:
+                os.replace(tmp, root)
+            except OSError:
+                if not (root / MARKER).is_file():  # another process won the race only if complete
+                    raise InputError(f"{root}: an incomplete synthetic scene is in the way; delete the folder "
+                                     "and it is generated again") from None
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return parent
+
+
+def ensure_synth_1() -> Path:
+    """Generator of the ``synth_1`` set: scene 0 (see :func:`ensure_synth_scenes`)."""
+    return ensure_synth_scenes(1)
+
+
+def ensure_synth_3() -> Path:
+    """Generator of the ``synth_3`` set: scenes 0-2 (see :func:`ensure_synth_scenes`)."""
+    return ensure_synth_scenes(3)
