@@ -122,6 +122,7 @@ def test_run_render_and_train_take_the_same_method_options(capsys: pytest.Captur
 
 
 def test_method_option_keys_nest_and_a_key_given_twice_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("torch")  # weathercity's options are checked by its constructor (the [model] extra)
     from wcbench.core.errors import InputError
 
     args = build_parser().parse_args([
@@ -249,6 +250,7 @@ def test_bench_out_is_the_json_file_or_a_folder_for_it(tmp_path: Path, capsys: p
 
 def test_render_takes_several_weathers_and_refuses_none_or_an_unknown_one(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("torch")  # render draws with the reference model (the [model] extra)
     from wcbench.cli.render import _weathers
 
     parse = build_parser().parse_args
