@@ -128,6 +128,31 @@ def check_same_shape(a: np.ndarray, b: np.ndarray, *, names: tuple[str, str]) ->
         raise ValueError(f"{names[0]} has shape {a.shape} but {names[1]} has shape {b.shape}")
 
 
+def as_float_image_pair(a: Any, b: Any, *, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
+    """Two image batches compared frame by frame: :func:`as_float_images` of each, of one shape.
+
+    Parameters
+    ----------
+    a, b : array-like [H, W, 3] or [B, H, W, 3]
+        Float RGB in [0, 1] or uint8.
+    names : (str, str)
+        Names of ``a`` and ``b`` in the messages.
+
+    Returns
+    -------
+    a, b : ndarray [B, H, W, 3]
+        As :func:`as_float_images` returns them.
+
+    Raises
+    ------
+    ValueError
+        As :func:`as_float_images`, or when the shapes differ (:func:`check_same_shape`).
+    """
+    fa, fb = as_float_images(a, name=names[0]), as_float_images(b, name=names[1])
+    check_same_shape(fa, fb, names=names)
+    return fa, fb
+
+
 def check_min_side(images: np.ndarray, min_side: int, *, name: str) -> None:
     """Raise ``ValueError`` if frames of ``images`` [B, H, W, C] (B >= 1) are under ``min_side`` px
     on a side (a metric's window or network needs it); an empty batch passes."""
@@ -303,8 +328,7 @@ class PerFrameReferenceMetric(Metric):
         """Score a batch [B, H, W, 3] against ``reference`` (required)."""
         if reference is None:
             raise ValueError(f"{self.name}: a reference batch is required")
-        p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
-        check_same_shape(p, r, names=("pred", "reference"))
+        p, r = as_float_image_pair(pred, reference, names=("pred", "reference"))
         check_min_side(p, self.min_side, name=self.name)
         self._values.extend(frame_values_skipping_identical(
             self.frame_values, p, r, self.identical_value if self.skip_identical else None, name=self.name).tolist())

@@ -202,6 +202,14 @@ class _ClipMetric(StoreBacked, Metric):
             )
         return self._embedder
 
+    def _image_embeddings(self, pred: np.ndarray, source: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Unit image embeddings ``(f(source), f(pred))`` [B, E] of a batch (ValueError: no source, or
+        shapes that differ)."""
+        edit, src = _frames(pred, "pred"), _frames(source, "source")
+        check_same_shape(edit, src, names=("pred", "source"))
+        emb = self.embedder
+        return emb.image_embeddings(src), emb.image_embeddings(edit)
+
     def skip_reason(self, ctx: MetricContext) -> str | None:
         """Base rules, then: source frames needed, weights (and vocabulary) installed."""
         reason = super().skip_reason(ctx)
@@ -272,10 +280,7 @@ class ClipScore(_ClipMetric):
         ValueError
             If ``source`` is missing or the shapes differ (both shapes named).
         """
-        edit, src = _frames(pred, "pred"), _frames(source, "source")
-        check_same_shape(edit, src, names=("pred", "source"))
-        emb = self.embedder
-        self._values.extend(clip_s_per_frame(emb.image_embeddings(src), emb.image_embeddings(edit)).tolist())
+        self._values.extend(clip_s_per_frame(*self._image_embeddings(pred, source)).tolist())
 
     def compute(self) -> dict[str, MetricValue]:
         """``{"clip_s": mean over frames, per-frame values}``."""
@@ -384,11 +389,8 @@ class ClipDirectionalScore(_ClipMetric):
         """
         if self.weather is None:
             raise ValueError("clip_ds: no weather bound (pass weather= or call bind(ctx) first)")
-        edit, src = _frames(pred, "pred"), _frames(source, "source")
-        check_same_shape(edit, src, names=("pred", "source"))
+        f_src, f_edit = self._image_embeddings(pred, source)
         directions = self._direction(self.weather)
-        emb = self.embedder
-        f_src, f_edit = emb.image_embeddings(src), emb.image_embeddings(edit)
         for form in FORMS:
             values, degenerate = clip_ds_per_frame(f_src, f_edit, directions[form])
             self._values[form].extend(values.tolist())

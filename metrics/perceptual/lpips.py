@@ -32,9 +32,8 @@ from wcbench.metrics.base import (
     Metric,
     MetricContext,
     MetricValue,
-    as_float_images,
+    as_float_image_pair,
     check_min_side,
-    check_same_shape,
     finite_or_none,
     frame_values_skipping_identical,
 )
@@ -245,8 +244,7 @@ def lpips_distances(
     See :func:`lpips` for the parameters.
     """
     _check_net_backend(net, backend)
-    a, b = as_float_images(img0, name="img0"), as_float_images(img1, name="img1")
-    check_same_shape(a, b, names=("img0", "img1"))
+    a, b = as_float_image_pair(img0, img1, names=("img0", "img1"))
     check_min_side(a, MIN_SIDE[net], name=f"lpips ({net})")
     d = _model_dir(net, store)
     return np.asarray(_runner(str(d), net, _resolve_backend(d, backend))(a, b), np.float64)
@@ -371,8 +369,7 @@ class LPIPS(StoreBacked, Metric):
         """Accumulate per-frame LPIPS of ``pred`` [B, H, W, 3] against ``reference``."""
         if reference is None:
             raise ValueError("lpips: a reference batch is required")
-        p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
-        check_same_shape(p, r, names=("pred", "reference"))
+        p, r = as_float_image_pair(pred, reference, names=("pred", "reference"))
         # the backbone's bound, also with an injected distance (it stands in for the backbone)
         check_min_side(p, MIN_SIDE[self.net], name=f"lpips ({self.net})")
         fn, self._backend_used = self._fn()

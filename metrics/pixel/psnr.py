@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from wcbench.core.parallel import parallel_map
-from wcbench.metrics.base import PerFrameReferenceMetric, as_float_images, check_same_shape
+from wcbench.metrics.base import PerFrameReferenceMetric, as_float_image_pair
 
 _VARIANT = "mean over frames of 10 log10(1 / MSE), RGB in [0, 1], MSE over pixels and channels in float64"
 
@@ -50,8 +50,7 @@ def psnr(pred: np.ndarray, reference: np.ndarray) -> float:
     ValueError
         On images that are not finite RGB in [0, 1] (or uint8), shapes that differ, or no frames.
     """
-    p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
-    check_same_shape(p, r, names=("pred", "reference"))
+    p, r = as_float_image_pair(pred, reference, names=("pred", "reference"))
     if not len(p):
         raise ValueError("psnr: no frames")
     return float(np.mean(_frame_psnr(p, r)))

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from wcbench.core.parallel import parallel_map
-from wcbench.metrics.base import PerFrameReferenceMetric, as_float_images, check_min_side, check_same_shape
+from wcbench.metrics.base import PerFrameReferenceMetric, as_float_image_pair, check_min_side
 
 SIGMA = 1.5
 TRUNCATE = 3.5  # scipy.ndimage.gaussian_filter's default: radius int(3.5 * 1.5 + 0.5) = 5
@@ -68,8 +68,7 @@ def ssim(pred: np.ndarray, reference: np.ndarray) -> float:
         On images that are not finite RGB in [0, 1] (or uint8), shapes that differ, no frames, or
         frames under 11 px on a side (the Gaussian window).
     """
-    p, r = as_float_images(pred, name="pred"), as_float_images(reference, name="reference")
-    check_same_shape(p, r, names=("pred", "reference"))
+    p, r = as_float_image_pair(pred, reference, names=("pred", "reference"))
     if not len(p):
         raise ValueError("ssim: no frames")
     return float(np.mean([ssim_map_mean(a, b) for a, b in zip(p, r)]))

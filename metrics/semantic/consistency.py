@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from wcbench.core.models.store import StoreBacked
-from wcbench.metrics.base import Metric, MetricContext, MetricValue, as_float_images, finite_or_none
+from wcbench.metrics.base import Metric, MetricContext, MetricValue, as_float_image_pair, finite_or_none
 from wcbench.metrics.semantic.loading import load_segmenter
 from wcbench.metrics.semantic.segmenter import SPEC_FILE
 
@@ -379,9 +379,7 @@ class SemanticConsistency(StoreBacked, Metric):
         if self.labels_mode:
             self.update_labels(pred, source)
             return
-        p, s = as_float_images(pred, name="pred"), as_float_images(source, name="source")
-        if p.shape != s.shape:
-            raise ValueError(f"pred has shape {p.shape} but source has shape {s.shape}")
+        p, s = as_float_image_pair(pred, source, names=("pred", "source"))
         self.update_labels(self._segment_checked(p, name="pred"), self._segment_source(s))
 
     def _variant(self, form: str) -> str:

@@ -28,7 +28,14 @@ import numpy as np
 from wcbench.core.byte_cache import ByteBudgetCache
 from wcbench.core.image_io import to_uint8
 from wcbench.core.parallel import parallel_map
-from wcbench.metrics.base import Metric, MetricValue, as_float_images, check_same_shape, finite_or_none
+from wcbench.metrics.base import (
+    Metric,
+    MetricValue,
+    as_float_image_pair,
+    as_float_images,
+    check_same_shape,
+    finite_or_none,
+)
 
 FlowFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -423,10 +430,8 @@ class FlowWarpingError(Metric):
         """Accumulate per-pair warping errors of consecutive frames [B, H, W, 3]."""
         if source is None:
             raise ValueError("flow_warping_error: the source batch is required")
-        p = as_float_images(pred, name="pred").astype(np.float32, copy=False)
-        s = as_float_images(source, name="source").astype(np.float32, copy=False)
-        if p.shape != s.shape:
-            raise ValueError(f"pred has shape {p.shape} but source has shape {s.shape}")
+        p, s = as_float_image_pair(pred, source, names=("pred", "source"))
+        p, s = p.astype(np.float32, copy=False), s.astype(np.float32, copy=False)
         if len(p) and self._last is not None:
             _check_frame_size(p[0], self._last[0])
         self._frames += len(p)

@@ -311,7 +311,8 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> 
         a[:, 4] = 1.0  # a moving object is open to the sky (its roof takes snow)
         node_attrs.append(a)
     surf.static_attributes, surf.node_attributes = static, node_attrs
-    surf.facts = {"gaussians": len(gaussians), "static": len(means), "nodes": len(gaussians.nodes),
+    surf.facts = {"voxel_m": float(voxel_m), "gaussians": len(gaussians), "static": len(means),
+                  "nodes": len(gaussians.nodes),
                   "ground_fraction": round(float(ground.mean()), 4), "open_fraction": round(float(open_.mean()), 4),
                   "wheel_path_points": len(lanes_pts)}
     return surf

@@ -47,7 +47,7 @@ __all__ = ["NAME", "VERSION", "PhysicalEditorMethod", "check_lidar", "edit_scene
 
 NAME = "physical-editor"
 #: Bumped whenever the same scene, weather and settings would give other frames.
-VERSION = "1"
+VERSION = "2"
 #: Width it edits at unless told otherwise (WeatherCity's training width).
 DEFAULT_WIDTH = 480
 

@@ -217,6 +217,26 @@ def _select(frames: dict[int, Path], start: int, count: int | None, root: Path) 
     return wanted
 
 
+def _camera_frames(
+    root: Path, camera: int, start: int, count: int | None
+) -> tuple[dict[int, Path], list[int], np.ndarray, np.ndarray]:
+    """The images of ``camera``, the selected frame numbers, and the camera's K and distortion."""
+    images = _find_frames(root, camera)
+    indices = _select(images, start, count, root)
+    K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
+    return images, indices, K, dist
+
+
+def _lidar_to_world(path: Path, columns: int, pose_path: Path, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A sweep stored in its lidar's frame (float32 [N, columns], xyz in columns 0-2) moved to the world
+    with its lidar-to-world pose file: the float64 points [N, 3] and sensor position [3], both re-based
+    by ``offset``."""
+    pts = _read_lidar(path, columns, finite=(0, 1, 2), point=(0, 1, 2))
+    pose = read_pose(pose_path, what="lidar-to-world pose")
+    origin = pose[:3, 3] - offset
+    return pts[:, :3].astype(np.float64) @ pose[:3, :3].T + origin, origin
+
+
 def _warn_once(root: Path, what: str, message: str) -> None:
     """A ``UserWarning`` the first time this process meets ``what`` of the scene folder ``root``."""
     key = (str(root), what)
@@ -510,9 +530,7 @@ def load_nuscenes_layout(
     Scene
         Re-based to the first camera, z up.
     """
-    images = _find_frames(root, camera)
-    indices = _select(images, start, count, root)
-    K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
+    images, indices, K, dist = _camera_frames(root, camera, start, count)
     c2w = [read_pose(root / "extrinsics" / f"{t:03d}_{camera}.txt", what="camera-to-world pose") for t in indices]
     lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
     semseg = root / "lidar_semseg"
@@ -533,15 +551,13 @@ def load_nuscenes_layout(
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
         t = orig[frame.index]
-        pts = _read_lidar(frame.lidar_path, 4, finite=(0, 1, 2), point=(0, 1, 2))
-        pose = read_pose(root / "lidar_pose" / f"{t:03d}.txt", what="lidar-to-world pose")
-        world = pts[:, :3].astype(np.float64) @ pose[:3, :3].T + (pose[:3, 3] - offset)
+        world, _ = _lidar_to_world(frame.lidar_path, 4, root / "lidar_pose" / f"{t:03d}.txt", offset)
         labels = None
         label_path = semseg / f"{t:03d}.bin"
         if label_path.is_file():
             labels = np.fromfile(label_path, dtype=np.uint8)
-            if labels.size != len(pts):
-                raise InputError(f"{label_path}: {labels.size} labels for {len(pts)} lidar points")
+            if labels.size != len(world):
+                raise InputError(f"{label_path}: {labels.size} labels for {len(world)} lidar points")
         return LidarSweep(points=world.astype(np.float32), labels=labels)
 
     return _build_scene(
@@ -569,9 +585,7 @@ def load_waymo_layout(
         Also when the folder is drivestudio's Argoverse 2 or nuPlan layout, which look alike.
     """
     refuse_unread_layouts(root)
-    images = _find_frames(root, camera)
-    indices = _select(images, start, count, root)
-    K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
+    images, indices, K, dist = _camera_frames(root, camera, start, count)
     cam_to_ego = read_pose(root / "extrinsics" / f"{camera}.txt", what="camera-to-vehicle extrinsics")
     ego = [read_pose(root / "ego_pose" / f"{t:03d}.txt", what="vehicle-to-world pose") for t in indices]
     c2w = [e @ cam_to_ego @ OPENCV_TO_WAYMO for e in ego]
@@ -609,9 +623,7 @@ def load_pandaset_layout(
     PandaSet lidar and writes no timestamps: frames are 10 Hz (PandaSet's rate). Parameters as
     :func:`load_nuscenes_layout`.
     """
-    images = _find_frames(root, camera)
-    indices = _select(images, start, count, root)
-    K, dist = read_intrinsics(root / "intrinsics" / f"{camera}.txt")
+    images, indices, K, dist = _camera_frames(root, camera, start, count)
     c2w = [read_pose(root / "extrinsics" / f"{t:03d}_{camera}.txt", what="camera-to-world pose") for t in indices]
     lidar_paths = [_optional(root / "lidar" / f"{t:03d}.bin") for t in indices]
     orig = dict(zip(range(len(indices)), indices))
@@ -619,11 +631,9 @@ def load_pandaset_layout(
     def read(frame: Frame, offset: np.ndarray) -> LidarSweep:
         assert frame.lidar_path is not None
         t = orig[frame.index]
-        pts = _read_lidar(frame.lidar_path, 5, finite=(0, 1, 2), point=(0, 1, 2))
-        pose = read_pose(root / "ego_pose" / f"{t:03d}.txt", what="lidar-to-world pose")
-        world = pts[:, :3].astype(np.float64) @ pose[:3, :3].T + (pose[:3, 3] - offset)
+        world, origin = _lidar_to_world(frame.lidar_path, 5, root / "ego_pose" / f"{t:03d}.txt", offset)
         return LidarSweep(points=world.astype(np.float32), origins=np.broadcast_to(
-            (pose[:3, 3] - offset).astype(np.float32), world.shape).copy())
+            origin.astype(np.float32), world.shape).copy())
 
     return _build_scene(
         root, scene_id=scene_id, source_format="drivestudio_pandaset", indices=indices, images=images,

@@ -1,22 +1,23 @@
 """Reading segmentation checkpoints in the Hugging Face ``transformers`` formats (needs torch).
 
 Shared by the architectures (:mod:`.segformer`, :mod:`.upernet_convnext`): the state dict of a
-checkpoint file or ``save_pretrained`` folder, the check that it is the expected released variant,
-and strict loading into our networks.
+checkpoint file or ``save_pretrained`` folder, its blocks per stage, the check that it is the
+expected released variant, and strict loading into our networks.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping, Sequence
+import re
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import nn
 
-__all__ = ["check_variant", "load_checked_state", "read_state_dict", "single_source", "variant_of"]
+__all__ = ["check_variant", "load_checked_state", "read_state_dict", "single_source", "stage_depths", "variant_of"]
 
 
 def single_source(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> Path:
@@ -89,6 +90,30 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
     if not isinstance(state, dict):
         raise ValueError(f"{path}: expected a state dict, got {type(state).__name__}")
     return state
+
+
+def stage_depths(keys: Collection[str], block_pattern: str) -> tuple[int, ...]:
+    r"""Blocks in each of the four encoder stages, counted from a checkpoint's numbered block tensors.
+
+    Parameters
+    ----------
+    keys : collection of str
+        Tensor names of the checkpoint.
+    block_pattern : str
+        Regular expression matched at the start of a name, with ``{}`` for the stage index and one
+        group capturing the block index, e.g. ``r"backbone\.encoder\.stages\.{}\.layers\.(\d+)\."``.
+
+    Returns
+    -------
+    tuple of int
+        One more than the largest block index of each stage; 0 for a stage without blocks.
+    """
+    depths = []
+    for i in range(4):
+        pat = re.compile(block_pattern.format(i))
+        idx = {int(m.group(1)) for k in keys if (m := pat.match(k))}
+        depths.append(max(idx) + 1 if idx else 0)
+    return tuple(depths)
 
 
 def check_variant(path: str | Path, cfg: Any, configs: Mapping[str, Any], variant: str, family: str) -> None:

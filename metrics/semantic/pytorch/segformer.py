@@ -27,7 +27,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from wcbench.metrics.semantic.pytorch.checkpoints import check_variant, load_checked_state, read_state_dict
+from wcbench.metrics.semantic.pytorch.checkpoints import (
+    check_variant,
+    load_checked_state,
+    read_state_dict,
+    stage_depths,
+)
 from wcbench.metrics.semantic.pytorch.convert import convert_checkpoint
 
 __all__ = [
@@ -294,15 +299,11 @@ def segformer_config_from_state_dict(state: Mapping[str, torch.Tensor]) -> SegFo
         dec = int(keys["decode_head.linear_fuse.weight"].shape[0])
     except KeyError as exc:
         raise ValueError(f"not a SegformerForSemanticSegmentation checkpoint: no tensor {exc}") from None
-    depths = []
-    for i in range(4):
-        pat = re.compile(rf"segformer\.encoder\.block\.{i}\.(\d+)\.")
-        idx = {int(m.group(1)) for k in keys if (m := pat.match(k))}
-        depths.append(max(idx) + 1 if idx else 0)
+    depths = stage_depths(keys, r"segformer\.encoder\.block\.{}\.(\d+)\.")
     base = SegFormerConfig()
     return SegFormerConfig(
         hidden_sizes=hidden,  # type: ignore[arg-type]
-        depths=tuple(depths),  # type: ignore[arg-type]
+        depths=depths,  # type: ignore[arg-type]
         decoder_hidden_size=dec,
         num_labels=num_labels,
         num_attention_heads=base.num_attention_heads,

@@ -16,7 +16,6 @@ This module imports torch: the evaluation side reaches it only through the ONNX 
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +25,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from wcbench.metrics.semantic.pytorch.checkpoints import check_variant, load_checked_state, read_state_dict
+from wcbench.metrics.semantic.pytorch.checkpoints import (
+    check_variant,
+    load_checked_state,
+    read_state_dict,
+    stage_depths,
+)
 from wcbench.metrics.semantic.pytorch.convert import convert_checkpoint
 
 __all__ = [
@@ -272,11 +276,7 @@ def upernet_config_from_state_dict(state: Mapping[str, torch.Tensor]) -> UperNet
         patch = int(state["backbone.embeddings.patch_embeddings.weight"].shape[-1])
     except KeyError as exc:
         raise ValueError(f"not an UperNet-ConvNeXt checkpoint: no tensor {exc}") from None
-    depths = []
-    for i in range(4):
-        pat = re.compile(rf"backbone\.encoder\.stages\.{i}\.layers\.(\d+)\.")
-        idx = {int(m.group(1)) for k in state if (m := pat.match(k))}
-        depths.append(max(idx) + 1 if idx else 0)
+    depths = stage_depths(state, r"backbone\.encoder\.stages\.{}\.layers\.(\d+)\.")
     n_pool = len({k.split(".")[2] for k in state if k.startswith("decode_head.psp_modules.")})
     if n_pool != 4:
         # the pooling sizes are not stored; every released checkpoint uses (1, 2, 3, 6)
@@ -285,7 +285,7 @@ def upernet_config_from_state_dict(state: Mapping[str, torch.Tensor]) -> UperNet
         )
     return UperNetConvNextConfig(
         hidden_sizes=tuple(hidden),  # type: ignore[arg-type]
-        depths=tuple(depths),  # type: ignore[arg-type]
+        depths=depths,  # type: ignore[arg-type]
         channels=int(cls.shape[1]),
         num_labels=int(cls.shape[0]),
         patch_size=patch,
