@@ -247,6 +247,25 @@ def _jacobian_clamp(intr: np.ndarray, wf: float, hf: float) -> tuple:
     )
 
 
+@njit(cache=True, inline="always")
+def _to_camera(means: np.ndarray, i: int, V: np.ndarray, tvec: np.ndarray) -> tuple:
+    """Camera coordinates (x, y, z) of Gaussian ``i``'s mean (float64)."""
+    px, py, pz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+    return (V[0, 0] * px + V[0, 1] * py + V[0, 2] * pz + tvec[0],
+            V[1, 0] * px + V[1, 1] * py + V[1, 2] * pz + tvec[1],
+            V[2, 0] * px + V[2, 1] * py + V[2, 2] * pz + tvec[2])
+
+
+@njit(cache=True, inline="always")
+def _ewa_jacobian(rx: float, ry: float, z: float, fx: float, fy: float, lim_xn: float, lim_xp: float,
+                  lim_yn: float, lim_yp: float) -> tuple:
+    """The projection's Jacobian (j00, j02, j11, j12) at (x/z, y/z) = (rx, ry) clamped to the
+    widened frustum (:func:`_jacobian_clamp`), and the clamped (ux, uy)."""
+    ux = min(max(rx, -lim_xn), lim_xp)
+    uy = min(max(ry, -lim_yn), lim_yp)
+    return fx / z, -fx * ux / z, fy / z, -fy * uy / z, ux, uy
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def _project_kernel(
     means: np.ndarray,  # [N, 3] f32
@@ -302,21 +321,13 @@ def _project_kernel(
         if not finite:
             reason[i] = CULL_NONFINITE
             continue
-        px, py, pz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-        x = V[0, 0] * px + V[0, 1] * py + V[0, 2] * pz + tvec[0]
-        y = V[1, 0] * px + V[1, 1] * py + V[1, 2] * pz + tvec[1]
-        z = V[2, 0] * px + V[2, 1] * py + V[2, 2] * pz + tvec[2]
+        x, y, z = _to_camera(means, i, V, tvec)
         if not (z > near and z < far):
             reason[i] = CULL_NEAR_FAR
             continue
         mx = fx * x / z + cx
         my = fy * y / z + cy
-        ux = min(max(x / z, -lim_xn), lim_xp)
-        uy = min(max(y / z, -lim_yn), lim_yp)
-        j00 = fx / z
-        j02 = -fx * ux / z
-        j11 = fy / z
-        j12 = -fy * uy / z
+        j00, j02, j11, j12, _, _ = _ewa_jacobian(x / z, y / z, z, fx, fy, lim_xn, lim_xp, lim_yn, lim_yp)
         _, _, R = _rotmat(np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
                           np.float64(quats[i, 3]))
         a, b, cc, det = _cov2d(R, np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2]),
@@ -365,6 +376,16 @@ def _project_kernel(
         box[i, 3] = y1
 
 
+@njit(cache=True, inline="always")
+def _minor_grad(ai: float, aj: float, bi: float, bj: float, si: float, sj: float, gD: float) -> tuple:
+    """Gradient through the 2x2 minor m = u si sj, u = ai bj - aj bi, of T = A diag(s) (rows a, b of
+    A, columns i < j), given dL/d det = gD (dL/dm = 2 m gD): (dL/dsi, dL/dsj, du) where du = dL/du
+    si sj feeds dL/dai = du bj, dL/dbj = du ai, dL/daj = -du bi, dL/dbi = -du aj."""
+    u, ss = ai * bj - aj * bi, si * sj
+    e = _TWO * (u * ss) * gD
+    return e * u * sj, e * u * si, e * ss
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def _project_backward(
     means: np.ndarray,  # [N, 3] f32
@@ -394,18 +415,10 @@ def _project_backward(
             g_quats[i, k] = _ZERO
         if reason[i] != 0:
             continue
-        px, py, pz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-        x = V[0, 0] * px + V[0, 1] * py + V[0, 2] * pz + tvec[0]
-        y = V[1, 0] * px + V[1, 1] * py + V[1, 2] * pz + tvec[1]
-        z = V[2, 0] * px + V[2, 1] * py + V[2, 2] * pz + tvec[2]
+        x, y, z = _to_camera(means, i, V, tvec)
         rx = x / z
         ry = y / z
-        ux = min(max(rx, -lim_xn), lim_xp)
-        uy = min(max(ry, -lim_yn), lim_yp)
-        j00 = fx / z
-        j02 = -fx * ux / z
-        j11 = fy / z
-        j12 = -fy * uy / z
+        j00, j02, j11, j12, ux, uy = _ewa_jacobian(rx, ry, z, fx, fy, lim_xn, lim_xp, lim_yn, lim_yp)
         qn, qinv, R = _rotmat(np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]),
                               np.float64(quats[i, 3]))
         s0, s1, s2 = np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2])
@@ -430,33 +443,15 @@ def _project_backward(
         gA10, gA11, gA12 = d10 * s0, d11 * s1, d12 * s2
         gs0, gs1, gs2 = d00 * A00 + d10 * A10, d01 * A01 + d11 * A11, d02 * A02 + d12 * A12
         # Through det's minors m_ij = u_ij s_i s_j, u_ij = A0i A1j - A0j A1i (dL/dm_ij = 2 m_ij gD).
-        u, ss = A00 * A11 - A01 * A10, s0 * s1
-        e = _TWO * (u * ss) * gD
-        gs0 += e * u * s1
-        gs1 += e * u * s0
-        du = e * ss
-        gA00 += du * A11
-        gA11 += du * A00
-        gA01 -= du * A10
-        gA10 -= du * A01
-        u, ss = A00 * A12 - A02 * A10, s0 * s2
-        e = _TWO * (u * ss) * gD
-        gs0 += e * u * s2
-        gs2 += e * u * s0
-        du = e * ss
-        gA00 += du * A12
-        gA12 += du * A00
-        gA02 -= du * A10
-        gA10 -= du * A02
-        u, ss = A01 * A12 - A02 * A11, s1 * s2
-        e = _TWO * (u * ss) * gD
-        gs1 += e * u * s2
-        gs2 += e * u * s1
-        du = e * ss
-        gA01 += du * A12
-        gA12 += du * A01
-        gA02 -= du * A11
-        gA11 -= du * A02
+        dsi, dsj, du = _minor_grad(A00, A01, A10, A11, s0, s1, gD)  # minor (0, 1)
+        gs0, gs1 = gs0 + dsi, gs1 + dsj
+        gA00, gA11, gA01, gA10 = gA00 + du * A11, gA11 + du * A00, gA01 - du * A10, gA10 - du * A01
+        dsi, dsj, du = _minor_grad(A00, A02, A10, A12, s0, s2, gD)  # minor (0, 2)
+        gs0, gs2 = gs0 + dsi, gs2 + dsj
+        gA00, gA12, gA02, gA10 = gA00 + du * A12, gA12 + du * A00, gA02 - du * A10, gA10 - du * A02
+        dsi, dsj, du = _minor_grad(A01, A02, A11, A12, s1, s2, gD)  # minor (1, 2)
+        gs1, gs2 = gs1 + dsi, gs2 + dsj
+        gA01, gA12, gA02, gA11 = gA01 + du * A12, gA12 + du * A01, gA02 - du * A11, gA11 - du * A02
         g_scales[i, 0] = _sat(gs0)
         g_scales[i, 1] = _sat(gs1)
         g_scales[i, 2] = _sat(gs2)
@@ -760,6 +755,27 @@ def _window(gx0: int, gx1: int) -> tuple:
     return 0, TS
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _pixel_sigma(ix: int, hx: np.float32, dy: np.float32, ca: np.float32, cb: np.float32, cc: np.float32) -> tuple:
+    """(dx, sigma) of a pixel ``ix`` columns from the Gaussian's anchor pixel: its float32 offset and
+    the conic's exponent 0.5 (a dx^2 + c dy^2) + b dx dy."""
+    dx = F32(ix) + hx
+    return dx, _HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _entry_box(prm: np.ndarray, s: int, ox: int, oy: int) -> tuple:
+    """Gaussian ``s``'s pixel box inside the tile at (ox, oy): first and last row, the mask of its
+    columns, and the lanes evaluated (:func:`_window`)."""
+    gx0 = max(np.int64(prm[s, _BX]) - ox, 0)
+    gx1 = min(np.int64(prm[s, _BX + 1]) - ox, TS - 1)
+    gy0 = max(np.int64(prm[s, _BX + 2]) - oy, 0)
+    gy1 = min(np.int64(prm[s, _BX + 3]) - oy, TS - 1)
+    colmask = np.int32(((1 << (gx1 + 1)) - 1) ^ ((1 << gx0) - 1))
+    j0, nl = _window(gx0, gx1)
+    return gy0, gy1, colmask, j0, nl
+
+
 #: Channels of the per-tile float64 buffer of the forward, each TS * TS long (pixel p = r * TS + j):
 #: transmittance, sum w, sum w z, a scratch row of weights, then the C color sums. Every access
 #: of the lane loops is then base + constant + lane, so LLVM sees that they never overlap and
@@ -808,8 +824,7 @@ def _fwd_entry(
         for jj in range(nl):
             u = u0 + np.uint64(jj)
             j = j0 + jj
-            dx = F32(ox + j - ax) + hx
-            sigma = _HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+            _, sigma = _pixel_sigma(ox + j - ax, hx, dy, ca, cb, cc)
             alpha = min(_ALPHA_MAX, o * _fexp(-sigma))
             use = (((live >> j) & 1) != 0) & (sigma >= _ZERO) & (alpha >= _ALPHA_MIN)
             tj = buf[u]
@@ -900,12 +915,7 @@ def _make_render_forward(rgb: bool, render_depth: bool, rgb4: bool = False) -> A
                     if rgb4 or not rgb:
                         _prefetch(pcol, tile_ids[k + _PREFETCH])
                 s = tile_ids[k]
-                gx0 = max(np.int64(prm[s, _BX]) - ox, 0)
-                gx1 = min(np.int64(prm[s, _BX + 1]) - ox, TS - 1)
-                gy0 = max(np.int64(prm[s, _BX + 2]) - oy, 0)
-                gy1 = min(np.int64(prm[s, _BX + 3]) - oy, TS - 1)
-                colmask = np.int32(((1 << (gx1 + 1)) - 1) ^ ((1 << gx0) - 1))
-                j0, nl = _window(gx0, gx1)
+                gy0, gy1, colmask, j0, nl = _entry_box(prm, s, ox, oy)
                 if nl == TS:
                     nd, pc = _fwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, rgb, render_depth,
                                         rgb4)
@@ -991,8 +1001,7 @@ def _bwd_entry(
         for jj in range(nl):
             u = u0 + np.uint64(jj)
             j = j0 + jj
-            dx = F32(ox + j - ax) + hx
-            sigma = _HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+            dx, sigma = _pixel_sigma(ox + j - ax, hx, dy, ca, cb, cc)
             e = _fexp(-sigma)
             raw = o * e
             alpha = min(_ALPHA_MAX, raw)
@@ -1047,6 +1056,14 @@ def _bwd_entry(
     return rows
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _add8(S: np.ndarray, u: np.uint64, a0: float, a1: float, a2: float, a3: float, a4: float, a5: float,
+          a6: float, a7: float) -> tuple:
+    """The eight accumulators plus S[u], ..., S[u + 7]."""
+    return (a0 + S[u], a1 + S[u + np.uint64(1)], a2 + S[u + np.uint64(2)], a3 + S[u + np.uint64(3)],
+            a4 + S[u + np.uint64(4)], a5 + S[u + np.uint64(5)], a6 + S[u + np.uint64(6)], a7 + S[u + np.uint64(7)])
+
+
 @njit(cache=True, error_model="numpy")
 def _entry_sums(S: np.ndarray, rows: int, gy0: int, gy1: int, j0: int, nl: int, nq: int, out: np.ndarray,
                 k: int) -> None:
@@ -1061,23 +1078,9 @@ def _entry_sums(S: np.ndarray, rows: int, gy0: int, gy1: int, j0: int, nl: int, 
         for r in range(gy0, gy1 + 1):
             if (rows >> r) & 1:
                 u = np.uint64((_BG + q) * npx + r * TS + j0)
-                a0 += S[u]
-                a1 += S[u + np.uint64(1)]
-                a2 += S[u + np.uint64(2)]
-                a3 += S[u + np.uint64(3)]
-                a4 += S[u + np.uint64(4)]
-                a5 += S[u + np.uint64(5)]
-                a6 += S[u + np.uint64(6)]
-                a7 += S[u + np.uint64(7)]
+                a0, a1, a2, a3, a4, a5, a6, a7 = _add8(S, u, a0, a1, a2, a3, a4, a5, a6, a7)
                 if nl == TS:
-                    a0 += S[u + np.uint64(8)]
-                    a1 += S[u + np.uint64(9)]
-                    a2 += S[u + np.uint64(10)]
-                    a3 += S[u + np.uint64(11)]
-                    a4 += S[u + np.uint64(12)]
-                    a5 += S[u + np.uint64(13)]
-                    a6 += S[u + np.uint64(14)]
-                    a7 += S[u + np.uint64(15)]
+                    a0, a1, a2, a3, a4, a5, a6, a7 = _add8(S, u + np.uint64(8), a0, a1, a2, a3, a4, a5, a6, a7)
         out[k, q] = _sat(((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7)))
 
 
@@ -1149,12 +1152,7 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
                     if not rgb:
                         _prefetch(pcol, tile_ids[k + _PREFETCH])
                 s = tile_ids[k]
-                gx0 = max(np.int64(prm[s, _BX]) - ox, 0)
-                gx1 = min(np.int64(prm[s, _BX + 1]) - ox, TS - 1)
-                gy0 = max(np.int64(prm[s, _BX + 2]) - oy, 0)
-                gy1 = min(np.int64(prm[s, _BX + 3]) - oy, TS - 1)
-                colmask = np.int32(((1 << (gx1 + 1)) - 1) ^ ((1 << gx0) - 1))
-                j0, nl = _window(gx0, gx1)
+                gy0, gy1, colmask, j0, nl = _entry_box(prm, s, ox, oy)
                 if nl == TS:
                     rows = _bwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, rgb, render_depth)
                 else:
