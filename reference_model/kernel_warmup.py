@@ -19,13 +19,14 @@ import torch
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.training.losses import training_ssim
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import WeatherRenderer
 
 __all__ = ["KERNEL_MODULES", "compile_kernels"]
 
 #: The kernel modules (inside ``wcbench.reference_model``).
-KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels")
+KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels", "training.ssim_kernels")
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,11 @@ def _weather() -> None:
         WeatherRenderer(_tiny_wall(), weather, up=up).render(cam, 0.5)
 
 
+def _training() -> None:
+    render = torch.rand(8, 12, 3, requires_grad=True)
+    training_ssim(render, torch.rand(8, 12, 3), backend="numba").sum().backward()
+
+
 def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, float]:
     """Run every kernel once on a tiny input (compiling it, or loading it from numba's cache).
 
@@ -90,7 +96,7 @@ def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, f
     Returns
     -------
     dict of str to float
-        Seconds of each step (``raster``, ``weather``).
+        Seconds of each step (``raster``, ``weather``, ``training``).
 
     Raises
     ------
@@ -101,7 +107,7 @@ def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, f
         if load_numba_kernels(name) is None:
             raise RuntimeError(f"numba kernels {name} unavailable: {numba_error(name)}")
     seconds = {}
-    for step, fn in (("raster", _raster), ("weather", _weather)):
+    for step, fn in (("raster", _raster), ("weather", _weather), ("training", _training)):
         t = time.perf_counter()
         fn()
         seconds[step] = time.perf_counter() - t

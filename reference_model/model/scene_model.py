@@ -60,8 +60,8 @@ class FrameGaussians:
     """All Gaussians of a frame in world coordinates, concatenated node by node.
 
     ``segments`` lists (node key, start, stop) of each node's rows (a copied node appears twice);
-    ``nodes`` maps each key to its parameters (features stay per node: decoded node by node, they
-    are never copied into one big tensor).
+    ``nodes`` maps each key to its parameters (features stay per node; :meth:`colors` decodes
+    their concatenation).
     """
 
     means: torch.Tensor  # [N, 3] m
@@ -75,16 +75,21 @@ class FrameGaussians:
         return int(self.means.shape[0])
 
     def colors(self, decode: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
-        """``decode(features [n, F]) -> [n, C]`` of every node, in row order: [N, C]."""
-        done: dict[str, torch.Tensor] = {}
-        parts = []
-        for key, _, _ in self.segments:
-            if key not in done:
-                done[key] = decode(self.nodes[key].features)
-            parts.append(done[key])
-        if not parts:  # nothing placed: frame_gaussians keeps an empty node to give the width
+        """``decode(features [n, F]) -> [n, C]`` of every node, in row order: [N, C].
+
+        The placed nodes' features are decoded in one call on their concatenation (a copied node
+        once): one GEMM per layer instead of one per node, whose per-call overhead dominated the
+        decoders' time with a few dozen small objects (docs/design.md §8).
+        """
+        keys = list(dict.fromkeys(key for key, _, _ in self.segments))
+        if not keys:  # nothing placed: frame_gaussians keeps an empty node to give the width
             return decode(next(iter(self.nodes.values())).features)
-        return torch.cat(parts) if len(parts) > 1 else parts[0]
+        features = [self.nodes[key].features for key in keys]
+        decoded = decode(features[0] if len(features) == 1 else torch.cat(features))
+        if len(keys) == len(self.segments):  # no copies: rows are already in segment order
+            return decoded
+        done = dict(zip(keys, torch.split(decoded, [len(f) for f in features])))
+        return torch.cat([done[key] for key, _, _ in self.segments])
 
 
 @dataclass

@@ -3,7 +3,9 @@
 - RGB: (1 - lambda) L1 + lambda (1 - SSIM), lambda = 0.2, on the raw frame and every edited one.
   SSIM here is the **3DGS training SSIM**: Gaussian 11x11 window, sigma 1.5, *zero padding*, mean
   over all pixels and channels. It is not the evaluation SSIM of ``wcbench.metrics`` (valid
-  region, float64, equal to scikit-image), and its numbers differ near the borders.
+  region, float64, equal to scikit-image), and its numbers differ near the borders. float32
+  images take the fused numba kernels (:mod:`.ssim_kernels`); :func:`training_ssim_torch` is
+  their twin, and what float64 (``gradcheck``) and a target that needs a gradient take.
 - Content: L1 between VGG16 features of each weather's render and of the raw frame, sky masked out
   (the paper uses VGG-19, which no registry ships; docs/design.md §6).
 - Depth: L1 between the expected depth and the lidar depth where a return landed.
@@ -14,10 +16,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
 
 __all__ = [
     "ContentLoss",
@@ -25,6 +31,7 @@ __all__ = [
     "opacity_loss",
     "rgb_loss",
     "training_ssim",
+    "training_ssim_torch",
 ]
 
 _SSIM_SIGMA, _SSIM_SIZE = 1.5, 11
@@ -38,8 +45,62 @@ def _gaussian_taps(dtype: torch.dtype) -> torch.Tensor:
     return g / g.sum()
 
 
-def training_ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+class _FusedSSIM(torch.autograd.Function):
+    """:func:`training_ssim` through the fused kernels; gradient to ``a`` only."""
+
+    @staticmethod
+    def forward(ctx: Any, a: torch.Tensor, b: torch.Tensor, kernels: Any) -> torch.Tensor:  # type: ignore[override]
+        x = np.ascontiguousarray(a.detach().permute(2, 0, 1).numpy())
+        y = np.ascontiguousarray(b.detach().permute(2, 0, 1).numpy())
+        taps = _gaussian_taps(torch.float32).numpy()
+        sums, d_mu, d_xx, d_xy = kernels.ssim_forward(x, y, taps, _C1, _C2)
+        ctx.saved = (kernels, x, y, taps, d_mu, d_xx, d_xy)
+        return torch.from_numpy((sums / (x.shape[1] * x.shape[2])).astype(np.float32))
+
+    @staticmethod
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor | None, None, None]:  # type: ignore[override]
+        kernels, x, y, taps, d_mu, d_xx, d_xy = ctx.saved
+        scale = grad.detach().to(torch.float64).numpy() / (x.shape[1] * x.shape[2])
+        dx = kernels.ssim_backward(x, y, taps, d_mu, d_xx, d_xy, scale)
+        return torch.from_numpy(dx).permute(1, 2, 0), None, None
+
+
+def training_ssim(a: torch.Tensor, b: torch.Tensor, *, backend: str = "auto") -> torch.Tensor:
     """3DGS training SSIM per channel of images [H, W, C] in [0, 1]: a tensor [C] (zero-padded window).
+
+    Parameters
+    ----------
+    a, b : Tensor [H, W, C]
+        Same shape; C may stack several RGB images. Gradients flow to ``a``.
+    backend : {"auto", "numba", "torch"}, keyword-only
+        ``"auto"``: the fused numba kernels (:mod:`.ssim_kernels`) for float32 images when ``b``
+        needs no gradient and numba imports, else :func:`training_ssim_torch` (the twin).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``backend``; ``"numba"`` for inputs it cannot take or without numba.
+    """
+    if backend not in ("auto", "numba", "torch"):
+        raise ValueError(f"backend must be 'auto', 'numba' or 'torch', got {backend!r}")
+    if a.shape != b.shape or a.dim() != 3:
+        raise ValueError(f"training_ssim takes two [H, W, C] images of one shape, got {tuple(a.shape)} and "
+                         f"{tuple(b.shape)}")
+    fits = a.dtype == torch.float32 and b.dtype == torch.float32 and not b.requires_grad
+    if backend == "torch" or (backend == "auto" and not fits):
+        return training_ssim_torch(a, b)
+    kernels = load_numba_kernels("training.ssim_kernels")
+    if backend == "numba" and (kernels is None or not fits):
+        raise ValueError("the numba SSIM takes float32 images and a target without gradient, and needs numba "
+                         f"({numba_error('training.ssim_kernels') or 'importable'})")
+    if kernels is None:
+        return training_ssim_torch(a, b)
+    return _FusedSSIM.apply(a, b, kernels)
+
+
+def training_ssim_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """3DGS training SSIM per channel of images [H, W, C] in [0, 1]: a tensor [C] (zero-padded window);
+    the pure-torch twin of the fused kernels, differentiable by autograd in any float dtype.
 
     The 11x11 Gaussian window is applied as two 1D passes (it is separable): the same numbers as the
     2D window up to float rounding, at 2 x 11 instead of 121 taps per pixel.

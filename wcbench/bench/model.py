@@ -34,8 +34,10 @@ temporal_<weather>    weathercity trained on ``filter2d`` supervision with ``jit
                       from and ``raw_error`` of the raw sequence itself
 profile_step          the per-phase profile of a training step of the default profile at each thread
                       count of ``threads`` (numba, torch and BLAS set together; default 1,2), rounds
-                      interleaving the counts: data, scene graph, decoders, sky, the rasterizer's
-                      forward and backward, losses, the rest of the backward, densification
+                      interleaving the counts, each the mean over one period of the step schedule
+                      (weather and clear steps, one content-loss step): data, scene graph,
+                      decoders, sky, the rasterizer's forward and backward, losses, the rest of
+                      the backward, densification
                       statistics, optimizer, densification (one per ``densify_interval`` steps,
                       amortised), and ``non_raster`` (everything but the rasterizer); per phase the
                       speed-up from the first count to the second, its Amdahl serial fraction and a
@@ -248,9 +250,12 @@ def _profile_case(scene: Scene, train_views: list[TrainingView], views: list[Tra
                   hazes: dict[str, Haze] | None = None) -> tuple[BenchCase, list[str]]:
     """Per-phase profile of a training step at each thread count (see the module docstring).
 
-    Each round runs two steps per count (a weather step and a clear one follow each other when
-    ``weather_interval`` is 2, so both kinds are sampled alike); densification is disabled in the
-    steps and timed once per count on a copy of the trainer, then divided by ``densify_interval``.
+    Each round runs one period of the step schedule per count and averages it: ``weather_interval``
+    2 alternates weather and clear steps, and the content loss comes every ``content_interval``
+    weather steps, so a period of 2 x ``content_interval`` steps holds each kind in its share (two
+    steps per count let the content steps, every 8th, all fall on the first count, whose losses and
+    backward then read 3-9x slower than they are). Densification is disabled in the steps and timed
+    once per count on a copy of the trainer, then divided by ``densify_interval``.
     """
     model, _ = build_model(scene, train_views, config, weathers=weathers)
     trainer = Trainer(model, views, replace(config, densify_from=10**9, weather_interval=2), content=content,
@@ -267,9 +272,11 @@ def _profile_case(scene: Scene, train_views: list[TrainingView], views: list[Tra
 
     trainer.rasterizer = timed_raster
 
+    period = 2 * max(config.content_interval, 1) if content is not None and config.content_weight > 0 else 2
+
     def once() -> dict[str, float]:
         ph: dict[str, float] = {}
-        for _ in range(2):
+        for _ in range(period):
             raster_fwd[0] = 0.0
             log = trainer.step()
             p = log.phase_ms
@@ -280,7 +287,7 @@ def _profile_case(scene: Scene, train_views: list[TrainingView], views: list[Tra
                    "backward_rest": p["backward"] - bwd, "stats": p["stats"], "optimizer": p["optimizer"],
                    "log": p["log"]}
             for k, v in row.items():
-                ph[k] = ph.get(k, 0.0) + v / 2
+                ph[k] = ph.get(k, 0.0) + v / period
         return ph
 
     samples, effective = run_interleaved(once, counts, rounds)
