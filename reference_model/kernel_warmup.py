@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
+from wcbench.reference_model.model.sky import SkyModel
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.training.losses import training_ssim
@@ -26,7 +27,8 @@ from wcbench.reference_model.weather.renderer import WeatherRenderer
 __all__ = ["KERNEL_MODULES", "compile_kernels"]
 
 #: The kernel modules (inside ``wcbench.reference_model``).
-KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels", "training.ssim_kernels")
+KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels", "training.ssim_kernels",
+                  "model.sky_kernels")
 
 
 @dataclass(frozen=True)
@@ -83,6 +85,8 @@ def _weather() -> None:
 def _training() -> None:
     render = torch.rand(8, 12, 3, requires_grad=True)
     training_ssim(render, torch.rand(8, 12, 3), backend="numba").sum().backward()
+    sky = SkyModel(("clear",), up=np.array([0.0, 0.0, 1.0]), heading=np.array([1.0, 0.0, 0.0]), rows=4, cols=8)
+    sky(sky.grid(torch.nn.functional.normalize(torch.rand(6, 5, 3), dim=-1)), ("clear",)).sum().backward()
 
 
 def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, float]:

@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from wcbench.reference_model._numba_backend import load_numba_kernels
 
 __all__ = ["SkyModel", "camera_rays", "sky_window", "view_directions"]
 
@@ -65,6 +68,24 @@ def sky_window(sky: SkyModel, directions: Sequence[torch.Tensor], *, margin: flo
         az_lo, az_hi, pad_a = -math.pi, math.pi, 0.0
     return (max(az_lo - pad_a, -math.pi), min(az_hi + pad_a, math.pi),
             max(el_lo - pad_e, -math.pi / 2), min(el_hi + pad_e, math.pi / 2))
+
+
+class _SkyLookup(torch.autograd.Function):
+    """``grid_sample`` of the maps (bilinear, border, align_corners=False) with the backward of
+    :mod:`.sky_kernels`: one thread per map channel instead of PyTorch's one per batch item. The
+    forward is PyTorch's; the gradient goes to the maps only (the grid is a constant of the view)."""
+
+    @staticmethod
+    def forward(ctx: Any, maps: torch.Tensor, grid: torch.Tensor, kernels: Any) -> torch.Tensor:  # type: ignore[override]
+        ctx.kernels, ctx.grid, ctx.size = kernels, grid, tuple(maps.shape[2:])
+        return F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+    @staticmethod
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None, None]:  # type: ignore[override]
+        rows, cols = ctx.size
+        g = ctx.kernels.grid_sample_map_grad(ctx.grid[0].detach().contiguous().numpy(),
+                                             grad[0].detach().to(torch.float32).contiguous().numpy(), rows, cols)
+        return torch.from_numpy(g)[None], None, None
 
 
 class SkyModel(nn.Module):
@@ -144,7 +165,12 @@ class SkyModel(nn.Module):
         """Sky colors [H, W, 3 len(weathers)] (weather-major) at a grid from :meth:`grid`."""
         idx = [0 if self.shared else self.weathers.index(w) for w in weathers]
         maps = self.logits[idx].reshape(1, 3 * len(idx), *self.logits.shape[2:])
-        out = F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        kernels = load_numba_kernels("model.sky_kernels")
+        if kernels is not None and maps.dtype == grid.dtype == torch.float32 and not grid.requires_grad \
+                and grid.shape[0] == 1:
+            out = _SkyLookup.apply(maps, grid, kernels)
+        else:
+            out = F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
         return torch.sigmoid(out[0].permute(1, 2, 0))
 
     @torch.no_grad()

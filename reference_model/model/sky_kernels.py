@@ -1,0 +1,67 @@
+"""The sky lookup's backward (numba): the gradient of a bilinear ``grid_sample`` to its small map.
+
+``F.grid_sample`` (bilinear, border padding, ``align_corners=False``) looks every pixel up in the
+sky's environment maps, a few thousand texels read by a frame's hundred thousand pixels. PyTorch's
+CPU backward scatters into the map one batch item at a time, so with one image it runs on one
+thread (7 ms a training step at 480x270 with four weathers, docs/design.md §8). Here each thread
+owns whole channels of the map, so the scatter needs no atomics, and the corner weights are
+PyTorch's (``grid_sampler_compute_source_index`` and the four bilinear weights), in float32.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["grid_sample_map_grad"]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _source_index(coord: np.float32, size: int) -> np.float32:
+    """Unnormalised, border-clipped source coordinate (PyTorch, align_corners=False)."""
+    x = ((coord + np.float32(1.0)) * np.float32(size) - np.float32(1.0)) / np.float32(2.0)
+    return min(np.float32(size - 1), max(x, np.float32(0.0)))
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def grid_sample_map_grad(grid: np.ndarray, grad_out: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """dL/dmap [C, rows, cols] float32 of ``grid_sample(map, grid)`` given dL/dout.
+
+    Parameters
+    ----------
+    grid : ndarray [H, W, 2] float32
+        x (columns) and y (rows) in [-1, 1].
+    grad_out : ndarray [C, H, W] float32
+    rows, cols : int
+        The map's size.
+    """
+    c_count, h, w = grad_out.shape
+    n = h * w
+    # the corners and weights once per pixel (every channel reads them)
+    corner = np.empty(n, np.int64)
+    tx = np.empty(n, np.float32)
+    ty = np.empty(n, np.float32)
+    for r in prange(h):
+        for j in range(w):
+            ix = _source_index(grid[r, j, 0], cols)
+            iy = _source_index(grid[r, j, 1], rows)
+            x0, y0 = int(np.floor(ix)), int(np.floor(iy))
+            p = r * w + j
+            corner[p] = y0 * cols + x0
+            tx[p] = ix - np.float32(x0)
+            ty[p] = iy - np.float32(y0)
+    out = np.zeros((c_count, rows * cols), np.float32)
+    one = np.float32(1.0)
+    for c in prange(c_count):
+        flat = grad_out[c].reshape(-1)
+        for p in range(n):
+            k, a, b, g = corner[p], tx[p], ty[p], flat[p]
+            right, down = (k % cols) + 1 < cols, k // cols + 1 < rows
+            out[c, k] += (one - a) * (one - b) * g
+            if right:
+                out[c, k + 1] += a * (one - b) * g
+            if down:
+                out[c, k + cols] += (one - a) * b * g
+                if right:
+                    out[c, k + cols + 1] += a * b * g
+    return out.reshape(c_count, rows, cols)

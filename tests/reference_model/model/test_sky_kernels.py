@@ -1,0 +1,52 @@
+"""The sky lookup's numba backward against PyTorch's ``grid_sample`` backward."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("numba")
+
+import torch.nn.functional as F  # noqa: E402
+
+from wcbench.reference_model.model.sky import SkyModel  # noqa: E402
+from wcbench.reference_model.model.sky_kernels import grid_sample_map_grad  # noqa: E402
+
+pytestmark = pytest.mark.model
+
+
+@pytest.mark.parametrize(("channels", "rows", "cols", "h", "w"),
+                         [(12, 32, 128, 27, 48), (3, 1, 1, 5, 7), (6, 2, 9, 13, 3), (3, 16, 4, 1, 1)])
+def test_map_gradient_matches_grid_sample(channels, rows, cols, h, w):
+    g = torch.Generator().manual_seed(rows * 100 + cols)
+    # inside, on and beyond the border of [-1, 1], where border padding clips
+    grid = torch.rand(1, h, w, 2, generator=g) * 2.6 - 1.3
+    grid[0, 0, 0] = torch.tensor([1.0, 1.0])
+    grid[0, -1, -1] = torch.tensor([-1.0, -1.0])
+    grad_out = torch.randn(1, channels, h, w, generator=g)
+    maps = torch.randn(1, channels, rows, cols, generator=g, requires_grad=True)
+    F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False).backward(grad_out)
+    ours = grid_sample_map_grad(grid[0].numpy(), grad_out[0].numpy(), rows, cols)
+    scale = float(np.abs(grad_out.numpy()).sum() / max(1, rows * cols))
+    # float32 sums in another order: within 1e-5 of a texel's typical gradient
+    np.testing.assert_allclose(ours, maps.grad[0].numpy(), rtol=0, atol=1e-5 * max(scale, 1.0))
+
+
+def test_sky_model_gradient_is_the_same_through_the_kernel():
+    weathers = ("clear", "rain", "snow", "fog")
+    sky = SkyModel(weathers, up=np.array([0.0, 0.0, 1.0]), heading=np.array([1.0, 0.0, 0.0]), rows=8, cols=16,
+                   window=(-0.8, 0.8, -0.2, 0.6))
+    g = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        sky.logits.normal_(generator=g)
+    rays = F.normalize(torch.randn(20, 30, 3, generator=g) * 0.4 + torch.tensor([1.0, 0.0, 0.2]), dim=-1)
+    grid = sky.grid(rays)
+    weights = torch.rand(20, 30, 12, generator=g)
+    (sky(grid, weathers) * weights).sum().backward()
+    ours = sky.logits.grad.clone()
+    sky.logits.grad = None
+    plain = F.grid_sample(sky.logits.reshape(1, 12, 8, 16), grid, mode="bilinear", padding_mode="border",
+                          align_corners=False)
+    (torch.sigmoid(plain[0].permute(1, 2, 0)) * weights).sum().backward()
+    torch.testing.assert_close(ours, sky.logits.grad, atol=1e-5, rtol=1e-5)
