@@ -26,7 +26,7 @@ from torch import nn
 from wcbench.reference_model.model.decoders import WeatherDecoders
 from wcbench.reference_model.model.gaussians import GaussianParams
 from wcbench.reference_model.model.haze import Haze, compose_haze, haze_transmittance, hazy_weathers
-from wcbench.reference_model.model.objects import NonRigidObject, RigidObject, place_objects
+from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
 from wcbench.reference_model.model.sky import SkyModel
 from wcbench.reference_model.raster.rasterizer import rasterize
 
@@ -202,18 +202,15 @@ class WeatherCityModel(nn.Module):
             (key, place.offsets.get(key)) for key in objects if key not in place.hidden
         ]
         instances += [(key, np.asarray(offset)) for key, offset in place.copies]
-        placed: list[tuple[str, RigidObject, torch.Tensor | None]] = []
         for key, offset in instances:
             if key not in objects:
                 raise KeyError(f"no node {key!r}; nodes: {sorted(objects)}")
             obj = objects[key]
-            if obj.at(frame):
-                placed.append((key, obj, None if offset is None else torch.as_tensor(np.asarray(offset, np.float32))))
-        if placed:  # every object in one batched product (place_objects), split back per node
-            means, quats = place_objects([(obj, off) for _, obj, off in placed], frame)
-            sizes = [len(obj.gaussians) for _, obj, _ in placed]
-            parts += [(key, m, q, obj.gaussians) for (key, obj, _), m, q in
-                      zip(placed, torch.split(means, sizes), torch.split(quats, sizes))]
+            if not obj.at(frame):
+                continue
+            off = None if offset is None else torch.as_tensor(np.asarray(offset, np.float32))
+            means, quats = obj.world(frame, off)
+            parts.append((key, means, quats, obj.gaussians))
         segments, start = [], 0
         for key, means, _, _ in parts:
             segments.append((key, start, start + int(means.shape[0])))
