@@ -89,10 +89,13 @@ def training_ssim(a: torch.Tensor, b: torch.Tensor, *, backend: str = "auto") ->
     fits = a.dtype == torch.float32 and b.dtype == torch.float32 and not b.requires_grad
     if backend == "torch" or (backend == "auto" and not fits):
         return training_ssim_torch(a, b)
+    if not fits:
+        raise ValueError(f"the numba SSIM takes float32 images and a target without gradient, got {a.dtype} and "
+                         f"{b.dtype}, target requires_grad={b.requires_grad}; use backend='torch'")
     kernels = load_numba_kernels("training.ssim_kernels")
-    if backend == "numba" and (kernels is None or not fits):
-        raise ValueError("the numba SSIM takes float32 images and a target without gradient, and needs numba "
-                         f"({numba_error('training.ssim_kernels') or 'importable'})")
+    if backend == "numba" and kernels is None:
+        raise ValueError(f"the numba SSIM kernels are unavailable ({numba_error('training.ssim_kernels')}); "
+                         "use backend='torch'")
     if kernels is None:
         return training_ssim_torch(a, b)
     return _FusedSSIM.apply(a, b, kernels)
