@@ -84,7 +84,7 @@ class FrameGaussians:
         keys = list(dict.fromkeys(key for key, _, _ in self.segments))
         if not keys:  # nothing placed: frame_gaussians keeps an empty node to give the width
             return decode(next(iter(self.nodes.values())).features)
-        features = [self.nodes[key].features for key in keys]
+        features: list[torch.Tensor] = [self.nodes[key].features for key in keys]
         decoded = decode(features[0] if len(features) == 1 else torch.cat(features))
         if len(keys) == len(self.segments):  # no copies: rows are already in segment order
             return decoded
