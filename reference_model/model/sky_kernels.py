@@ -5,7 +5,9 @@ sky's environment maps, a few thousand texels read by a frame's hundred thousand
 CPU backward scatters into the map one batch item at a time, so with one image it runs on one
 thread (7 ms a training step at 480x270 with four weathers, docs/design.md §8). Here each thread
 owns whole channels of the map, so the scatter needs no atomics, and the corner weights are
-PyTorch's (``grid_sampler_compute_source_index`` and the four bilinear weights), in float32.
+PyTorch's (``grid_sampler_compute_source_index`` and the four bilinear weights), in float32. A
+non-finite grid entry sends no gradient (PyTorch's CPU backward crashed on a NaN one here, torch
+2.13).
 """
 
 from __future__ import annotations
@@ -43,10 +45,14 @@ def grid_sample_map_grad(grid: np.ndarray, grad_out: np.ndarray, rows: int, cols
     ty = np.empty(n, np.float32)
     for r in prange(h):
         for j in range(w):
+            p = r * w + j
+            if not (np.isfinite(grid[r, j, 0]) and np.isfinite(grid[r, j, 1])):
+                corner[p] = -1  # PyTorch reads nothing there, so nothing flows back
+                tx[p] = ty[p] = 0.0
+                continue
             ix = _source_index(grid[r, j, 0], cols)
             iy = _source_index(grid[r, j, 1], rows)
             x0, y0 = int(np.floor(ix)), int(np.floor(iy))
-            p = r * w + j
             corner[p] = y0 * cols + x0
             tx[p] = ix - np.float32(x0)
             ty[p] = iy - np.float32(y0)
@@ -56,6 +62,8 @@ def grid_sample_map_grad(grid: np.ndarray, grad_out: np.ndarray, rows: int, cols
         flat = grad_out[c].reshape(-1)
         for p in range(n):
             k, a, b, g = corner[p], tx[p], ty[p], flat[p]
+            if k < 0:
+                continue
             right, down = (k % cols) + 1 < cols, k // cols + 1 < rows
             out[c, k] += (one - a) * (one - b) * g
             if right:

@@ -33,6 +33,20 @@ def test_map_gradient_matches_grid_sample(channels, rows, cols, h, w):
     np.testing.assert_allclose(ours, maps.grad[0].numpy(), rtol=0, atol=1e-5 * max(scale, 1.0))
 
 
+def test_a_non_finite_grid_entry_sends_no_gradient():
+    g = torch.Generator().manual_seed(7)
+    grid = torch.rand(6, 9, 2, generator=g) * 2 - 1
+    grad_out = torch.randn(3, 6, 9, generator=g)
+    bad = grid.clone()
+    bad[2, 4] = torch.tensor([float("nan"), 0.0])
+    bad[5, 0] = torch.tensor([float("inf"), float("-inf")])
+    quiet = grad_out.clone()
+    quiet[:, 2, 4] = 0.0
+    quiet[:, 5, 0] = 0.0
+    ours = grid_sample_map_grad(bad.numpy(), grad_out.numpy(), 4, 5)
+    np.testing.assert_array_equal(ours, grid_sample_map_grad(grid.numpy(), quiet.numpy(), 4, 5))
+
+
 def test_sky_model_gradient_is_the_same_through_the_kernel():
     weathers = ("clear", "rain", "snow", "fog")
     sky = SkyModel(weathers, up=np.array([0.0, 0.0, 1.0]), heading=np.array([1.0, 0.0, 0.0]), rows=8, cols=16,
