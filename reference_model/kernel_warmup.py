@@ -64,8 +64,11 @@ def _raster() -> None:
         torch.tensor(a, dtype=torch.float32, requires_grad=True)
         for a in (wall.means, wall.quats, wall.scales, wall.opacities, wall.colors))
     K = torch.tensor([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
-    for depth in (True, False):
-        out = rasterize(means, quats, scales, opacities, colors, torch.eye(4), K, 32, 24, render_depth=depth,
+    # Each channel count is its own kernel variant: RGB with and without depth, and the weather step
+    # of the default training (four weathers and three hazes: 15 channels, with depth).
+    weather_colors = colors.detach().repeat(1, 5).requires_grad_(True)
+    for c, depth in ((colors, True), (colors, False), (weather_colors, True)):
+        out = rasterize(means, quats, scales, opacities, c, torch.eye(4), K, 32, 24, render_depth=depth,
                         absgrad=True, backend="numba")
         loss = out.color.sum() + out.alpha.sum() + (out.depth.sum() if out.depth is not None else 0.0)
         loss.backward()

@@ -48,7 +48,8 @@ import torch
 from llvmlite import ir
 from numba import njit, prange
 from numba.core import cgutils, types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
+from numba.np.unsafe.ndarray import to_fixed_tuple
 
 from wcbench.reference_model.raster.common import (
     ALPHA_MAX,
@@ -96,7 +97,7 @@ _GMAX32 = F32(_GMAX)
 _KK_SAT = math.exp(0.5 * SIGMA_EXTENT * SIGMA_EXTENT) * (1.0 + 1e-9)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _sat(x: float) -> float:
     """``x`` clamped to the finite float32 range (a gradient too large for float32 saturates)."""
     return min(max(x, -_GMAX), _GMAX)
@@ -232,7 +233,7 @@ def _cov2d(R: tuple, sx: float, sy: float, sz: float, V: tuple, j00: float, j02:
     return a + EPS2D, b, c + EPS2D, det
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _jacobian_clamp(intr: np.ndarray, wf: float, hf: float) -> tuple:
     """Bounds (-x, +x, -y, +y) of x/z and y/z in the projection Jacobian: the frustum widened by
     0.3 of its half-width, as in gsplat, so far off-screen Gaussians do not blow up the Jacobian."""
@@ -247,7 +248,7 @@ def _jacobian_clamp(intr: np.ndarray, wf: float, hf: float) -> tuple:
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _to_camera(means: np.ndarray, i: int, V: np.ndarray, tvec: np.ndarray) -> tuple:
     """Camera coordinates (x, y, z) of Gaussian ``i``'s mean (float64)."""
     px, py, pz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
@@ -256,7 +257,7 @@ def _to_camera(means: np.ndarray, i: int, V: np.ndarray, tvec: np.ndarray) -> tu
             V[2, 0] * px + V[2, 1] * py + V[2, 2] * pz + tvec[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _ewa_jacobian(rx: float, ry: float, z: float, fx: float, fy: float, lim_xn: float, lim_xp: float,
                   lim_yn: float, lim_yp: float) -> tuple:
     """The projection's Jacobian (j00, j02, j11, j12) at (x/z, y/z) = (rx, ry) clamped to the
@@ -376,7 +377,7 @@ def _project_kernel(
         box[i, 3] = y1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _minor_grad(ai: float, aj: float, bi: float, bj: float, si: float, sj: float, gD: float) -> tuple:
     """Gradient through the 2x2 minor m = u si sj, u = ai bj - aj bi, of T = A diag(s) (rows a, b of
     A, columns i < j), given dL/d det = gD (dL/dm = 2 m gD): (dL/dsi, dL/dsj, du) where du = dL/du
@@ -776,6 +777,97 @@ def _entry_box(prm: np.ndarray, s: int, ox: int, oy: int) -> tuple:
     return gy0, gy1, colmask, j0, nl
 
 
+#: Most channels whose color sums are fused into the lane loops (one kernel variant per count);
+#: more channels take the separate per-channel loops.
+_MAX_FUSED = 16
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _entry_colors(prm: np.ndarray, pcol: np.ndarray, s: int, nf: int) -> tuple:
+    """Gaussian ``s``'s ``nf`` colors as a tuple of float32 (``nf`` a literal; (0.0,) when 0).
+
+    A tuple lives in registers: the lane loops read it without loads that LLVM would have to prove
+    apart from the tile buffer's stores. Up to three come from the 64-byte record (already in cache).
+    """
+    if nf == 0:
+        return (_ZERO,)
+    if nf <= 3:
+        return to_fixed_tuple(prm[s, _COL:_COL + nf], nf)
+    return to_fixed_tuple(pcol[s], nf)
+
+
+_COLOR_TERMS: dict[int, tuple[Any, Any]] = {}
+
+
+def _color_terms(nf: int) -> tuple[Any, Any]:
+    """The ``add`` and ``dot`` of :func:`_add_colors` and :func:`_dot_colors` written out for ``nf``
+    channels, one statement per channel with constant offsets (made once per count).
+
+    A loop over the channels with ``cols[ch]`` would index the tuple at run time, which LLVM neither
+    unrolls nor vectorizes (measured 2x slower than separate loops for 15 channels). Not cached
+    on their own: they are inlined into the cached kernels.
+    """
+    if nf in _COLOR_TERMS:
+        return _COLOR_TERMS[nf]
+    if nf == 0:
+        @njit(inline="always", error_model="numpy")
+        def add(buf: np.ndarray, u: np.uint64, w: float, cols: tuple) -> None:
+            pass
+
+        @njit(inline="always", error_model="numpy")
+        def dot(S: np.ndarray, u: np.uint64, cols: tuple, acc: float) -> float:
+            return acc
+    else:
+        prev_add, prev_dot = _color_terms(nf - 1)
+        ch = nf - 1
+        fwd_off = np.uint64((_FC + ch) * TS * TS)
+        bwd_off = np.uint64(_UGC + ch * TS * TS)
+
+        @njit(inline="always", error_model="numpy")
+        def add(buf: np.ndarray, u: np.uint64, w: float, cols: tuple) -> None:
+            prev_add(buf, u, w, cols)
+            buf[fwd_off + u] += w * np.float64(cols[ch])
+
+        @njit(inline="always", error_model="numpy")
+        def dot(S: np.ndarray, u: np.uint64, cols: tuple, acc: float) -> float:
+            return prev_dot(S, u, cols, acc) + np.float64(cols[ch]) * S[bwd_off + u]
+    _COLOR_TERMS[nf] = (add, dot)
+    return add, dot
+
+
+def _add_colors(buf: np.ndarray, u: np.uint64, w: float, cols: tuple) -> None:
+    """buf[(_FC + ch) TS^2 + u] += w cols[ch] for every channel of ``cols`` (forward; jitted only)."""
+    raise NotImplementedError("only callable from numba kernels")
+
+
+def _dot_colors(S: np.ndarray, u: np.uint64, cols: tuple, acc: float) -> float:
+    """acc + the sum over channels, in order, of cols[ch] dL/dC_ch at u (backward; jitted only)."""
+    raise NotImplementedError("only callable from numba kernels")
+
+
+# Overloads chosen by the tuple's length at typing time: the kernels name these module functions,
+# not per-count closures, so their cache key (bytecode and closure values) stays the same from one
+# process to the next and numba's disk cache hits.
+@overload(_add_colors, inline="always")
+def _add_colors_typed(buf: Any, u: Any, w: Any, cols: Any) -> Any:
+    add = _color_terms(len(cols))[0]
+
+    def impl(buf: Any, u: Any, w: Any, cols: Any) -> None:  # same annotations as the typing function
+        add(buf, u, w, cols)
+
+    return impl
+
+
+@overload(_dot_colors, inline="always")
+def _dot_colors_typed(S: Any, u: Any, cols: Any, acc: Any) -> Any:
+    dot = _color_terms(len(cols))[1]
+
+    def impl(S: Any, u: Any, cols: Any, acc: Any) -> Any:  # same annotations as the typing function
+        return dot(S, u, cols, acc)
+
+    return impl
+
+
 #: Channels of the per-tile float64 buffer of the forward, each TS * TS long (pixel p = r * TS + j):
 #: transmittance, sum w, sum w z, a scratch row of weights, then the C color sums. Every access
 #: of the lane loops is then base + constant + lane, so LLVM sees that they never overlap and
@@ -786,19 +878,20 @@ _FT, _FW, _FD, _FB, _FC = 0, 1, 2, 3, 4
 @njit(cache=True, inline="always", error_model="numpy")
 def _fwd_entry(
     nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, prm: np.ndarray, s: int,
-    rowbits: np.ndarray, buf: np.ndarray, pcol: np.ndarray, rgb: bool, with_depth: bool, rgb4: bool,
+    rowbits: np.ndarray, buf: np.ndarray, pcol: np.ndarray, nf: int, with_depth: bool,
 ) -> tuple:
     """Composite Gaussian ``s`` into rows gy0..gy1, lanes j0..j0+nl of a tile at (ox, oy).
 
-    ``buf`` is the tile's float64 state (channels ``_FT`` ...). With ``rgb`` (C == 3, or C == 4 with
-    ``rgb4``: color plus one extra channel, e.g. the fog transmittance) the color sums are fused into
-    the lane loop; otherwise they run as separate loops over the weight scratch
-    row. ``rowbits[r]`` has bit j set for pixels that have stopped. Returns (pixels that stopped,
-    pairs evaluated). Per-pair math is float32, transmittance and sums float64.
+    ``buf`` is the tile's float64 state (channels ``_FT`` ...). With ``nf`` = C (1 to
+    ``_MAX_FUSED`` channels) the color sums are fused into the lane loop; with ``nf`` = 0 they run
+    as separate loops over the weight scratch row. ``rowbits[r]`` has bit j set for pixels that
+    have stopped. Returns (pixels that stopped, pairs evaluated). Per-pair math is float32,
+    transmittance and sums float64.
 
-    ``nl`` is a literal at each call site, so after inlining the lane loop has a constant trip
-    count; indices are unsigned, so numba drops its negative-index wraparound and addresses are
-    affine in the lane counter.
+    ``nl`` and ``nf`` are literals at each call site, so after inlining the lane loop has a
+    constant trip count, and :func:`_add_colors` writes each channel at a
+    constant offset; indices are unsigned, so numba drops its negative-index wraparound and
+    addresses are affine in the lane counter.
     """
     n_ch = pcol.shape[1]
     npx = TS * TS
@@ -806,10 +899,7 @@ def _fwd_entry(
     ay = np.int64(prm[s, _AY])
     ca, cb, cc, o = prm[s, _CA], prm[s, _CB], prm[s, _CC], prm[s, _OP]
     z64 = np.float64(prm[s, _Z])
-    c0 = np.float64(prm[s, _COL])
-    c1 = np.float64(prm[s, _COL + 1])
-    c2 = np.float64(prm[s, _COL + 2])
-    c3 = np.float64(pcol[s, 3]) if rgb4 else 0.0
+    cols = _entry_colors(prm, pcol, s, nf)
     n_done = 0
     pairs = 0
     for r in range(gy0, gy1 + 1):
@@ -837,16 +927,12 @@ def _fwd_entry(
             buf[np.uint64(_FW * npx) + u] += w
             if with_depth:
                 buf[np.uint64(_FD * npx) + u] += w * z64
-            if rgb:
-                buf[np.uint64(_FC * npx) + u] += w * c0
-                buf[np.uint64((_FC + 1) * npx) + u] += w * c1
-                buf[np.uint64((_FC + 2) * npx) + u] += w * c2
-                if rgb4:
-                    buf[np.uint64((_FC + 3) * npx) + u] += w * c3
+            if nf:
+                _add_colors(buf, u, w, cols)
             else:
                 buf[np.uint64(_FB * npx) + u] = w
             stopbits |= np.int32(stop) << np.int32(j)
-        if not rgb:
+        if not nf:
             for ch in range(n_ch):
                 col = np.float64(pcol[s, ch])
                 uc = np.uint64((_FC + ch) * npx + p0)
@@ -859,11 +945,11 @@ def _fwd_entry(
     return n_done, pairs
 
 
-def _make_render_forward(rgb: bool, render_depth: bool, rgb4: bool = False) -> Any:
+def _make_render_forward(nf: int, render_depth: bool) -> Any:
     """Compile-on-demand variant of the kernel for fixed flags.
 
-    ``rgb``: C == 3 (or C == 4 with ``rgb4``), the color sums fused into the lane loop;
-    ``render_depth``: accumulate sum w z.
+    ``nf``: C (at most ``_MAX_FUSED``), the color sums fused into the lane loop, or 0 (separate
+    loops); ``render_depth``: accumulate sum w z.
 
     The flags are closure constants: numba freezes them, LLVM drops the dead variants, and
     each variant is compiled (and cached) only when first used.
@@ -912,16 +998,15 @@ def _make_render_forward(rgb: bool, render_depth: bool, rgb4: bool = False) -> A
                     break
                 if k + _PREFETCH < end:
                     _prefetch(prm, tile_ids[k + _PREFETCH])
-                    if rgb4 or not rgb:
+                    if nf == 0 or nf > 3:
                         _prefetch(pcol, tile_ids[k + _PREFETCH])
                 s = tile_ids[k]
                 gy0, gy1, colmask, j0, nl = _entry_box(prm, s, ox, oy)
                 if nl == TS:
-                    nd, pc = _fwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, rgb, render_depth,
-                                        rgb4)
+                    nd, pc = _fwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, nf, render_depth)
                 else:
-                    nd, pc = _fwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, rgb,
-                                        render_depth, rgb4)
+                    nd, pc = _fwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, nf,
+                                        render_depth)
                 n_done += nd
                 pairs += pc
             tile_end[t] = k_end
@@ -945,37 +1030,38 @@ def _make_render_forward(rgb: bool, render_depth: bool, rgb4: bool = False) -> A
 
 _NQ = 9  # per-entry gradient slots before the colors: mx, my, |mx|, |my|, conic a, b, c, opacity, z
 #: Planes (TS * TS float64 each, pixel p = r * TS + j) of the per-tile buffer of the backward:
-#: transmittance, running sum of w f, forward total F, dL/dA, dL/dD, two scratch planes; then one
-#: plane per gradient slot (9 + C), then dL/dC per color. Every access of the lane loop is then
-#: base + constant + lane, so LLVM vectorizes it without runtime alias checks.
-_BT, _BU, _BF, _BA, _BD, _BS1, _BS2, _BG = 0, 1, 2, 3, 4, 5, 6, 7
+#: transmittance, running sum of w f, forward total F, dL/dA, dL/dD, a scratch plane (f without
+#: fused colors), the weight w of the pair (0 where unused); then one plane per gradient slot (9),
+#: then dL/dC per color. Every access of the lane loop is then base + constant + lane, so LLVM
+#: vectorizes it without runtime alias checks.
+_BT, _BU, _BF, _BA, _BD, _BS1, _BW, _BG = 0, 1, 2, 3, 4, 5, 6, 7
+#: The first dL/dC plane.
+_UGC = (_BG + _NQ) * TS * TS
 
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _bwd_entry(
     nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, prm: np.ndarray, s: int,
-    rowbits: np.ndarray, S: np.ndarray, pcol: np.ndarray, rgb: bool, with_depth: bool,
+    rowbits: np.ndarray, S: np.ndarray, pcol: np.ndarray, nf: int, with_depth: bool,
 ) -> int:
     """Replay Gaussian ``s`` over its rows of a tile and write its per-pixel gradient terms to ``S``.
 
     The forward's decisions are re-made bit for bit (same ops on the same inputs), so the skip and
     stop pattern is the forward's. With f_i = dL/dA + c_i . dL/dC + z_i dL/dD, the light behind
     pair i is F - (running sum of w f up to i): two float64 sums of the same terms. Each pixel meets
-    the Gaussian once, so its gradient terms are written, not accumulated, into the gradient planes
-    (zeros where the pair is unused). Returns the bit mask of the rows visited.
+    the Gaussian once, so its gradient terms and its weight are written, not accumulated, into
+    their planes (zeros where the pair is unused); the color gradients are the weight's dot
+    products with dL/dC (:func:`_entry_sums`). ``nf`` as in :func:`_fwd_entry`. Returns the bit mask
+    of the rows visited.
     """
     n_ch = pcol.shape[1]
     npx = TS * TS
-    nc = 3 if rgb else n_ch  # a literal in the fused path: constant offsets
-    ugc = (_BG + _NQ + nc) * npx  # dL/dC planes
     ax, hx, hy = np.int64(prm[s, _AX]), prm[s, _HX], prm[s, _HY]
     ay = np.int64(prm[s, _AY])
     ca, cb, cc, o = prm[s, _CA], prm[s, _CB], prm[s, _CC], prm[s, _OP]
     ca64, cb64, cc64 = np.float64(ca), np.float64(cb), np.float64(cc)
     z64 = np.float64(prm[s, _Z])
-    c0 = np.float64(prm[s, _COL])
-    c1 = np.float64(prm[s, _COL + 1])
-    c2 = np.float64(prm[s, _COL + 2])
+    cols = _entry_colors(prm, pcol, s, nf)
     rows = 0
     for r in range(gy0, gy1 + 1):
         db = rowbits[r]
@@ -985,7 +1071,7 @@ def _bwd_entry(
         rows |= 1 << r
         p0 = r * TS + j0
         u0 = np.uint64(p0)
-        if not rgb:
+        if not nf:
             # f without the colors' share, then the colors in separate loops.
             for jj in range(nl):
                 u = u0 + np.uint64(jj)
@@ -994,7 +1080,7 @@ def _bwd_entry(
                 col = np.float64(pcol[s, ch])
                 for jj in range(nl):
                     u = u0 + np.uint64(jj)
-                    S[np.uint64(_BS1 * npx) + u] += col * S[np.uint64(ugc + ch * npx) + u]
+                    S[np.uint64(_BS1 * npx) + u] += col * S[np.uint64(_UGC + ch * npx) + u]
         dy = F32(oy + r - ay) + hy
         dy64 = np.float64(dy)
         stopbits = np.int32(0)
@@ -1012,9 +1098,8 @@ def _bwd_entry(
             stop = use & (test < T_STOP)
             use = use & (test >= T_STOP)
             w = a64 * tj  # the forward's weight, bit for bit
-            if rgb:
-                f = (S[np.uint64(_BA * npx) + u] + c0 * S[np.uint64(ugc) + u] + c1 * S[np.uint64(ugc + npx) + u]
-                     + c2 * S[np.uint64(ugc + 2 * npx) + u])
+            if nf:
+                f = _dot_colors(S, u, cols, S[np.uint64(_BA * npx) + u])
                 if with_depth:
                     f += z64 * S[np.uint64(_BD * npx) + u]
             else:
@@ -1037,21 +1122,10 @@ def _bwd_entry(
             S[np.uint64((_BG + 6) * npx) + u] = gs * 0.5 * dy64 * dy64
             S[np.uint64((_BG + 7) * npx) + u] = g_a * np.float64(e)
             S[np.uint64((_BG + 8) * npx) + u] = w_use * S[np.uint64(_BD * npx) + u]
-            if rgb:
-                S[np.uint64((_BG + _NQ) * npx) + u] = w_use * S[np.uint64(ugc) + u]
-                S[np.uint64((_BG + _NQ + 1) * npx) + u] = w_use * S[np.uint64(ugc + npx) + u]
-                S[np.uint64((_BG + _NQ + 2) * npx) + u] = w_use * S[np.uint64(ugc + 2 * npx) + u]
-            else:
-                S[np.uint64(_BS2 * npx) + u] = w_use
+            S[np.uint64(_BW * npx) + u] = w_use
             S[np.uint64(_BU * npx) + u] = fu if use else S[np.uint64(_BU * npx) + u]
             S[u] = test if use else tj
             stopbits |= np.int32(stop) << np.int32(j)
-        if not rgb:
-            for ch in range(n_ch):
-                for jj in range(nl):
-                    u = u0 + np.uint64(jj)
-                    S[np.uint64((_BG + _NQ + ch) * npx) + u] = (S[np.uint64(_BS2 * npx) + u]
-                                                               * S[np.uint64(ugc + ch * npx) + u])
         rowbits[r] = db | stopbits
     return rows
 
@@ -1064,16 +1138,27 @@ def _add8(S: np.ndarray, u: np.uint64, a0: float, a1: float, a2: float, a3: floa
             a4 + S[u + np.uint64(4)], a5 + S[u + np.uint64(5)], a6 + S[u + np.uint64(6)], a7 + S[u + np.uint64(7)])
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _dot8(S: np.ndarray, u: np.uint64, v: np.uint64, a0: float, a1: float, a2: float, a3: float, a4: float,
+          a5: float, a6: float, a7: float) -> tuple:
+    """The eight accumulators plus S[u] S[v], ..., S[u + 7] S[v + 7]."""
+    return (a0 + S[u] * S[v], a1 + S[u + np.uint64(1)] * S[v + np.uint64(1)],
+            a2 + S[u + np.uint64(2)] * S[v + np.uint64(2)], a3 + S[u + np.uint64(3)] * S[v + np.uint64(3)],
+            a4 + S[u + np.uint64(4)] * S[v + np.uint64(4)], a5 + S[u + np.uint64(5)] * S[v + np.uint64(5)],
+            a6 + S[u + np.uint64(6)] * S[v + np.uint64(6)], a7 + S[u + np.uint64(7)] * S[v + np.uint64(7)])
+
+
 @njit(cache=True, error_model="numpy")
-def _entry_sums(S: np.ndarray, rows: int, gy0: int, gy1: int, j0: int, nl: int, nq: int, out: np.ndarray,
+def _entry_sums(S: np.ndarray, rows: int, gy0: int, gy1: int, j0: int, nl: int, n_ch: int, out: np.ndarray,
                 k: int) -> None:
-    """out[k, q] = sum of gradient plane q over the visited rows and lanes of one entry (row ``k``).
+    """out[k] = one entry's gradients: the sums of the ``_NQ`` gradient planes over the visited rows
+    and lanes, then per color the dot product of the weight plane with dL/dC there.
 
     Eight independent column accumulators (the SLP vectorizer turns them into one vector), summed
     down the rows, then across: a fixed order, so the result does not depend on threads.
     """
     npx = TS * TS
-    for q in range(nq):
+    for q in range(_NQ):
         a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = 0.0
         for r in range(gy0, gy1 + 1):
             if (rows >> r) & 1:
@@ -1082,9 +1167,20 @@ def _entry_sums(S: np.ndarray, rows: int, gy0: int, gy1: int, j0: int, nl: int, 
                 if nl == TS:
                     a0, a1, a2, a3, a4, a5, a6, a7 = _add8(S, u + np.uint64(8), a0, a1, a2, a3, a4, a5, a6, a7)
         out[k, q] = _sat(((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7)))
+    for ch in range(n_ch):
+        a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = 0.0
+        for r in range(gy0, gy1 + 1):
+            if (rows >> r) & 1:
+                u = np.uint64(_BW * npx + r * TS + j0)
+                v = np.uint64(_UGC + ch * npx + r * TS + j0)
+                a0, a1, a2, a3, a4, a5, a6, a7 = _dot8(S, u, v, a0, a1, a2, a3, a4, a5, a6, a7)
+                if nl == TS:
+                    a0, a1, a2, a3, a4, a5, a6, a7 = _dot8(S, u + np.uint64(8), v + np.uint64(8), a0, a1, a2, a3, a4,
+                                                           a5, a6, a7)
+        out[k, _NQ + ch] = _sat(((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7)))
 
 
-def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
+def _make_render_backward(nf: int, render_depth: bool) -> Any:
     """Compile-on-demand variant of the kernel for fixed flags (as :func:`_make_render_forward`).
 
     The flags are closure constants: numba freezes them, LLVM drops the dead variants, and
@@ -1112,7 +1208,6 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
         n_ch = pcol.shape[1]
         npx = TS * TS
         nq = entry_grads.shape[1]
-        ugc = (_BG + nq) * npx
         for it in prange(tile_order.shape[0]):
             t = tile_order[it]
             ox = (t % tiles_x) * TS
@@ -1125,7 +1220,7 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
                     entry_grads[entry_row[k], q] = _ZERO  # entries the forward never reached
             if k_end == start:
                 continue
-            S = np.zeros(ugc + n_ch * npx)
+            S = np.zeros(_UGC + n_ch * npx)
             S[:npx] = 1.0  # transmittance
             rowbits = np.zeros(TS, np.int32)
             for r in range(TS):
@@ -1139,7 +1234,7 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
                     tot = acc_img[y, x, n_ch] * ga
                     for ch in range(n_ch):
                         gc = np.float64(g_color[y, x, ch])
-                        S[ugc + ch * npx + p] = gc
+                        S[_UGC + ch * npx + p] = gc
                         tot += acc_img[y, x, ch] * gc
                     if render_depth:
                         gd = np.float64(g_dnum[y, x])
@@ -1149,16 +1244,16 @@ def _make_render_backward(rgb: bool, render_depth: bool) -> Any:
             for k in range(start, k_end):
                 if k + _PREFETCH < k_end:
                     _prefetch(prm, tile_ids[k + _PREFETCH])
-                    if not rgb:
+                    if nf == 0 or nf > 3:
                         _prefetch(pcol, tile_ids[k + _PREFETCH])
                 s = tile_ids[k]
                 gy0, gy1, colmask, j0, nl = _entry_box(prm, s, ox, oy)
                 if nl == TS:
-                    rows = _bwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, rgb, render_depth)
+                    rows = _bwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, nf, render_depth)
                 else:
-                    rows = _bwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, rgb,
+                    rows = _bwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, nf,
                                       render_depth)
-                _entry_sums(S, rows, gy0, gy1, j0, nl, nq, entry_grads, entry_row[k])
+                _entry_sums(S, rows, gy0, gy1, j0, nl, n_ch, entry_grads, entry_row[k])
 
     return kernel
 
@@ -1260,7 +1355,7 @@ def _replay_pairs(
                     counts[(oy + r) * width + ox + j] = cur[r * TS + j]
 
 
-_KERNELS: dict[tuple[str, bool, bool, bool], Any] = {}
+_KERNELS: dict[tuple[str, int, bool], Any] = {}
 #: Tiles per work item of the compositing loops (dynamic scheduling absorbs uneven tiles and busy cores).
 _TILE_CHUNK = 4
 #: Chunks per thread of the counting sort into tiles (see ``RenderJob._bin``).
@@ -1284,15 +1379,15 @@ def _tile_chunk(n_tiles: int) -> int:
 def _kernel(which: str, n_channels: int, render_depth: bool) -> Any:
     """The compositing kernel ``which`` ("forward" or "backward") for these flags (made once).
 
-    The forward fuses the color sums for C == 3 and C == 4 (RGB plus the exact-fog transmittance
-    channel); the backward for C == 3.
+    Up to ``_MAX_FUSED`` channels, one variant per channel count with the color terms fused into
+    the lane loops (C = 3 RGB, 4 with the exact-fog transmittance, 15 for four weathers and three
+    hazes); more channels share one variant with separate per-channel loops.
     """
-    rgb4 = which == "forward" and n_channels == 4
-    rgb = n_channels == 3 or rgb4
-    key = (which, rgb, bool(render_depth), rgb4)
+    nf = n_channels if 0 < n_channels <= _MAX_FUSED else 0
+    key = (which, nf, bool(render_depth))
     if key not in _KERNELS:
-        _KERNELS[key] = (_make_render_forward(rgb, bool(render_depth), rgb4) if which == "forward"
-                         else _make_render_backward(rgb, bool(render_depth)))
+        _KERNELS[key] = (_make_render_forward(nf, bool(render_depth)) if which == "forward"
+                         else _make_render_backward(nf, bool(render_depth)))
     return _KERNELS[key]
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import torch
+from torch.optim.adam import adam
 
 from wcbench.reference_model.model.gaussians import PARAMETER_NAMES, GaussianParams
 from wcbench.reference_model.model.objects import quat_multiply_torch
@@ -44,9 +45,33 @@ class NodeOptimizer:
         """Clear every gradient (set to None)."""
         self.adam.zero_grad(set_to_none=True)
 
+    @torch.no_grad()
     def step(self) -> None:
-        """One Adam step."""
-        self.adam.step()
+        """One Adam step: torch's fused Adam, one call per learning rate instead of one per group.
+
+        A group per named tensor (about 140 with a few dozen objects) made ``Adam.step`` 6 ms of
+        Python and per-call overhead, flat in the thread count; the groups that share a rate
+        share a call. The state (``step``, ``exp_avg``, ``exp_avg_sq`` per tensor, as ``Adam``'s
+        own fused path creates it) stays in ``self.adam.state``, so checkpoints are unchanged,
+        and the per-tensor arithmetic is the same kernel's: results are bit-identical.
+        """
+        batches: dict[tuple, tuple[list[torch.Tensor], ...]] = {}
+        for g in self.adam.param_groups:
+            for p in g["params"]:
+                if p.grad is None:
+                    continue
+                state = self.adam.state[p]
+                if not state:
+                    state["step"] = torch.zeros((), dtype=torch.float32, device=p.device)
+                    state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                    state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                key = (g["lr"], tuple(g["betas"]), g["eps"], g["weight_decay"])  # betas: a list once loaded
+                lists = batches.setdefault(key, ([], [], [], [], []))
+                for out, t in zip(lists, (p, p.grad, state["exp_avg"], state["exp_avg_sq"], state["step"])):
+                    out.append(t)
+        for (lr, (beta1, beta2), eps, weight_decay), (params, grads, avgs, avg_sqs, steps) in batches.items():
+            adam(params, grads, avgs, avg_sqs, [], steps, fused=True, lr=lr, beta1=beta1, beta2=beta2,
+                 eps=eps, weight_decay=weight_decay, amsgrad=False, maximize=False)
 
     def group(self, name: str) -> dict:
         """The parameter group called ``name``."""

@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch")
 import weather_models as wm  # noqa: E402
 
 from wcbench.reference_model.editing.edits import parse_edits, placement_for  # noqa: E402
-from wcbench.reference_model.model.decoders import WeatherDecoders, color_logits  # noqa: E402
+from wcbench.reference_model.model.decoders import WeatherDecoders, color_logits, mlp_colors  # noqa: E402
 from wcbench.reference_model.model.scene_model import Placement  # noqa: E402
 from wcbench.reference_model.raster.torch_twin import rasterize_torch  # noqa: E402
 
@@ -36,6 +36,34 @@ def test_batched_decoders_match_the_per_weather_twin(weathers):
             p.add_(torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())) * 0.3)
     f = torch.randn(500, 32, generator=torch.Generator().manual_seed(0))
     torch.testing.assert_close(dec(f, weathers), _decoder_twin(dec, f, weathers), atol=1e-6, rtol=1e-5)
+
+
+def _mlp_inputs(dtype: torch.dtype, n: int = 53) -> list[torch.Tensor]:
+    g = torch.Generator().manual_seed(3)
+    shapes = [(n, 6), (10, 6), (10,), (4, 10), (4,)]
+    return [torch.randn(s, generator=g, dtype=dtype).requires_grad_(True) for s in shapes]
+
+
+def test_chunked_mlp_gradients_pass_gradcheck_in_float64():
+    # chunks of 7 rows leave a short last chunk; every input gets a gradient
+    assert torch.autograd.gradcheck(lambda *a: mlp_colors(*a, chunk_rows=7), _mlp_inputs(torch.float64))
+
+
+@pytest.mark.parametrize("chunk_rows", [1, 16, 53, 1000])
+def test_chunked_mlp_matches_the_plain_expression(chunk_rows):
+    """Values and every gradient against autograd through the whole-array expression (float32)."""
+    inputs = _mlp_inputs(torch.float32, n=300)
+    f, w1, b1, w2, b2 = inputs
+    grad = torch.rand(300, 4, generator=torch.Generator().manual_seed(5))
+    plain = torch.sigmoid(torch.relu(f @ w1.T + b1) @ w2.T + b2)
+    ref = torch.autograd.grad(plain, inputs, grad)
+    out = mlp_colors(*inputs, chunk_rows=chunk_rows)
+    got = torch.autograd.grad(out, inputs, grad)
+    torch.testing.assert_close(out, plain, atol=1e-6, rtol=1e-6)
+    for a, b in zip(got, ref):  # the weight gradients sum over 300 rows (float64 in the chunked path)
+        torch.testing.assert_close(a, b, atol=1e-5 * float(b.abs().max()), rtol=0)
+    with pytest.raises(ValueError, match="chunk_rows"):
+        mlp_colors(*inputs, chunk_rows=0)
 
 
 def test_decoders_start_as_the_identity_on_the_color_channels():

@@ -62,7 +62,9 @@ def _assert_grads_close(fast: list[Tensor], ref: list[Tensor], names: list[str])
         (1, 500, 3, False, True),
         (2, 200, 5, True, True),
         (3, 400, 1, False, False),
-        (4, 300, 4, True, True),  # RGB + exact-fog transmittance: its own fused forward
+        (4, 300, 4, True, True),  # RGB + exact-fog transmittance
+        (5, 200, 15, True, False),  # four weathers and three hazes: the largest fused variant in use
+        (6, 150, 17, True, True),  # more than _MAX_FUSED channels: the separate per-channel loops
     ],
 )
 def test_fast_path_matches_twin_forward_and_gradients(
