@@ -792,8 +792,8 @@ def _entry_colors(prm: np.ndarray, pcol: np.ndarray, s: int, nf: int) -> tuple:
     if nf == 0:
         return (_ZERO,)
     if nf <= 3:
-        return to_fixed_tuple(prm[s, _COL:_COL + nf], nf)
-    return to_fixed_tuple(pcol[s], nf)
+        return to_fixed_tuple(prm[s, _COL:_COL + nf], nf)  # type: ignore[call-arg]
+    return to_fixed_tuple(pcol[s], nf)  # type: ignore[call-arg]
 
 
 _COLOR_TERMS: dict[int, tuple[Any, Any]] = {}
