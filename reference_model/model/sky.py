@@ -71,14 +71,16 @@ def sky_window(sky: SkyModel, directions: Sequence[torch.Tensor], *, margin: flo
 
 
 class _SkyLookup(torch.autograd.Function):
-    """``grid_sample`` of the maps (bilinear, border, align_corners=False) with the backward of
-    :mod:`.sky_kernels`: one thread per map channel instead of PyTorch's one per batch item. The
-    forward is PyTorch's; the gradient goes to the maps only (the grid is a constant of the view)."""
+    """``grid_sample`` of the maps (bilinear, border, align_corners=False) by :mod:`.sky_kernels`:
+    the forward over image rows and the backward with one thread per map channel, where PyTorch
+    uses one thread per batch item for both. The gradient goes to the maps only (the grid is a
+    constant of the view)."""
 
     @staticmethod
     def forward(ctx: Any, maps: torch.Tensor, grid: torch.Tensor, kernels: Any) -> torch.Tensor:  # type: ignore[override]
         ctx.kernels, ctx.grid, ctx.size = kernels, grid, tuple(maps.shape[2:])
-        return F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        out = kernels.grid_sample_map(maps[0].detach().contiguous().numpy(), grid[0].detach().contiguous().numpy())
+        return torch.from_numpy(out)[None]
 
     @staticmethod
     def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor, None, None]:  # type: ignore[override]

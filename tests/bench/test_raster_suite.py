@@ -30,8 +30,12 @@ def test_quick_run_without_data_root(tmp_path: Path) -> None:
     validate_benchmark(obj)
     assert obj["suite"] == "raster"
     names = [c["name"] for c in obj["cases"]]
-    assert [n[:2] for n in names] == ["d_", "a_", "b_", "pr", "c_"]
+    assert [n[:2] for n in names] == ["d_", "a_", "b_", "b_", "pr", "c_"]
     assert "synthetic" in names[2] and any("pandaset_002 unavailable" in n for n in obj["notes"])
+    wide = obj["cases"].pop(3)  # the weather step's channels: fast path only, timed against case b
+    assert wide["name"] == names[2] + "_15ch" and wide["ref_fwd_ms"] is None
+    assert wide["max_abs_err"] < MAX_ABS_ERR and wide["pairs"] == obj["cases"][2]["pairs"]
+    assert wide["fwd_vs_rgb"] == round(wide["fwd_ms"] / obj["cases"][2]["fwd_ms"], 3) and wide["bwd_vs_rgb"] > 0
     profile = obj["cases"].pop(3)
     assert profile["name"] == "profile_b_240x135" and profile["threads"] == [1, 2]
     rows = profile["phases"]

@@ -7,6 +7,9 @@ b. the real workload: the lidar of ``pandaset_002`` (every sweep, voxelised at 0
    centroids), isotropic sigma = 0.075 m, opacity 0.8, colors sampled from frame 0's image,
    rendered from frame 0's camera at 480x270 (K scaled from 1920x1080); a generated scene with
    the same count and depth statistics when the data is absent;
+b_..._15ch. case b with 15 channels, the training's weather step (four weathers' RGB and three
+   hazes' transmittance), fast path only; ``fwd_vs_rgb`` and ``bwd_vs_rgb`` divide its times by
+   case b's of the same run;
 c. 40k rain streaks (scale [0.0025, 0.0025, 0.075] m, opacity 0.13) within 10 m, at 480x270;
 d. 1M Gaussians at 1920x1080, forward only, fast path only, with peak memory;
 profile_<case>_<size>: the per-phase profile of one rasterizer call (forward + backward of case b,
@@ -60,6 +63,8 @@ FLOOR_NS_PER_PAIR_FWD = 4e6 / 6e6
 FLOOR_NS_PER_PAIR_BWD = 10e6 / 6e6
 #: Pandaset frames are 1920x1080; the real case renders at a quarter of that.
 REAL_SIZE = (480, 270)
+#: Channels of the default training's weather step (four weathers' RGB and three hazes).
+WEATHER_STEP_CHANNELS = 15
 VOXEL_M = 0.15
 
 
@@ -416,6 +421,19 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False, threads: str | l
         spec["size"] = (240, 135)
         spec["K"] = np.array(spec["K"]) * np.array([[0.5], [0.5], [1.0]])
     report.cases.append(_case(name, spec, repeats=repeats, with_twin=True))
+    rgb = report.cases[-1]
+    # The training's weather step: four weathers' RGB and three hazes' transmittance in one pass.
+    m, q, s, o, c = spec["params"]
+    extra = torch.rand((len(c), WEATHER_STEP_CHANNELS - 3), generator=torch.Generator().manual_seed(4))
+    wide = {**spec, "params": [p.detach().clone().requires_grad_(True) for p in (m, q, s, o)]
+            + [torch.cat([c.detach(), extra], 1).requires_grad_(True)]}
+    case = _case(f"{name}_{WEATHER_STEP_CHANNELS}ch", wide, repeats=repeats, with_twin=False)
+    case.extra.update(fwd_vs_rgb=round(case.extra["fwd_ms"] / rgb.extra["fwd_ms"], 3),
+                      bwd_vs_rgb=round(case.extra["bwd_ms"] / rgb.extra["bwd_ms"], 3))
+    report.cases.append(case)
+    report.notes.append(f"case {case.name}: case b's Gaussians with {WEATHER_STEP_CHANNELS} channels (a training "
+                        "weather step: four weathers' RGB and three hazes); fwd_vs_rgb / bwd_vs_rgb: its times over "
+                        "case b's, measured in this run")
     profiles, table = _profile_cases(spec, name.split("_")[0], counts, quick=quick)
     report.cases += profiles
     report.notes += table
