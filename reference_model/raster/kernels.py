@@ -97,7 +97,7 @@ _GMAX32 = F32(_GMAX)
 _KK_SAT = math.exp(0.5 * SIGMA_EXTENT * SIGMA_EXTENT) * (1.0 + 1e-9)
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always")
 def _sat(x: float) -> float:
     """``x`` clamped to the finite float32 range (a gradient too large for float32 saturates)."""
     return min(max(x, -_GMAX), _GMAX)
@@ -233,7 +233,7 @@ def _cov2d(R: tuple, sx: float, sy: float, sz: float, V: tuple, j00: float, j02:
     return a + EPS2D, b, c + EPS2D, det
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always")
 def _jacobian_clamp(intr: np.ndarray, wf: float, hf: float) -> tuple:
     """Bounds (-x, +x, -y, +y) of x/z and y/z in the projection Jacobian: the frustum widened by
     0.3 of its half-width, as in gsplat, so far off-screen Gaussians do not blow up the Jacobian."""
@@ -248,7 +248,7 @@ def _jacobian_clamp(intr: np.ndarray, wf: float, hf: float) -> tuple:
     )
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always")
 def _to_camera(means: np.ndarray, i: int, V: np.ndarray, tvec: np.ndarray) -> tuple:
     """Camera coordinates (x, y, z) of Gaussian ``i``'s mean (float64)."""
     px, py, pz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
@@ -257,7 +257,7 @@ def _to_camera(means: np.ndarray, i: int, V: np.ndarray, tvec: np.ndarray) -> tu
             V[2, 0] * px + V[2, 1] * py + V[2, 2] * pz + tvec[2])
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always")
 def _ewa_jacobian(rx: float, ry: float, z: float, fx: float, fy: float, lim_xn: float, lim_xp: float,
                   lim_yn: float, lim_yp: float) -> tuple:
     """The projection's Jacobian (j00, j02, j11, j12) at (x/z, y/z) = (rx, ry) clamped to the
@@ -377,7 +377,7 @@ def _project_kernel(
         box[i, 3] = y1
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always")
 def _minor_grad(ai: float, aj: float, bi: float, bj: float, si: float, sj: float, gD: float) -> tuple:
     """Gradient through the 2x2 minor m = u si sj, u = ai bj - aj bi, of T = A diag(s) (rows a, b of
     A, columns i < j), given dL/d det = gD (dL/dm = 2 m gD): (dL/dsi, dL/dsj, du) where du = dL/du
