@@ -442,7 +442,7 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False, threads: str | l
     report.cases.append(_case(f"c_rain_{n_c // 1000}k", _rain(n_c, *size_c, seed=2), repeats=repeats,
                               with_twin=True))
     if quick:
-        report.notes.append("start_cold / start_warm: not run by --quick (a cold start compiles for about a minute)")
+        report.notes.append("start_cold / start_warm: not run by --quick (a cold start compiles for over a minute)")
         return report
     report.cases += _start_cases()
     report.notes.append("start_cold / start_warm: wall time of a new Python process importing wcbench and running "

@@ -1,9 +1,9 @@
 """Compile the numba kernels of the rasterizer, the particles and the fog now, once.
 
 numba compiles each kernel on its first call and caches the machine code (beside the package, or
-under ``NUMBA_CACHE_DIR``); without this step the first render of a fresh install waits about a
-minute for it. Later processes load the cache in seconds. Safe to run again: cached kernels only
-load.
+under ``NUMBA_CACHE_DIR``); without this step the first render of a fresh install waits over a
+minute for it (about 80 s on 2 cores). Later processes load the cache in seconds. Safe to run
+again: cached kernels only load.
 
 Examples::
 
