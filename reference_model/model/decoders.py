@@ -26,9 +26,10 @@ from torch import nn
 
 __all__ = ["WeatherDecoders", "color_logits", "mlp_colors"]
 
-#: Elements of a chunk's hidden layer (rows x width): 1 MiB of float32, which stays in cache. 2048
-#: rows of 4 weathers' 128 hidden units: forward + backward of 114k Gaussians take 45.6 ms at 2
-#: threads against 100 ms for the whole-array expression, 51 ms with 8192 rows (2-core CPU).
+#: Elements of a chunk's hidden layer (rows x width): 1 MiB of float32, which stays in cache. In a
+#: standalone timing of 4 weathers x 114k Gaussians at 2 threads, forward + backward took 45.6 ms
+#: with 1 MiB chunks, 51 ms with 4 MiB and 100 ms for the whole-array expression; `bench model`'s
+#: profile shows the decoders' forward going from 17.3 to 7.5 ms (docs/design.md §8).
 _CHUNK_ELEMENTS = 1 << 18
 
 

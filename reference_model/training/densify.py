@@ -49,9 +49,10 @@ class NodeOptimizer:
     def step(self) -> None:
         """One Adam step: torch's fused Adam, one call per learning rate instead of one per group.
 
-        A group per named tensor (about 140 with a few dozen objects) made ``Adam.step`` 6 ms of
-        Python and per-call overhead, flat in the thread count; the groups that share a rate
-        share a call. The state (``step``, ``exp_avg``, ``exp_avg_sq`` per tensor, as ``Adam``'s
+        With a group per named tensor (about 140 with a few dozen objects) ``Adam.step`` pays
+        Python and a kernel launch per group; the groups that share a rate share a call here (the
+        optimizer phase of a training step: 6.0 -> 4.2-4.6 ms at 2 threads; what remains is memory
+        bandwidth, docs/design.md §8). The state (``step``, ``exp_avg``, ``exp_avg_sq`` per tensor, as ``Adam``'s
         own fused path creates it) stays in ``self.adam.state``, so checkpoints are unchanged,
         and the per-tensor arithmetic is the same kernel's: results are bit-identical.
         """

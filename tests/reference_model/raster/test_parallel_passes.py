@@ -85,3 +85,32 @@ def test_the_scratch_pool_reuses_big_arrays_and_never_hands_out_one_twice() -> N
     big = pool.take((1 << 21,), np.float32, again)  # 8 MB, beyond max_bytes once given back
     pool.give(again)
     assert sum(x.nbytes for x in pool._free) <= 1 << 22 and not any(np.shares_memory(big, x) for x in pool._free)
+
+
+@pytest.mark.parametrize("n_channels", [1, 3, 4, 15, 16])
+def test_written_out_color_terms_equal_their_plain_loops(n_channels: int) -> None:
+    """The kernels' per-channel color terms (a chain of inline functions per count) against the
+    plain Python loops of the same functions, bit for bit."""
+    from numba import njit
+    from numba.np.unsafe.ndarray import to_fixed_tuple
+
+    from wcbench.reference_model.raster import kernels as k
+
+    rng = np.random.default_rng(n_channels)
+    planes = k._UGC // (k.TS * k.TS) + n_channels
+    buf = rng.random(planes * k.TS * k.TS)
+    colors = rng.random(n_channels).astype(np.float32)
+    u, w = 37, 0.3125
+
+    @njit
+    def jitted(buf: np.ndarray, colors: np.ndarray, u: np.uint64, w: float) -> float:
+        cols = to_fixed_tuple(colors, n_channels)
+        k._add_colors(buf, u, w, cols)
+        return k._dot_colors(buf, u, cols, 0.5)
+
+    fast, plain = buf.copy(), buf.copy()
+    got = jitted(fast, colors, np.uint64(u), w)
+    cols = tuple(colors)
+    k._add_colors(plain, u, w, cols)
+    assert got == k._dot_colors(plain, u, cols, 0.5)
+    np.testing.assert_array_equal(fast, plain)
