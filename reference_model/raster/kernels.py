@@ -75,6 +75,10 @@ __all__ = ["RenderJob"]
 
 F32 = np.float32
 TS = TILE_SIZE
+#: log2 of the tile size: the tile of pixel x is x >> _TS_SHIFT, which is floor(x / TS) for every
+#: integer x, without the sign fix-ups of a floor division (measured 25 % of the counting sort's scatter).
+_TS_SHIFT = TS.bit_length() - 1
+assert 1 << _TS_SHIFT == TS
 # float32 constants: a bare Python float would promote every float32 expression to float64.
 _HALF = F32(0.5)
 _ONE = F32(1.0)
@@ -755,8 +759,8 @@ def _gather_sorted(
                 prm[s, _COL + q] = colors[g, min(q, colors.shape[1] - 1)]
             for ch in range(colors.shape[1]):
                 pcol[s, ch] = colors[g, ch]
-            tx0, tx1 = box[g, 0] // TS, box[g, 1] // TS
-            ty0, ty1 = box[g, 2] // TS, box[g, 3] // TS
+            tx0, tx1 = box[g, 0] >> _TS_SHIFT, box[g, 1] >> _TS_SHIFT
+            ty0, ty1 = box[g, 2] >> _TS_SHIFT, box[g, 3] >> _TS_SHIFT
             per_g[s] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
@@ -810,8 +814,8 @@ def _tile_fill(
         cur = cursor0[ch].copy()
         e = chunk_base[ch]
         for s in range(ch * step, min(m, (ch + 1) * step)):
-            tx0, tx1 = pbox[s, 0] // TS, pbox[s, 1] // TS
-            ty0, ty1 = pbox[s, 2] // TS, pbox[s, 3] // TS
+            tx0, tx1 = pbox[s, 0] >> _TS_SHIFT, pbox[s, 1] >> _TS_SHIFT
+            ty0, ty1 = pbox[s, 2] >> _TS_SHIFT, pbox[s, 3] >> _TS_SHIFT
             goff[s] = e
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
