@@ -1406,6 +1406,11 @@ def _make_render_backward(nf: int, render_depth: bool) -> Any:
     return kernel
 
 
+#: How many Gaussians ahead the reduction prefetches rows: 16 measured 1.6x faster than 8 at
+#: 480x270 (random rows of a 17 MB buffer; a row of 9 + C float32 spans one to three cache lines).
+_REDUCE_PREFETCH = 16
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def _reduce_entries(
     order: np.ndarray, goff: np.ndarray, per_g: np.ndarray, entry_pos: np.ndarray, entry_grads: np.ndarray,
@@ -1427,24 +1432,31 @@ def _reduce_entries(
     by one thread: no atomics, and the sums do not depend on the thread count.
     """
     nq = entry_grads.shape[1]
-    for i in prange(reason.shape[0]):
-        if reason[i] != 0:
-            for q in range(2):
-                g_m2[i, q] = _ZERO
-                g_abs[i, q] = _ZERO
-            for q in range(3):
-                g_con[i, q] = _ZERO
-            g_op[i] = _ZERO
-            g_z[i] = _ZERO
-            for q in range(g_col.shape[1]):
-                g_col[i, q] = _ZERO
+    flat = entry_grads.reshape(entry_grads.size)
+    n = reason.shape[0]
+    for item in prange((n + _PROJ_CHUNK - 1) // _PROJ_CHUNK):  # items, not Gaussians: see the caller
+        for i in range(item * _PROJ_CHUNK, min(n, (item + 1) * _PROJ_CHUNK)):
+            if reason[i] != 0:
+                for q in range(2):
+                    g_m2[i, q] = _ZERO
+                    g_abs[i, q] = _ZERO
+                for q in range(3):
+                    g_con[i, q] = _ZERO
+                g_op[i] = _ZERO
+                g_z[i] = _ZERO
+                for q in range(g_col.shape[1]):
+                    g_col[i, q] = _ZERO
     m = goff.shape[0]
     for item in prange((m + _PROJ_CHUNK - 1) // _PROJ_CHUNK):
         acc = np.empty(nq, np.float32)
         for s in range(item * _PROJ_CHUNK, min(m, (item + 1) * _PROJ_CHUNK)):
-            if s + _PREFETCH < m:  # the rows of a Gaussian further on: random reads, fetched ahead
-                for e in range(goff[s + _PREFETCH], goff[s + _PREFETCH] + per_g[s + _PREFETCH]):
-                    _prefetch(entry_grads, entry_pos[e])
+            if s + _REDUCE_PREFETCH < m:  # the rows of a Gaussian further on: random reads, fetched ahead
+                ahead = s + _REDUCE_PREFETCH
+                for e in range(goff[ahead], goff[ahead] + per_g[ahead]):
+                    first = entry_pos[e] * nq
+                    for b in range(first, first + nq, 16):  # every cache line of the row
+                        _prefetch(flat, b)
+                    _prefetch(flat, first + nq - 1)
             for q in range(nq):
                 acc[q] = _ZERO
             for e in range(goff[s], goff[s] + per_g[s]):
@@ -1744,8 +1756,11 @@ class RenderJob:
         g_con, g_col = np.empty((n, 3), np.float32), np.empty((n, c), np.float32)
         g_op, g_z = np.empty(n, np.float32), np.empty(n, np.float32)
         if n:
-            _reduce_entries(self.order, self.goff, self.per_g, self.entry_pos, entry_grads, self.reason, g_m2, g_abs,
-                            g_con, g_op, g_z, g_col)
+            # Items handed out one at a time: near Gaussians (the first of the depth order) cover
+            # more tiles, so equal static shares leave one thread with most of the rows.
+            with numba.parallel_chunksize(1):
+                _reduce_entries(self.order, self.goff, self.per_g, self.entry_pos, entry_grads, self.reason, g_m2,
+                                g_abs, g_con, g_op, g_z, g_col)
         _SCRATCH.give(local)
         t2 = time.perf_counter()
         g_means = np.empty((n, 3), np.float32)
