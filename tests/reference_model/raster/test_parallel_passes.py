@@ -3,6 +3,8 @@ and one call sizes numba's, torch's and BLAS's thread pools together."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -114,3 +116,77 @@ def test_written_out_color_terms_equal_their_plain_loops(n_channels: int) -> Non
     k._add_colors(plain, u, w, cols)
     assert got == k._dot_colors(plain, u, cols, 0.5)
     np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.parametrize("n_lanes", [8, 16])
+@pytest.mark.parametrize("n_channels", [3, 15])
+def test_entry_sums_in_vector_adds_equal_the_plain_fixed_order_sums(n_lanes: int, n_channels: int) -> None:
+    """``_entry_sums`` (explicit 8-lane vector adds, :func:`_acc8`) against plain Python loops of the
+    documented order (8 column accumulators down the visited rows, lanes j0..j0+7 then j0+8..j0+15,
+    then a fixed tree), bit for bit."""
+    from wcbench.reference_model.raster import kernels as k
+
+    npx = k.TS * k.TS
+    rng = np.random.default_rng(n_lanes + n_channels)
+    S = rng.standard_normal(k._UGC + n_channels * npx + (k._NQ + n_channels) * 8) * 10.0 ** rng.integers(
+        -8, 8, k._UGC + n_channels * npx + (k._NQ + n_channels) * 8)
+    j0 = 0 if n_lanes == k.TS else 5
+    gy0, gy1, rows = 2, 13, 0b0010_1101_1011_0100
+    out = np.full((3, k._NQ + n_channels), np.nan, np.float32)
+    k._entry_sums(S.copy(), rows, gy0, gy1, j0, n_lanes, n_channels, out, 1)
+
+    def plain(plane_of: Any) -> float:
+        a = [0.0] * 8
+        for r in range(gy0, gy1 + 1):
+            if (rows >> r) & 1:
+                for h in range(n_lanes // 8):
+                    for lane in range(8):
+                        a[lane] += plane_of(r * k.TS + j0 + 8 * h + lane)
+        return ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
+
+    want = [plain(lambda p, q=q: S[(k._BG + q) * npx + p]) for q in range(k._NQ)]
+    want += [plain(lambda p, c=c: S[k._BW * npx + p] * S[k._UGC + c * npx + p]) for c in range(n_channels)]
+    np.testing.assert_array_equal(out[1], np.array(want, np.float32))
+    assert np.isnan(out[0]).all() and np.isnan(out[2]).all()  # only row k is written
+
+
+def test_the_projection_lane_loop_equals_its_python_body_lane_by_lane() -> None:
+    """``_project_lanes`` compiled (one vector loop over 8 Gaussians) against its own body run by
+    the Python interpreter, lane by lane, on lanes that hit every cull reason: the vectorized code
+    is the per-Gaussian arithmetic, bit for bit."""
+    from wcbench.reference_model.raster import kernels as k
+
+    rng = np.random.default_rng(3)
+    pl = k._PL
+    buf = np.zeros(k._NLF * pl)
+    means = rng.uniform(-2, 2, (pl, 3)) + [0, 0, 6]
+    means[1, 2] = -1.0  # behind the camera
+    quats = rng.standard_normal((pl, 4))
+    quats[2] = 0.0  # the identity fallback
+    scales = rng.uniform(0.01, 0.5, (pl, 3))
+    scales[3] = [1e-30, 1e30, 1.0]  # a needle
+    o255 = rng.uniform(0.5, 255.0, pl)
+    o255[4] = 0.5  # under ALPHA_MIN
+    means[5, 0] = 500.0  # off the image
+    o255[6] = 20.0  # faint: box from the log
+    fin = np.ones(pl)
+    fin[7] = 0.0  # a non-finite input
+    for ln in range(pl):
+        for q in range(3):
+            buf[(k._LPX + q) * pl + ln] = means[ln, q]
+            buf[(k._LSX + q) * pl + ln] = scales[ln, q]
+        for q in range(4):
+            buf[(k._LQW + q) * pl + ln] = quats[ln, q]
+    buf[k._LO255 * pl:(k._LO255 + 1) * pl] = o255
+    buf[k._LLOG * pl:(k._LLOG + 1) * pl] = np.where(o255 < k._KK_SAT, 2.0 * np.log(o255), 0.0)
+    buf[k._LFIN * pl:(k._LFIN + 1) * pl] = fin
+    V = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    intr = (200.0, 210.0, 64.0, 48.0)
+    args = (V, (0.1, -0.2, 0.3), intr, k._jacobian_clamp(np.array(intr), 128.0, 96.0), 0.01, 1e10, 128.0, 96.0)
+    fast, slow = buf.copy(), buf.copy()
+    k._project_lanes(fast, *args)
+    with np.errstate(all="ignore"):
+        k._project_lanes.py_func(slow, *args)
+    why = fast[k._LWHY * pl:(k._LWHY + 1) * pl]
+    assert sorted(set(why.tolist())) == [0, k.CULL_NONFINITE, k.CULL_NEAR_FAR, k.CULL_TRANSPARENT, k.CULL_OFFSCREEN]
+    np.testing.assert_array_equal(fast, slow)
