@@ -76,7 +76,7 @@ __all__ = ["RenderJob"]
 F32 = np.float32
 TS = TILE_SIZE
 #: log2 of the tile size: the tile of pixel x is x >> _TS_SHIFT, which is floor(x / TS) for every
-#: integer x, without the sign fix-ups of a floor division (measured 25 % of the counting sort's scatter).
+#: integer x, without the sign fix-ups of a floor division (the counting sort's scatter measured 25 % faster).
 _TS_SHIFT = TS.bit_length() - 1
 assert 1 << _TS_SHIFT == TS
 # float32 constants: a bare Python float would promote every float32 expression to float64.
@@ -263,6 +263,14 @@ def _jacobian_clamp(intr: np.ndarray, wf: float, hf: float) -> tuple:
     )
 
 
+@njit(cache=True)
+def _camera_tuples(V: np.ndarray, tvec: np.ndarray, intr: np.ndarray, wf: float, hf: float) -> tuple:
+    """The camera as the lane functions take it: rotation (row-major 9-tuple), translation,
+    (fx, fy, cx, cy) and the Jacobian's clamp bounds (:func:`_jacobian_clamp`), all float64."""
+    Vt = (V[0, 0], V[0, 1], V[0, 2], V[1, 0], V[1, 1], V[1, 2], V[2, 0], V[2, 1], V[2, 2])
+    return Vt, (tvec[0], tvec[1], tvec[2]), (intr[0], intr[1], intr[2], intr[3]), _jacobian_clamp(intr, wf, hf)
+
+
 @njit(cache=True, inline="always")
 def _to_camera(px: float, py: float, pz: float, V: tuple, tv: tuple) -> tuple:
     """Camera coordinates (x, y, z) of a world point (float64; ``V`` row-major 9-tuple, ``tv`` 3-tuple)."""
@@ -395,11 +403,8 @@ def _project_kernel(
     """
     wf = float(width)
     hf = float(height)
-    lims = _jacobian_clamp(intr, wf, hf)
-    intr4 = (intr[0], intr[1], intr[2], intr[3])
+    Vt, tv, intr4, lims = _camera_tuples(V, tvec, intr, wf, hf)
     n_ch = colors.shape[1]
-    Vt = (V[0, 0], V[0, 1], V[0, 2], V[1, 0], V[1, 1], V[1, 2], V[2, 0], V[2, 1], V[2, 2])
-    tv = (tvec[0], tvec[1], tvec[2])
     n = means.shape[0]
     for item in prange((n + _PROJ_CHUNK - 1) // _PROJ_CHUNK):
         buf = np.empty(_NLF * _PL)
@@ -570,10 +575,7 @@ def _project_backward(
 ) -> None:
     """Gradients of the 3D parameters from those of the projection's outputs (zero for culled
     Gaussians); lane loops as in :func:`_project_kernel`."""
-    lims = _jacobian_clamp(intr, float(width), float(height))
-    intr4 = (intr[0], intr[1], intr[2], intr[3])
-    Vt = (V[0, 0], V[0, 1], V[0, 2], V[1, 0], V[1, 1], V[1, 2], V[2, 0], V[2, 1], V[2, 2])
-    tv = (tvec[0], tvec[1], tvec[2])
+    Vt, tv, intr4, lims = _camera_tuples(V, tvec, intr, float(width), float(height))
     n = means.shape[0]
     for item in prange((n + _PROJ_CHUNK - 1) // _PROJ_CHUNK):
         buf = np.empty(_NLB * _PL)
