@@ -289,7 +289,8 @@ def _ewa_jacobian(rx: float, ry: float, z: float, fx: float, fy: float, lim_xn: 
     return fx / z, -fx * ux / z, fy / z, -fy * uy / z, ux, uy
 
 
-#: Lanes of the projection's vector loops, and Gaussians per parallel work item.
+#: Lanes of the projection's vector loops, and Gaussians per parallel work item (of the projection
+#: passes and of the backward's reduction).
 _PL = 8
 _PROJ_CHUNK = 1024
 #: Slots (each ``_PL`` wide) of the projection's lane buffer. Inputs: mean, quaternion, scales,
