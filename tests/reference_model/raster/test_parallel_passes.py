@@ -159,7 +159,7 @@ def test_the_projection_lane_loop_equals_its_python_body_lane_by_lane() -> None:
     rng = np.random.default_rng(3)
     pl = k._PL
     buf = np.zeros(k._NLF * pl)
-    means = rng.uniform(-2, 2, (pl, 3)) + [0, 0, 6]
+    means = rng.uniform(-2, 2, (pl, 3)) + np.array([0.0, 0.0, 6.0])
     means[1, 2] = -1.0  # behind the camera
     quats = rng.standard_normal((pl, 4))
     quats[2] = 0.0  # the identity fallback
