@@ -76,7 +76,8 @@ __all__ = ["RenderJob"]
 F32 = np.float32
 TS = TILE_SIZE
 #: log2 of the tile size: the tile of pixel x is x >> _TS_SHIFT, which is floor(x / TS) for every
-#: integer x, without the sign fix-ups of a floor division (the counting sort's scatter measured 25 % faster).
+#: integer x, without the sign fix-ups of a floor division (`bench raster`'s binning phase: 7.8 -> 6.0-6.7
+#: ms at one thread with the other changes of docs/design.md §8's third pass).
 _TS_SHIFT = TS.bit_length() - 1
 assert 1 << _TS_SHIFT == TS
 # float32 constants: a bare Python float would promote every float32 expression to float64.
@@ -181,7 +182,8 @@ def _fexp(x: float) -> float:
 # 8 with branch-free float64 code over that buffer (LLVM vectorizes it: one buffer at constant
 # offsets needs no alias checks, and every branch is a select), and the results are copied out.
 # The arithmetic is the per-Gaussian code's, op for op, so the outputs are the same bit for bit;
-# measured 2.4x faster than the scalar loop (docs/design.md §8).
+# `bench raster`'s projection phases went from 8.2 (forward) and 14.1 ms (backward) at one thread to
+# 3.8-4.2 and 4.7-5.1 ms (docs/design.md §8).
 
 
 @njit(cache=True, inline="always")
@@ -1255,9 +1257,9 @@ def _vec8_ptr(context: Any, builder: Any, aryty: Any, ary_val: Any, off_val: Any
 def _acc8_typer(typingctx: Any, arr: Any, acc: Any, u: Any) -> Any:
     """``S[acc:acc + 8] += S[u:u + 8]`` as one 8-lane float64 vector add.
 
-    Written out in LLVM IR because LLVM cannot tell two ranges of one array apart at run-time
-    offsets and leaves the loop form scalar: the per-entry sums of the backward then took a third of
-    its time (docs/design.md §8). Lane by lane it is the scalar ``S[acc + l] += S[u + l]``.
+    Written out in LLVM IR because the same sums as eight scalar accumulators compiled to 107
+    scalar adds (LLVM cannot tell two ranges of one array apart at run-time offsets; docs/design.md
+    §8 has what it changes in a training step). Lane by lane it is the scalar ``S[acc + l] += S[u + l]``.
     """
     sig = types.void(arr, acc, u)
 
@@ -1409,8 +1411,10 @@ def _make_render_backward(nf: int, render_depth: bool) -> Any:
     return kernel
 
 
-#: How many Gaussians ahead the reduction prefetches rows: 16 measured 1.6x faster than 8 at
-#: 480x270 (random rows of a 17 MB buffer; a row of 9 + C float32 spans one to three cache lines).
+#: How many Gaussians ahead the reduction prefetches rows (random rows of a 17 MB buffer at 480x270;
+#: a row of 9 + C float32 spans one to three cache lines). With 8 ahead, the first line of a row
+#: only and static shares, `bench raster`'s reduction phase took 5.9 ms at two threads; with 16
+#: ahead, every line and items handed out one at a time, 3.8-4.3 ms.
 _REDUCE_PREFETCH = 16
 
 
