@@ -5,13 +5,14 @@ Pipeline (forward):
 1. ``_project_kernel`` (parallel over Gaussians, float64 arithmetic, 8 Gaussians per vector loop
    ``_project_lanes``): cull (non-finite, near/far, degenerate, transparent, off-screen), EWA
    projection (the 2D determinant from the minors of J V R diag(s), ``_cov2d``: needles keep it),
-   conic, per-axis pixel box.
+   conic, per-axis pixel box; what compositing reads of a Gaussian goes into one 64-byte record,
+   in index order.
 2. Binning: the visible set compacted in parallel (``_visible_keys``), one global depth sort (a
-   chunked parallel LSD radix sort of the float bits, ``_radix_sort``), the compositing data packed
-   into one 64-byte record per Gaussian in that order (``_gather_sorted``), then a stable counting
-   sort into 16x16 tiles (per-chunk histograms counted while packing, prefix sums ``_tile_offsets``,
-   scatter ``_tile_fill``): every tile list comes out front to back without a per-tile sort, and
-   every pass is parallel (docs/design.md §8).
+   chunked parallel LSD radix sort of the float bits, ``_radix_sort``), then a stable counting
+   sort into 16x16 tiles (per-chunk histograms counted from the boxes in depth order,
+   ``_tile_counts``, prefix sums ``_tile_offsets``, scatter ``_tile_fill``): every tile list comes
+   out front to back without a per-tile sort, and every pass is parallel (docs/design.md §8). The
+   lists hold Gaussian indices: compositing reads the records where the projection wrote them.
 3. ``_render_forward`` (parallel over tiles, heaviest first): Gaussian-major loop over the tile
    list, records prefetched ahead; each box row is evaluated as one 8- or 16-lane vector
    (``_fexp`` is a branch-free float32 exp so that LLVM vectorizes the row). Per-pair math in
@@ -150,7 +151,7 @@ _prefetch: Any = intrinsic(_prefetch_typer)
 
 
 #: How many tile-list entries ahead the render loops prefetch a Gaussian's record: a tile list
-#: jumps through the depth-sorted records, so each record is otherwise a cache miss.
+#: jumps through the records, so each record is otherwise a cache miss.
 _PREFETCH = 8
 
 
@@ -291,6 +292,16 @@ def _ewa_jacobian(rx: float, ry: float, z: float, fx: float, fy: float, lim_xn: 
     return fx / z, -fx * ux / z, fy / z, -fy * uy / z, ux, uy
 
 
+#: Columns of the per-Gaussian render record (16 float32, one 64-byte cache line): what compositing
+#: reads of a Gaussian. The projection writes it in index order; binning copies it into depth order.
+#: The 2D mean is stored as an integer anchor plus a float32 offset 0.5 - (m - anchor), so that
+#: dx = (px - anchor) + offset loses nothing to the size of pixel coordinates (a float32 mean near
+#: x = 1000 px is off by up to 3e-5 px, which moves the alpha of a 1-px Gaussian by ~1e-5). The
+#: box (x0, x1, y0, y1, exact integers) and the first three colors ride along.
+_AX, _AY, _HX, _HY, _CA, _CB, _CC, _OP, _Z, _BX, _COL = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 13
+_NPRM = 16
+
+
 #: Lanes of the projection's vector loops, and Gaussians per parallel work item (of the projection
 #: passes and of the backward's reduction).
 _PL = 8
@@ -389,20 +400,21 @@ def _project_kernel(
     height: int,
     near: float,
     far: float,
-    means2d: np.ndarray,  # out [N, 2] f64
     means2d_f32: np.ndarray,  # out [N, 2] f32 (the public output: no serial cast afterwards)
-    conic: np.ndarray,  # out [N, 3] f32
     depth: np.ndarray,  # out [N] f32
-    box: np.ndarray,  # out [N, 4] i32 x0, x1, y0, y1 inclusive
     radii: np.ndarray,  # out [N, 2] i32 ceil of the box half-extent (px)
     reason: np.ndarray,  # out [N] i8
+    rec: np.ndarray,  # out [N, 16] f32 render records (_AX ... _COL), written for visible Gaussians only
 ) -> None:
     """Cull and project every Gaussian (float64 arithmetic: per Gaussian it is cheap, and the 2D
     means, conics and boxes then carry no float32 rounding of large pixel coordinates).
 
     Culls, first reason first: non-finite input, depth outside (near, far), degenerate 2D
-    covariance, opacity under ALPHA_MIN, box off the image. Culled Gaussians get zero outputs,
-    the unit conic and an empty box.
+    covariance, opacity under ALPHA_MIN, box off the image. Culled Gaussians get zero outputs
+    and no record.
+
+    The records are written here, in index order, because binning then copies one cache line
+    per Gaussian into depth order instead of gathering six arrays through that order.
     """
     wf = float(width)
     hf = float(height)
@@ -433,30 +445,28 @@ def _project_kernel(
                 why = np.int8(buf[_LWHY * _PL + ln])
                 reason[i] = why
                 if why != 0:
-                    means2d[i, 0] = _ZERO
-                    means2d[i, 1] = _ZERO
                     means2d_f32[i, 0] = _ZERO
                     means2d_f32[i, 1] = _ZERO
-                    conic[i, 0] = _ONE
-                    conic[i, 1] = _ZERO
-                    conic[i, 2] = _ONE
                     depth[i] = _ZERO
                     radii[i, 0] = 0
                     radii[i, 1] = 0
-                    box[i, 0] = 0
-                    box[i, 1] = -1
-                    box[i, 2] = 0
-                    box[i, 3] = -1
                     continue
                 for k in range(2):
-                    means2d[i, k] = buf[(_LMX + k) * _PL + ln]
-                    means2d_f32[i, k] = F32(buf[(_LMX + k) * _PL + ln])
+                    m = buf[(_LMX + k) * _PL + ln]
+                    means2d_f32[i, k] = F32(m)
                     radii[i, k] = np.int32(buf[(_LEXT + k) * _PL + ln])
+                    anchor = np.floor(m)
+                    rec[i, _AX + k] = anchor
+                    rec[i, _HX + k] = 0.5 - (m - anchor)
                 for k in range(3):
-                    conic[i, k] = buf[(_LQA + k) * _PL + ln]
-                depth[i] = buf[_LZ * _PL + ln]
+                    rec[i, _CA + k] = buf[(_LQA + k) * _PL + ln]
+                    rec[i, _COL + k] = colors[i, min(k, n_ch - 1)]
+                rec[i, _OP] = opac[i]
+                z = F32(buf[_LZ * _PL + ln])
+                depth[i] = z
+                rec[i, _Z] = z
                 for k in range(4):
-                    box[i, k] = np.int32(buf[(_LBOX + k) * _PL + ln])
+                    rec[i, _BX + k] = np.int32(buf[(_LBOX + k) * _PL + ln])
 
 
 @njit(cache=True, inline="always")
@@ -607,14 +617,6 @@ def _project_backward(
 # Binning
 # ---------------------------------------------------------------------------------------------------
 
-#: Columns of the packed per-Gaussian render record (float32, depth-sorted order).
-#: The 2D mean is stored as an integer anchor plus a float32 offset 0.5 - (m - anchor), so that
-#: dx = (px - anchor) + offset loses nothing to the size of pixel coordinates (a float32 mean near
-#: x = 1000 px is off by up to 3e-5 px, which moves the alpha of a 1-px Gaussian by ~1e-5).
-#: One 64-byte record per Gaussian (16 float32): what compositing reads, in one cache line; the
-#: box (x0, x1, y0, y1, exact integers) and, for C <= 3, the colors ride along.
-_AX, _AY, _HX, _HY, _CA, _CB, _CC, _OP, _Z, _BX, _COL = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 13
-_NPRM = 16
 
 
 _RADIX_BITS = 11
@@ -713,20 +715,16 @@ def _visible_keys(reason: np.ndarray, depth: np.ndarray, n_chunks: int) -> tuple
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _gather_sorted(
+def _tile_counts(
     order: np.ndarray,  # [M] i64 Gaussian index per sorted position
-    means2d: np.ndarray, conic: np.ndarray, opac: np.ndarray, depth: np.ndarray, box: np.ndarray,
-    colors: np.ndarray,
-    prm: np.ndarray,  # out [M, 16] f32 records (see _AX ... _COL)
-    pbox: np.ndarray,  # out [M, 4] i32
-    pcol: np.ndarray,  # out [M, C] f32
+    rec: np.ndarray,  # [N, 16] f32 records of the projection, index order
     tiles_x: int,
+    pbox: np.ndarray,  # out [M, 4] i32 boxes in depth order
     counts: np.ndarray,  # out [n_chunks, n_tiles] i64 per-chunk tile histograms (zeros on entry)
     per_g: np.ndarray,  # out [M] i64 tiles of each sorted Gaussian
 ) -> None:
-    """Pack what compositing reads into depth order (a tile list then walks memory forward), and
-    count the tiles of each Gaussian and of each chunk of the order (the counting sort's first pass,
-    fused: one pass over the sorted Gaussians instead of two).
+    """Copy the boxes into depth order and count the tiles of each Gaussian and of each chunk of
+    the order (the counting sort's first pass).
 
     The chunks are contiguous runs of the order (``counts.shape[0]`` of them); the caller's
     arrays, not ones made here, since an array made here would be filled by a parallel loop of its
@@ -737,35 +735,13 @@ def _gather_sorted(
     step = (m + n_chunks - 1) // n_chunks
     for chunk in prange(n_chunks):
         for s in range(chunk * step, min(m, (chunk + 1) * step)):
-            if s + 4 * _PREFETCH < m:  # order jumps through the arrays: fetch ahead
-                ga = order[s + 4 * _PREFETCH]
-                _prefetch(means2d, ga)
-                _prefetch(conic, ga)
-                _prefetch(box, ga)
-                _prefetch(colors, ga)
-                _prefetch(opac, ga)
-                _prefetch(depth, ga)
+            if s + 4 * _PREFETCH < m:  # order jumps through the records: fetch ahead
+                _prefetch(rec, order[s + 4 * _PREFETCH])
             g = order[s]
-            ax = np.floor(means2d[g, 0])  # means2d is float64
-            ay = np.floor(means2d[g, 1])
-            prm[s, _AX] = ax
-            prm[s, _AY] = ay
-            prm[s, _HX] = 0.5 - (means2d[g, 0] - ax)
-            prm[s, _HY] = 0.5 - (means2d[g, 1] - ay)
-            prm[s, _CA] = conic[g, 0]
-            prm[s, _CB] = conic[g, 1]
-            prm[s, _CC] = conic[g, 2]
-            prm[s, _OP] = opac[g]
-            prm[s, _Z] = depth[g]
             for q in range(4):
-                pbox[s, q] = box[g, q]
-                prm[s, _BX + q] = box[g, q]
-            for q in range(3):
-                prm[s, _COL + q] = colors[g, min(q, colors.shape[1] - 1)]
-            for ch in range(colors.shape[1]):
-                pcol[s, ch] = colors[g, ch]
-            tx0, tx1 = box[g, 0] >> _TS_SHIFT, box[g, 1] >> _TS_SHIFT
-            ty0, ty1 = box[g, 2] >> _TS_SHIFT, box[g, 3] >> _TS_SHIFT
+                pbox[s, q] = np.int32(rec[g, _BX + q])
+            tx0, tx1 = pbox[s, 0] >> _TS_SHIFT, pbox[s, 1] >> _TS_SHIFT
+            ty0, ty1 = pbox[s, 2] >> _TS_SHIFT, pbox[s, 3] >> _TS_SHIFT
             per_g[s] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
@@ -802,7 +778,7 @@ def _tile_offsets(counts: np.ndarray) -> tuple:
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _tile_fill(
-    pbox: np.ndarray, tiles_x: int, cursor0: np.ndarray, chunk_base: np.ndarray, goff: np.ndarray,
+    order: np.ndarray, pbox: np.ndarray, tiles_x: int, cursor0: np.ndarray, chunk_base: np.ndarray, goff: np.ndarray,
     tile_ids: np.ndarray, entry_pos: np.ndarray,
 ) -> None:
     """Counting-sort scatter: each chunk writes its Gaussians (in depth order) at its own cursors.
@@ -825,7 +801,7 @@ def _tile_fill(
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
                     t = ty * tiles_x + tx
-                    tile_ids[cur[t]] = s
+                    tile_ids[cur[t]] = order[s]
                     entry_pos[e] = cur[t]
                     cur[t] += 1
                     e += 1
@@ -872,13 +848,13 @@ def _pixel_sigma(ix: int, hx: np.float32, dy: np.float32, ca: np.float32, cb: np
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _entry_box(prm: np.ndarray, s: int, ox: int, oy: int) -> tuple:
+def _entry_box(rec: np.ndarray, s: int, ox: int, oy: int) -> tuple:
     """Gaussian ``s``'s pixel box inside the tile at (ox, oy): first and last row, the mask of its
     columns, and the lanes evaluated (:func:`_window`)."""
-    gx0 = max(np.int64(prm[s, _BX]) - ox, 0)
-    gx1 = min(np.int64(prm[s, _BX + 1]) - ox, TS - 1)
-    gy0 = max(np.int64(prm[s, _BX + 2]) - oy, 0)
-    gy1 = min(np.int64(prm[s, _BX + 3]) - oy, TS - 1)
+    gx0 = max(np.int64(rec[s, _BX]) - ox, 0)
+    gx1 = min(np.int64(rec[s, _BX + 1]) - ox, TS - 1)
+    gy0 = max(np.int64(rec[s, _BX + 2]) - oy, 0)
+    gy1 = min(np.int64(rec[s, _BX + 3]) - oy, TS - 1)
     colmask = np.int32(((1 << (gx1 + 1)) - 1) ^ ((1 << gx0) - 1))
     j0, nl = _window(gx0, gx1)
     return gy0, gy1, colmask, j0, nl
@@ -890,7 +866,7 @@ _MAX_FUSED = 16
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _entry_colors(prm: np.ndarray, pcol: np.ndarray, s: int, nf: int) -> tuple:
+def _entry_colors(rec: np.ndarray, colors: np.ndarray, s: int, nf: int) -> tuple:
     """Gaussian ``s``'s ``nf`` colors as a tuple of float32 (``nf`` a literal; (0.0,) when 0).
 
     A tuple lives in registers: the lane loops read it without loads that LLVM would have to prove
@@ -899,8 +875,8 @@ def _entry_colors(prm: np.ndarray, pcol: np.ndarray, s: int, nf: int) -> tuple:
     if nf == 0:
         return (_ZERO,)
     if nf <= 3:
-        return to_fixed_tuple(prm[s, _COL:_COL + nf], nf)  # type: ignore[call-arg]
-    return to_fixed_tuple(pcol[s], nf)  # type: ignore[call-arg]
+        return to_fixed_tuple(rec[s, _COL:_COL + nf], nf)  # type: ignore[call-arg]
+    return to_fixed_tuple(colors[s], nf)  # type: ignore[call-arg]
 
 
 _COLOR_TERMS: dict[int, tuple[Any, Any]] = {}
@@ -994,8 +970,8 @@ _FT, _FW, _FD, _FB, _FC = 0, 1, 2, 3, 4
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _fwd_entry(
-    nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, prm: np.ndarray, s: int,
-    rowbits: np.ndarray, buf: np.ndarray, pcol: np.ndarray, nf: int, with_depth: bool,
+    nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, rec: np.ndarray, s: int,
+    rowbits: np.ndarray, buf: np.ndarray, colors: np.ndarray, nf: int, with_depth: bool,
 ) -> tuple:
     """Composite Gaussian ``s`` into rows gy0..gy1, lanes j0..j0+nl of a tile at (ox, oy).
 
@@ -1010,13 +986,13 @@ def _fwd_entry(
     constant offset; indices are unsigned, so numba drops its negative-index wraparound and
     addresses are affine in the lane counter.
     """
-    n_ch = pcol.shape[1]
+    n_ch = colors.shape[1]
     npx = TS * TS
-    ax, hx, hy = np.int64(prm[s, _AX]), prm[s, _HX], prm[s, _HY]
-    ay = np.int64(prm[s, _AY])
-    ca, cb, cc, o = prm[s, _CA], prm[s, _CB], prm[s, _CC], prm[s, _OP]
-    z64 = np.float64(prm[s, _Z])
-    cols = _entry_colors(prm, pcol, s, nf)
+    ax, hx, hy = np.int64(rec[s, _AX]), rec[s, _HX], rec[s, _HY]
+    ay = np.int64(rec[s, _AY])
+    ca, cb, cc, o = rec[s, _CA], rec[s, _CB], rec[s, _CC], rec[s, _OP]
+    z64 = np.float64(rec[s, _Z])
+    cols = _entry_colors(rec, colors, s, nf)
     n_done = 0
     pairs = 0
     for r in range(gy0, gy1 + 1):
@@ -1051,7 +1027,7 @@ def _fwd_entry(
             stopbits |= np.int32(stop) << np.int32(j)
         if not nf:
             for ch in range(n_ch):
-                col = np.float64(pcol[s, ch])
+                col = np.float64(colors[s, ch])
                 uc = np.uint64((_FC + ch) * npx + p0)
                 ub = np.uint64(_FB * npx + p0)
                 for jj in range(nl):
@@ -1075,10 +1051,10 @@ def _make_render_forward(nf: int, render_depth: bool) -> Any:
     @njit(parallel=True, cache=True, error_model="numpy")
     def kernel(
         tile_start: np.ndarray,  # [n_tiles + 1] i64
-        tile_ids: np.ndarray,  # [E] i32 sorted Gaussian position per entry
+        tile_ids: np.ndarray,  # [E] i32 Gaussian index per entry (depth order within a tile)
         tile_order: np.ndarray,  # [n_tiles] i64, heaviest first
-        prm: np.ndarray,  # [M, 16] f32 records, depth-sorted
-        pcol: np.ndarray,  # [M, C] f32
+        rec: np.ndarray,  # [N, 16] f32 records (index order)
+        colors: np.ndarray,  # [N, C] f32 (read for C > 3; the records hold up to three)
         width: int,
         height: int,
         tiles_x: int,
@@ -1089,7 +1065,7 @@ def _make_render_forward(nf: int, render_depth: bool) -> Any:
         tile_end: np.ndarray,  # out [n_tiles] i64: the entry where every pixel of the tile had stopped
         tile_pairs: np.ndarray,  # out [n_tiles] i64: pairs evaluated
     ) -> None:
-        n_ch = pcol.shape[1]
+        n_ch = colors.shape[1]
         npx = TS * TS
         for it in prange(tile_order.shape[0]):
             t = tile_order[it]
@@ -1114,15 +1090,16 @@ def _make_render_forward(nf: int, render_depth: bool) -> Any:
                     k_end = k
                     break
                 if k + _PREFETCH < end:
-                    _prefetch(prm, tile_ids[k + _PREFETCH])
+                    _prefetch(rec, tile_ids[k + _PREFETCH])
                     if nf == 0 or nf > 3:
-                        _prefetch(pcol, tile_ids[k + _PREFETCH])
+                        _prefetch(colors, tile_ids[k + _PREFETCH])
                 s = tile_ids[k]
-                gy0, gy1, colmask, j0, nl = _entry_box(prm, s, ox, oy)
+                gy0, gy1, colmask, j0, nl = _entry_box(rec, s, ox, oy)
                 if nl == TS:
-                    nd, pc = _fwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, nf, render_depth)
+                    nd, pc = _fwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, buf, colors, nf,
+                                        render_depth)
                 else:
-                    nd, pc = _fwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, buf, pcol, nf,
+                    nd, pc = _fwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, buf, colors, nf,
                                         render_depth)
                 n_done += nd
                 pairs += pc
@@ -1158,8 +1135,8 @@ _UGC = (_BG + _NQ) * TS * TS
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _bwd_entry(
-    nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, prm: np.ndarray, s: int,
-    rowbits: np.ndarray, S: np.ndarray, pcol: np.ndarray, nf: int, with_depth: bool,
+    nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, rec: np.ndarray, s: int,
+    rowbits: np.ndarray, S: np.ndarray, colors: np.ndarray, nf: int, with_depth: bool,
 ) -> int:
     """Replay Gaussian ``s`` over its rows of a tile and write its per-pixel gradient terms to ``S``.
 
@@ -1171,14 +1148,14 @@ def _bwd_entry(
     products with dL/dC (:func:`_entry_sums`). ``nf`` as in :func:`_fwd_entry`. Returns the bit mask
     of the rows visited.
     """
-    n_ch = pcol.shape[1]
+    n_ch = colors.shape[1]
     npx = TS * TS
-    ax, hx, hy = np.int64(prm[s, _AX]), prm[s, _HX], prm[s, _HY]
-    ay = np.int64(prm[s, _AY])
-    ca, cb, cc, o = prm[s, _CA], prm[s, _CB], prm[s, _CC], prm[s, _OP]
+    ax, hx, hy = np.int64(rec[s, _AX]), rec[s, _HX], rec[s, _HY]
+    ay = np.int64(rec[s, _AY])
+    ca, cb, cc, o = rec[s, _CA], rec[s, _CB], rec[s, _CC], rec[s, _OP]
     ca64, cb64, cc64 = np.float64(ca), np.float64(cb), np.float64(cc)
-    z64 = np.float64(prm[s, _Z])
-    cols = _entry_colors(prm, pcol, s, nf)
+    z64 = np.float64(rec[s, _Z])
+    cols = _entry_colors(rec, colors, s, nf)
     rows = 0
     for r in range(gy0, gy1 + 1):
         db = rowbits[r]
@@ -1194,7 +1171,7 @@ def _bwd_entry(
                 u = u0 + np.uint64(jj)
                 S[np.uint64(_BS1 * npx) + u] = S[np.uint64(_BA * npx) + u] + z64 * S[np.uint64(_BD * npx) + u]
             for ch in range(n_ch):
-                col = np.float64(pcol[s, ch])
+                col = np.float64(colors[s, ch])
                 for jj in range(nl):
                     u = u0 + np.uint64(jj)
                     S[np.uint64(_BS1 * npx) + u] += col * S[np.uint64(_UGC + ch * npx) + u]
@@ -1346,8 +1323,8 @@ def _make_render_backward(nf: int, render_depth: bool) -> Any:
         tile_ids: np.ndarray,  # [E]
         tile_order: np.ndarray,  # [n_tiles]
         tile_end: np.ndarray,  # [n_tiles] from the forward
-        prm: np.ndarray,  # [M, 16] f32 records
-        pcol: np.ndarray,  # [M, C]
+        rec: np.ndarray,  # [N, 16] f32 records (index order)
+        colors: np.ndarray,  # [N, C] f32
         width: int,
         height: int,
         tiles_x: int,
@@ -1358,7 +1335,7 @@ def _make_render_backward(nf: int, render_depth: bool) -> Any:
         entry_grads: np.ndarray,  # out [E, 9 + C] f32 per tile-list entry: mx, my, |mx|, |my|, conic a, b, c,
         #                          opacity, z, colors
     ) -> None:
-        n_ch = pcol.shape[1]
+        n_ch = colors.shape[1]
         npx = TS * TS
         nq = entry_grads.shape[1]
         for it in prange(tile_order.shape[0]):
@@ -1396,15 +1373,15 @@ def _make_render_backward(nf: int, render_depth: bool) -> Any:
                     S[_BF * npx + p] = tot
             for k in range(start, k_end):
                 if k + _PREFETCH < k_end:
-                    _prefetch(prm, tile_ids[k + _PREFETCH])
+                    _prefetch(rec, tile_ids[k + _PREFETCH])
                     if nf == 0 or nf > 3:
-                        _prefetch(pcol, tile_ids[k + _PREFETCH])
+                        _prefetch(colors, tile_ids[k + _PREFETCH])
                 s = tile_ids[k]
-                gy0, gy1, colmask, j0, nl = _entry_box(prm, s, ox, oy)
+                gy0, gy1, colmask, j0, nl = _entry_box(rec, s, ox, oy)
                 if nl == TS:
-                    rows = _bwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, nf, render_depth)
+                    rows = _bwd_entry(TS, 0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, S, colors, nf, render_depth)
                 else:
-                    rows = _bwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, prm, s, rowbits, S, pcol, nf,
+                    rows = _bwd_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, S, colors, nf,
                                       render_depth)
                 _entry_sums(S, rows, gy0, gy1, j0, nl, n_ch, entry_grads, k)
 
@@ -1480,13 +1457,13 @@ def _reduce_entries(
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _replay_pairs(
-    tile_start: np.ndarray, tile_ids: np.ndarray, prm: np.ndarray, pbox: np.ndarray, width: int, height: int,
-    tiles_x: int, write: bool, pix_off: np.ndarray, counts: np.ndarray, out_s: np.ndarray,
+    tile_start: np.ndarray, tile_ids: np.ndarray, rec: np.ndarray, width: int, height: int,
+    tiles_x: int, write: bool, pix_off: np.ndarray, counts: np.ndarray, out_g: np.ndarray,
 ) -> None:
     """Re-make the forward's decisions (scalar code, same ops) and list the pairs it composited.
 
-    ``write=False``: count pairs per pixel into ``counts``; ``write=True``: write the sorted
-    Gaussian position of each pair at ``pix_off[pixel] + i``, front to back.
+    ``write=False``: count pairs per pixel into ``counts``; ``write=True``: write the Gaussian
+    index of each pair at ``pix_off[pixel] + i``, front to back.
     """
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
@@ -1497,15 +1474,15 @@ def _replay_pairs(
         cur = np.zeros(TS * TS, np.int64)
         for k in range(tile_start[t], tile_start[t + 1]):
             s = tile_ids[k]
-            for r in range(max(pbox[s, 2] - oy, 0), min(pbox[s, 3] - oy, TS - 1) + 1):
-                dy = F32(oy + r - np.int64(prm[s, _AY])) + prm[s, _HY]
-                for j in range(max(pbox[s, 0] - ox, 0), min(pbox[s, 1] - ox, TS - 1) + 1):
+            for r in range(max(np.int64(rec[s, _BX + 2]) - oy, 0), min(np.int64(rec[s, _BX + 3]) - oy, TS - 1) + 1):
+                dy = F32(oy + r - np.int64(rec[s, _AY])) + rec[s, _HY]
+                for j in range(max(np.int64(rec[s, _BX]) - ox, 0), min(np.int64(rec[s, _BX + 1]) - ox, TS - 1) + 1):
                     p = r * TS + j
                     if done[p]:
                         continue
-                    dx = F32(ox + j - np.int64(prm[s, _AX])) + prm[s, _HX]
-                    sigma = _HALF * (prm[s, _CA] * dx * dx + prm[s, _CC] * dy * dy) + prm[s, _CB] * dx * dy
-                    alpha = min(_ALPHA_MAX, prm[s, _OP] * _fexp(-sigma))
+                    dx = F32(ox + j - np.int64(rec[s, _AX])) + rec[s, _HX]
+                    sigma = _HALF * (rec[s, _CA] * dx * dx + rec[s, _CC] * dy * dy) + rec[s, _CB] * dx * dy
+                    alpha = min(_ALPHA_MAX, rec[s, _OP] * _fexp(-sigma))
                     if sigma < _ZERO or alpha < _ALPHA_MIN:
                         continue
                     test = T[p] * (1.0 - np.float64(alpha))
@@ -1514,7 +1491,7 @@ def _replay_pairs(
                         continue
                     T[p] = test
                     if write:
-                        out_s[pix_off[(oy + r) * width + ox + j] + cur[p]] = s
+                        out_g[pix_off[(oy + r) * width + ox + j] + cur[p]] = s
                     cur[p] += 1
         if not write:
             for r in range(min(TS, height - oy)):
@@ -1636,7 +1613,7 @@ class RenderJob:
 
     Attributes
     ----------
-    means2d [N, 2] float64, means2d_f32 [N, 2] float32, radii [N, 2] int32, depths [N] float32 : ndarray
+    means2d_f32 [N, 2] float32, radii [N, 2] int32, depths [N] float32 : ndarray
         Per-Gaussian outputs of the projection (zeros for culled Gaussians); the job never writes
         them again, so :func:`rasterize` hands them to torch without a copy.
     meta : dict
@@ -1666,23 +1643,23 @@ class RenderJob:
         # Pooled internal arrays (acc_img, records, tile lists), returned when the job is collected.
         self._scratch: list[np.ndarray] = []
         weakref.finalize(self, _SCRATCH.give, self._scratch)
-        self.means2d = np.empty((n, 2))
         self.means2d_f32 = np.empty((n, 2), np.float32)
-        self.conic = np.empty((n, 3), np.float32)
         self.depths = np.empty(n, np.float32)
-        self.box = np.empty((n, 4), np.int32)
         self.radii = np.empty((n, 2), np.int32)
         self.reason = np.empty(n, np.int8)
+        self._rec = _SCRATCH.take((n, _NPRM), np.float32, self._scratch)
         t0 = time.perf_counter()
         if n:
             _project_kernel(self.means, self.quats, self.scales, self.opac, self.colors, self.V, self.tvec,
-                            self.intr, width, height, float(near), float(far), self.means2d, self.means2d_f32,
-                            self.conic, self.depths, self.box, self.radii, self.reason)
-        # The visible set and the cull counters in one chunked parallel pass (docs/design.md §8).
+                            self.intr, width, height, float(near), float(far), self.means2d_f32, self.depths,
+                            self.radii, self.reason, self._rec)
+        t1 = time.perf_counter()
+        # The visible set and the cull counters in one chunked parallel pass (docs/design.md §8); its
+        # time counts to the sort.
         self._vis, self._vis_bits, counts = _visible_keys(self.reason, self.depths, _n_chunks(n))
         self.meta: dict[str, Any] = empty_meta("numba", n)
         self.meta.update(counts_meta(counts.tolist()))
-        self.phase_ms: dict[str, float] = {"project": 1e3 * (time.perf_counter() - t0)}
+        self.phase_ms: dict[str, float] = {"project": 1e3 * (t1 - t0), "sort": 1e3 * (time.perf_counter() - t1)}
         self.meta["phase_ms"] = self.phase_ms
 
     def _bin(self) -> None:
@@ -1695,10 +1672,8 @@ class RenderJob:
         self.order = _radix_sort(self._vis_bits, self._vis, _n_chunks(m))  # overwrites both inputs
         del self._vis, self._vis_bits
         t1 = time.perf_counter()
-        self.phase_ms["sort"] = 1e3 * (t1 - t0)
-        self.prm = _SCRATCH.take((m, _NPRM), np.float32, self._scratch)
+        self.phase_ms["sort"] += 1e3 * (t1 - t0)
         self.pbox = np.empty((m, 4), np.int32)
-        self.pcol = np.empty((m, self.n_channels), np.float32)
         # Chunks of the counting sort: contiguous runs of the depth order, several per thread and
         # handed out one at a time, because near Gaussians cover more tiles than far ones and the
         # first runs cost the most (equal static shares measured 1.6-1.8x from 1 to 2 threads).
@@ -1707,15 +1682,15 @@ class RenderJob:
         self.per_g = np.empty(m, np.int64)
         if m:
             with numba.parallel_chunksize(1):
-                _gather_sorted(self.order, self.means2d, self.conic, self.opac, self.depths, self.box, self.colors,
-                               self.prm, self.pbox, self.pcol, self.tiles_x, counts, self.per_g)
+                _tile_counts(self.order, self._rec, self.tiles_x, self.pbox, counts, self.per_g)
         self.tile_start, cursor0, chunk_base = _tile_offsets(counts)
         self.goff = np.empty(m, np.int64)
         n_entries = int(self.tile_start[-1])
         self.entry_pos = _SCRATCH.take((n_entries,), np.int64, self._scratch)
         self.tile_ids = _SCRATCH.take((n_entries,), np.int32, self._scratch)
         with numba.parallel_chunksize(1):
-            _tile_fill(self.pbox, self.tiles_x, cursor0, chunk_base, self.goff, self.tile_ids, self.entry_pos)
+            _tile_fill(self.order, self.pbox, self.tiles_x, cursor0, chunk_base, self.goff, self.tile_ids,
+                       self.entry_pos)
         # Even tiles, then odd ones, handed out in chunks of a few: neighbouring tiles share Gaussians
         # (records stay in cache; heaviest-first order measured 1.6x slower), and sky and street rows
         # are spread over both threads.
@@ -1738,7 +1713,7 @@ class RenderJob:
         tile_pairs = np.zeros(n_tiles, np.int64)
         with numba.parallel_chunksize(_tile_chunk(n_tiles)):
             _kernel("forward", self.n_channels, self.render_depth)(
-                self.tile_start, self.tile_ids, self.tile_order, self.prm, self.pcol, w, h, self.tiles_x,
+                self.tile_start, self.tile_ids, self.tile_order, self._rec, self.colors, w, h, self.tiles_x,
                 self.acc_img, color, alpha, dnum, self.tile_end, tile_pairs)
         self.meta["n_pairs"] = int(tile_pairs.sum())
         self.phase_ms["fwd_blend"] = 1e3 * (time.perf_counter() - t0)
@@ -1756,7 +1731,7 @@ class RenderJob:
             g_dnum = np.zeros((1, 1), np.float32)
         with numba.parallel_chunksize(_tile_chunk(len(self.tile_order))):
             _kernel("backward", self.n_channels, self.render_depth)(
-                self.tile_start, self.tile_ids, self.tile_order, self.tile_end, self.prm, self.pcol, self.width,
+                self.tile_start, self.tile_ids, self.tile_order, self.tile_end, self._rec, self.colors, self.width,
                 self.height, self.tiles_x, self.acc_img, g_color, g_alpha, g_dnum, entry_grads)
         t1 = time.perf_counter()
         g_m2, g_abs = np.empty((n, 2), np.float32), np.empty((n, 2), np.float32)
@@ -1793,10 +1768,10 @@ class RenderJob:
         counts = np.zeros(hw, np.int64)
         off = np.zeros(hw, np.int64)
         dummy = np.zeros(0, np.int64)
-        args = (self.tile_start, self.tile_ids, self.prm, self.pbox, self.width, self.height, self.tiles_x)
+        args = (self.tile_start, self.tile_ids, self._rec, self.width, self.height, self.tiles_x)
         _replay_pairs(*args, False, off, counts, dummy)
         np.cumsum(counts[:-1], out=off[1:])
-        pos = np.empty(int(counts.sum()), np.int64)
-        _replay_pairs(*args, True, off, counts, pos)
+        gid = np.empty(int(counts.sum()), np.int64)
+        _replay_pairs(*args, True, off, counts, gid)
         pix = np.repeat(np.arange(hw, dtype=np.int64), counts)
-        return self.order[pos], pix
+        return gid, pix
