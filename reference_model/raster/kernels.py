@@ -781,7 +781,8 @@ def _tile_fill(
     order: np.ndarray, pbox: np.ndarray, tiles_x: int, cursor0: np.ndarray, chunk_base: np.ndarray, goff: np.ndarray,
     tile_ids: np.ndarray, entry_pos: np.ndarray,
 ) -> None:
-    """Counting-sort scatter: each chunk writes its Gaussians (in depth order) at its own cursors.
+    """Counting-sort scatter: each chunk writes the indices of its Gaussians (``order``'s, whose
+    boxes ``pbox`` [M, 4] follows, in depth order) at its own cursors.
 
     ``chunk_base[ch]`` is the number of entries of the chunks before ``ch``: each chunk runs its part
     of the exclusive prefix sum ``goff`` (first entry of each Gaussian, Gaussian-major) itself, and
