@@ -1423,7 +1423,8 @@ def _make_render_backward(nf: int, render_depth: bool) -> Any:
 #: How many Gaussians ahead the reduction prefetches rows (random rows of a 17 MB buffer at 480x270;
 #: a row of 9 + C float32 spans one to three cache lines). With 8 ahead, the first line of a row
 #: only and static shares, `bench raster`'s reduction phase took 5.9 ms at two threads; with 16
-#: ahead, every line and items handed out one at a time, 3.8-4.3 ms.
+#: ahead, every line and items handed out one at a time, 3.8-4.3 ms. The lines its sums go to
+#: (six arrays at the Gaussian's index: random writes) are fetched for writing as well.
 _REDUCE_PREFETCH = 16
 
 
@@ -1473,6 +1474,13 @@ def _reduce_entries(
                     for b in range(first, first + nq, 16):  # every cache line of the row
                         _prefetch(flat, b)
                     _prefetch(flat, first + nq - 1)
+                ga = order[ahead]  # and the lines its sums go to, for writing
+                _prefetch_write(g_m2, ga)
+                _prefetch_write(g_abs, ga)
+                _prefetch_write(g_con, ga)
+                _prefetch_write(g_op, ga)
+                _prefetch_write(g_z, ga)
+                _prefetch_write(g_col, ga)
             for q in range(nq):
                 acc[q] = _ZERO
             for e in range(goff[s], goff[s] + per_g[s]):
