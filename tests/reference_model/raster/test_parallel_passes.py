@@ -67,6 +67,50 @@ def test_tile_offsets_are_the_prefix_sums_of_the_chunk_histograms() -> None:
     np.testing.assert_array_equal(chunk_base, np.cumsum(counts.sum(1)) - counts.sum(1))
 
 
+@pytest.mark.parametrize("n_chunks", [1, 2, 3, 16])
+def test_the_tile_counting_sort_lists_gaussian_indices_front_to_back_whatever_the_chunk_count(n_chunks: int) -> None:
+    """``_tile_counts`` + ``_tile_offsets`` + ``_tile_fill`` (chunks handed out alternately from both
+    halves, each list's next line prefetched) against a plain Python counting sort: every tile's
+    list holds the Gaussian indices in depth order, and ``entry_pos`` each Gaussian's list slots."""
+    from wcbench.reference_model.raster import kernels as k
+
+    rng = np.random.default_rng(n_chunks)
+    n, tiles_x, tiles_y = 900, 7, 5
+    rec = np.zeros((n, k._NPRM), np.float32)
+    x0 = rng.integers(0, tiles_x * k.TS, n)
+    y0 = rng.integers(0, tiles_y * k.TS, n)
+    rec[:, k._BX] = x0
+    rec[:, k._BX + 1] = np.minimum(x0 + rng.integers(0, 40, n), tiles_x * k.TS - 1)
+    rec[:, k._BX + 2] = y0
+    rec[:, k._BX + 3] = np.minimum(y0 + rng.integers(0, 40, n), tiles_y * k.TS - 1)
+    order = rng.permutation(n)[: n - 50].astype(np.int64)  # a depth order of the visible ones
+    m = len(order)
+    counts = np.zeros((n_chunks, tiles_x * tiles_y), np.int64)
+    pbox = np.empty((m, 4), np.int32)
+    per_g = np.empty(m, np.int64)
+    k._tile_counts(order, rec, tiles_x, pbox, counts, per_g)
+    tile_start, cursor0, chunk_base = k._tile_offsets(counts)
+    e_total = int(tile_start[-1])
+    goff = np.empty(m, np.int64)
+    tile_ids = np.full(e_total, -1, np.int32)
+    entry_pos = np.full(e_total, -1, np.int64)
+    k._tile_fill(order, pbox, tiles_x, cursor0, chunk_base, goff, tile_ids, entry_pos)
+
+    lists: list[list[int]] = [[] for _ in range(tiles_x * tiles_y)]
+    slots: list[tuple[int, int]] = []  # (tile, place in its list) of each Gaussian-major entry
+    for g in order:
+        bx = rec[g, k._BX:k._BX + 4].astype(int) // k.TS
+        for ty in range(bx[2], bx[3] + 1):
+            for tx in range(bx[0], bx[1] + 1):
+                slots.append((ty * tiles_x + tx, len(lists[ty * tiles_x + tx])))
+                lists[ty * tiles_x + tx].append(int(g))
+    for t, ids in enumerate(lists):
+        assert tile_ids[tile_start[t]:tile_start[t + 1]].tolist() == ids
+    np.testing.assert_array_equal(entry_pos, [tile_start[t] + i for t, i in slots])
+    np.testing.assert_array_equal(per_g, np.diff(goff, append=e_total))
+    np.testing.assert_array_equal(pbox, rec[order, k._BX:k._BX + 4].astype(np.int32))
+
+
 def test_the_scratch_pool_reuses_big_arrays_and_never_hands_out_one_twice() -> None:
     from wcbench.reference_model.raster.kernels import _ScratchPool
 
