@@ -13,7 +13,7 @@ Pipeline (forward):
    ``_tile_counts``, prefix sums ``_tile_offsets``, scatter ``_tile_fill``): every tile list comes
    out front to back without a per-tile sort, and every pass is parallel (docs/design.md §8). The
    lists hold Gaussian indices: compositing reads the records where the projection wrote them.
-3. ``_render_forward`` (parallel over tiles, heaviest first): Gaussian-major loop over the tile
+3. ``_render_forward`` (parallel over tiles, even ones then odd ones): Gaussian-major loop over the tile
    list, records prefetched ahead; each box row is evaluated as one 8- or 16-lane vector
    (``_fexp`` is a branch-free float32 exp so that LLVM vectorizes the row). Per-pair math in
    float32, transmittance and sums in float64; a pixel stops before T < 1e-4, a row is skipped
@@ -306,7 +306,7 @@ def _ewa_jacobian(rx: float, ry: float, z: float, fx: float, fy: float, lim_xn: 
 
 
 #: Columns of the per-Gaussian render record (16 float32, one 64-byte cache line): what compositing
-#: reads of a Gaussian. The projection writes it in index order; binning copies it into depth order.
+#: reads of a Gaussian. The projection writes it in index order, and compositing reads it there.
 #: The 2D mean is stored as an integer anchor plus a float32 offset 0.5 - (m - anchor), so that
 #: dx = (px - anchor) + offset loses nothing to the size of pixel coordinates (a float32 mean near
 #: x = 1000 px is off by up to 3e-5 px, which moves the alpha of a 1-px Gaussian by ~1e-5). The
@@ -426,8 +426,10 @@ def _project_kernel(
     covariance, opacity under ALPHA_MIN, box off the image. Culled Gaussians get zero outputs
     and no record.
 
-    The records are written here, in index order, because binning then copies one cache line
-    per Gaussian into depth order instead of gathering six arrays through that order.
+    The records are written here, in index order, and stay there: binning reads only their boxes
+    through the depth order, and compositing reads them in place (a tile's Gaussians lie closer
+    together in index order than in depth order when the points are stored in spatial order, as
+    lidar voxels are; docs/design.md §8).
     """
     wf = float(width)
     hf = float(height)
@@ -629,8 +631,6 @@ def _project_backward(
 # ---------------------------------------------------------------------------------------------------
 # Binning
 # ---------------------------------------------------------------------------------------------------
-
-
 
 _RADIX_BITS = 11
 _RADIX = 1 << _RADIX_BITS
@@ -1084,7 +1084,7 @@ def _make_render_forward(nf: int, render_depth: bool) -> Any:
     def kernel(
         tile_start: np.ndarray,  # [n_tiles + 1] i64
         tile_ids: np.ndarray,  # [E] i32 Gaussian index per entry (depth order within a tile)
-        tile_order: np.ndarray,  # [n_tiles] i64, heaviest first
+        tile_order: np.ndarray,  # [n_tiles] i64, the order tiles are handed out in
         rec: np.ndarray,  # [N, 16] f32 records (index order)
         colors: np.ndarray,  # [N, C] f32 (read for C > 3; the records hold up to three)
         width: int,
