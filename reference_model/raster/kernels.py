@@ -1659,7 +1659,8 @@ class RenderJob:
     meta : dict
         Counters (see :class:`RenderOutput`); ``n_tile_entries`` and ``n_pairs`` are filled by
         :meth:`forward`; ``phase_ms`` (dict of str to float) the wall time of each phase so far:
-        ``project``, ``sort``, ``bin`` (at :meth:`forward`), ``fwd_blend``, then ``bwd_blend``,
+        ``project`` and the visible pass's part of ``sort`` (at construction), the rest of
+        ``sort`` and ``bin`` (at :meth:`forward`), ``fwd_blend``, then ``bwd_blend``,
         ``bwd_reduce`` and ``bwd_project`` (at :meth:`backward`). ``wcbench bench raster`` reads
         them; what a call spends outside them is the torch glue (docs/design.md §8).
     """
