@@ -709,7 +709,7 @@ def _visible_keys(reason: np.ndarray, depth: np.ndarray, n_chunks: int) -> tuple
     # Each chunk counts into its own 128-byte row (rows in one cache line made the two threads'
     # increments bounce that line between cores: 2 threads ran slower than 1), and the visible
     # count, nearly every Gaussian, in a register rather than through memory.
-    hist = np.zeros((n_chunks, 16), np.int64)
+    hist = np.zeros((n_chunks, max(16, n_reasons)), np.int64)
     for ch in prange(n_chunks):
         n_vis = 0
         for i in range(ch * step, min(n, (ch + 1) * step)):
@@ -1714,7 +1714,7 @@ class RenderJob:
         del self._vis, self._vis_bits
         t1 = time.perf_counter()
         self.phase_ms["sort"] += 1e3 * (t1 - t0)
-        self.pbox = np.empty((m, 4), np.int32)
+        pbox = np.empty((m, 4), np.int32)  # the boxes in depth order, for the scatter only
         # Chunks of the counting sort: contiguous runs of the depth order, several per thread and
         # handed out one at a time, because near Gaussians cover more tiles than far ones and the
         # first runs cost the most (equal static shares measured 1.6-1.8x from 1 to 2 threads).
@@ -1723,14 +1723,14 @@ class RenderJob:
         self.per_g = np.empty(m, np.int64)
         if m:
             with numba.parallel_chunksize(1):
-                _tile_counts(self.order, self._rec, self.tiles_x, self.pbox, counts, self.per_g)
+                _tile_counts(self.order, self._rec, self.tiles_x, pbox, counts, self.per_g)
         self.tile_start, cursor0, chunk_base = _tile_offsets(counts)
         self.goff = np.empty(m, np.int64)
         n_entries = int(self.tile_start[-1])
         self.entry_pos = _SCRATCH.take((n_entries,), np.int64, self._scratch)
         self.tile_ids = _SCRATCH.take((n_entries,), np.int32, self._scratch)
         with numba.parallel_chunksize(1):
-            _tile_fill(self.order, self.pbox, self.tiles_x, cursor0, chunk_base, self.goff, self.tile_ids,
+            _tile_fill(self.order, pbox, self.tiles_x, cursor0, chunk_base, self.goff, self.tile_ids,
                        self.entry_pos)
         # Even tiles, then odd ones, handed out in chunks of a few: neighbouring tiles share Gaussians
         # (records stay in cache; heaviest-first order measured 1.6x slower), and sky and street rows
