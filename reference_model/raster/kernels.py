@@ -193,8 +193,8 @@ def _fexp(x: float) -> float:
 
     The same code runs in the forward, the backward and the pair replay, so all three make
     bit-identical skip decisions. The reduction and the polynomial are fused multiply-adds: half
-    the operations on the row's critical path: case b's forward blend went from 19.6-20.1 to
-    17.5-18.0 ms at one thread (a scratch timing; docs/design.md §8); the largest error against the
+    the operations on the row's critical path: case b's forward blend went from 19.8-20.1 to
+    17.8-18.0 ms at one thread (a scratch timing; docs/design.md §8); the largest error against the
     float64 exp stays ~1 ulp (1.01 against 0.98 with separate products and sums).
     """
     x = min(max(x, _EXP_LO), _EXP_HI)
