@@ -173,6 +173,7 @@ def _fma_typer(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
 
     numba does not contract a multiply and an add by itself, and leaving that to LLVM could round
     the forward and the backward differently; an explicit call rounds the same way everywhere.
+    On a CPU without FMA instructions LLVM calls libm's ``fmaf`` instead: the same results, slower.
     """
     if not (a == b == c == types.float32):
         return None
