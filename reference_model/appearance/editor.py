@@ -35,9 +35,9 @@ from wcbench.reference_model.appearance.maps import SurfaceMaps, mirror_render, 
 from wcbench.reference_model.appearance.shading import (
     LightModel,
     apply_haze,
+    clear_irradiance,
     fresnel_schlick,
     linear_to_srgb,
-    overcast_gain,
     overcast_irradiance,
     smoothstep,
     snow_cover,
@@ -45,9 +45,10 @@ from wcbench.reference_model.appearance.shading import (
     wet_albedo,
 )
 from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surfaces
+from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis, analyse_scene
 from wcbench.reference_model.weather.conditions import Weather, load_presets
 
-__all__ = ["AppearanceParams", "WeatherEditor"]
+__all__ = ["AppearanceParams", "WeatherEditor", "decontaminate", "masked_ego"]
 
 
 @dataclass(frozen=True)
@@ -118,6 +119,9 @@ class WeatherEditor:
     voxel_m : float
         Voxel of the lidar surfaces (m). 0.1 m: at 0.2 m the PCA normals of a near car's sparse
         side blend with its roof's and the side took snow (docs/design.md §7).
+    analysis : SceneAnalysis, optional
+        The scene's analysis (moving returns, sky, ego vehicle); default
+        :func:`~wcbench.reference_model.scene_analysis.analysis.analyse_scene` of ``scene``.
 
     Raises
     ------
@@ -125,11 +129,13 @@ class WeatherEditor:
         The scene has no lidar point in any frame.
     """
 
-    def __init__(self, scene: Any, *, params: AppearanceParams | None = None, voxel_m: float = 0.1):
+    def __init__(self, scene: Any, *, params: AppearanceParams | None = None, voxel_m: float = 0.1,
+                 analysis: SceneAnalysis | None = None):
         start = time.perf_counter()
         self.scene = scene
         self.params = params or AppearanceParams.load()
-        self.surfaces: SurfaceScene = build_surfaces(scene, voxel_m=voxel_m)
+        self.analysis = analysis if analysis is not None else analyse_scene(scene)
+        self.surfaces: SurfaceScene = build_surfaces(scene, voxel_m=voxel_m, analysis=self.analysis)
         self._maps_memo: tuple[tuple[Any, ...], SurfaceMaps] | None = None
         # the puddle threshold per rain rate: a quantile of the field over the open ground
         ground = (self.surfaces.static_attributes[:, 3] > 0.5) & (self.surfaces.static_attributes[:, 4] > 0.5)
@@ -137,28 +143,38 @@ class WeatherEditor:
         self._puddle_values = np.sort(field) if field.size else np.array([0.5], np.float32)
         self.setup_seconds = time.perf_counter() - start
 
-    def _sky(self, index: int, camera: Any) -> np.ndarray | None:
-        """The scene's sky mask of frame ``index`` at ``camera``'s size, or ``None`` when it ships none
-        (the maps then take it from the render of the lidar surfaces)."""
-        path = self.scene.frames[index].sky_mask_path
-        if path is None:
-            return None
-        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if mask is None:
-            raise InputError(f"{path}: not a readable image (a sky mask, 8-bit grayscale, was expected)")
+    def _sky(self, index: int, camera: Any, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(sky mask, soft matte) of frame ``index`` at ``camera``'s size: the scene's mask where it
+        ships one (a hard edge), else the scene analysis's segmentation with its matte."""
         w, h = int(camera.width), int(camera.height)
-        return cv2.resize(mask, (w, h), interpolation=cv2.INTER_NEAREST) > 127
+        path = self.scene.frames[index].sky_mask_path
+        if path is not None:
+            mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            if mask is None:
+                raise InputError(f"{path}: not a readable image (a sky mask, 8-bit grayscale, was expected)")
+            sky = cv2.resize(mask, (w, h), interpolation=cv2.INTER_NEAREST) > 127
+            return sky, sky.astype(np.float32)
+        sky = self.analysis.sky_mask(index, (w, h))
+        return sky, self.analysis.sky_matte(index, image)
 
-    def maps(self, index: int, camera: Any, image: np.ndarray | None = None) -> SurfaceMaps:
+    def maps(self, index: int, camera: Any, image: np.ndarray) -> SurfaceMaps:
         """The completed surface maps of frame ``index`` at ``camera``'s size (the last view's are
-        kept: every weather of a frame shares them); ``image``, the frame at that size, refines a
-        sky the scene does not ship (:func:`~.maps.coverage_sky`)."""
+        kept: every weather of a frame shares them); ``image`` is the frame at that size (display
+        RGB), the guide of the sky's matte."""
         key = (index, np.asarray(camera.K, np.float64).tobytes(), int(camera.width), int(camera.height),
                np.asarray(camera.camera_to_world, np.float64).tobytes())
         if self._maps_memo is None or self._maps_memo[0] != key:
-            self._maps_memo = (key, surface_maps(self.surfaces, index, camera, self._sky(index, camera),
-                                                 image=image))
+            sky, matte = self._sky(index, camera, image)
+            self._maps_memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte))
         return self._maps_memo[1]
+
+    def overcast_sky(self, rays: np.ndarray) -> np.ndarray:
+        """[H, W, 3] display RGB of the overcast sky where a weather has no haze: the CIE standard
+        overcast sky's luminance, (1 + 2 sin e) of the horizon's in linear light at elevation e
+        (Moon & Spencer 1942), from the ``[appearance.sky]`` horizon colour, clipped."""
+        e = np.clip(rays @ self.surfaces.up.astype(np.float32), 0.0, 1.0)[..., None]
+        horizon = srgb_to_linear(self.params.sky_color)
+        return linear_to_srgb(horizon * (1.0 + 2.0 * e))
 
     def edit(self, raw: np.ndarray, index: int, camera: Any, weather: Weather) -> tuple[np.ndarray, dict[str, Any]]:
         """Raw frame ``index`` under ``weather``.
@@ -192,10 +208,13 @@ class WeatherEditor:
         radius = max(1, round(2 * h / 270))
         up = self.surfaces.up
         n_up = m.normal @ up.astype(np.float32)
-        lin = srgb_to_linear(raw)
         exposure = float(table["exposure"])
-        base = lin * overcast_gain(n_up, model=p.light, exposure=exposure)[..., None]
-        solid = ~m.sky
+        # where the sky shows through partly (an edge, a wire, a branch), the surface's own colour
+        lin = srgb_to_linear(decontaminate(raw, m.sky_alpha))
+        # the raw pixel stands for the albedo under the clear sky's light on its normal; weather changes
+        # the albedo (a water film, snow), then the overcast sky lights it at the weather's exposure
+        albedo = lin / clear_irradiance(n_up, model=p.light)[..., None]
+        light = exposure * overcast_irradiance(n_up, model=p.light)[..., None]
         beta, haze_color, offset = weather.haze()
         sky_seen = haze_color if beta > 0 else p.sky_color
         info: dict[str, Any] = {}
@@ -209,8 +228,8 @@ class WeatherEditor:
             vertical_wet = float(table["wetness_vertical"])
             wet = (vertical_wet + (float(table["wetness_horizontal"]) - vertical_wet) * smoothstep(n_up, 0.3, 0.9))
             wet = wet * openness * (1.0 - (1.0 - float(table["track_wetness"])) * m.track)
-            wet = np.maximum(wet, puddle) * solid
-            base = wet_albedo(base, wet)
+            wet = np.maximum(wet, puddle) * ~m.sky
+            base = wet_albedo(albedo, wet) * light
             # the reflection in the wet ground: the scene mirrored about the ground plane, under the
             # overcast light, seen through the haze of the reflected path beyond the ground point
             # (the pixel's own haze, camera to ground, is added with everything else below)
@@ -238,25 +257,78 @@ class WeatherEditor:
             openness = refine(m.open, raw, radius=radius)
             cover = snow_cover(n_up, openness, amount=amount, facing_from=float(table["facing_from"]),
                                facing_full=float(table["facing_full"]))
-            cover = cover * (1.0 - (1.0 - float(table["track_cover"])) * m.track) * solid
+            cover = cover * (1.0 - (1.0 - float(table["track_cover"])) * m.track) * ~m.sky
             cover = refine(cover, raw, radius=radius)
-            base = wet_albedo(base, float(table["damp"]) * openness)
+            bare = wet_albedo(albedo, float(table["damp"]) * openness)
             # snow is lit by the overcast sky: its albedo at the overcast exposure and irradiance
-            snow_lin = float(table["snow_albedo"]) * exposure * overcast_irradiance(n_up, model=p.light)
-            base = base * (1.0 - cover[..., None]) + snow_lin[..., None] * cover[..., None]
+            base = (bare * (1.0 - cover[..., None]) + float(table["snow_albedo"]) * cover[..., None]) * light
             base = base * np.asarray(table["white_balance"], np.float32)
             info.update(rate_mm_h=rate, snow_amount=round(amount, 4),
                         snow_fraction_of_frame=round(float((cover > 0.5).mean()), 4))
         else:
-            base = wet_albedo(base, float(table["damp"]) * solid)
-        out = linear_to_srgb(base)
-        if beta <= 0:  # no haze: an overcast sky, brighter toward the zenith (CIE overcast)
-            elevation = np.clip(m.rays @ up.astype(np.float32), 0.0, 1.0)
-            sky = p.sky_color * (0.8 + 0.2 * (1.0 + 2.0 * elevation) / 3.0)[..., None]
-            out = np.where(m.sky[..., None], sky, out)
-        out = apply_haze(out, m.distance, beta=beta, color=haze_color, offset_m=offset)
+            base = wet_albedo(albedo, float(table["damp"]) * ~m.sky) * light
+        surface = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
+        # the sky: at infinity, the haze's airlight; without haze, the overcast sky
+        sky = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else self.overcast_sky(m.rays)
+        a = m.sky_alpha[..., None]
+        out = a * sky + (1.0 - a) * surface
+        ego = self.analysis.ego_mask((raw.shape[1], raw.shape[0]))
+        if ego.any():
+            out[ego] = masked_ego(raw[ego], kind, p)
         t_end = time.perf_counter()
         info["timings_ms"] = {"maps": round(1e3 * (t_maps - t0), 2), "shade": round(1e3 * (t_end - t_maps), 2)}
         info["haze"] = {"beta_per_m": beta, "color": np.asarray(haze_color).tolist(), "offset_m": offset}
         return np.clip(out, 0.0, 1.0).astype(np.float32), info
 
+
+def masked_ego(raw: np.ndarray, kind: str, params: AppearanceParams) -> np.ndarray:
+    """The ego vehicle's own body under ``kind``: masked, not weathered (no water, snow or haze on
+    it, nor a lighting by normals it has none of): the raw pixels at the weather's overcast exposure
+    in linear light; ``clear`` keeps them.
+
+    Parameters
+    ----------
+    raw : ndarray [..., 3]
+        Display RGB in [0, 1].
+    kind : str
+    params : AppearanceParams
+
+    Returns
+    -------
+    ndarray [..., 3] float32
+    """
+    if kind == "clear":
+        return np.asarray(raw, np.float32)
+    return linear_to_srgb(srgb_to_linear(raw) * float(getattr(params, kind)["exposure"]))
+
+
+def decontaminate(image: np.ndarray, alpha: np.ndarray, *, sigma_px: float | None = None) -> np.ndarray:
+    """The foreground colour of pixels the sky shows through partly: F = (I - a B) / (1 - a) per
+    pixel (the compositing equation of matting, Porter & Duff 1984; Chuang et al. 2001), with B the
+    clear sky's colour there (a normalised convolution of the pixels with a >= 0.99, Gaussian of
+    ``sigma_px``, default 6 px at 270 rows) and a clipped at 0.9 (so noise is amplified at most 10x).
+
+    Parameters
+    ----------
+    image : ndarray [H, W, 3] float32
+        Display RGB in [0, 1].
+    alpha : ndarray [H, W] float32
+        Soft sky matte.
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+        ``image`` where a = 0, the estimate elsewhere (clipped to [0, 1]).
+    """
+    img = np.asarray(image, np.float32)
+    a = np.clip(np.asarray(alpha, np.float32), 0.0, 0.9)
+    mixed = (a > 0.0) & (a < 0.9)
+    if not mixed.any():
+        return img
+    sigma = sigma_px if sigma_px is not None else 6.0 * img.shape[0] / 270.0
+    inside = (np.asarray(alpha) >= 0.99).astype(np.float32)
+    num = cv2.GaussianBlur(img * inside[..., None], (0, 0), sigma)
+    den = cv2.GaussianBlur(inside, (0, 0), sigma)[..., None]
+    behind = np.where(den > 1e-3, num / np.maximum(den, 1e-3), img)
+    fg = np.clip((img - a[..., None] * behind) / (1.0 - a[..., None]), 0.0, 1.0)
+    return np.where(mixed[..., None], fg, img).astype(np.float32)

@@ -4,11 +4,13 @@
 channels (normal, ground, open, puddle, track) and depth, then completes what the lidar does not
 reach (docs/design.md §7):
 
-* the **sky**: the scene's sky mask when it ships one, else the lidar-derived one
-  (:func:`~wcbench.reference_model.training.views.derive_sky_mask`); infinitely far;
+* the **sky**: given (the scene's mask when it ships one, else the scene analysis's segmentation,
+  :mod:`wcbench.reference_model.scene_analysis.sky`), with its soft matte; infinitely far;
 * the rest by :func:`~wcbench.reference_model.scene_graph.completion.complete_distance`: below the
-  horizon the **ground plane** under the camera, its attributes evaluated at the ray's intersection
-  (so they stay anchored in the world); above it a **vertical wall** rising from the surface below.
+  horizon the **fitted ground** (the 2 m cells' heights, continued by their plane), its
+  attributes evaluated at the ray's intersection (so they stay anchored in the world); above it a
+  **vertical wall** rising from the surface below, facing the camera horizontally: structure above
+  the lidar's reach keeps its appearance, nothing settles on it.
 
 :func:`mirror_render` renders the non-ground surfaces mirrored about that ground plane: what a wet
 road reflects at each pixel.
@@ -30,10 +32,12 @@ from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 
-__all__ = ["SurfaceMaps", "coverage_sky", "mirror_render", "refine", "surface_maps"]
+__all__ = ["SurfaceMaps", "mirror_render", "refine", "surface_maps"]
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
+#: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
+_BOX_SLACK_M = 0.3
 
 
 @dataclass
@@ -49,6 +53,8 @@ class SurfaceMaps:
     ground, open, puddle, track : ndarray float32
         The surface attributes (:data:`~.surfaces.ATTRIBUTES`), in [0, 1].
     sky : ndarray bool
+    sky_alpha : ndarray float32
+        Soft sky matte in [0, 1] (1 inside the sky, fractional along its edges).
     covered : ndarray bool
         Where the lidar surfaces were drawn (elsewhere the maps are completed).
     rays : ndarray [H, W, 3] float32
@@ -64,6 +70,7 @@ class SurfaceMaps:
     puddle: np.ndarray
     track: np.ndarray
     sky: np.ndarray
+    sky_alpha: np.ndarray
     covered: np.ndarray
     rays: np.ndarray
     ground_height: float
@@ -88,53 +95,87 @@ def _rasterize(cloud: GaussianCloud, channels: np.ndarray, camera: Any) -> tuple
     return out.color.numpy() / np.maximum(alpha, 1e-6)[..., None], alpha, out.depth.numpy()
 
 
-def coverage_sky(alpha: np.ndarray, ray_up: np.ndarray, *, image: np.ndarray | None = None,
-                 dilate_px: int = 2) -> np.ndarray:
-    """Sky pixels of a view without a sky mask, from the render of its lidar surfaces: above the
-    horizon, no surface drawn within ``dilate_px`` pixels, connected to the top of the image (holes
-    between facades are not sky). [H, W] bool.
+def _box_shells(boxes: list[tuple[np.ndarray, np.ndarray]], cloud: GaussianCloud, camera: Any, rays: np.ndarray,
+                center: np.ndarray, distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray],
+                sky: np.ndarray) -> np.ndarray:
+    """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
+    behind the object's box (the lidar sampled the object sparsely and what lies behind or under it
+    shows through), the box's face stands for the object: its distance and face normal, open to
+    the sky, not ground (``distance``, ``normal`` and ``fields`` are updated in place). A car's roof
+    takes snow, its doors do not, and the road under it stays hidden. Returns the pixels changed.
 
-    The same rule as :func:`~wcbench.reference_model.training.views.derive_sky_mask`, which projects
-    every raw lidar point instead; the rendered voxels make it one mask per view at no extra cost.
-    Far voxels render wider than what they hit, so the rule stops short of the skyline; with the
-    frame (``image``, display RGB [H, W, 3]) the sky grows into the pixels next to it that no
-    surface covers (accumulated opacity under 0.5) and that have the sky's colour (each channel
-    within 3 median absolute deviations of its median over the sky found, at least 0.06).
+    The silhouette is the convex hull of the projections of the surface Gaussians inside the box
+    (grown by 0.1 m), so the air around a car inside its box keeps what lies behind it; the ray's
+    entry into the box is found by the slab method in the box frame.
     """
-    solid = (alpha > 0.05).astype(np.uint8)
-    if dilate_px > 0:
-        solid = cv2.dilate(solid, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
-    candidate = (solid == 0) & (ray_up > 0.0)
-    n, labels = cv2.connectedComponents(candidate.astype(np.uint8), connectivity=4)
-    top = np.unique(labels[0][candidate[0]])
-    sky = np.isin(labels, top[top > 0]) if n > 1 else candidate
-    if image is None or not sky.any():
-        return sky
-    colors = np.asarray(image, np.float32)[sky]
-    median = np.median(colors, axis=0)
-    spread = np.maximum(3.0 * np.median(np.abs(colors - median), axis=0), 0.06)
-    alike = np.all(np.abs(np.asarray(image, np.float32) - median) <= spread, axis=-1)
-    grow = sky | ((alpha < _COVERED) & (ray_up > 0.0) & alike)
-    n, labels = cv2.connectedComponents(grow.astype(np.uint8), connectivity=4)
-    seeds = np.unique(labels[sky])
-    return np.isin(labels, seeds[seeds > 0])
+    changed = np.zeros(distance.shape, bool)
+    if not boxes or len(cloud) == 0:
+        return changed
+    h, w = distance.shape
+    means = np.asarray(cloud.means, np.float64)
+    w2c = np.asarray(camera.world_to_camera, np.float64)
+    K = np.asarray(camera.K, np.float64)
+    for T, size in boxes:
+        R, t = T[:3, :3], T[:3, 3]
+        half = np.asarray(size, np.float64) / 2.0
+        o = R.T @ (center - t)
+        if np.all(np.abs(o) <= half):
+            continue  # the camera inside a box (the ego vehicle's own track): no shell
+        local = (means - t) @ R
+        inside = np.all(np.abs(local) <= half + 0.1, axis=1)
+        if inside.sum() < 3:
+            continue
+        cam = means[inside] @ w2c[:3, :3].T + w2c[:3, 3]
+        cam = cam[cam[:, 2] > 0.1]
+        if len(cam) < 3:
+            continue
+        uv = np.stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], 1)
+        if uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
+            continue
+        hull = cv2.convexHull(np.clip(np.round(uv - 0.5), -4 * w, 4 * w).astype(np.int32))
+        silhouette = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(silhouette, hull, 1)
+        rr, cc = np.nonzero(silhouette.astype(bool) & ~sky)
+        if rr.size == 0:
+            continue
+        d = rays[rr, cc] @ R  # ray directions in the box frame
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (-half - o) / d, (half - o) / d
+        near = np.nanmax(np.minimum(t1, t2), axis=1)
+        far = np.nanmin(np.maximum(t1, t2), axis=1)
+        hit = (far >= near) & (near > 0.0) & (near + _BOX_SLACK_M < distance[rr, cc])
+        if not hit.any():
+            continue
+        rr, cc, near, d = rr[hit], cc[hit], near[hit], d[hit]
+        entry = o + d * near[:, None]
+        axis = np.argmax(np.abs(entry) / half, axis=1)  # the face the ray enters through
+        face = np.zeros((rr.size, 3))
+        face[np.arange(rr.size), axis] = np.sign(entry[np.arange(rr.size), axis])
+        normal[rr, cc] = face @ R.T
+        distance[rr, cc] = near
+        fields["ground"][rr, cc] = 0.0
+        fields["open"][rr, cc] = 1.0
+        fields["puddle"][rr, cc] = 0.0
+        fields["track"][rr, cc] = 0.0
+        changed[rr, cc] = True
+    return changed
 
 
-def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray | None, *,
-                 image: np.ndarray | None = None) -> SurfaceMaps:
+def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,
+                 sky_alpha: np.ndarray | None = None) -> SurfaceMaps:
     """The completed surface maps of frame ``index`` seen by ``camera`` (see the module docstring).
 
     Parameters
     ----------
     surfaces : SurfaceScene
     index : int
-        Frame (places the moving nodes).
+        Frame (places the moving nodes and the frame's own dynamic returns).
     camera : wcbench.scenes.scene.Camera
         The view, at the size the maps are wanted.
-    sky : ndarray [H, W] bool, optional
-        The view's sky pixels (the scene's mask); ``None``: :func:`coverage_sky` of the render.
-    image : ndarray [H, W, 3], optional
-        The frame at that size (display RGB): :func:`coverage_sky` grows the sky by its colour.
+    sky : ndarray [H, W] bool
+        The view's sky pixels.
+    sky_alpha : ndarray [H, W] float, optional
+        Its soft matte; default the mask itself.
 
     Returns
     -------
@@ -145,19 +186,21 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     rays, z_per_m = _rays(camera)
     up = surfaces.up
     center = np.asarray(camera.center, np.float64)
-    if sky is None:
-        sky = coverage_sky(alpha, rays @ up, image=image)
+    sky = np.asarray(sky, bool)
     covered = (alpha > _COVERED) & ~sky
     distance = np.where(covered, depth / np.maximum(z_per_m, 1e-9), np.inf)
     normal = values[..., :3]
     normal = normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-6)
     fields = {name: np.clip(values[..., 3 + i], 0.0, 1.0)
               for i, name in enumerate(("ground", "open", "puddle", "track"))}
+    boxed = _box_shells(surfaces.boxes_at(index), cloud, camera, rays, center, distance, normal, fields, sky)
+    covered |= boxed
     ground_h = float(surfaces.ground_height(center[None])[0])
-    distance, kind, source = complete_distance(distance, covered, sky, rays, center, up, ground_h,
-                                               forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2])
+    distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
+                                               forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2],
+                                               ground_at=surfaces.ground_height)
     fill_ground = kind == FILL_GROUND
-    if np.any(fill_ground):  # attributes evaluated where the ray meets the plane: anchored in the world
+    if np.any(fill_ground):  # attributes evaluated where the ray meets the ground: anchored in the world
         hit = center + rays[fill_ground] * np.where(np.isfinite(distance[fill_ground]), distance[fill_ground],
                                                      1e4)[:, None]
         normal[fill_ground] = up
@@ -166,18 +209,24 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         fields["puddle"][fill_ground] = surfaces.puddle_field(hit)
         fields["track"][fill_ground] = surfaces.track_field(hit)
     wall = kind == FILL_WALL
-    if np.any(wall):  # the wall's normal is that of the surface it rises from
+    if np.any(wall):  # a vertical wall facing the camera across the surface it rises from
         rr, cc = np.nonzero(wall)
-        normal[rr, cc] = normal[source[rr, cc], cc]
+        flat = rays[rr, cc] - np.outer(rays[rr, cc] @ up, up)
+        flat /= np.maximum(np.linalg.norm(flat, axis=1, keepdims=True), 1e-9)
+        normal[rr, cc] = -flat
         for name in fields:
             fields[name][rr, cc] = 0.0
-    sky = sky | (kind == FILL_SKY)
+    matte = sky.astype(np.float32) if sky_alpha is None else np.asarray(sky_alpha, np.float32).copy()
+    unreached = (kind == FILL_SKY) & ~sky  # nothing below to rise from: infinitely far, seen as sky
+    matte[unreached] = 1.0
+    sky = sky | unreached
     normal[sky] = -rays[sky]
     for name in fields:
         fields[name][sky] = 0.0
     return SurfaceMaps(normal=normal.astype(np.float32), distance=distance.astype(np.float32),
                        ground=fields["ground"], open=fields["open"], puddle=fields["puddle"], track=fields["track"],
-                       sky=sky, covered=covered, rays=rays.astype(np.float32), ground_height=ground_h)
+                       sky=sky, sky_alpha=np.asarray(matte, np.float32), covered=covered, rays=rays.astype(np.float32),
+                       ground_height=ground_h)
 
 
 def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float, exposure: float,

@@ -29,6 +29,7 @@ import numpy as np
 __all__ = [
     "LightModel",
     "apply_haze",
+    "clear_irradiance",
     "fresnel_schlick",
     "linear_to_srgb",
     "overcast_gain",
@@ -147,6 +148,15 @@ def overcast_gain(normal_up: np.ndarray, *, model: LightModel, exposure: float) 
     sky_ratio = np.divide(overcast, clear, out=np.ones_like(clear), where=clear > 1e-9)
     ratio = np.interp(np.clip(np.asarray(normal_up, np.float64), -1.0, 1.0), s, sky_ratio)
     return (exposure * ratio).astype(np.float32)
+
+
+def clear_irradiance(normal_up: np.ndarray, *, model: LightModel) -> np.ndarray:
+    """Irradiance of the clear sky with its sun (azimuth averaged) and the ground it lights, on a
+    plane whose normal has up-component ``normal_up``, relative to a horizontal plane's (float32,
+    same shape). A raw pixel in linear light divided by it stands for the surface's albedo, in
+    the units of a camera exposed so that a white horizontal surface in the sun reads 1."""
+    s, clear, _ = _irradiance_tables(model)
+    return np.interp(np.clip(np.asarray(normal_up, np.float64), -1.0, 1.0), s, clear).astype(np.float32)
 
 
 def overcast_irradiance(normal_up: np.ndarray, *, model: LightModel) -> np.ndarray:

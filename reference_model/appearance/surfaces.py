@@ -16,20 +16,30 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 * **track**: closeness to the wheel paths of the traffic (the ego vehicle's path and every moving
   track's, extended along the lane), where snow is compacted and water splashed away.
 
+Only the static scene becomes surfaces: returns of things that move without a box, people and
+noise (:mod:`wcbench.reference_model.scene_analysis.motion`) are left out of the static cloud, and
+a frame's own dynamic returns are drawn at that frame only (no normal facing the sky, nothing
+settles on them), so nothing is painted where a pedestrian or an untracked car once was.
 Only what a real scene has is read: lidar, poses, tracks (docs/design.md §7).
 """
 
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
-from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, init_scene_from_lidar
+from wcbench.reference_model.scene_graph.lidar_init import (
+    LidarInitOptions,
+    init_scene_from_lidar,
+    sample_image,
+    voxel_downsample,
+)
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 
 __all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "pca_normals", "value_noise"]
@@ -44,6 +54,10 @@ _HALF_TRACK_M, _WHEEL_PATH_SIGMA_M = 0.8, float(np.hypot(0.11, 0.25))
 #: How far a lane's wheel paths are extended beyond the observed path, each way (m): earlier traffic
 #: drove the same lane.
 _LANE_EXTENSION_M = 120.0
+#: Voxel (m) of a frame's own dynamic returns.
+_DYNAMIC_VOXEL_M = 0.1
+#: A ground cell (2 m) gives the height within this distance of its centre (m); beyond, the plane.
+_CELL_REACH_M = 4.0
 
 
 def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
@@ -170,6 +184,14 @@ class SurfaceScene:
     noise_seed : int
     facts : dict
         Counts (Gaussians, ground, open, in wheel paths) for ``info.json``.
+    ground_plane : ndarray [3]
+        (a, b, c): the ground's height a + b x + c y over the plane coordinates, least squares over
+        the cells (where no cell is near, the ground continues this plane).
+    analysis : SceneAnalysis, optional
+        Where the frames' own dynamic returns come from.
+    boxes : list of (ndarray [K] int, ndarray [K, 4, 4], ndarray [K, 3])
+        Every track's annotated frames, object-to-world poses and box sizes [l, w, h] (parked and
+        moving alike): the solid shell of an object the lidar samples sparsely (:meth:`boxes_at`).
     """
 
     gaussians: SceneGaussians
@@ -181,12 +203,27 @@ class SurfaceScene:
     lanes: cKDTree | None
     noise_seed: int
     facts: dict[str, Any]
+    ground_plane: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    analysis: SceneAnalysis | None = None
+    boxes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+
+    def boxes_at(self, index: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The (object-to-world [4, 4], size [3]) of every box annotated at frame ``index``."""
+        out = []
+        for frames, poses, sizes in self.boxes:
+            hit = np.nonzero(frames == index)[0]
+            if hit.size:
+                out.append((poses[int(hit[0])], sizes[int(hit[0])]))
+        return out
 
     def ground_height(self, points: np.ndarray) -> np.ndarray:
-        """[N] height (along ``up``) of the ground below ``points`` [N, 3] (m)."""
+        """[N] height (along ``up``) of the ground below ``points`` [N, 3] (m): the nearest 2 m cell's
+        within 4 m, else the fitted plane's."""
         tree, heights = self.ground_cells
-        _, i = tree.query(np.asarray(points, np.float64) @ self.plane_axes.T, workers=-1)
-        return np.asarray(heights[i])
+        xy = np.asarray(points, np.float64) @ self.plane_axes.T
+        d, i = tree.query(xy, workers=-1)
+        plane = self.ground_plane[0] + xy @ self.ground_plane[1:]
+        return np.where(np.asarray(d) <= _CELL_REACH_M, np.asarray(heights[i]), plane)
 
     def puddle_field(self, points: np.ndarray) -> np.ndarray:
         """[N] the puddle noise in [0, 1] at ``points`` [N, 3] (world)."""
@@ -219,13 +256,51 @@ class SurfaceScene:
             posed[:, :3] = a[:, :3] @ R.T.astype(np.float32)
             parts.append(cloud)
             attrs.append(posed)
+        dyn = self._frame_dynamic(index)
+        if dyn is not None:
+            parts.append(dyn[0])
+            attrs.append(dyn[1])
         cloud = parts[0] if len(parts) == 1 else GaussianCloud.concatenate(parts)
         out = np.ascontiguousarray(np.concatenate(attrs), np.float32)
         self._frame_memo = (index, cloud, out)
         return cloud, out
 
+    def _frame_dynamic(self, index: int) -> tuple[GaussianCloud, np.ndarray] | None:
+        """The untracked dynamic returns of frame ``index`` as Gaussians (colours from the frame at
+        the analysis size) and their attributes: PCA normals turned toward the camera, nothing else
+        (not ground, not open: nothing settles on a passer-by); ``None`` without any."""
+        a = self.analysis
+        if a is None:
+            return None
+        pts = a.returns.frame_dynamic(index, tracked=False)
+        if len(pts) < 3:
+            return None
+        views = a.views
+        _, _, inside = views.project(pts, index)
+        pts = pts[inside]
+        if len(pts) < 3:
+            return None
+        w2c = views.world_to_camera(index)
+        cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
+        uv = np.stack([views.K[index][0, 0] * cam[:, 0] / cam[:, 2] + views.K[index][0, 2],
+                       views.K[index][1, 1] * cam[:, 1] / cam[:, 2] + views.K[index][1, 2]], -1)
+        colors = sample_image(views.images[index], uv)
+        means, rgb, _ = voxel_downsample(pts, colors, _DYNAMIC_VOXEL_M)
+        n = len(means)
+        normals = pca_normals(means.astype(np.float64))
+        to_cam = views.center(index) - means
+        normals[np.einsum("ij,ij->i", to_cam, normals) < 0] *= -1.0
+        quats = np.zeros((n, 4), np.float32)
+        quats[:, 0] = 1.0
+        cloud = GaussianCloud(means=means, quats=quats, scales=np.full((n, 3), 0.6 * _DYNAMIC_VOXEL_M, np.float32),
+                              opacities=np.full(n, 0.9, np.float32), colors=np.clip(rgb, 0.0, 1.0))
+        attrs = np.zeros((n, len(ATTRIBUTES)), np.float32)
+        attrs[:, :3] = normals
+        return cloud, attrs
 
-def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> SurfaceScene:
+
+def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
+                   analysis: SceneAnalysis | None = None) -> SurfaceScene:
     """The scene's lidar Gaussians and their surface attributes (see the module docstring).
 
     Parameters
@@ -236,6 +311,10 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> 
         Voxel of the lidar Gaussians (m).
     noise_seed : int
         Seed of the puddle field (the weather's particle seed does not move the puddles).
+    analysis : SceneAnalysis, optional
+        The scene's analysis: its dynamic and noise returns are left out of the static surfaces
+        (the tracked movers' stay, for their nodes) and each frame draws its own dynamic returns.
+        Without it every return is used.
 
     Returns
     -------
@@ -246,7 +325,14 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> 
     InputError
         If no lidar point projects into any frame.
     """
-    gaussians = init_scene_from_lidar(scene, LidarInitOptions(voxel_m=voxel_m))
+    keep = None
+    if analysis is not None:
+        r = analysis.returns
+        keep = {k: r.static_mask(k) | (r.tracked[k] & ~r.noise[k]) for k in r.points}
+    # wider and more opaque than training's start: the surfaces carry attributes, not looks, and a car
+    # the lidar samples sparsely must not let the road behind it show through
+    options = LidarInitOptions(voxel_m=voxel_m, scale_factor=1.0, opacity=0.98)
+    gaussians = init_scene_from_lidar(scene, options, keep=keep)
     up = np.asarray(scene.up, np.float64)
     up = up / np.linalg.norm(up)
     axes = _plane_axes(up)
@@ -271,12 +357,18 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> 
     centers = np.array([(k[0] + 0.5, k[1] + 0.5) for k in cells]) * 2.0
     heights = np.array([np.percentile(v, 10) for v in cells.values()])
     ground_tree = cKDTree(centers)
+    # the ground beyond the cells continues their least-squares plane (a street is not level)
+    design = np.concatenate([np.ones((len(centers), 1)), centers], axis=1)
+    plane = (np.linalg.lstsq(design, heights, rcond=None)[0] if len(centers) >= 3
+             else np.array([float(np.mean(heights)), 0.0, 0.0]))
 
     lanes_pts = lane_paths(scene, up=up)
     lanes = cKDTree(lanes_pts @ axes.T) if len(lanes_pts) else None
     surf = SurfaceScene(gaussians=gaussians, static_attributes=np.zeros((0, len(ATTRIBUTES)), np.float32),
                         node_attributes=[], up=up, plane_axes=axes, ground_cells=(ground_tree, heights), lanes=lanes,
-                        noise_seed=int(noise_seed), facts={})
+                        noise_seed=int(noise_seed), facts={}, ground_plane=plane, analysis=analysis,
+                        boxes=[(np.asarray(t.frames, np.int64), np.asarray(t.object_to_world, np.float64),
+                                np.asarray(t.box_size, np.float64)) for t in scene.tracks])
     ground = (normals @ up > 0.8) & (height - surf.ground_height(means) < 0.3)
 
     # open to the sky: no return higher by 0.5 m within 0.5 m sideways
@@ -287,10 +379,13 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> 
     above = np.where(valid, height[np.minimum(idx, len(xy) - 1)] - height[:, None] > 0.5, False)
     open_ = ~np.any(above, axis=1)
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
-    # Gaussians (about half a metre), so that what is drawn from them is not speckled
+    # Gaussians (about half a metre), so that what is drawn from them is not speckled; a neighbour
+    # counts by how much its normal agrees (cos^4), so a car's roof and side, or a kerb's top and
+    # face, do not blend into a slope that takes snow
     _, near = cKDTree(means).query(means, k=min(8, len(means)), workers=-1)
     near = np.asarray(near).reshape(len(means), -1)
-    smooth = normals[near].sum(axis=1)
+    agree = np.clip(np.einsum("nkj,nj->nk", normals[near], normals), 0.0, 1.0) ** 4
+    smooth = np.einsum("nk,nkj->nj", agree, normals[near])
     normals = smooth / np.maximum(np.linalg.norm(smooth, axis=1, keepdims=True), 1e-9)
 
     static = np.zeros((len(means), len(ATTRIBUTES)), np.float32)
@@ -314,5 +409,6 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0) -> 
     surf.facts = {"voxel_m": float(voxel_m), "gaussians": len(gaussians), "static": len(means),
                   "nodes": len(gaussians.nodes),
                   "ground_fraction": round(float(ground.mean()), 4), "open_fraction": round(float(open_.mean()), 4),
-                  "wheel_path_points": len(lanes_pts)}
+                  "wheel_path_points": len(lanes_pts),
+                  "ground_slope": round(float(np.hypot(plane[1], plane[2])), 4)}
     return surf

@@ -15,6 +15,8 @@ them (:mod:`wcbench.reference_model.appearance.maps`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 __all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "complete_distance", "ground_height_below"]
@@ -49,7 +51,8 @@ def ground_height_below(points: np.ndarray, center: np.ndarray, up: np.ndarray, 
 
 
 def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, rays: np.ndarray,
-                      center: np.ndarray, up: np.ndarray, ground_height: float, *, forward: np.ndarray
+                      center: np.ndarray, up: np.ndarray, ground_height: float, *, forward: np.ndarray,
+                      ground_at: Callable[[np.ndarray], np.ndarray] | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the unknown pixels of a distance map (see the module docstring).
 
@@ -70,6 +73,11 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         The ground plane's height along ``up`` (m).
     forward : ndarray [3]
         The camera's optical axis in the world (its z axis): camera depth = distance x (ray . forward).
+    ground_at : callable, optional
+        ``ground_at(points [N, 3]) -> [N]`` heights (along ``up``, m) of a ground that is not level
+        (a fitted height field): the ray's intersection with it is found by three fixed-point steps
+        from the plane at ``ground_height`` (each re-intersects the horizontal plane at the height
+        found under the last point). Default: the plane.
 
     Returns
     -------
@@ -89,7 +97,13 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
     todo = ~known & ~sky
     ground = todo & (ray_up < -1e-3)
     if np.any(ground):
-        t = (ground_height - np.asarray(center, np.float64) @ up) / ray_up[ground]
+        c = np.asarray(center, np.float64)
+        t = (ground_height - c @ up) / ray_up[ground]
+        if ground_at is not None:
+            r = np.asarray(rays, np.float64)[ground]
+            for _ in range(3):
+                hit = c + r * np.where(t > 0, t, 0.0)[:, None]
+                t = (np.asarray(ground_at(hit), np.float64) - c @ up) / ray_up[ground]
         out[ground] = np.where(t > 0, t, np.inf)
         kind[ground] = FILL_GROUND
     source = np.full((h, w), -1, np.int64)

@@ -19,7 +19,7 @@ the Gaussians of a frame.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -136,7 +136,7 @@ def _lidar_frames(scene: Any, frames: Iterable[int] | None) -> list[int]:
 
 
 def colored_lidar_points(
-    scene: Any, *, frames: Iterable[int] | None = None
+    scene: Any, *, frames: Iterable[int] | None = None, keep: Mapping[int, np.ndarray] | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lidar points seen by their own frame's camera, with the image color there.
 
@@ -145,6 +145,10 @@ def colored_lidar_points(
     scene : wcbench.scenes.scene.Scene
     frames : iterable of int, optional
         Frames whose sweeps to use (default all; frames without lidar are skipped).
+    keep : mapping of int to ndarray [N] bool, optional
+        Per frame, which returns of its sweep to use (e.g. the static ones of
+        :func:`wcbench.reference_model.scene_analysis.motion.classify_returns`); a frame it does not
+        name keeps every return.
 
     Returns
     -------
@@ -165,6 +169,10 @@ def colored_lidar_points(
         inside = (
             (z > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
         )
+        if keep is not None and i in keep:
+            if len(keep[i]) != len(sweep.points):
+                raise ValueError(f"keep[{i}]: {len(keep[i])} flags for a sweep of {len(sweep.points)} returns")
+            inside &= np.asarray(keep[i], bool)
         if not np.any(inside):
             continue
         image = _read_rgb_float(scene.frames[i].image_path)
@@ -242,22 +250,33 @@ def _split_moving(
 ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
     """Mask of static points, and per moving track the indices of its points.
 
-    ``frame`` must be non-decreasing (as :func:`colored_lidar_points` returns it).
+    ``frame`` must be non-decreasing (as :func:`colored_lidar_points` returns it). Per frame, only
+    the points within a box's bounding sphere (a k-d tree of the frame's points) are tested.
     """
     static = np.ones(len(points), bool)
-    members: dict[int, np.ndarray] = {}
-    for ti, track in enumerate(tracks):
-        idx_all = []
-        for k, f in enumerate(np.asarray(track.frames)):
-            lo, hi = np.searchsorted(frame, f, side="left"), np.searchsorted(frame, f, side="right")
-            if hi == lo:
+    found: dict[int, list[np.ndarray]] = {}
+    per_track = [{int(f): k for k, f in enumerate(np.asarray(t.frames))} for t in tracks]
+    for f in np.unique(frame):
+        lo, hi = np.searchsorted(frame, f, side="left"), np.searchsorted(frame, f, side="right")
+        tree = None
+        for ti, track in enumerate(tracks):
+            k = per_track[ti].get(int(f))
+            if k is None:
                 continue
-            inside = _inside_box(points[lo:hi], track.object_to_world[k], track.box_size[k], margin_m)
-            idx_all.append(lo + np.nonzero(inside)[0])
-        if idx_all:
-            idx = np.concatenate(idx_all)
-            static[idx] = False
-            members[ti] = idx
+            T = np.asarray(track.object_to_world[k], np.float64)
+            half = np.asarray(track.box_size[k], np.float64) / 2.0 + margin_m
+            tree = tree or cKDTree(points[lo:hi])
+            cand = np.asarray(tree.query_ball_point(T[:3, 3], float(np.linalg.norm(half))), np.int64)
+            if cand.size == 0:
+                continue
+            inside = _inside_box(points[lo + cand], T, 2.0 * (half - margin_m), margin_m)
+            if inside.any():
+                found.setdefault(ti, []).append(lo + cand[inside])
+    members: dict[int, np.ndarray] = {}
+    for ti, parts in sorted(found.items()):
+        idx = np.sort(np.concatenate(parts))
+        static[idx] = False
+        members[ti] = idx
     return static, members
 
 
@@ -388,6 +407,7 @@ def init_scene_from_lidar(
     options: LidarInitOptions | None = None,
     *,
     frames: Iterable[int] | None = None,
+    keep: Mapping[int, np.ndarray] | None = None,
 ) -> SceneGaussians:
     """Static Gaussians plus one rigid node per moving track, from the lidar and images.
 
@@ -398,6 +418,9 @@ def init_scene_from_lidar(
         As in :func:`init_from_lidar`; the object clouds use ``node_voxel_m``.
     frames : iterable of int, optional
         As in :func:`init_from_lidar`.
+    keep : mapping of int to ndarray [N] bool, optional
+        Per frame, the returns of its sweep to use (:func:`colored_lidar_points`); the tracked
+        movers' returns must be kept for their nodes.
 
     Returns
     -------
@@ -409,7 +432,7 @@ def init_scene_from_lidar(
         If the scene has no lidar point inside any camera image.
     """
     opts = options or LidarInitOptions()
-    points, colors, frame = colored_lidar_points(scene, frames=frames)
+    points, colors, frame = colored_lidar_points(scene, frames=frames, keep=keep)
     if len(points) == 0:
         raise InputError(f"scene {scene.id!r} ({scene.root}): no lidar point projects into any camera image")
     ranges = _ranges(scene, points, frame)

@@ -102,6 +102,8 @@ def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int =
                 yy, xx = np.clip(ys + dy, 0, v.height - 1), np.clip(xs + dx, 0, v.width - 1)
                 covered |= v.depth[yy, xx] > 0
         ok = ~covered & ~v.dynamic[ys, xs]
+        if v.ignore.shape == (v.height, v.width):
+            ok &= ~v.ignore[ys, xs]
         if v.sky is not None:
             ok &= ~v.sky[ys, xs]
         xs, ys = xs[ok], ys[ok]
@@ -152,6 +154,8 @@ def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px
         ok = np.isin(kind[ys_, xs_], (FILL_GROUND, FILL_WALL)) & np.isfinite(d) & (d < max_distance_m)
         if v.dynamic.shape == (h, w):
             ok &= ~v.dynamic[ys_, xs_]
+        if v.ignore.shape == (h, w):
+            ok &= ~v.ignore[ys_, xs_]
         ys_, xs_, d = ys_[ok], xs_[ok], d[ok]
         if not len(d):
             continue

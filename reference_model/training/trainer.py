@@ -81,6 +81,7 @@ class _ViewTensors:
     sky: torch.Tensor | None
     non_sky: torch.Tensor | None
     grid: torch.Tensor
+    ignore: torch.Tensor | None = None
 
 
 @dataclass
@@ -141,12 +142,17 @@ class Trainer:
         if missing:
             raise ValueError(f"view of frame {v.frame} lacks supervision for {missing}")
         sky = None if v.sky is None else torch.from_numpy(v.sky)
+        ignore = torch.from_numpy(v.ignore) if v.ignore.shape == (v.height, v.width) and v.ignore.any() else None
+        non_sky = None if sky is None else ~sky
+        if ignore is not None:
+            non_sky = ~ignore if non_sky is None else non_sky & ~ignore
         return _ViewTensors(
             targets={w: torch.from_numpy(v.images[w]) for w in self.weathers},
             depth=None if v.depth is None else torch.from_numpy(v.depth),
             sky=sky,
-            non_sky=None if sky is None else ~sky,
+            non_sky=non_sky,
             grid=grid,
+            ignore=ignore,
         )
 
     def _densified_nodes(self) -> list[str]:
@@ -201,6 +207,8 @@ class Trainer:
                                    sky_grid=tv.grid, depth=want_depth, absgrad=True, rasterizer=self.rasterizer,
                                    hazes=self.hazes if cfg.through_haze else None)
         marks.append(("render", time.perf_counter()))
+        if tv.ignore is not None:  # the ego vehicle's body: the render is its own target there (no gradient)
+            target = torch.where(tv.ignore[..., None], render.images.detach(), target)
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
         terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
         logged: dict[str, float] = {f"rgb_{w}": float(x) for w, x in zip(weathers, per_weather.detach())}

@@ -20,6 +20,7 @@ import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_float
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene
 from wcbench.reference_model.scene_graph.lidar_init import moving_tracks
 from wcbench.reference_model.transforms import lidar_depth, project_points
 
@@ -27,7 +28,6 @@ __all__ = [
     "TrainingView",
     "box_mask",
     "build_views",
-    "derive_sky_mask",
     "resize_float",
 ]
 
@@ -55,6 +55,8 @@ class TrainingView:
         Sky pixels, when known or derived.
     dynamic : ndarray [H, W] bool
         Pixels inside the projected boxes of moving objects.
+    ignore : ndarray [H, W] bool
+        Pixels no loss looks at: the ego vehicle's own body, fixed in the frame (empty when none).
     """
 
     frame: int
@@ -67,6 +69,7 @@ class TrainingView:
     depth: np.ndarray | None = None
     sky: np.ndarray | None = None
     dynamic: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+    ignore: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
 
     @property
     def world_to_camera(self) -> np.ndarray:
@@ -97,50 +100,6 @@ def resize_float(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         return img
     interp = cv2.INTER_AREA if size[0] * size[1] < img.shape[0] * img.shape[1] else cv2.INTER_LINEAR
     return cv2.resize(img, tuple(size), interpolation=interp)
-
-
-def derive_sky_mask(points: np.ndarray, camera_to_world: np.ndarray, K: np.ndarray, width: int, height: int,
-                    *, up: np.ndarray, dilate_px: int = 3, boxes: np.ndarray | None = None) -> np.ndarray:
-    """Sky pixels of a view without a sky mask: above the horizon, no lidar return nearby, and
-    connected to the top of the image.
-
-    Parameters
-    ----------
-    points : ndarray [N, 3]
-        Lidar points of every sweep (world, m): a return anywhere near a pixel's ray marks it solid.
-    camera_to_world, K, width, height
-        The view.
-    up : ndarray [3]
-        The scene's up vector.
-    dilate_px : int
-        Pixels around each return counted as solid (lidar is sparser than the image).
-    boxes : ndarray [H, W] bool, optional
-        Pixels of objects (never sky).
-
-    Returns
-    -------
-    ndarray [H, W] bool
-    """
-    w2c = np.linalg.inv(np.asarray(camera_to_world, np.float64))
-    uv, z = project_points(points, w2c, K)
-    ij = np.floor(uv).astype(np.int64)
-    ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
-    solid = np.zeros((height, width), np.uint8)
-    solid[ij[ok, 1], ij[ok, 0]] = 1
-    if dilate_px > 0:
-        solid = cv2.dilate(solid, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
-    xs = (np.arange(width) + 0.5 - K[0, 2]) / K[0, 0]
-    ys = (np.arange(height) + 0.5 - K[1, 2]) / K[1, 1]
-    rays = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], np.ones((height, width))), -1)
-    up_cam = np.asarray(camera_to_world, np.float64)[:3, :3].T @ (np.asarray(up, np.float64) / np.linalg.norm(up))
-    above = rays @ up_cam > 0.0
-    candidate = above & (solid == 0)
-    if boxes is not None:
-        candidate &= ~boxes
-    # keep the regions touching the top row: holes between buildings' lidar returns are not sky
-    n, labels = cv2.connectedComponents(candidate.astype(np.uint8), connectivity=4)
-    top = np.unique(labels[0][candidate[0]])
-    return np.isin(labels, top[top > 0]) if n > 1 else candidate
 
 
 def box_mask(tracks: Sequence[Any], frame: int, world_to_camera: np.ndarray, K: np.ndarray, width: int,
@@ -186,7 +145,10 @@ def build_views(
     frames : sequence of int, optional
         Frames to build (default all).
     derive_sky : bool
-        Derive sky masks from the lidar (:func:`derive_sky_mask`) when the scene ships none.
+        Segment the sky (:mod:`wcbench.reference_model.scene_analysis.sky`: from the image, checked
+        by the lidar) when the scene ships no sky masks, and find the ego vehicle's body
+        (:mod:`~wcbench.reference_model.scene_analysis.ego`), whose pixels no loss looks at. Needs
+        the scene's lidar; without any, no sky is derived.
     moving_threshold_m : float
         Tracks moving more than this (m) make the ``dynamic`` masks.
 
@@ -205,7 +167,9 @@ def build_views(
     t0 = float(scene.frames[0].timestamp)
     tracks = moving_tracks(scene, moving_threshold_m)
     shipped = all(scene.frames[k].sky_mask_path is not None for k in indices)
-    all_points = scene.all_lidar_points() if (derive_sky and not shipped) else None
+    has_lidar = any(f.lidar_path is not None for f in scene.frames)
+    analysis = analyse_scene(scene) if (derive_sky and has_lidar) else None
+    ignore = analysis.ego_mask((width, height)) if analysis is not None else np.zeros((height, width), bool)
     views = []
     for k in indices:
         f = scene.frames[k]
@@ -223,15 +187,19 @@ def build_views(
         sky = None
         if f.sky_mask_path is not None:
             sky = cv2.resize(_read_mask(f.sky_mask_path), (width, height), interpolation=cv2.INTER_NEAREST) > 0
-        elif all_points is not None and len(all_points):
-            sky = derive_sky_mask(all_points, c2w, K, width, height, up=scene.up, boxes=dynamic)
+        elif analysis is not None:
+            sky = analysis.sky_mask(k, (width, height)) & ~dynamic
         views.append(TrainingView(frame=k, time=float(f.timestamp) - t0, camera_to_world=c2w, K=K, width=width,
-                                  height=height, images=images, depth=depth, sky=sky, dynamic=dynamic))
+                                  height=height, images=images, depth=depth, sky=sky, dynamic=dynamic,
+                                  ignore=ignore.copy()))
     facts = {
         "size": [width, height],
-        "sky_masks": "shipped" if shipped else ("derived: no lidar return, above the horizon, connected to the top"
-                                                if all_points is not None and len(all_points) else "none"),
+        "sky_masks": "shipped" if shipped else ("segmented: from the image, checked by the lidar"
+                                                if analysis is not None else "none"),
         "frames_with_lidar_depth": sum(v.depth is not None for v in views),
         "moving_tracks": len(tracks),
+        "ignored_pixels": round(float(ignore.mean()), 4),
     }
+    if analysis is not None:
+        facts["scene_analysis"] = analysis.facts
     return views, facts

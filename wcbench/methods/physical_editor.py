@@ -43,7 +43,7 @@ from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import scale_camera
 from wcbench.scenes.scene import Scene
 
-__all__ = ["NAME", "VERSION", "PhysicalEditorMethod", "check_lidar", "edit_scene"]
+__all__ = ["NAME", "VERSION", "PhysicalEditorMethod", "check_lidar", "edit_scene", "raw_frame"]
 
 NAME = "physical-editor"
 #: Bumped whenever the same scene, weather and settings would give other frames.
@@ -66,7 +66,7 @@ def check_lidar(scene: Scene) -> None:
                          "filter2d, or a scene with lidar/")
 
 
-def _raw_at(scene: Scene, index: int, size: tuple[int, int]) -> np.ndarray:
+def raw_frame(scene: Scene, index: int, size: tuple[int, int]) -> np.ndarray:
     """Raw frame ``index`` as float32 display RGB at ``size`` (area-resized)."""
     raw = read_rgb8(scene.frames[index].image_path)
     if (raw.shape[1], raw.shape[0]) != size:
@@ -109,7 +109,7 @@ def edit_scene(scene: Scene, weathers: dict[str, Weather], size: tuple[int, int]
     start = time.perf_counter()
     for k in range(len(scene)):
         camera = scale_camera(scene.frames[k].camera, *size)
-        raw = _raw_at(scene, k, size)
+        raw = raw_frame(scene, k, size)
         for kind, weather in weathers.items():
             frames[kind].append(editor.edit(raw, k, camera, weather)[0])
     per_frame = 1e3 * (time.perf_counter() - start) / max(1, len(scene) * len(weathers))
@@ -216,7 +216,7 @@ class PhysicalEditorMethod(FrameRenderer):
         """Raw frame ``index`` edited into ``weather`` (clear: the raw frame at the output size)."""
         assert self._editor is not None, "prepare() runs before render_frame()"
         size = self.output_size(scene)
-        raw = _raw_at(scene, index, size)
+        raw = raw_frame(scene, index, size)
         if self._weather is None:
             return to_uint8(raw), {}
         image, facts = self._editor.edit(raw, index, scale_camera(scene.frames[index].camera, *size), self._weather)

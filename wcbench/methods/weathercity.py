@@ -32,7 +32,7 @@ from wcbench.core.errors import InputError
 from wcbench.core.image_io import to_uint8
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
-from wcbench.methods.physical_editor import check_lidar
+from wcbench.methods.physical_editor import check_lidar, raw_frame
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
 from wcbench.methods.scene_training import VERSION, check_supervision, train_scene
@@ -47,9 +47,11 @@ from wcbench.methods.weather_spec import (
     resolve_physics,
     truth_physics,
 )
+from wcbench.reference_model.appearance.editor import AppearanceParams, masked_ego
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene
 from wcbench.reference_model.training.config import make_config
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import GaussianArrays, WeatherRenderer, camera_velocity, scale_camera
@@ -136,6 +138,8 @@ class WeatherCityMethod(FrameRenderer):
         self._node_colors: dict[str, torch.Tensor] = {}
         self._activated: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         self._rays: dict[tuple[bytes, int, int], torch.Tensor] = {}
+        self._ego: tuple[tuple[Any, ...], np.ndarray] | None = None
+        self._appearance = AppearanceParams.load()
         self._placement = Placement()
 
     def required_models(self) -> tuple[str, ...]:
@@ -222,6 +226,7 @@ class WeatherCityMethod(FrameRenderer):
         """
         self._model, self._facts = model, facts
         self._scene_key = (scene.id, str(scene.root))
+        self._ego = None
         self._centers = np.stack([f.camera.center for f in scene.frames])
         self._times = np.array([f.timestamp for f in scene.frames], np.float64)
         try:
@@ -277,6 +282,23 @@ class WeatherCityMethod(FrameRenderer):
             camera_velocity=camera_velocity(self._centers, self._times, index),
             gaussians=GaussianArrays(g.means, g.quats, g.scales, g.opacities, colors), background_image=sky,
         )
+        image = frame.image
+        ego = self._ego_mask(scene, (width, height))
+        if ego is not None:  # the ego vehicle's body is masked, not weathered (as the editor does)
+            image = np.array(image, np.float32, copy=True)
+            image[ego] = masked_ego(raw_frame(scene, index, (width, height))[ego], renderer.weather.kind,
+                                    self._appearance)
         timings = {**frame.timings_ms, "scene_graph": 1e3 * (t_graph - start),
                    "total": 1e3 * (time.perf_counter() - start)}
-        return to_uint8(frame.image), {**frame.info, "timings_ms": timings}
+        return to_uint8(image), {**frame.info, "timings_ms": timings}
+
+    def _ego_mask(self, scene: Scene, size: tuple[int, int]) -> np.ndarray | None:
+        """The ego vehicle's body at ``size`` when training found one (the scene analysis, run again
+        in a process that loaded the model from its checkpoint), else ``None``."""
+        views = (self._facts or {}).get("views", {})
+        if not float(views.get("ignored_pixels", 0.0)) > 0:
+            return None
+        key = (scene.id, str(scene.root), tuple(size))
+        if self._ego is None or self._ego[0] != key:
+            self._ego = (key, analyse_scene(scene).ego_mask(size))
+        return self._ego[1]

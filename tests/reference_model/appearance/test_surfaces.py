@@ -73,23 +73,3 @@ def test_lane_paths_run_half_a_track_beside_the_path(demo_scene):
     np.testing.assert_allclose(d.min(axis=1), 0.8, atol=0.06)
     # and the lines reach beyond the observed path (earlier and later traffic of the lane)
     assert np.linalg.norm(pts - flat[0], axis=1).max() > 100.0
-
-
-def test_coverage_sky_stops_at_drawn_surfaces_and_grows_by_colour_to_the_skyline():
-    from wcbench.reference_model.appearance.maps import coverage_sky
-
-    h, w = 40, 60
-    ray_up = np.repeat(np.linspace(1.0, -1.0, h)[:, None], w, 1)  # the horizon in the middle row
-    alpha = np.zeros((h, w), np.float32)
-    alpha[10:, 20:40] = 1.0  # a tower from row 10 down
-    alpha[8:10, 18:42] = 0.3  # its fuzzy, wider render at the top: not solid, but near it
-    sky = coverage_sky(alpha, ray_up)
-    assert sky[0].all() and not sky[h // 2 + 1:].any() and not sky[10:, 20:40].any()
-    assert not sky[8:10, 17:43].any()  # within the dilation of the fuzzy render: not sky without the frame
-    image = np.zeros((h, w, 3), np.float32)
-    image[:] = [0.5, 0.6, 0.9]  # a blue sky
-    image[10:, 20:40] = [0.4, 0.3, 0.3]  # the tower's bricks
-    image[h // 2:] = [0.3, 0.3, 0.3]  # the ground
-    grown = coverage_sky(alpha, ray_up, image=image)
-    assert grown[8:10, 18:20].all() and grown[8:10, 40:42].all()  # the sky's colour next to the tower
-    assert not grown[10:, 20:40].any() and not grown[h // 2 + 1:].any()

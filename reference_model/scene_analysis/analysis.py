@@ -1,0 +1,157 @@
+"""All the scene analyses of a scene, run once and shared by the weather editor and training.
+
+:func:`analyse_scene` reads a scene's frames at the analysis size, labels its lidar returns
+(:mod:`.motion`), marks the pixels every static return and the frame's own returns land in
+(*solid*: never sky), segments the sky (:mod:`.sky`) and finds the ego vehicle's body
+(:mod:`.ego`). The result is kept for the last scenes analysed in this process (the editor and
+the training views of one run ask for the same scene), keyed by the scene's folder, frames and
+analysis size.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from wcbench.reference_model.scene_analysis.ego import ego_mask
+from wcbench.reference_model.scene_analysis.motion import LidarReturns, classify_returns
+from wcbench.reference_model.scene_analysis.sky import SkySegmentation, segment_sky, sky_matte
+from wcbench.reference_model.scene_analysis.views import (
+    ANALYSIS_WIDTH,
+    AnalysisViews,
+    PointColumns,
+    analysis_size,
+    build_analysis_views,
+    resample_mask,
+)
+
+__all__ = ["SceneAnalysis", "analyse_scene", "clear_analysis_cache"]
+
+#: How many analysed scenes this process keeps.
+_KEEP = 2
+_CACHE: OrderedDict[tuple[Any, ...], SceneAnalysis] = OrderedDict()
+
+
+@dataclass
+class SceneAnalysis:
+    """What :func:`analyse_scene` found (all maps at ``views.size`` unless a method says otherwise).
+
+    Attributes
+    ----------
+    views : AnalysisViews
+    returns : LidarReturns
+    solid : list of ndarray [H, W] bool
+        Per frame, the pixels a static return of any sweep or one of the frame's own returns
+        projects into (isolated returns excluded).
+    sky : SkySegmentation
+    ego : ndarray [H, W] bool
+        The ego vehicle's body (the same in every frame; all false when there is none).
+    facts : dict
+        For ``info.json``: counts, the sky's and the ego mask's facts, timings.
+    """
+
+    views: AnalysisViews
+    returns: LidarReturns
+    solid: list[np.ndarray]
+    sky: SkySegmentation
+    ego: np.ndarray
+    facts: dict[str, Any] = field(default_factory=dict)
+
+    def sky_mask(self, k: int, size: tuple[int, int] | None = None) -> np.ndarray:
+        """[H, W] bool sky of frame ``k`` at ``size`` (default the analysis size)."""
+        return resample_mask(self.sky.masks[k], size or self.views.size)
+
+    def ego_mask(self, size: tuple[int, int] | None = None) -> np.ndarray:
+        """[H, W] bool ego-vehicle body at ``size`` (default the analysis size)."""
+        return resample_mask(self.ego, size or self.views.size)
+
+    def solid_mask(self, k: int, size: tuple[int, int] | None = None) -> np.ndarray:
+        """[H, W] bool: pixels of frame ``k`` at ``size`` that a lidar return lands in (when shrinking,
+        a pixel is solid when any analysis pixel it overlaps is; when enlarging, nearest)."""
+        solid = self.solid[k]
+        if size is None or tuple(size) == self.views.size:
+            return solid.copy()
+        w, h = int(size[0]), int(size[1])
+        if w * h < solid.size:
+            return cv2.resize(solid.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) > 0
+        return cv2.resize(solid.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+
+    def sky_matte(self, k: int, image: np.ndarray) -> np.ndarray:
+        """[H, W] float32 soft sky matte of frame ``k`` at the size of ``image`` (the frame there,
+        display RGB): :func:`~.sky.sky_matte` of the resampled mask."""
+        size = (image.shape[1], image.shape[0])
+        radius = max(1, round(2 * image.shape[0] / 270))
+        return sky_matte(self.sky_mask(k, size), image, self.solid_mask(k, size), radius=radius)
+
+
+def _key(scene: Any, size: tuple[int, int]) -> tuple[Any, ...]:
+    return (str(getattr(scene, "root", "")), str(getattr(scene, "id", "")), len(scene.frames),
+            tuple(str(f.image_path) for f in scene.frames), tuple(size))
+
+
+def clear_analysis_cache() -> None:
+    """Forget the analysed scenes of this process."""
+    _CACHE.clear()
+
+
+def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = None) -> SceneAnalysis:
+    """Analyse ``scene`` at ``width`` px wide (see the module docstring), or return this process's
+    earlier analysis of it.
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+        Or any object with its attributes (frames with cameras and image paths, ``lidar(k)``,
+        tracks, ``up``, ``class_names``).
+    width : int
+        Analysis width (px); the frames' own when they are narrower.
+    log : callable, optional
+        Told what is being done (one line), e.g. ``print``.
+
+    Returns
+    -------
+    SceneAnalysis
+    """
+    size = analysis_size(scene.image_size, width)
+    key = _key(scene, size)
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    if log is not None:
+        log(f"analysing scene {getattr(scene, 'id', '')}: moving returns, sky, ego vehicle ({size[0]}x{size[1]})")
+    t0 = time.perf_counter()
+    views = build_analysis_views(scene, size)
+    t1 = time.perf_counter()
+    returns = classify_returns(scene, views)
+    t2 = time.perf_counter()
+    static = returns.static_points()
+    static_cols = PointColumns.of(static)
+    solid = []
+    without = []
+    for k in range(len(views)):
+        hits = views.hit_map(static_cols, k)
+        own = returns.frame_dynamic(k)
+        if len(own):
+            hits |= views.hit_map(own, k)
+        solid.append(hits)
+        if not hits.any():
+            without.append(k)
+    t3 = time.perf_counter()
+    sky = segment_sky(views, solid)
+    t4 = time.perf_counter()
+    ego, ego_facts = ego_mask(views, static)
+    t5 = time.perf_counter()
+    facts = {"size": list(size), "returns": returns.facts, "sky": sky.facts, **ego_facts,
+             "frames_without_lidar_in_view": without,
+             "seconds": {"views": round(t1 - t0, 2), "returns": round(t2 - t1, 2), "solid": round(t3 - t2, 2),
+                         "sky": round(t4 - t3, 2), "ego": round(t5 - t4, 2)}}
+    out = SceneAnalysis(views=views, returns=returns, solid=solid, sky=sky, ego=ego, facts=facts)
+    _CACHE[key] = out
+    while len(_CACHE) > _KEEP:
+        _CACHE.popitem(last=False)
+    return out

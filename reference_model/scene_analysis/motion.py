@@ -1,0 +1,265 @@
+"""Which lidar returns belong to the static scene: moving things without boxes, people and noise out.
+
+A street's sweeps hold returns of things that are not there in the other frames: cars moving with
+no track box, pedestrians, a scooter, exhaust. Accumulated over the sequence they become walls,
+trails and blotches in every frame. :func:`classify_returns` labels every return of every sweep
+(docs/design.md §7, "Beyond the lidar"):
+
+* **tracked movers**: inside the box of a track that moves, at its own frame;
+* **people and transients by semantics**, where the scene ships per-point classes: pedestrians,
+  cyclists and animals (even standing, they are not surfaces to weather), smoke, exhaust, spray
+  and the ghost returns labelled as reflections;
+* **free-space evidence** (the idea of Kim & Kim 2020, "Remove, then revert", IROS, on the frames'
+  own camera views): a return of sweep j at camera depth z is *seen through* in another frame k
+  when frame k's lidar has a return farther than z + max(0.5 m, 5 % of z) along the same camera
+  ray (the nearest return within a 3 x 3 neighbourhood at half the analysis size), and
+  *confirmed* when it has one within that margin (every other frame at least two frames away
+  votes, once per 0.1 m voxel of the sweep). A return seen through in at least two frames and
+  more often than it is confirmed was not there: it is dynamic. Each label is then put to the
+  vote of the return's 12 nearest neighbours in its own sweep, so an object is dynamic as a whole
+  (a parked car's silhouette edges, seen past by a moving camera, are not);
+* **noise**: returns of the static scene whose 0.3 m voxel holds fewer than 3 returns over all
+  sweeps (birds, spray droplets, multipath).
+
+The static scene is everything else; a frame's own dynamic returns are still what that frame
+shows (:meth:`LidarReturns.frame_points`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from wcbench.core.classes import canonical_class
+from wcbench.reference_model.scene_analysis.views import AnalysisViews
+from wcbench.reference_model.scene_graph.lidar_init import moving_tracks
+from wcbench.reference_model.transforms import apply_linear
+
+__all__ = ["LidarReturns", "classify_returns", "transient_classes"]
+
+#: Shared classes (:mod:`wcbench.core.classes`) whose returns are never static surfaces.
+_MOVER_CLASSES = frozenset({"pedestrian", "cyclist", "animal"})
+#: Lidar semantic class names (lower case) of returns that are not surfaces at all.
+_TRANSIENT_NAMES = frozenset({"smoke", "exhaust", "spray or rain", "reflection"})
+#: Free-space margin: max(_MARGIN_M, _MARGIN_REL * depth) (m).
+_MARGIN_M, _MARGIN_REL = 0.5, 0.05
+#: Frames closer than this to a return's own frame give no free-space vote (they see the same);
+#: of the others, every ``_FRAME_STRIDE``-th votes (frames 0.2 s apart see nearly the same).
+_MIN_FRAME_GAP, _FRAME_STRIDE = 2, 2
+#: Returns are tested once per voxel of this size (m) of their sweep.
+_TEST_VOXEL_M = 0.1
+#: Neighbours whose labels a return's label is put to the vote of.
+_VOTE_K = 12
+#: Noise: returns whose voxel (m) holds fewer than this many returns over the sequence.
+_NOISE_VOXEL_M, _NOISE_MIN_COUNT = 0.3, 3
+
+
+def transient_classes(class_names: dict[int, str]) -> np.ndarray:
+    """[256] bool lookup over semantic class ids: people, cyclists, animals and transients (smoke,
+    exhaust, spray, reflections), by the scene's class names (``Scene.class_names``)."""
+    out = np.zeros(256, bool)
+    for cid, name in class_names.items():
+        low = str(name).strip().lower()
+        if 0 <= int(cid) < 256 and (canonical_class(low) in _MOVER_CLASSES or low in _TRANSIENT_NAMES
+                                     or low.startswith("animals")):
+            out[int(cid)] = True
+    return out
+
+
+@dataclass
+class LidarReturns:
+    """Every sweep's returns and what each is (see the module docstring).
+
+    Attributes
+    ----------
+    points : dict of int to ndarray [N, 3] float64
+        World points (m) of each frame that has a sweep.
+    dynamic : dict of int to ndarray [N] bool
+        Not part of the static scene (tracked movers, people and transients, free-space evidence).
+    tracked : dict of int to ndarray [N] bool
+        The dynamic returns inside a moving track's box (the scene graph's rigid nodes hold them).
+    noise : dict of int to ndarray [N] bool
+        Isolated static returns.
+    facts : dict
+        Counts per reason, for ``info.json``.
+    """
+
+    points: dict[int, np.ndarray]
+    dynamic: dict[int, np.ndarray]
+    tracked: dict[int, np.ndarray]
+    noise: dict[int, np.ndarray]
+    facts: dict[str, Any] = field(default_factory=dict)
+
+    def static_mask(self, k: int) -> np.ndarray:
+        """[N] bool: the returns of frame ``k``'s sweep that belong to the static scene."""
+        return ~self.dynamic[k] & ~self.noise[k]
+
+    def static_points(self) -> np.ndarray:
+        """[M, 3] the static returns of every sweep, in frame order."""
+        parts = [p[self.static_mask(k)] for k, p in sorted(self.points.items())]
+        return np.concatenate(parts) if parts else np.zeros((0, 3))
+
+    def nearest_sweep(self, k: int, *, max_gap: int = 2) -> int | None:
+        """The frame with a sweep nearest to ``k`` (``k`` itself when it has one) within ``max_gap``
+        frames, or ``None``."""
+        best = min(self.points, key=lambda j: (abs(j - k), j), default=None)
+        return best if best is not None and abs(best - k) <= max_gap else None
+
+    def frame_dynamic(self, k: int, *, tracked: bool = True) -> np.ndarray:
+        """[M, 3] the dynamic returns of frame ``k`` (of the nearest sweep within two frames when
+        ``k`` has none: things move little in 0.2 s), without noise and, unless ``tracked``, without
+        the tracked movers' returns; empty without a sweep."""
+        j = self.nearest_sweep(k)
+        if j is None:
+            return np.zeros((0, 3))
+        keep = self.dynamic[j] & ~self.noise[j]
+        if not tracked:
+            keep &= ~self.tracked[j]
+        return self.points[j][keep]
+
+    def frame_points(self, k: int) -> np.ndarray:
+        """[M, 3] what frame ``k`` shows: the static scene and its own dynamic returns."""
+        return np.concatenate([self.static_points(), self.frame_dynamic(k)])
+
+
+def _tracked(points: np.ndarray, frame: int, tracks: list[Any], margin_m: float) -> np.ndarray:
+    """[N] bool: ``points`` inside the (grown) box of any of ``tracks`` at ``frame`` (candidates
+    within each box's bounding sphere first, from a k-d tree of the sweep)."""
+    out = np.zeros(len(points), bool)
+    tree = None
+    for track in tracks:
+        hit = np.nonzero(np.asarray(track.frames) == frame)[0]
+        if hit.size == 0:
+            continue
+        T = np.asarray(track.object_to_world[int(hit[0])], np.float64)
+        half = np.asarray(track.box_size[int(hit[0])], np.float64) / 2 + margin_m
+        tree = tree or cKDTree(points)
+        idx = np.asarray(tree.query_ball_point(T[:3, 3], float(np.linalg.norm(half))), np.int64)
+        if idx.size == 0:
+            continue
+        local = apply_linear(points[idx] - T[:3, 3], T[:3, :3])
+        out[idx[np.all(np.abs(local) <= half, axis=1)]] = True
+    return out
+
+
+def _nearest_depth(views: AnalysisViews, points: np.ndarray, k: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """(the nearest-return camera depth per pixel of frame ``k`` at ``scale`` x the analysis size,
+    eroded over 3 x 3 (inf without a return), the scaled intrinsics)."""
+    w, h = max(1, round(views.width * scale)), max(1, round(views.height * scale))
+    K = np.diag([w / views.width, h / views.height, 1.0]) @ views.K[k]
+    w2c = views.world_to_camera(k)
+    cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(np.int64)
+        v = np.floor(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(np.int64)
+    ok = (z > 0.3) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    depth = np.full((h, w), np.float32(1e9), np.float32)
+    np.minimum.at(depth, (v[ok], u[ok]), z[ok].astype(np.float32))
+    depth = cv2.erode(depth, np.ones((3, 3), np.uint8))
+    return depth, K
+
+
+def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: float = 0.5,
+                     box_margin_m: float = 0.2) -> LidarReturns:
+    """Label every lidar return of ``scene`` (see the module docstring).
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+        Or any object with its attributes (frames, ``lidar(k)``, tracks, ``class_names``).
+    views : AnalysisViews
+        The scene's frames (their cameras carry the free-space test).
+    moving_threshold_m : float
+        A track whose box centre moves more than this is a mover (m), as in the lidar
+        initialisation.
+    box_margin_m : float
+        Growth of the track boxes (m).
+
+    Returns
+    -------
+    LidarReturns
+    """
+    points: dict[int, np.ndarray] = {}
+    labels: dict[int, np.ndarray | None] = {}
+    for k, f in enumerate(scene.frames):
+        sweep = scene.lidar(f)
+        if sweep is not None and len(sweep.points):
+            points[k] = np.asarray(sweep.points, np.float64)
+            labels[k] = None if sweep.labels is None else np.asarray(sweep.labels)
+    tracks = moving_tracks(scene, moving_threshold_m)
+    lookup = transient_classes(dict(getattr(scene, "class_names", {}) or {}))
+    tracked, semantic = {}, {}
+    for k, p in points.items():
+        tracked[k] = _tracked(p, k, tracks, box_margin_m)
+        lab = labels[k]
+        semantic[k] = (lookup[np.clip(lab.astype(np.int64), 0, 255)] if lab is not None and lookup.any()
+                       else np.zeros(len(p), bool))
+
+    # free space: the nearest return per pixel of every frame, at half the analysis size
+    depth = {k: _nearest_depth(views, p, k, 0.5) for k, p in points.items()}
+    seen_through = {}
+    for j, p_all in points.items():
+        # only what is not labelled yet, one test per 0.1 m voxel of the sweep (labels broadcast back)
+        todo = np.nonzero(~tracked[j] & ~semantic[j])[0]
+        key = np.floor(p_all[todo] / _TEST_VOXEL_M).astype(np.int64)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        p = p_all[todo[first]]
+        through = np.zeros(len(p), np.int32)
+        confirmed = np.zeros(len(p), np.int32)
+        for k, (dmap, K) in depth.items():
+            if abs(k - j) < _MIN_FRAME_GAP or (k - j) % _FRAME_STRIDE:
+                continue
+            w2c = views.world_to_camera(k)
+            cam = p @ w2c[:3, :3].T + w2c[:3, 3]
+            z = cam[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = np.floor(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(np.int64)
+                v = np.floor(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(np.int64)
+            h, w = dmap.shape
+            ok = (z > 0.3) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            d = np.full(len(p), np.float32(1e9), np.float32)
+            d[ok] = dmap[v[ok], u[ok]]
+            seen = ok & (d < 1e8)
+            margin = np.maximum(_MARGIN_M, _MARGIN_REL * z)
+            through += seen & (d > z + margin)
+            confirmed += seen & (np.abs(d - z) <= margin)
+        flag = np.zeros(len(p_all), bool)
+        flag[todo] = ((through >= 2) & (through > confirmed))[inverse.ravel()]
+        seen_through[j] = flag
+
+    dynamic, counts = {}, {"tracked": 0, "semantic": 0, "free_space": 0, "returns": 0}
+    for k, p in points.items():
+        raw = seen_through[k] & ~tracked[k] & ~semantic[k]
+        if len(p) > _VOTE_K and raw.any():
+            _, nb = cKDTree(p).query(p, k=_VOTE_K, workers=-1)
+            raw = raw[nb].mean(axis=1) > 0.5
+        dynamic[k] = tracked[k] | semantic[k] | raw
+        counts["tracked"] += int(tracked[k].sum())
+        counts["semantic"] += int((semantic[k] & ~tracked[k]).sum())
+        counts["free_space"] += int((raw & ~tracked[k] & ~semantic[k]).sum())
+        counts["returns"] += len(p)
+
+    # noise: sparse voxels of the static scene over the whole sequence
+    noise = {k: np.zeros(len(p), bool) for k, p in points.items()}
+    if points:
+        order = sorted(points)
+        stat = np.concatenate([points[k][~dynamic[k]] for k in order])
+        if len(stat):
+            ijk = np.floor(stat / _NOISE_VOXEL_M).astype(np.int64)
+            ijk -= ijk.min(axis=0)
+            dims = ijk.max(axis=0) + 1
+            key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+            _, inverse, cnt = np.unique(key, return_inverse=True, return_counts=True)
+            sparse = cnt[inverse] < _NOISE_MIN_COUNT
+            start = 0
+            for k in order:
+                n = int((~dynamic[k]).sum())
+                noise[k][~dynamic[k]] = sparse[start:start + n]
+                start += n
+    counts["noise"] = int(sum(v.sum() for v in noise.values()))
+    return LidarReturns(points=points, dynamic=dynamic, tracked=tracked, noise=noise, facts=counts)

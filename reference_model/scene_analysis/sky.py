@@ -1,0 +1,432 @@
+"""Sky segmentation of a scene's frames: from the image, checked by the lidar.
+
+A pixel whose ray meets a lidar return (of any sweep, for the static scene) is never sky. The
+rest cannot be decided from the lidar alone: facades rise above its vertical field of view, wires
+and poles are hit now and then, and far buildings lie beyond its range. :func:`segment_sky` decides
+them from the image, for every frame of a scene at once (docs/design.md §7, "Sky"):
+
+1. **Seeds.** Confident sky: above the horizon, no return within 4 px, connected to the top of the
+   image through such pixels, not on the continuation of a wall above its topmost return (up to
+   the highest step edge within 5 degrees above it: a spinning lidar's upper beams are 2-5
+   degrees apart, and between two of them a wall returns nothing either), smooth (local standard
+   deviation of L* under 0.03), static under the camera's rotation alone (see 2), and either
+   within the lidar's coverage (ray elevation under 12 degrees: there the lidar would have
+   returned anything within its range) or of the clear sky's blue (b* < -12, -20 < a* < 5:
+   Rayleigh scattering). Confident non-sky: every return's pixel above the horizon.
+2. **Features** per pixel: CIELAB colour, the local standard deviation of L* over 5 x 5 and 15 x 15
+   px, its gradient, the ray's elevation, and the *infinity residual*: the smaller of the mean
+   absolute differences to frames k - 2 and k + 2 warped by the homography of the rotation alone,
+   K R_j^T R_k K^-1. The sky lies at infinity, so it aligns under that warp (residual ~0); a
+   textured surface at finite distance moves with the translation and does not (a window band at
+   the top of the frame, a pole, a wire).
+3. **Evidence**, three independent estimates of the probability of sky, averaged in log-odds: a
+   per-scene classifier (random forest, OpenCV's ``ml.RTrees``, 20 trees of depth 12, trained on up
+   to 15,000 seeds of each class from every frame); the frame's own colours (Gaussian mixtures of
+   its sky and non-sky seeds, GrabCut's colour model); the column's colours (a pixel against the
+   nearest sky seed above it and the nearest return below it: a wall rising unseen above its last
+   return has the wall's colour, not that of the sky over its roof line).
+4. **Per frame, a minimum cut** (Boykov & Jolly 2001, "Interactive graph cuts", ICCV; PyMaxflow)
+   with that probability as unary term, contrast-sensitive 4-neighbour smoothness
+   4 exp(-beta |dLab|^2) (beta from the frame's mean squared neighbour difference, as in GrabCut),
+   and hard constraints: returns and the pixels below the horizon are not sky, sky seeds are.
+5. **The boundary placed by colour** (:func:`refine_boundary`): within 3 px of it, each pixel's
+   share of sky from the colour line between the nearby sky and foreground colours (alpha
+   matting's colour-line model); sky where the share is at least one half.
+
+The result is a binary mask per frame and the sky's share of each pixel (a soft matte:
+:func:`sky_matte` feathers a mask at another size), so that a wire or a branch against the sky is
+a mixed pixel, not a band.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import maxflow
+import numpy as np
+
+from wcbench.reference_model.scene_analysis.views import AnalysisViews
+
+__all__ = ["SkySegmentation", "infinity_residual", "refine_boundary", "segment_sky", "sky_features", "sky_matte"]
+
+#: Trees and depth of the per-scene classifier; seeds drawn per class at most.
+_TREES, _DEPTH, _MAX_SEEDS = 20, 12, 15000
+#: Seeds: no lidar return within this radius (px at 480 wide), smoothness and rotation-residual
+#: thresholds, lidar coverage (degrees of elevation) and the clear sky's blue (CIELAB).
+_SEED_CLEARANCE_PX, _SEED_MAX_STD, _SEED_MAX_RESIDUAL = 4, 0.03, 0.03
+_SEED_MAX_ELEVATION_DEG = 12.0
+#: Angular gap between a spinning lidar's upper beams (degrees): how far a wall may rise unseen
+#: above its topmost return (Hesai Pandar64's beams above +5 degrees are 2-4 apart; on
+#: pandaset_002_back a warehouse's roof line lies 4-5 degrees above its last return).
+_BEAM_GAP_DEG = 5.0
+#: Half the width (px) of a run of returns that makes a wall (rather than a pole or a mast), and
+#: the CIELAB step (3 rows above against 3 below) that ends a wall's continuation.
+_WALL_RUN_PX, _EDGE_DE = 6, 12.0
+_BLUE_B, _BLUE_A = -12.0, (-20.0, 5.0)
+#: Smoothness weight of the minimum cut, and the clip of the classifier's probability.
+_LAMBDA, _P_CLIP = 4.0, 0.03
+
+
+def infinity_residual(views: AnalysisViews, k: int, *, gap: int = 2) -> np.ndarray:
+    """[H, W] float32: how far frame ``k`` is from frames ``k - gap`` and ``k + gap`` warped by the
+    homography of the rotation between them (the motion of points at infinity): the smaller mean
+    absolute RGB difference of the two, blurred by 1 px. Zero when the scene has one frame."""
+    out = []
+    shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])  # pixel centres at +0.5
+    for j in (k - gap, k + gap):
+        if not 0 <= j < len(views):
+            continue
+        R = views.camera_to_world[j][:3, :3].T @ views.camera_to_world[k][:3, :3]
+        H = np.linalg.inv(shift) @ views.K[j] @ R @ np.linalg.inv(views.K[k]) @ shift
+        warped = cv2.warpPerspective(views.images[j], H, views.size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                     borderMode=cv2.BORDER_REPLICATE)
+        out.append(np.abs(warped - views.images[k]).mean(axis=-1))
+    if not out:
+        return np.zeros((views.height, views.width), np.float32)
+    return cv2.GaussianBlur(np.min(out, axis=0).astype(np.float32), (0, 0), 1.0)
+
+
+def sky_features(image: np.ndarray, residual: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+    """[H, W, 8] float32 per-pixel features: L*/100, a*/50, b*/50, 10 x the local standard deviation
+    of L*/100 over 5 x 5 and 15 x 15 px, the gradient magnitude of L*/100 (Sobel of a 1 px blur),
+    10 x the infinity residual and 5 x the sine of the ray's elevation (the clear sky darkens and
+    deepens in blue toward the zenith: a dark blue-grey is sky high up, a wall near the horizon)."""
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    L = lab[..., 0] / 100.0
+
+    def local_std(size: int) -> np.ndarray:
+        mu = cv2.blur(L, (size, size))
+        return np.sqrt(np.maximum(cv2.blur(L * L, (size, size)) - mu * mu, 0.0))
+
+    blurred = cv2.GaussianBlur(L, (0, 0), 1.0)
+    grad = np.hypot(cv2.Sobel(blurred, cv2.CV_32F, 1, 0), cv2.Sobel(blurred, cv2.CV_32F, 0, 1))
+    return np.stack([L, lab[..., 1] / 50.0, lab[..., 2] / 50.0, 10.0 * local_std(5), 10.0 * local_std(15), grad,
+                     10.0 * residual, 5.0 * elevation], -1).astype(np.float32)
+
+
+def _wall_continuation(image: np.ndarray, solid: np.ndarray, reach_px: float) -> np.ndarray:
+    """[H, W] bool: per column, the pixels from the topmost return of a wall (a run of returns
+    across 13 columns or more: not a pole or a mast) up to the highest step edge within ``reach_px``
+    rows above it (the mean CIELAB colour of the 3 rows above and the 3 below differ by more than
+    12: a roof line, a cornice, not a line of texture), or ``reach_px`` rows without one."""
+    h, w = solid.shape
+    joined = cv2.dilate(solid.astype(np.uint8), np.ones((1, 5), np.uint8))
+    walls = cv2.morphologyEx(joined, cv2.MORPH_OPEN, np.ones((1, 2 * _WALL_RUN_PX + 1), np.uint8)).astype(bool)
+    walls &= solid | cv2.dilate(solid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    top = np.where(walls.any(axis=0), walls.argmax(axis=0), h)
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    # a step edge, not a line of texture: the mean of the 3 rows above against the 3 rows below
+    csum = np.concatenate([np.zeros((1, w, 3), np.float32), np.cumsum(lab, axis=0)])
+    r = np.arange(h)
+    lo_a, hi_b = np.clip(r - 3, 0, h), np.clip(r + 3, 0, h)
+    above = (csum[r] - csum[lo_a]) / np.maximum(r - lo_a, 1)[:, None, None]
+    below = (csum[hi_b] - csum[r]) / np.maximum(hi_b - r, 1)[:, None, None]
+    edge = np.sqrt(np.sum((above - below) ** 2, axis=-1)) > _EDGE_DE  # a step between rows r - 1 and r
+    edge[0] = False
+    rows = np.arange(h)[:, None]
+    # the highest step edge within reach above each column's top (a wall's face may have steps of its
+    # own: windows, vents, a cornice; its roof line is the last one before the sky)
+    reach = round(reach_px)
+    lowest = top - reach
+    inside = edge & (rows <= top[None, :]) & (rows >= lowest[None, :])
+    stop = np.where(inside.any(axis=0), np.where(inside, rows, h).min(axis=0), lowest)
+    return (rows >= stop[None, :]) & (rows <= top[None, :]) & (top[None, :] < h)
+
+
+def refine_boundary(image: np.ndarray, mask: np.ndarray, never: np.ndarray, *, band_px: int = 3,
+                    window_px: int = 3, min_contrast: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """The sky's boundary placed by colour: each pixel within ``band_px`` of the boundary takes the
+    share of the sky in it, the projection of its colour on the line from the nearby foreground
+    colour F to the nearby sky colour B (the colour-line model of alpha matting, Levin, Lischinski &
+    Weiss 2008), and is sky when that share is at least one half (the rule of the hand-drawn masks).
+
+    B is the mean colour of the sky pixels outside the band within a Gaussian of ``2 window_px``
+    (normalised convolution); F is the colour farthest from B among the non-sky pixels within
+    ``window_px`` (the core of a wire, a pole, the wall behind an edge). Where B and F differ by less
+    than ``min_contrast`` (CIELAB), the label is kept.
+
+    Parameters
+    ----------
+    image : ndarray [H, W, 3] float32
+        Display RGB.
+    mask : ndarray [H, W] bool
+        The sky as cut.
+    never : ndarray [H, W] bool
+        Pixels that are never sky (returns, below the horizon).
+
+    Returns
+    -------
+    mask : ndarray [H, W] bool
+    alpha : ndarray [H, W] float32
+        The sky's share per pixel: the colour-line estimate in the band, the label elsewhere;
+        below 0.5 wherever ``never`` holds.
+    """
+    h, w = mask.shape
+    m8 = mask.astype(np.uint8)
+    size = 2 * band_px + 1
+    band = (cv2.dilate(m8, np.ones((size, size), np.uint8)) != cv2.erode(m8, np.ones((size, size), np.uint8)))
+    alpha = mask.astype(np.float32)
+    rr, cc = np.nonzero(band)
+    if rr.size == 0:
+        return mask.copy(), alpha
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    interior = (mask & ~band).astype(np.float32)
+    sigma = 2.0 * window_px
+    den = cv2.GaussianBlur(interior, (0, 0), sigma)
+    sky_col = cv2.GaussianBlur(lab * interior[..., None], (0, 0), sigma) / np.maximum(den, 1e-6)[..., None]
+    B = sky_col[rr, cc]
+    has_b = den[rr, cc] > 1e-3
+    # F: the non-sky colour farthest from B within the window
+    best = np.full(rr.size, -1.0)
+    F = np.zeros((rr.size, 3), np.float32)
+    for dy in range(-window_px, window_px + 1):
+        for dx in range(-window_px, window_px + 1):
+            y, x = rr + dy, cc + dx
+            ok = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+            y, x = np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)
+            cand = ok & ~mask[y, x]
+            col = lab[y, x]
+            d = np.where(cand, np.sum((col - B) ** 2, axis=1), -1.0)
+            take = d > best
+            best = np.where(take, d, best)
+            F[take] = col[take]
+    pix = lab[rr, cc]
+    line = B - F
+    norm2 = np.sum(line * line, axis=1)
+    share = np.clip(np.sum((pix - F) * line, axis=1) / np.maximum(norm2, 1e-6), 0.0, 1.0)
+    decided = has_b & (best >= 0) & (norm2 > min_contrast ** 2)
+    alpha[rr[decided], cc[decided]] = share[decided]
+    out = alpha >= 0.5
+    out &= ~never
+    alpha = np.where(never, np.minimum(alpha, 0.49), alpha)
+    return out, alpha.astype(np.float32)
+
+
+def _frame_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.ndarray, region: np.ndarray,
+                               *, components: int = 4, max_samples: int = 4000, seed: int = 0) -> np.ndarray | None:
+    """[H, W] float32: the probability of sky by colour alone, from Gaussian mixtures (OpenCV's
+    ``ml.EM``, diagonal covariances) fitted to this frame's sky and non-sky seed pixels in CIELAB
+    (GrabCut's colour model, Rother, Kolmogorov & Blake 2004), over ``region``; ``None`` when either
+    class has too few seeds."""
+    out = np.full(lab.shape[:2], 0.5, np.float32)
+    rng = np.random.default_rng(seed)
+    logs = []
+    for mask in (sky, not_sky):
+        x = lab[mask]
+        if len(x) < 20 * components:
+            return None
+        x = x[rng.choice(len(x), min(len(x), max_samples), replace=False)].astype(np.float64)
+        em = cv2.ml.EM_create()
+        em.setClustersNumber(components)
+        em.setCovarianceMatrixType(cv2.ml.EM_COV_MAT_DIAGONAL)
+        em.setTermCriteria((cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-3))
+        em.trainEM(x)
+        weights = em.getWeights().ravel()
+        means, covs = em.getMeans(), em.getCovs()
+        q = lab[region].astype(np.float64)
+        like = np.zeros(len(q))
+        for c in range(components):
+            var = np.maximum(np.diag(covs[c]), 1.0)
+            d = np.sum((q - means[c]) ** 2 / var, axis=1)
+            like += weights[c] * np.exp(-0.5 * d) / np.sqrt(np.prod(2 * np.pi * var))
+        logs.append(np.log(np.maximum(like, 1e-300)))
+    out[region] = (1.0 / (1.0 + np.exp(np.clip(logs[1] - logs[0], -50, 50)))).astype(np.float32)
+    return out
+
+
+def _column_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.ndarray, *,
+                                scale: float = 8.0) -> np.ndarray:
+    """[H, W] float32: the probability of sky by the colours of the column: a pixel is compared with
+    the nearest sky seed above it and the nearest non-sky seed (a return) below it in its column
+    (CIELAB, 3 x 3 box-filtered), p = 1 / (1 + exp((d_sky - d_not) / ``scale``)); 0.5 where either
+    is missing. A wall rising above its last return is the colour of that wall, not of the sky over
+    its roof line."""
+    h, w = sky.shape
+    smooth = cv2.blur(lab, (3, 3))
+    rows = np.arange(h)[:, None]
+    above = np.maximum.accumulate(np.where(sky, rows, -1), axis=0)
+    below = np.minimum.accumulate(np.where(not_sky, rows, h)[::-1], axis=0)[::-1]
+    cols = np.broadcast_to(np.arange(w)[None, :], (h, w))
+    has = (above >= 0) & (below < h)
+    d_sky = np.linalg.norm(lab - smooth[np.clip(above, 0, h - 1), cols], axis=-1)
+    d_not = np.linalg.norm(lab - smooth[np.clip(below, 0, h - 1), cols], axis=-1)
+    p = 1.0 / (1.0 + np.exp(np.clip((d_sky - d_not) / scale, -50, 50)))
+    return np.where(has, p, 0.5).astype(np.float32)
+
+
+def _top_connected(mask: np.ndarray) -> np.ndarray:
+    """The components of ``mask`` (4-connected) that touch the top row."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=4)
+    if n <= 1:
+        return mask.copy()
+    top = np.unique(labels[0][mask[0]])
+    return np.isin(labels, top[top > 0])
+
+
+def _cut(image: np.ndarray, p: np.ndarray, never: np.ndarray, always: np.ndarray) -> np.ndarray:
+    """[H, W] bool: the minimum cut of the sky/non-sky labelling (see the module docstring)."""
+    h, w = p.shape
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    dx = np.sum((lab[:, 1:] - lab[:, :-1]) ** 2, axis=-1)
+    dy = np.sum((lab[1:] - lab[:-1]) ** 2, axis=-1)
+    beta = 1.0 / (2.0 * max(float(np.concatenate([dx.ravel(), dy.ravel()]).mean()), 1e-6))
+    graph = maxflow.Graph[float]()
+    ids = graph.add_grid_nodes((h, w))
+    for diff, structure in ((dx, np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]])),
+                            (dy, np.array([[0, 0, 0], [0, 0, 0], [0, 1, 0]]))):
+        weights = np.zeros((h, w), np.float64)
+        weights[:diff.shape[0], :diff.shape[1]] = _LAMBDA * np.exp(-beta * diff)
+        graph.add_grid_edges(ids, weights=weights, structure=structure, symmetric=True)
+    pc = np.clip(p.astype(np.float64), _P_CLIP, 1.0 - _P_CLIP)
+    cost_sky, cost_not = -np.log(pc), -np.log1p(-pc)
+    big = 1e9
+    cost_sky[never] = big
+    cost_not[always & ~never] = big
+    # a node on the source side is sky and pays its sink capacity (the cost of being sky)
+    graph.add_grid_tedges(ids, cost_not, cost_sky)
+    graph.maxflow()
+    return ~graph.get_grid_segments(ids)
+
+
+@dataclass
+class SkySegmentation:
+    """Sky masks of every frame of a scene at the analysis size.
+
+    Attributes
+    ----------
+    masks : ndarray [F, H, W] bool
+    probability : ndarray [F, H, W] float32
+        The per-scene classifier's probability of sky (0 below the horizon).
+    alpha : ndarray [F, H, W] float32
+        The sky's share of each pixel (:func:`refine_boundary`): fractional along the boundary.
+    facts : dict
+        Seeds, classifier and timing facts for ``info.json``.
+    """
+
+    masks: np.ndarray
+    probability: np.ndarray
+    alpha: np.ndarray
+    facts: dict[str, Any] = field(default_factory=dict)
+
+
+def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0) -> SkySegmentation:
+    """Sky masks of every frame (see the module docstring).
+
+    Parameters
+    ----------
+    views : AnalysisViews
+    solid : list of ndarray [H, W] bool
+        Per frame, the pixels a lidar return projects into (static returns of every sweep and the
+        frame's own): never sky.
+    seed : int
+        Seeds the sampling of the classifier's training pixels.
+
+    Returns
+    -------
+    SkySegmentation
+        All-false masks when no frame has a sky seed (a view without open sky, or no lidar at all:
+        then nothing can be told from the image with confidence; ``facts["fallback"]`` says so).
+    """
+    n, h, w = len(views), views.height, views.width
+    clearance = max(1, round(_SEED_CLEARANCE_PX * w / 480))
+    kernel = np.ones((2 * clearance + 1, 2 * clearance + 1), np.uint8)
+    feats, above, sky_seeds, not_seeds = [], [], [], []
+    for k in range(n):
+        elev = views.elevation(k)
+        feat = sky_features(views.images[k], infinity_residual(views, k), elev)
+        near = cv2.dilate(solid[k].astype(np.uint8), kernel).astype(bool)
+        # not the continuation of a wall above its topmost return, up to the first edge (a spinning
+        # lidar's upper beams are degrees apart: between two of them a wall returns nothing either)
+        reach = views.K[k][1, 1] * math.tan(math.radians(_BEAM_GAP_DEG))
+        beyond = ~_wall_continuation(views.images[k], solid[k], reach)
+        lab = cv2.cvtColor(views.images[k], cv2.COLOR_RGB2Lab)
+        blue = (lab[..., 2] < _BLUE_B) & (lab[..., 1] > _BLUE_A[0]) & (lab[..., 1] < _BLUE_A[1])
+        within = elev < math.sin(math.radians(_SEED_MAX_ELEVATION_DEG))
+        smooth_static = (feat[..., 3] < 10 * _SEED_MAX_STD) & (feat[..., 6] < 10 * _SEED_MAX_RESIDUAL)
+        seeds = _top_connected((elev > 0.0) & ~near) & beyond & smooth_static & (within | blue)
+        feats.append(feat)
+        above.append(elev > 0.0)
+        sky_seeds.append(seeds)
+        not_seeds.append(solid[k] & (elev > -0.02))
+    n_sky = int(sum(s.sum() for s in sky_seeds))
+    n_not = int(sum(s.sum() for s in not_seeds))
+    facts: dict[str, Any] = {"size": [w, h], "sky_seed_pixels": n_sky, "non_sky_seed_pixels": n_not}
+    probability = np.zeros((n, h, w), np.float32)
+    masks = np.zeros((n, h, w), bool)
+    alphas = np.zeros((n, h, w), np.float32)
+    if n_sky == 0:
+        facts["fallback"] = "no confident sky pixel in any frame: no sky"
+        return SkySegmentation(masks=masks, probability=probability, alpha=alphas, facts=facts)
+    rng = np.random.default_rng(seed)
+    xs = np.concatenate([f[s] for f, s in zip(feats, sky_seeds)])
+    xn = np.concatenate([f[s] for f, s in zip(feats, not_seeds)]) if n_not else np.zeros((0, xs.shape[1]), np.float32)
+    xs = xs[rng.choice(len(xs), min(len(xs), _MAX_SEEDS), replace=False)]
+    if len(xn):
+        xn = xn[rng.choice(len(xn), min(len(xn), _MAX_SEEDS), replace=False)]
+        forest = cv2.ml.RTrees_create()
+        forest.setMaxDepth(_DEPTH)
+        forest.setMinSampleCount(10)
+        forest.setTermCriteria((cv2.TERM_CRITERIA_MAX_ITER, _TREES, 0))
+        cv2.setRNGSeed(seed)
+        forest.train(np.ascontiguousarray(np.concatenate([xs, xn]), np.float32), cv2.ml.ROW_SAMPLE,
+                     np.concatenate([np.ones(len(xs)), np.zeros(len(xn))]).astype(np.int32))
+    else:
+        forest = None
+    for k in range(n):
+        region = above[k]
+        p = np.zeros((h, w), np.float32)
+        if region.any():
+            if forest is None:
+                p[region] = 1.0
+            else:
+                _, votes = forest.predict(np.ascontiguousarray(feats[k][region]), flags=cv2.ml.DTREES_PREDICT_SUM)
+                p[region] = votes.ravel() / _TREES
+        lab = cv2.cvtColor(views.images[k], cv2.COLOR_RGB2Lab)
+        evidence = [p]
+        colour = _frame_colour_probability(lab, sky_seeds[k], not_seeds[k] & region, region, seed=seed + k)
+        if colour is not None:
+            evidence.append(colour)
+        evidence.append(_column_colour_probability(lab, sky_seeds[k], not_seeds[k]))
+        # the scene's classifier, the frame's colours and the column's colours: their mean log-odds
+        odds = np.mean([np.log(np.clip(e, _P_CLIP, 1 - _P_CLIP) / (1 - np.clip(e, _P_CLIP, 1 - _P_CLIP)))
+                        for e in evidence], axis=0)
+        p = np.where(region, 1.0 / (1.0 + np.exp(-odds)), 0.0).astype(np.float32)
+        probability[k] = p
+        cut = _cut(views.images[k], p, ~region | solid[k], sky_seeds[k]) & region & ~solid[k]
+        masks[k], alphas[k] = refine_boundary(views.images[k], cut, ~region | solid[k])
+    facts.update(classifier=f"random forest ({_TREES} trees, depth {_DEPTH}) on {len(xs)} sky and {len(xn)} "
+                            f"non-sky seed pixels", sky_fraction=round(float(masks.mean()), 4))
+    return SkySegmentation(masks=masks, probability=probability, alpha=alphas, facts=facts)
+
+
+def sky_matte(mask: np.ndarray, image: np.ndarray, solid: np.ndarray | None = None, *, radius: int = 2,
+              eps: float = 1e-3) -> np.ndarray:
+    """[H, W] float32 soft sky matte in [0, 1]: ``mask`` feathered along the frame's edges by a
+    guided filter (He et al. 2013) with ``image`` (display RGB) as guide; pixels of ``solid`` (lidar
+    returns) stay below 0.5, pixels far from the boundary keep their label.
+
+    Parameters
+    ----------
+    mask : ndarray [H, W] bool
+    image : ndarray [H, W, 3] float32
+    solid : ndarray [H, W] bool, optional
+    radius : int
+        Guided filter radius (px); 0 returns the mask as floats.
+    eps : float
+        Guided filter regularisation.
+    """
+    m = np.asarray(mask, np.float32)
+    if radius <= 0:
+        return m
+    alpha = cv2.ximgproc.guidedFilter(np.ascontiguousarray(image, np.float32), m, radius, eps)
+    alpha = np.clip(alpha, 0.0, 1.0)
+    # only the boundary band is feathered: a pixel whose whole window has one label keeps it
+    band = cv2.dilate(m, np.ones((2 * radius + 1,) * 2, np.uint8)) != cv2.erode(m, np.ones((2 * radius + 1,) * 2,
+                                                                                          np.uint8))
+    alpha = np.where(band, alpha, m)
+    if solid is not None:
+        alpha = np.where(solid, np.minimum(alpha, 0.49), alpha)
+    return alpha.astype(np.float32)
