@@ -197,6 +197,19 @@ def test_a_run_seed_equal_to_the_truths_stops_a_particle_method_before_anything_
     assert math.isclose(info["parameters"]["physics"]["visibility_m"], 150.0, rel_tol=1e-9)
 
 
+@pytest.mark.model
+def test_run_refuses_the_truths_seed_before_training(synth: Scene, tmp_path: Path, capsys) -> None:
+    """``wcbench run --method weathercity --seed <the truth's>`` exits 2 before anything trains or renders."""
+    from wcbench.cli import main
+
+    out = tmp_path / "run"
+    assert main(["run", "--method", "weathercity", "--scenes", str(synth.root), "--seed", "1001", "--profile",
+                 "quick", "--metrics", "psnr", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--seed 1001" in err and "draw the truth's own particles" in err
+    assert not list(out.rglob("*.png")) and not list(out.rglob("info.json"))
+
+
 def test_weathercity_physics_and_truth_draw_without_training(synth: Scene) -> None:
     """What its info.json records (:meth:`physics`, :meth:`truth_draw`), and its training's physics."""
     wc = get_method("weathercity", profile="quick")
@@ -205,6 +218,8 @@ def test_weathercity_physics_and_truth_draw_without_training(synth: Scene) -> No
         assert record == physics_record(resolve_physics(synth, "auto")[kind]) and record["weather"]["seed"] == 0
     assert wc.truth_draw(synth, "snow", seed=0)["used"] is False
     assert all(w.seed == 0 for w in wc.training_physics(synth).values())  # the model serves every seed
+    # `wcbench train` trains with the same physics, so that `run` finds its model
+    assert resolve_physics(synth, parse_weathers(None, who="train"), seed=0, draws=False) == wc.training_physics(synth)
     with pytest.raises(InputError, match="draw the truth's own particles"):
         wc.physics(synth, "rain", seed=1001)
     # trained on the simulated editor's edits of the truth frames: said so
