@@ -171,7 +171,7 @@ class PhysicalEditorMethod(FrameRenderer):
         self._weather: Weather | None = None
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """The weather option and the appearance overrides (the resolved weather goes to ``describe``)."""
+        """The weather option and the appearance overrides (the resolved weather: :meth:`physics`)."""
         return {"weathers": "clear" if weather == "clear" else describe_option(self.weathers, weather),
                 "appearance": self._appearance_overrides}
 

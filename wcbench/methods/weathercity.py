@@ -176,8 +176,8 @@ class WeatherCityMethod(FrameRenderer):
         return {kind: self.weather_for(kind, 0, scene, draws=False) for kind in EDITED}
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """Training settings, supervision, edits and the weather option (the resolved physics goes to
-        ``describe``; the seed is recorded apart)."""
+        """Training settings, supervision, edits and the weather option (the resolved physics:
+        :meth:`physics`; the seed is recorded apart)."""
         return {"training": self.config.to_json(), "supervision": self.supervision, "jitter": self.jitter,
                 "edits": [e.to_json() for e in self.edits],
                 "weather": describe_option(self.weathers, weather) if weather != "clear" else "clear"}
