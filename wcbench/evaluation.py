@@ -399,6 +399,11 @@ def _evaluate_locked(cfg: EvaluateConfig, method: Method | None, executor: Execu
         for unit in (u for scene_units in plan for u in scene_units):  # every unit can run: nothing written yet
             if is_runnable(unit.method):  # a reader is refused by name when its render is asked for
                 unit.method.check_scene(unit.scene, unit.weather)  # type: ignore[attr-defined]
+                # the physics it will render, resolved with the run's seed (FrameRenderer.physics): a seed
+                # it may not draw with (the truth's own particles) stops the run here, before any training
+                physics = getattr(unit.method, "physics", None)
+                if callable(physics):
+                    physics(unit.scene, unit.weather, seed=cfg.render.seed)
         executor.render(plan, cfg.render)
     units = _open_units(cfg, plan)
     config = _config_record(cfg, method, units, metric_cfg, folders)

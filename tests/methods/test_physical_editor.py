@@ -101,17 +101,20 @@ def test_a_contradicting_weather_is_refused_with_both_values():
 
 
 @pytest.mark.model
-def test_weathercity_supervision_is_checked_or_reconciled_against_its_physics(tmp_path, demo_scene):
+def test_weathercity_supervision_is_checked_against_its_physics(tmp_path, demo_scene):
     from wcbench.methods import get_method
     from wcbench.methods.filter2d import Filter2DMethod
     from wcbench.methods.scene_training import supervision_frames
 
     physics = {"fog": Weather(kind="fog", visibility_m=150.0)}
-    # filter2d fogs at the physics' visibility, and says so
-    frames, record = supervision_frames(demo_scene, "filter2d", ("fog",), 0.0, 0, physics=physics)
-    assert record["weather_check"]["fog"].startswith("reconciled: filter2d fogs at the physics' visibility 150 m")
-    assert record["parameters"]["fog"]["visibility_m"] == pytest.approx(150.0)
-    own = Filter2DMethod(effects=False).render_frame(demo_scene, "fog", 4, seed=0)
+    # filter2d fogs at the run's physics visibility (here another than the scene's), and says so
+    dense = {"fog": Weather(kind="fog", visibility_m=60.0)}
+    frames, record = supervision_frames(demo_scene, "filter2d", ("fog", "rain"), 0.0, 0, physics=dense)
+    assert record["weather_check"]["fog"] == "consistent: filter2d fogs at the run's physics visibility 60 m"
+    assert record["weather_check"]["rain"].startswith("unverified: filter2d's rain and snow are a 2D grade")
+    assert record["parameters"]["fog"]["visibility_m"] == pytest.approx(60.0)
+    assert record["physics"]["fog"]["visibility_m"] == pytest.approx(60.0)
+    own = Filter2DMethod(effects=False).render_frame(demo_scene, "fog", 4, seed=0)  # the scene's 150 m
     assert np.abs(frames["fog"][4].astype(float) - own.astype(float)).mean() > 1.0
     # a folder of edits that records its weather: the same physics reads as consistent...
     edits = tmp_path / "edits"

@@ -78,6 +78,10 @@ def test_severity_zero_renders_the_truth_exactly(truth_scene, tmp_path):
     assert method_options("sim-editor") == ["severity"]
     info = method.render(truth_scene, "rain", tmp_path / "rain", frames=[0, 1], show_progress=False)
     assert info["parameters"]["severity"] == 0.0 and info["parameters"]["truth"] == "scene references"
+    # it says plainly that it reads the truth frames: a calibration instrument, not a competitor
+    assert info["parameters"]["truth_draw"]["used"] is True
+    assert "reads the scene's ground-truth frames of rain" in info["parameters"]["truth_draw"]["note"]
+    assert info["parameters"]["physics"].startswith("none: sim-editor renders no weather")
     for k in (0, 1):
         assert np.array_equal(read_rgb8(tmp_path / "rain" / f"{k:03d}.png"), _truth(truth_scene, "rain", k))
     clear, _ = SimEditorMethod(severity=0.0).render_frame(truth_scene, "clear", 2, seed=0)
@@ -201,6 +205,7 @@ def test_weathercity_takes_sim_editor_supervision(truth_scene):
     assert record["weather_check"] == {"rain": "unverified: the scene records no weather of its truth"}
     # the filter2d record: its settings and how its weather relates to the physics
     _, f2d = supervision_frames(truth_scene, "filter2d", ("rain",), 0.0, 0)
-    assert set(f2d) == {"method", "effects", "jitter", "seed", "parameters", "weather_check"}
+    assert set(f2d) == {"method", "effects", "jitter", "seed", "parameters", "physics", "weather_check"}
+    assert f2d["physics"]["rain"]["unverified"].startswith("filter2d's rain is a 2D grade with no rate")
     with pytest.raises(InputError, match="'filter2d', sim-editor\\[:SEVERITY\\] or READER:DIR"):
         supervision_frames(truth_scene, "nowhere", ("rain",), 0.0, 0)

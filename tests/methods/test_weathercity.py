@@ -28,6 +28,9 @@ def test_run_weathercity_trains_renders_at_its_resolution_scores_and_records_tra
     info = json.loads((out / "weathercity" / "demo_street" / "fog" / "info.json").read_text())
     assert info["size"] == [96, 54]
     assert info["timings"]["train_s"] > 0
+    # the physics it rendered (the fog preset: the demo records no weather), and no draw of a truth
+    assert info["parameters"]["physics"]["visibility_m"] == pytest.approx(150.0)
+    assert info["parameters"]["truth_draw"]["used"] is False
     training = info["parameters"]["training"]
     assert training["iterations"] == 24 and training["resumed_at"] == 0
     assert training["trained_weathers"] == ["clear", "rain", "snow", "fog"]

@@ -238,10 +238,11 @@ def test_synth_3_scenes_with_pedestrians_load(synth_env):
         _check_moving_boxes_in_dynamic_masks(scene)
 
 
-def test_weathercity_renders_with_the_truths_physics_on_request(scene0: Scene, demo_scene: Scene) -> None:
+def test_weathercity_renders_the_truths_requested_weather_never_its_seed(scene0: Scene, demo_scene: Scene) -> None:
     from wcbench.methods.scene_training import training_hazes
-    from wcbench.methods.weather_spec import truth_physics
+    from wcbench.methods.weather_spec import requested_fields, truth_physics
     from wcbench.methods.weathercity import WeatherCityMethod
+    from wcbench.reference_model.weather.conditions import Weather
 
     truth = json.loads((scene0.root / "truth" / "weather.json").read_text(encoding="utf-8"))
     method = WeatherCityMethod(profile="quick", weathers="truth")
@@ -249,15 +250,20 @@ def test_weathercity_renders_with_the_truths_physics_on_request(scene0: Scene, d
     assert sorted(physics) == ["fog", "rain", "snow"]
     for kind in ("rain", "snow", "fog"):
         chosen = method.weather_for(kind, 7, scene0)
-        assert chosen.to_json() == truth[kind]["weather"]  # the truth's seed, not the run's 7
+        # what the truth asked for (preset, rate, visibility, wind...), drawn with the run's seed 7
+        assert requested_fields(chosen) == requested_fields(Weather.from_json(truth[kind]["weather"]))
+        assert chosen.seed == 7 != truth[kind]["seed"]
     assert method.weather_for("snow", 7, scene0).max_particles == 30000
     # without a recorded weather: the preset, seeded by the run; "auto" (the default) reads the record
     assert WeatherCityMethod(weathers="presets").weather_for("rain", 7, scene0).seed == 7
-    assert WeatherCityMethod().weather_for("rain", 7, scene0).to_json() == truth["rain"]["weather"]
+    assert WeatherCityMethod().weather_for("rain", 7, scene0) == method.weather_for("rain", 7, scene0)
     assert WeatherCityMethod().weather_for("rain", 7, demo_scene).seed == 7
+    # the truth's own seed is refused for the particles unless the weathers option names it
+    with pytest.raises(InputError, match="draw the truth's own particles"):
+        WeatherCityMethod().weather_for("rain", truth["rain"]["seed"], scene0)
     method.check_scene(scene0, "snow")
     # training composes the haze the renderer of the truth's weather adds
-    hazes = training_hazes(method.config, method.physics(scene0), ("clear", "rain", "snow", "fog"))
+    hazes = training_hazes(method.config, method.training_physics(scene0), ("clear", "rain", "snow", "fog"))
     assert sorted(hazes) == ["fog", "rain", "snow"]
     assert hazes["fog"].beta == pytest.approx(truth["fog"]["renderer"]["fog"]["density_per_m"], rel=1e-9)
     assert hazes["rain"].beta == pytest.approx(truth["rain"]["renderer"]["fog"]["density_per_m"], rel=1e-9)

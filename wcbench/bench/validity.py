@@ -27,10 +27,11 @@ Cases
     supervision's frames themselves: PSNR against the truth (``closer_psnr``: WeatherCity's is
     higher), and temporal flicker next to the truth's own (``closer_flicker``: WeatherCity's is
     nearer it), in the mean and per weather; ``psnr_clear_vs_raw``, the same run's clear
-    reconstruction. WeatherCity renders with the physics the truth was
-    rendered with, particle seed included (``weathers="truth"``): the editor's frames start from
-    the truth's own particles, and another draw of heavy snow alone is about 34 dB from the truth
-    (heavy rain 47 dB), a cap near the scores compared that says nothing about the scene.
+    reconstruction. WeatherCity renders the weather the truth requested (``weathers="truth"``:
+    rate, visibility, wind) with the run's particle seed, never the truth's (docs/design.md §4):
+    the editor's frames start from the truth's own particles, WeatherCity draws its own, and
+    another draw of heavy snow alone is about 34 dB from the truth (heavy rain 47 dB), a cap near
+    the scores compared that favours the editor and says nothing about the scene.
 ``first_run_<set>``
     (outside ``--quick``) The README's main job, ``wcbench run --method weathercity --scenes <set>
     --profile quick --report``, in a new process as on a fresh install: empty scene cache (the scenes are

@@ -11,7 +11,7 @@ Examples::
     wcbench render --scenes pandaset_002 --weathers rain --preset heavy --out renders
     wcbench render --scenes ../shared/data/pandaset_002 --weathers fog --visibility 60 --out renders
     wcbench render --scenes pandaset_002 --weathers snow --wind 4,20,30 --frames 0-9 --out renders
-    wcbench render --scenes pandaset_002 --weathers rain snow fog --out renders      # each at its preset
+    wcbench render --scenes pandaset_002 --weathers rain snow fog --out renders      # each as the scene requests
     wcbench render --method weathercity --scenes pandaset_002 --weathers rain --preset heavy --scale 0.5 \\
         --edit "remove class=Car" --out renders
 
@@ -23,7 +23,9 @@ or loaded from the cache; the method options ``--method-option``, ``--profile``,
 ``--jitter``, ``--ablation``, ``--holdout`` and ``--edit`` as for ``run``), rendered at any size.
 
 The weather options (``--preset``, ``--rate``, ``--visibility``...) apply to every weather of
-``--weathers``.
+``--weathers``; without any, each weather is the scene's requested one, as ``run`` renders it (the
+method's ``weathers="auto"``: a ``synth_*`` scene's recorded rate, visibility and wind, else the
+presets). The particle seed is ``--seed``, never the truth's (docs/design.md §4).
 
 ``render`` is a front of the units of work ``wcbench run`` renders through: the same method, seed,
 weather and size give the same frames either way: both take ``--frames`` and ``--scale`` or
@@ -184,9 +186,16 @@ def _weathers(args: argparse.Namespace) -> list[str]:
     return list(dict.fromkeys(kinds))
 
 
+#: The weather options of ``render`` (any of them given: the weathers are built from them).
+_WEATHER_FLAGS = ("preset", "rate", "count", "visibility", "fog_density", "fog_color", "wind", "exposure")
+
+
 def _method_options(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
-    """Options of the method: the weathers, and the scene settings that were given."""
-    options: dict[str, Any] = {"weathers": {kind: _weather(args, kind) for kind in _weathers(args)}}
+    """Options of the method: the weathers (``"auto"`` when no weather option is given, as ``run``
+    renders them), and the scene settings that were given."""
+    given = any(getattr(args, flag) is not None for flag in _WEATHER_FLAGS) or args.fog_mode != "exact"
+    options: dict[str, Any] = {"weathers": {kind: _weather(args, kind) for kind in _weathers(args)
+                                            if kind != "clear"} if given else "auto"}
     if args.voxel is not None:
         options["voxel_m"] = args.voxel
     if args.init_frames is not None:

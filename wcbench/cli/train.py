@@ -114,9 +114,11 @@ def run(args: argparse.Namespace) -> int:
         bad = [h for h in config.holdout if not 0 <= h < len(scene)]
         if bad:
             raise InputError(f"--holdout {bad}: {scene.id} has frames 0..{len(scene) - 1}")
-        # the physics `run --method weathercity` renders with (same weathers option), so that it finds this model
+        # the physics `run --method weathercity` trains with (same weathers option; seed 0 and no particle
+        # draw, as WeatherCityMethod.training_physics), so that it finds this model
         _, _, facts = train_scene(scene, config, supervision=supervision, jitter=jitter,
-                                  physics=resolve_physics(scene, weathers), folder=args.checkpoint,
+                                  physics=resolve_physics(scene, weathers, seed=0, draws=False),
+                                  folder=args.checkpoint,
                                   show_progress=not args.no_progress)
         path = args.out / scene.id / "training.json"
         atomic_write_json(path, {**facts, "models": {name: o.record() for name, o in models.items()}})

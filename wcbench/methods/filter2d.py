@@ -3,9 +3,15 @@
 Each frame is edited on its own, as 2D photo filters do:
 
 * fog: Beer-Lambert with a flat-ground distance guess per image row (rows above the horizon are
-  treated as far away), t = exp(-beta d), C = t I + (1 - t) c_fog;
+  treated as far away), t = exp(-beta d), C = t I + (1 - t) c_fog, at the visibility and colour of
+  the scene's requested fog (the run's one weather spec, :mod:`wcbench.methods.weather_spec`: on a
+  ``synth_*`` scene the 150 m its truth was made with, elsewhere the fog preset's) unless
+  ``visibility_m`` says otherwise;
 * rain: darker, bluer, lower-contrast image plus seeded motion-blurred streaks;
 * snow: brighter, lower-contrast image plus seeded soft flakes.
+
+Rain and snow are 2D grades with no rate: ``info.json`` records them as unverified against the
+requested rate (``parameters.physics``).
 
 Streaks and flakes are drawn afresh per frame from (seed, frame), so the baseline is deterministic
 but, like any per-frame editor, not temporally coherent: exactly what flicker metrics should see.
@@ -21,6 +27,8 @@ simulated editor errors from them.
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -31,14 +39,16 @@ from wcbench.core.image_io import read_rgb8, to_uint8
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
+from wcbench.methods.weather_spec import physics_record, resolve_physics
+from wcbench.reference_model.weather.conditions import Weather
+from wcbench.reference_model.weather.fog import visibility_from_density
 from wcbench.scenes.scene import Scene
 
-FOG_COLOR = (0.80, 0.80, 0.85)  # paper's c_fog
-#: Fog visibility (m) unless told another (``visibility_m``).
-FOG_VISIBILITY_M = 60.0
+FOG_COLOR = (0.80, 0.80, 0.85)  # paper's c_fog (also the fog preset's colour)
 _PARAMS: dict[str, dict[str, Any]] = {
     "clear": {},
-    "fog": {"visibility_m": FOG_VISIBILITY_M, "fog_color": FOG_COLOR, "camera_height_m": 1.6, "far_m": 1000.0},
+    # the visibility and colour come from the scene's requested fog (:meth:`Filter2DMethod.fog_weather`)
+    "fog": {"camera_height_m": 1.6, "far_m": 1000.0},
     "rain": {"darken": 0.78, "tint": (0.92, 0.96, 1.05), "streaks_per_megapixel": 1500, "streak_px": 0.06},
     "snow": {"brighten": 0.12, "flakes_per_megapixel": 2500, "flake_px": 0.004},
 }
@@ -50,7 +60,29 @@ def _rng(seed: int, index: int) -> np.random.Generator:
 
 def fog_filter(img: np.ndarray, K: np.ndarray, *, visibility_m: float, fog_color: tuple[float, float, float],
                camera_height_m: float, far_m: float) -> np.ndarray:
-    """Flat-ground Beer-Lambert fog on float RGB [H, W, 3]; returns float RGB."""
+    """Flat-ground Beer-Lambert fog on float RGB.
+
+    Parameters
+    ----------
+    img : ndarray [H, W, 3] float
+        RGB in [0, 1].
+    K : ndarray [3, 3]
+        Camera intrinsics of ``img`` (px).
+    visibility_m : float
+        Visibility V (m), beta = 2.996 / V (``inf``: no fog).
+    fog_color : (float, float, float)
+        RGB of the fog in [0, 1].
+    camera_height_m : float
+        Height of the camera above the assumed flat ground (m): row r below the principal point is
+        at distance h f_y / (r - c_y).
+    far_m : float
+        Distance of the rows at or above the horizon, and the cap of every distance (m).
+
+    Returns
+    -------
+    ndarray [H, W, 3] float64
+        t I + (1 - t) c_fog with t = exp(-beta d) per row.
+    """
     h = img.shape[0]
     beta = 2.996 / visibility_m
     rows = np.arange(h, dtype=np.float64) + 0.5 - K[1, 2]
@@ -245,8 +277,10 @@ class Filter2DMethod(FrameRenderer):
     jitter : float
         Strength in [0, 1] of the per-frame perturbations of :func:`jitter_frame`.
     visibility_m : float, optional
-        Fog visibility (m; default 60): WeatherCity sets its physics fog's when it trains on
-        filter2d (one weather spec for the supervision and the physics).
+        Fog visibility (m), winning over the scene's requested one. The default is the fog every
+        method resolves for the scene (``resolve_physics(scene, "auto")``: the weather a scene's
+        truth requested where it records one, 150 m on the ``synth_*`` scenes, else the fog
+        preset's, 150 m); WeatherCity trained on filter2d sets its physics fog's.
     """
 
     info = MethodInfo(
@@ -264,15 +298,46 @@ class Filter2DMethod(FrameRenderer):
             raise InputError(f"filter2d: visibility_m must be a finite visibility > 0 m, got {visibility_m}")
         self.effects, self.jitter = bool(effects), float(jitter)
         self.visibility_m = None if visibility_m is None else float(visibility_m)
+        self._fog: dict[str, tuple[Weather, float, tuple[float, float, float]]] = {}
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """The filter settings used for ``weather``."""
+        """The filter settings used for ``weather`` (the fog's weather: :meth:`physics`)."""
         out = dict(_PARAMS[weather])
-        if weather == "fog" and self.visibility_m is not None:
-            out["visibility_m"] = self.visibility_m
+        if weather == "fog":
+            out["visibility_m"] = self.visibility_m if self.visibility_m is not None else "the scene's requested"
         if not self.effects or self.jitter:  # the defaults leave the record (and render keys) as they were
             out.update(effects=self.effects, jitter=self.jitter)
         return out
+
+    def fog_weather(self, scene: Scene) -> tuple[Weather, float, tuple[float, float, float]]:
+        """The fog ``scene`` is filtered with: (Weather, visibility m, RGB colour in [0, 1]).
+
+        The scene's requested fog (``resolve_physics(scene, "auto")``, the same resolved weather as
+        every other method's), its visibility replaced by ``visibility_m`` when that is given;
+        ``inf`` m when the weather has no haze. Read once per scene folder.
+        """
+        key = str(scene.root)
+        if key not in self._fog:
+            # filter2d draws no physics particles: the seed is not used (draws=False)
+            fog = resolve_physics(scene, "auto", draws=False)["fog"]
+            if self.visibility_m is not None:
+                fog = replace(fog, visibility_m=self.visibility_m, fog_density=None)
+            beta, color, _ = fog.haze()
+            visibility = visibility_from_density(beta) if beta > 0 else math.inf
+            self._fog[key] = (fog, visibility, (float(color[0]), float(color[1]), float(color[2])))
+        return self._fog[key]
+
+    def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
+        """Fog: the physics record of the fog it filters with. Rain and snow: 2D grades with no rate,
+        recorded as unverified next to the weather the scene requested. Clear: none."""
+        if weather == "clear":
+            return "none: clear is the raw frame"
+        if weather == "fog":
+            return physics_record(self.fog_weather(scene)[0])
+        requested = resolve_physics(scene, "auto", seed=seed, draws=False)[weather]
+        rate = requested.precipitation_rate()
+        return {"unverified": f"filter2d's {weather} is a 2D grade with no rate: not checked against the "
+                              f"requested {rate:g} mm/h", "requested": physics_record(requested)}
 
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> np.ndarray:
         """Edit raw frame ``index``; uint8 RGB out."""
@@ -282,8 +347,8 @@ class Filter2DMethod(FrameRenderer):
         if weather == "clear":
             out = raw
         elif weather == "fog":
-            out = fog_filter(raw, scene.frames[index].camera.K, **{**p, **({"visibility_m": self.visibility_m}
-                                                                          if self.visibility_m else {})})
+            _, visibility, color = self.fog_weather(scene)
+            out = fog_filter(raw, scene.frames[index].camera.K, visibility_m=visibility, fog_color=color, **p)
         else:
             h, w = raw.shape[:2]
             mpx = h * w / 1e6

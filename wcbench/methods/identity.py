@@ -26,6 +26,10 @@ class IdentityMethod(FrameRenderer):
         layout="writes <out>/identity/<scene>/<weather>/{frame:03d}.png + info.json",
     )
 
+    def physics(self, scene: Scene, weather: str, *, seed: int) -> str:
+        """None: every weather is the raw frames."""
+        return "none: identity copies the raw frames; it renders no weather"
+
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> np.ndarray:
         """The raw frame ``index`` as uint8 RGB."""
         return read_rgb8(scene.frames[index].image_path)

@@ -9,7 +9,6 @@ both render it through the same units of work (:mod:`wcbench.units`).
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -20,6 +19,14 @@ from wcbench.core.progress import phase
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
+from wcbench.methods.weather_spec import (
+    WeathersOption,
+    describe_option,
+    parse_weathers,
+    physics_record,
+    resolve_physics,
+    truth_draw,
+)
 from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import WeatherRenderer, camera_velocity, scale_camera
@@ -29,12 +36,16 @@ from wcbench.scenes.scene import Scene
 class LidarInitMethod(FrameRenderer):
     """Lidar-initialised Gaussians rendered under a physics weather per kind.
 
-    Each kind draws the :class:`~wcbench.reference_model.weather.conditions.Weather` given for it.
+    Each kind draws the :class:`~wcbench.reference_model.weather.conditions.Weather` the run's one
+    weather spec gives it (:func:`~wcbench.methods.weather_spec.resolve_physics`), with the run's
+    particle seed.
 
     Parameters
     ----------
-    weathers : dict of str to Weather, optional
-        The weather to use for a kind; kinds not given use their default preset.
+    weathers : "auto", "truth", "presets" or dict, optional
+        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_weathers`; a dict
+        of :class:`Weather` or of its fields). Default ``"auto"``: the weather a scene's truth
+        requested where it records one (``synth_*``), else each kind's default preset.
     size : (int, int), optional
         Output (width, height); ``scale`` is used when not given.
     scale : float
@@ -51,7 +62,7 @@ class LidarInitMethod(FrameRenderer):
     def __init__(
         self,
         *,
-        weathers: dict[str, Weather] | None = None,
+        weathers: Any = None,
         size: tuple[int, int] | None = None,
         scale: float = 0.25,
         voxel_m: float = 0.2,
@@ -61,7 +72,7 @@ class LidarInitMethod(FrameRenderer):
             raise InputError(f"scale must be in (0, 4], got {scale}")
         if size is not None and (size[0] < 1 or size[1] < 1):
             raise InputError(f"size must be positive, got {size}")
-        self.weathers = dict(weathers or {})
+        self.weathers: WeathersOption = parse_weathers(weathers, who="lidar-init")
         self.size, self.scale, self.voxel_m, self.init_frames = size, scale, voxel_m, init_frames
         self.info = MethodInfo(
             name="lidar-init",
@@ -76,16 +87,39 @@ class LidarInitMethod(FrameRenderer):
         self._background: np.ndarray | None = None
         self._renderer: WeatherRenderer | None = None
 
-    def weather_for(self, kind: str, seed: int) -> Weather:
-        """The weather of ``kind`` with ``seed`` (the given one, or the kind's default preset)."""
-        base = self.weathers.get(kind, Weather(kind=kind))
-        return replace(base, seed=seed)
+    def weather_for(self, kind: str, seed: int, scene: Scene) -> Weather:
+        """The physics weather of ``kind`` for ``scene`` with particle seed ``seed``.
+
+        Raises
+        ------
+        InputError
+            ``seed`` is the particle seed of the scene's truth (:func:`resolve_physics`), or
+            ``weathers="truth"`` on a scene that records none.
+        """
+        if kind == "clear":
+            return Weather(kind="clear", seed=seed)
+        return resolve_physics(scene, self.weathers, seed=seed)[kind]
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """Weather description (seed excluded: it is recorded on its own) and scene settings."""
-        desc = self.weather_for(weather, 0).to_json()
-        desc.pop("seed", None)
-        return {"weather": desc, "init": {"voxel_m": self.voxel_m, "frames": self.init_frames}}
+        """The weather option (the resolved weather: :meth:`physics`) and scene settings."""
+        return {"weather": "clear" if weather == "clear" else describe_option(self.weathers, weather),
+                "init": {"voxel_m": self.voxel_m, "frames": self.init_frames}}
+
+    def check_scene(self, scene: Scene, weather: str) -> None:
+        """``weathers="truth"`` needs the scene's recorded weather (checked before any render)."""
+        if weather != "clear":
+            resolve_physics(scene, self.weathers, draws=False)
+
+    def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
+        """The physics weather its particles and fog are drawn with (clear: none)."""
+        if weather == "clear":
+            return "none: clear renders no weather"
+        return physics_record(self.weather_for(weather, seed, scene))
+
+    def truth_draw(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any]:
+        """Its particle seed against the truth's (:func:`~wcbench.methods.weather_spec.truth_draw`)."""
+        return truth_draw(scene, None if weather == "clear" else self.weather_for(weather, seed, scene),
+                          option=self.weathers)
 
     def native_size(self, scene: Scene) -> tuple[int, int]:
         """``size`` if given, else the scene's size times ``scale``."""
@@ -108,7 +142,7 @@ class LidarInitMethod(FrameRenderer):
             self._scene_key = key
         first = scene.frames[0].camera
         self._renderer = WeatherRenderer(
-            self._gaussians.static, self.weather_for(weather, seed), up=scene.up,
+            self._gaussians.static, self.weather_for(weather, seed, scene), up=scene.up,
             heading=first.camera_to_world[:3, 2], anchor=first.center, background=self._background,
         )
         self._centers = np.stack([f.camera.center for f in scene.frames])

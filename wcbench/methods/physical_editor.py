@@ -11,9 +11,10 @@ own.
 
 It reads only what a real scene has: frames, poses, lidar, tracks, and sky masks where the scene
 ships them (never a ``truth/`` frame). Its weather is the run's physics weather
-(:mod:`wcbench.methods.weather_spec`): on a scene that records its own (``synth_*``), that one;
-``info.json`` records it (``parameters.physics``) so that a folder of its frames used as
-supervision can be checked against another run's physics.
+(:mod:`wcbench.methods.weather_spec`): on a scene that records the weather its truth requested
+(``synth_*``), those rates, visibilities and wind, never the truth's particle seed (it draws no
+particles anyway); ``info.json`` records it (``parameters.physics``) so that a folder of its frames
+used as supervision can be checked against another run's physics.
 """
 
 from __future__ import annotations
@@ -133,7 +134,8 @@ class PhysicalEditorMethod(FrameRenderer):
     ----------
     weathers : "auto", "truth", "presets" or dict, optional
         The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_weathers`;
-        default ``"auto"``: a scene's recorded weather where it ships one, else the presets).
+        default ``"auto"``: the weather a scene's truth requested where it records one, else the
+        presets).
     appearance : dict, optional
         Overrides of the ``[appearance]`` preset tables, per table
         (``'appearance={"rain": {"puddle_max": 0.2}}'``).
@@ -169,7 +171,7 @@ class PhysicalEditorMethod(FrameRenderer):
         self._weather: Weather | None = None
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """The weather option and the appearance overrides (the resolved weather goes to ``describe``)."""
+        """The weather option and the appearance overrides (the resolved weather: :meth:`physics`)."""
         return {"weathers": "clear" if weather == "clear" else describe_option(self.weathers, weather),
                 "appearance": self._appearance_overrides}
 
@@ -186,7 +188,7 @@ class PhysicalEditorMethod(FrameRenderer):
         """The scene needs lidar; ``weathers="truth"`` needs its recorded weather."""
         check_lidar(scene)
         if weather != "clear":
-            resolve_physics(scene, self.weathers)
+            resolve_physics(scene, self.weathers, draws=False)
 
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
         """Build the scene's lidar surfaces once per scene; resolve ``weather``'s physics."""
@@ -195,18 +197,23 @@ class PhysicalEditorMethod(FrameRenderer):
             check_lidar(scene)
             self._editor = WeatherEditor(scene, params=self.appearance)
             self._scene_key = key
-        self._weather = None if weather == "clear" else resolve_physics(scene, self.weathers, seed=seed)[weather]
+        self._weather = self._resolve(scene, weather, seed)
+
+    def _resolve(self, scene: Scene, weather: str, seed: int) -> Weather | None:
+        """The physics weather of ``weather`` (``None`` for clear); it draws no particles, so any
+        ``seed`` is accepted."""
+        return None if weather == "clear" else resolve_physics(scene, self.weathers, seed=seed, draws=False)[weather]
+
+    def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
+        """The resolved physics (what a supervision check compares); clear: none."""
+        resolved = self._resolve(scene, weather, seed)
+        return physics_record(resolved) if resolved is not None else "none: clear is the raw frame"
 
     def describe(self) -> dict[str, Any]:
-        """The resolved physics (``physics``: what a supervision check compares), the appearance
-        parameters and the surfaces' counts."""
+        """The appearance parameters and the surfaces' counts (the physics: :meth:`physics`)."""
         if self._editor is None:
             return {}
-        out: dict[str, Any] = {"appearance_parameters": self._editor.params.to_json(),
-                               "surfaces": self._editor.surfaces.facts}
-        if self._weather is not None:
-            out["physics"] = physics_record(self._weather)
-        return out
+        return {"appearance_parameters": self._editor.params.to_json(), "surfaces": self._editor.surfaces.facts}
 
     def setup_timings(self) -> dict[str, float]:
         """``setup_s``: building the lidar surfaces."""

@@ -3,7 +3,8 @@
 A subclass implements :meth:`FrameRenderer.render_frame` (and optionally :meth:`prepare`,
 :meth:`native_size`, :meth:`describe`); :meth:`FrameRenderer.render` writes
 ``<out>/{frame:03d}.png`` atomically, keeps a small state file so a killed render resumes where it
-stopped, times every frame (FPS) and finally writes ``info.json`` with the parameters and the
+stopped, times every frame (FPS) and finally writes ``info.json`` with the parameters (among them
+``physics``, the weather it rendered, and ``truth_draw``, what of the ground truth it used) and the
 sha256 of every frame. A folder finished with other settings is never replaced unless asked.
 """
 
@@ -24,6 +25,7 @@ from wcbench.core.storage import atomic_write_json, sha256_file, sha256_json
 from wcbench.core.timing import FrameTimer
 from wcbench.core.working_size import SizeRequest
 from wcbench.methods.protocol import MethodInfo
+from wcbench.methods.weather_spec import truth_draw as _truth_draw
 from wcbench.predictions import (
     CANONICAL_PATTERN,
     INFO_FILE,
@@ -108,6 +110,24 @@ class FrameRenderer(ABC):
         """Facts known after :meth:`prepare` (model sizes...), added to ``info.json`` parameters."""
         return {}
 
+    def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
+        """The physics weather ``weather`` of ``scene`` is rendered with (``info.json``
+        ``parameters.physics``).
+
+        A method that renders a physics weather returns its
+        :func:`~wcbench.methods.weather_spec.physics_record` (the Weather, rate and visibility a
+        supervision check compares); the record is then part of the render key, since the scene's
+        requested weather decides the frames. One that takes none says so in a sentence (the
+        default). Called before anything is written, so an :class:`InputError` here (a weather the
+        scene cannot give) stops the run cleanly.
+        """
+        return f"none: {self.info.name} renders no physics weather"
+
+    def truth_draw(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any]:
+        """What of the scene's ground truth the render used (``info.json`` ``parameters.truth_draw``;
+        :func:`~wcbench.methods.weather_spec.truth_draw`). Default: nothing."""
+        return _truth_draw(scene, None)
+
     def setup_timings(self) -> dict[str, float]:
         """Time spent before the frames (e.g. ``{"train_s": ...}``), added to ``info.json`` timings."""
         return {}
@@ -143,11 +163,15 @@ class FrameRenderer(ABC):
         return seq
 
     def _key(self, scene: Scene, weather: str, seed: int, frames: list[int]) -> str:
-        return sha256_json({
+        inputs: dict[str, Any] = {
             "method": self.info.name, "version": self.version, "weather": weather, "seed": seed,
             "parameters": self.parameters(weather), "size": list(self.output_size(scene)), "frames": frames,
             "scene": scene.id, "sources": [sha256_file(f.image_path) for f in scene.frames],
-        })
+        }
+        physics = self.physics(scene, weather, seed=seed)
+        if isinstance(physics, dict):  # a weather resolved from the scene decides the frames; a "none" does not
+            inputs["physics"] = physics
+        return sha256_json(inputs)
 
     def _check_existing(self, out_dir: Path, key: str, overwrite: bool) -> dict[str, Any] | None:
         """The finished info.json if it is up to date; clears a stale one when ``overwrite``."""
@@ -257,7 +281,9 @@ class FrameRenderer(ABC):
         info = {
             "method": self.info.name, "version": self.version, "scene": scene.id, "weather": weather,
             "seed": seed, "key": key, "size": [width, height],
-            "parameters": {**self.parameters(weather), **self.describe()},
+            "parameters": {**self.parameters(weather), **self.describe(),
+                           "physics": self.physics(scene, weather, seed=seed),
+                           "truth_draw": self.truth_draw(scene, weather, seed=seed)},
             "timings": {**timer.summary(width=width, height=height), **self.setup_timings()},
             "frames": [
                 {"file": canonical_frame_path(out_dir, k).name, "index": k,

@@ -31,7 +31,6 @@ from wcbench.core.paths import cache_dir
 from wcbench.core.progress import progress
 from wcbench.core.storage import sha256_file, sha256_json
 from wcbench.methods import get_method
-from wcbench.methods.filter2d import FOG_VISIBILITY_M as FILTER2D_VISIBILITY_M
 from wcbench.methods.filter2d import Filter2DMethod
 from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
 from wcbench.methods.physical_editor import edit_scene
@@ -92,8 +91,8 @@ def supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitte
     or ``READER:DIR``) and a record of them, each weather checked against the run's ``physics``.
 
     The record's ``weather_check`` says per weather how the supervision's weather relates to the
-    physics: ``"consistent"`` (made from the same spec, or recorded and equal), ``"reconciled: ..."``
-    (a built-in editor set to the physics' values) or ``"unverified: ..."`` (a folder that records
+    physics: ``"consistent"`` (made from the same spec, or recorded and equal) or
+    ``"unverified: ..."`` (``filter2d``'s rain and snow, which have no rate; a folder that records
     no weather). A recorded contradiction is refused.
 
     Raises
@@ -114,16 +113,20 @@ def supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitte
     if spec == "filter2d":
         fog = edited.get("fog")
         beta = fog.haze()[0] if fog is not None else 0.0
-        visibility = visibility_from_density(beta) if beta > 0 else None
-        f2d = Filter2DMethod(effects=False, jitter=jitter, visibility_m=visibility)
+        # the run's physics visibility, which a weathers option may have set apart from the scene's
+        f2d = Filter2DMethod(effects=False, jitter=jitter,
+                             visibility_m=visibility_from_density(beta) if beta > 0 else None)
         for w in weathers:
             frames[w] = [f2d.render_frame(scene, w, k, seed=seed) for k in range(len(scene))]
         check = {w: "unverified: filter2d's rain and snow are a 2D grade with no rate" for w in weathers if w != "fog"}
         if "fog" in weathers:
-            check["fog"] = (f"reconciled: filter2d fogs at the physics' visibility {visibility:.4g} m (its own "
-                            f"default: {FILTER2D_VISIBILITY_M:g} m)" if visibility else "unverified: no fog haze")
+            _, visibility, _ = f2d.fog_weather(scene)
+            check["fog"] = (f"consistent: filter2d fogs at the run's physics visibility {visibility:.4g} m"
+                            if beta > 0 else f"unverified: the run's physics fog has no haze; filter2d fogs at "
+                                             f"the scene's requested {visibility:.4g} m")
         record = {"method": "filter2d", "effects": False, "jitter": jitter, "seed": seed,
-                  "parameters": {w: f2d.parameters(w) for w in weathers}, "weather_check": check}
+                  "parameters": {w: f2d.parameters(w) for w in weathers},
+                  "physics": {w: f2d.physics(scene, w, seed=seed) for w in weathers}, "weather_check": check}
         return frames, record
     severity = check_supervision(spec, jitter)
     if severity is not None:  # the simulated editor's frames of the scene's truth (synth scenes)
@@ -183,6 +186,8 @@ def _check_folder_weather(info_path: Path, kind: str, physics: Weather | None) -
     except (OSError, ValueError):
         doc = {}
     record = (doc.get("parameters") or {}).get("physics") if isinstance(doc, dict) else None
+    if isinstance(record, dict) and "unverified" in record:  # e.g. filter2d's rain: a grade with no rate
+        return f"unverified: {info_path} says {record['unverified']}"
     if not isinstance(record, dict):
         return "unverified: the folder records no weather (info.json parameters.physics)"
     check_consistent(kind, physics, record, source=str(info_path))

@@ -42,6 +42,7 @@ from wcbench.core.weathers import WEATHERS
 from wcbench.methods.filter2d import FOG_COLOR, overlay_strokes, smear_blotches, smooth_warp, tone_jitter
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
+from wcbench.methods.weather_spec import truth_draw
 from wcbench.scenes.scene import Scene
 
 __all__ = [
@@ -398,6 +399,22 @@ class SimEditorMethod(FrameRenderer):
     def check_scene(self, scene: Scene, weather: str) -> None:
         """The scene must have truth frames of ``weather`` (checked for every unit before any render)."""
         truth_paths(scene, weather)
+
+    def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
+        """None of its own: it edits the truth frames, whatever weather made them."""
+        if weather == "clear":
+            return "none: clear is the raw frame with an editor's errors"
+        return f"none: {NAME} renders no weather; it edits the scene's ground-truth frames of {weather}"
+
+    def truth_draw(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any]:
+        """It reads the truth frames (their particles included): a calibration instrument of the
+        validity bench, not a competitor."""
+        if weather == "clear":
+            return truth_draw(scene, None)
+        return truth_draw(scene, None, reads=(
+            f"reads the scene's ground-truth frames of {weather} (truth/{weather}/, the truth's own particles "
+            "included) and adds an editor's errors: a calibration instrument of the validity bench, not a "
+            "competitor"))
 
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
         """Check the scene has truth frames of ``weather`` before any frame is drawn."""

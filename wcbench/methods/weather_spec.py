@@ -3,16 +3,23 @@
 A run's weather of each edited kind is one
 :class:`~wcbench.reference_model.weather.conditions.Weather` (rain or snow rate, fog visibility,
 haze, wind, particle seed). WeatherCity's particles and haze, the haze its training renders pass
-through, and the built-in editors that make its supervision (``physical-editor``, and ``filter2d``'s
-fog) all read that object (docs/design.md §4):
+through, the built-in editors that make its supervision (``physical-editor``, ``filter2d``'s fog)
+and ``lidar-init`` all read that object (docs/design.md §4):
 
 * :func:`parse_weathers` turns the ``weathers`` option (``"auto"``, ``"truth"``, ``"presets"`` or a
   dict of Weather fields per kind) into a spec; :func:`resolve_physics` gives a scene's weathers
-  under it: ``"auto"`` (the default) is the scene's own recorded weather where it ships one
-  (``truth/weather.json`` of the ``synth_*`` scenes), else the presets;
+  under it: ``"auto"`` (the default) is the scene's *requested* weather where it records one
+  (``truth/weather.json`` of the ``synth_*`` scenes: preset, rate, visibility, wind...), else the
+  presets;
+* a Weather's fields are requests (what a user asks for) except its particle ``seed``, a random
+  draw: a scene's record never gives it. The seed is the run's (``--seed``), or one a ``weathers``
+  dict names; a method that draws particles is refused a run seed that equals the truth's
+  (:func:`resolve_physics`), so no method renders the truth's own particles unless asked to by
+  name, and :func:`truth_draw` records which draw a render used (``info.json``
+  ``parameters.truth_draw``);
 * :func:`check_consistent` compares the weather a supervision says it made with the run's physics
-  and refuses a contradiction, naming the two values; :func:`physics_record` is what an edited
-  folder records (``info.json`` ``parameters.physics``) so that the check can be made later.
+  and refuses a contradiction, naming the two values; :func:`physics_record` is what a render
+  records (``info.json`` ``parameters.physics``) so that the check can be made later.
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,29 +36,58 @@ from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.fog import visibility_from_density
 from wcbench.scenes.scene import Scene
 
-__all__ = ["EDITED", "WeathersOption", "check_consistent", "describe_option", "has_truth_weather", "parse_weathers",
-           "physics_record", "resolve_physics", "truth_physics"]
+__all__ = ["DRAWS", "EDITED", "WeatherRequest", "WeathersOption", "check_consistent", "describe_option",
+           "has_truth_weather", "parse_weathers", "physics_record", "requested_fields", "resolve_physics",
+           "truth_draw", "truth_physics", "truth_seeds"]
 
 EDITED = ("rain", "snow", "fog")
-#: ``"auto"``, ``"truth"``, ``"presets"`` or a Weather per kind.
-WeathersOption = str | dict[str, Weather]
+#: The fields of a Weather that are random draws, not requests: never taken from a scene's record.
+DRAWS = ("seed",)
 #: Relative difference above which two rates or visibilities contradict each other.
 _TOLERANCE = 0.01
 
 
+@dataclass(frozen=True)
+class WeatherRequest:
+    """A weather asked for in a ``weathers`` dict.
+
+    Attributes
+    ----------
+    weather : Weather
+        The requested fields (its own ``seed`` is not used).
+    seed : int, optional
+        The particle seed, when the dict names one (``{"rain": {"seed": 3}}``); ``None``: the run's.
+    """
+
+    weather: Weather
+    seed: int | None = None
+
+
+#: ``"auto"``, ``"truth"``, ``"presets"`` or a request per kind.
+WeathersOption = str | dict[str, WeatherRequest]
+
+
+def _truth_file(scene: Scene) -> Path:
+    return Path(scene.root) / "truth" / "weather.json"
+
+
 def truth_physics(scene: Scene) -> dict[str, Weather]:
-    """The physics weathers the scene's ground truth was rendered with (``truth/weather.json`` of the
-    ``synth_*`` scenes: rate, visibility, wind and particle seed per edited weather).
+    """The physics weathers the scene's ground truth was rendered with, as recorded
+    (``truth/weather.json`` of the ``synth_*`` scenes: rate, visibility, wind and particle seed per
+    edited weather).
+
+    This is the record, random draws included: it is for comparing with the truth (what rate,
+    which seed), never for rendering; :func:`resolve_physics` takes its requested fields only.
 
     Raises
     ------
     InputError
         The scene has no such file, or it does not describe a weather per kind.
     """
-    path = Path(scene.root) / "truth" / "weather.json"
+    path = _truth_file(scene)
     if not path.is_file():
-        raise InputError(f"{path}: not found; weathers='truth' renders with the physics a scene's ground truth "
-                         "was made with, and only the synth_* scenes ship it")
+        raise InputError(f"{path}: not found; weathers='truth' renders the weather a scene's ground truth "
+                         "requested, and only the synth_* scenes record it")
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
         return {kind: Weather.from_json(entry["weather"]) for kind, entry in doc.items()
@@ -61,14 +97,30 @@ def truth_physics(scene: Scene) -> dict[str, Weather]:
                          f"({exc})") from None
 
 
+def truth_seeds(scene: Scene) -> dict[str, int]:
+    """The particle seed of each weather the scene's truth was rendered with (empty: no record)."""
+    return {kind: int(w.seed) for kind, w in truth_physics(scene).items()} if has_truth_weather(scene) else {}
+
+
 def has_truth_weather(scene: Scene) -> bool:
     """Whether ``scene`` records the weather of its ground truth (``truth/weather.json``)."""
-    return (Path(scene.root) / "truth" / "weather.json").is_file()
+    return _truth_file(scene).is_file()
+
+
+def requested_fields(weather: Weather) -> dict[str, Any]:
+    """The fields of ``weather`` a user asks for (JSON-ready): all but the random draws (:data:`DRAWS`)."""
+    desc = weather.to_json()
+    for name in DRAWS:
+        desc.pop(name, None)
+    return desc
 
 
 def parse_weathers(value: Any, *, who: str) -> WeathersOption:
     """The ``weathers`` option of a method: ``None`` or ``"auto"``, ``"truth"``, ``"presets"``, or a dict
-    of kind -> :class:`Weather` (or its fields).
+    of kind -> Weather fields (a :class:`Weather` or a :class:`WeatherRequest` is taken as it is).
+
+    A dict entry's ``seed`` is the particle seed asked for by name; without one the run's seed is
+    used. A :class:`Weather` object stands for its requested fields (its seed is not a request).
 
     Raises
     ------
@@ -84,12 +136,24 @@ def parse_weathers(value: Any, *, who: str) -> WeathersOption:
         return value
     if not isinstance(value, Mapping):
         raise InputError(f"{who}: weathers must be a dict of kind -> Weather fields, got {type(value).__name__}")
-    out: dict[str, Weather] = {}
+    out: dict[str, WeatherRequest] = {}
     for kind, fields in value.items():
         if kind not in EDITED:
             raise InputError(f"{who}: weathers[{kind!r}]: not an edited weather (one of {', '.join(EDITED)})")
+        if isinstance(fields, WeatherRequest):
+            out[kind] = fields
+            continue
+        if isinstance(fields, Weather):
+            out[kind] = WeatherRequest(fields)
+            continue
+        if not isinstance(fields, Mapping):
+            raise InputError(f"{who}: weathers[{kind!r}]: expected a dict of Weather fields, got {fields!r}")
+        given = dict(fields)
+        seed = given.pop("seed", None)
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
+            raise InputError(f"{who}: weathers[{kind!r}]: seed must be an integer >= 0, got {seed!r}")
         try:
-            out[kind] = fields if isinstance(fields, Weather) else Weather(kind=kind, **dict(fields))
+            out[kind] = WeatherRequest(Weather(kind=kind, **given), seed=seed)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{who}: weathers[{kind!r}]: {exc}") from None
     return out
@@ -98,44 +162,113 @@ def parse_weathers(value: Any, *, who: str) -> WeathersOption:
 def describe_option(option: WeathersOption, kind: str) -> dict[str, Any] | str:
     """What ``option`` says of ``kind`` without a scene (recorded in a method's parameters)."""
     if option == "truth":
-        return "truth (each scene's truth/weather.json, seed included)"
+        return "truth (the requested weather of each scene's truth/weather.json, required; never its seed)"
     if option == "auto":
-        return "auto (a scene's truth/weather.json where it ships one, else the presets)"
-    weather = option.get(kind, Weather(kind=kind)) if isinstance(option, dict) else Weather(kind=kind)
-    desc = weather.to_json()
-    desc.pop("seed", None)
+        return "auto (the requested weather of a scene's truth/weather.json where it ships one, else the presets)"
+    request = option.get(kind) if isinstance(option, dict) else None
+    desc = requested_fields(request.weather if request is not None else Weather(kind=kind))
+    if request is not None and request.seed is not None:
+        desc["seed"] = request.seed  # asked for by name: a setting of the run like any other
     return desc
 
 
 def resolve_physics(scene: Scene, option: WeathersOption, *, seed: int = 0,
-                    truth: Mapping[str, Weather] | None = None) -> dict[str, Weather]:
+                    truth: Mapping[str, Weather] | None = None, draws: bool = True) -> dict[str, Weather]:
     """The physics weather of every edited kind for ``scene`` under ``option``.
+
+    Every field comes from a request (the scene's record, the presets or the option); the particle
+    seed never comes from the scene's record: it is ``seed`` (the run's), or the one a ``weathers``
+    dict names for that kind.
 
     Parameters
     ----------
     scene : Scene
     option : WeathersOption
-        ``"auto"``: the scene's recorded weather (its truth's, seed included) where it ships one,
-        else the presets; ``"truth"``: the recorded one, required; ``"presets"``: each kind's
-        default preset; a dict: those weathers (the presets for kinds it does not give).
+        ``"auto"``: the requested fields of the scene's recorded weather (``truth/weather.json``)
+        where it ships one, else the presets; ``"truth"``: the same, the record required;
+        ``"presets"``: each kind's default preset; a dict: those weathers (the presets for kinds
+        it does not give).
     seed : int
-        Particle seed of the weathers that do not come from the scene's record.
+        The run's particle seed (``--seed``), for every kind the option names no seed of.
     truth : mapping, optional
         :func:`truth_physics` of the scene, when the caller has read it already.
+    draws : bool
+        Whether the caller draws particles from the seeds (rain and snow rendered with the
+        physics). Then a run ``seed`` equal to the seed the scene's truth of that kind was
+        rendered with is refused: its particles would be the truth's own. ``False`` for callers
+        that draw none (the editors, the training's hazes): no draw, nothing to refuse.
 
     Raises
     ------
     InputError
-        ``"truth"`` on a scene without a recorded weather, or one missing a kind.
+        ``"truth"`` on a scene without a recorded weather, or one missing a kind; with ``draws``, a
+        run seed equal to the truth's particle seed (name the seed in the option to ask for it).
     """
-    if option == "truth" or (option == "auto" and has_truth_weather(scene)):
-        recorded = dict(truth) if truth is not None else truth_physics(scene)
+    if truth is not None:
+        recorded = dict(truth)
+    elif option == "truth" or ((option == "auto" or draws) and has_truth_weather(scene)):
+        recorded = truth_physics(scene)  # "truth" without a record: the error naming the file
+    else:
+        recorded = {}
+    named: dict[str, int] = {}
+    if option == "truth" or (option == "auto" and recorded):
         missing = [k for k in EDITED if k not in recorded]
         if missing:
-            raise InputError(f"{Path(scene.root) / 'truth' / 'weather.json'}: no entry for {', '.join(missing)}")
-        return {k: recorded[k] for k in EDITED}
-    given = option if isinstance(option, dict) else {}
-    return {k: replace(given.get(k, Weather(kind=k)), seed=seed) for k in EDITED}
+            raise InputError(f"{_truth_file(scene)}: no entry for {', '.join(missing)}")
+        base = {k: recorded[k] for k in EDITED}  # the seed is replaced below: it is a draw, not a request
+    else:
+        given = option if isinstance(option, dict) else {}
+        base = {k: given[k].weather if k in given else Weather(kind=k) for k in EDITED}
+        named = {k: r.seed for k, r in given.items() if r.seed is not None}
+    out = {k: replace(base[k], seed=named.get(k, seed)) for k in EDITED}
+    if draws:
+        for k, weather in out.items():
+            if weather.has_particles and k not in named and k in recorded and weather.seed == recorded[k].seed:
+                raise InputError(
+                    f"--seed {seed}: scene {scene.id!r}'s true {k} was rendered with this particle seed "
+                    f"({_truth_file(scene)}), so a method drawing {k} with it would draw the truth's own "
+                    f"particles. Choose another --seed, or name the seed in the weathers option "
+                    f"('weathers={{\"{k}\": {{\"seed\": {seed}}}}}') to render them on purpose")
+    return out
+
+
+def truth_draw(scene: Scene, weather: Weather | None, *, option: WeathersOption | None = None,
+               reads: str | None = None) -> dict[str, Any]:
+    """What of the scene's ground truth a render used (``info.json`` ``parameters.truth_draw``).
+
+    Parameters
+    ----------
+    scene : Scene
+    weather : Weather, optional
+        The physics weather the render drew its particles from (``None``: it draws none).
+    option : WeathersOption, optional
+        The ``weathers`` option it was resolved under (says whether a seed was named).
+    reads : str, optional
+        What of the truth the method reads besides (``sim-editor``: the truth frames); ``None``:
+        nothing.
+
+    Returns
+    -------
+    dict
+        ``used`` (bool: the truth's frames, or its particle seed, went into the frames),
+        ``particle_seed`` and ``truth_particle_seed`` (``None`` where there is none), ``seed_from``
+        (``"run"``: ``--seed``; ``"weathers option"``: named) and ``note``.
+    """
+    out: dict[str, Any] = {"used": reads is not None, "particle_seed": None, "truth_particle_seed": None,
+                           "seed_from": None}
+    if weather is not None and weather.has_particles:
+        theirs = truth_seeds(scene).get(weather.kind)
+        named = isinstance(option, dict) and weather.kind in option and option[weather.kind].seed is not None
+        same = theirs is not None and int(weather.seed) == theirs
+        out.update(used=bool(out["used"] or same), particle_seed=int(weather.seed), truth_particle_seed=theirs,
+                   seed_from="weathers option" if named else "run")
+        if same:
+            out["note"] = (f"the truth's own particle seed (from the {out['seed_from']}): its {weather.kind} "
+                           "particles are the truth's")
+    if reads is not None:
+        out["note"] = reads
+    out.setdefault("note", "no ground-truth frame, particle seed or other random draw of the truth")
+    return out
 
 
 def physics_record(weather: Weather) -> dict[str, Any]:

@@ -45,6 +45,7 @@ from wcbench.methods.weather_spec import (
     parse_weathers,
     physics_record,
     resolve_physics,
+    truth_draw,
     truth_physics,
 )
 from wcbench.reference_model.appearance.editor import AppearanceParams, masked_ego
@@ -81,11 +82,12 @@ class WeatherCityMethod(FrameRenderer):
         Frames left out of training (their held-out PSNR goes to info.json).
     weathers : "auto", "truth", "presets" or dict, optional
         The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_weathers`). Default
-        ``"auto"``: a scene's recorded weather where it ships one (``truth/weather.json`` of the
-        ``synth_*`` scenes, particle seed included, so that a comparison with the truth measures
-        the learned scene, not the draw of the particles), else each kind's default preset;
-        ``"truth"`` requires the record; a dict gives the :class:`Weather` fields
-        (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
+        ``"auto"``: the weather a scene's truth requested where it records one
+        (``truth/weather.json`` of the ``synth_*`` scenes: preset, rate, visibility, wind), else
+        each kind's default preset; ``"truth"`` requires the record; a dict gives the
+        :class:`Weather` fields (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
+        The particle seed is always the run's (``--seed``), never the truth's: a run seed equal to
+        it is refused on that scene, and only a dict that names a ``seed`` renders another.
     size : (int, int), optional
         Render size; default the training size (scored at the scene's working size, as every method).
     edits : str or list, optional
@@ -146,31 +148,40 @@ class WeatherCityMethod(FrameRenderer):
         """``vgg16`` for the content loss, unless it is off or a loss was passed in."""
         return ("vgg16",) if self.content == "auto" and self.config.content_weight != 0 else ()
 
-    def weather_for(self, kind: str, seed: int, scene: Scene) -> Weather:
-        """The physics weather of ``kind`` for ``scene``: its recorded one (seed included) under
-        ``"auto"``/``"truth"`` where it ships one, else the given or preset weather with ``seed``."""
+    def weather_for(self, kind: str, seed: int, scene: Scene, *, draws: bool = True) -> Weather:
+        """The physics weather of ``kind`` for ``scene`` with particle seed ``seed`` (the run's, or
+        one the ``weathers`` dict names): the scene's requested weather under ``"auto"``/``"truth"``
+        where it records one, else the given or preset weather.
+
+        Raises
+        ------
+        InputError
+            With ``draws`` (rendering), a ``seed`` equal to the truth's particle seed
+            (:func:`~wcbench.methods.weather_spec.resolve_physics`).
+        """
         if kind == "clear":
             return Weather(kind="clear", seed=seed)
-        return resolve_physics(scene, self.weathers, seed=seed, truth=self._recorded(scene))[kind]
+        return resolve_physics(scene, self.weathers, seed=seed, truth=self._recorded(scene), draws=draws)[kind]
 
     def _recorded(self, scene: Scene) -> dict[str, Weather] | None:
         """The scene's recorded weather (``truth/weather.json``), read once per scene folder; ``None``
-        when the option does not use it."""
-        if self.weathers == "truth" or (self.weathers == "auto" and has_truth_weather(scene)):
+        when it has none (and the option does not require it)."""
+        if self.weathers == "truth" or has_truth_weather(scene):
             key = str(scene.root)
             if key not in self._physics:
                 self._physics[key] = truth_physics(scene)
             return self._physics[key]
         return None
 
-    def physics(self, scene: Scene) -> dict[str, Weather]:
-        """The physics weather of every edited kind for ``scene``: the training hazes and the
-        built-in supervision read it."""
-        return {kind: self.weather_for(kind, 0, scene) for kind in EDITED}
+    def training_physics(self, scene: Scene) -> dict[str, Weather]:
+        """The physics weather of every edited kind for ``scene``, as training reads it (the haze its
+        renders pass through, the built-in supervision): the requested weather, no particles drawn,
+        so seed 0 whatever the run's (a model serves every seed)."""
+        return {kind: self.weather_for(kind, 0, scene, draws=False) for kind in EDITED}
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """Training settings, supervision, edits and the weather option (the resolved physics goes to
-        ``describe``; the seed is recorded apart)."""
+        """Training settings, supervision, edits and the weather option (the resolved physics:
+        :meth:`physics`; the seed is recorded apart)."""
         return {"training": self.config.to_json(), "supervision": self.supervision, "jitter": self.jitter,
                 "edits": [e.to_json() for e in self.edits],
                 "weather": describe_option(self.weathers, weather) if weather != "clear" else "clear"}
@@ -180,7 +191,7 @@ class WeatherCityMethod(FrameRenderer):
         with sim-editor supervision, truth frames of every edited weather; with the physical editor,
         lidar (checked before any render)."""
         if weather != "clear":
-            resolve_physics(scene, self.weathers, truth=self._recorded(scene))
+            resolve_physics(scene, self.weathers, truth=self._recorded(scene), draws=False)
         if supervision_severity(self.supervision) is not None:
             for kind in EDITED:
                 truth_paths(scene, kind)
@@ -196,7 +207,7 @@ class WeatherCityMethod(FrameRenderer):
         if self._scene_key != (scene.id, str(scene.root)):
             trained, _, facts = train_scene(
                 scene, self.config, supervision=self.supervision, jitter=self.jitter, content=self.content,
-                physics=self.physics(scene), show_progress=show_progress,
+                physics=self.training_physics(scene), show_progress=show_progress,
             )
             self.use_model(scene, trained, facts)
 
@@ -241,13 +252,34 @@ class WeatherCityMethod(FrameRenderer):
             return {key: model.decoders(p.features, [weather]) for key, p in model.nodes().items()}
 
     def describe(self) -> dict[str, Any]:
-        """Training facts (time, counts, skips, supervision) and the renderer's settings."""
+        """Training facts (time, counts, skips, supervision) and the renderer's settings (the physics:
+        :meth:`physics`)."""
         out: dict[str, Any] = {"training": self._facts, "decoded_weather": getattr(self, "_decoded", None)}
         if self._renderer is not None:
             out["renderer"] = self._renderer.info()
-            if self._renderer.weather.kind != "clear":
-                out["physics"] = physics_record(self._renderer.weather)
         return out
+
+    def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
+        """The physics weather its particles and fog are rendered with (clear: none).
+
+        Raises
+        ------
+        InputError
+            ``seed`` is the truth's particle seed (its rain or snow would be the truth's own).
+        """
+        if weather == "clear":
+            return "none: clear renders no weather (the decoded clear colours and sky)"
+        return physics_record(self.weather_for(weather, seed, scene))
+
+    def truth_draw(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any]:
+        """Its particle seed against the truth's, and whether its training read the truth frames
+        (``sim-editor`` supervision)."""
+        reads = None
+        if supervision_severity(self.supervision) is not None:  # the truth frames shaped the whole model
+            reads = (f"trained on {self.supervision}'s edits of the scene's ground-truth frames (truth/): a "
+                     "calibration of the validity bench, not a competitor's input")
+        physics = None if weather == "clear" else self.weather_for(weather, seed, scene)
+        return truth_draw(scene, physics, option=self.weathers, reads=reads)
 
     def setup_timings(self) -> dict[str, float]:
         """``train_s``: the seconds the model's training took (recorded in its checkpoint, so a model
