@@ -122,9 +122,9 @@ def shade_physical(weather: str, surfaces: Surfaces, *, sun: Sun, visibility: np
         The clear frames' sun and sky (and the ground albedo the overcast light reflects).
     visibility : ndarray [N] or None
         Share of the sun each Gaussian sees (clear only).
-    sky : callable
-        ``sky(rays_up [N]) -> [N, 3]`` sRGB radiance of the sky a mirror reflects, by the sine of
-        the reflected ray's elevation: the clear sky, the overcast sky, or the haze's colour.
+    sky : callable or ndarray [3]
+        The sRGB sky a mirror reflects: ``sky(rays_up [N]) -> [N, 3]`` by the sine of the reflected
+        ray's elevation (the clear or the overcast sky), or one colour (the haze's).
     materials : dict
         :func:`physical_materials`.
     mirror_windows : bool
@@ -139,7 +139,9 @@ def shade_physical(weather: str, surfaces: Surfaces, *, sun: Sun, visibility: np
     glass = mirror_windows and bool(np.any(cloud.gloss > 0))
     shiny = weather == "rain" or glass
     # the sky a mirror sees, only where something mirrors
-    sky_seen = srgb_to_linear(sky(surfaces.mirror_up)) if shiny else None
+    sky_seen = None
+    if shiny:
+        sky_seen = srgb_to_linear(sky(surfaces.mirror_up) if callable(sky) else np.asarray(sky))
     if weather == "clear":
         assert visibility is not None
         color = albedo * clear_irradiance(sun, surfaces.normals, visibility)

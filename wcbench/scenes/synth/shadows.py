@@ -90,17 +90,18 @@ class ShadowCaster:
         b = content.boxes
         self._static_blocked = self._static.blocked((b.center, b.R, b.half), content.spheres)
 
-    def visibility(self, k: int) -> np.ndarray:
-        """[N] share of the sun each Gaussian of frame ``k`` sees (the order of
-        :func:`~.content.cloud_at`); 1 for Gaussians facing away from the sun, which it does not
-        light whatever the shapes (their shade is no cast shadow)."""
+    def visibility(self, k: int, cloud: Cloud | None = None) -> np.ndarray:
+        """[N] share of the sun each Gaussian of frame ``k`` sees, in the order of
+        :func:`~.content.cloud_at` (``cloud``: its result, when the caller has it); 1 for Gaussians
+        facing away from the sun, which it does not light whatever the shapes (their shade is no
+        cast shadow)."""
         boxes = boxes_at(self.content, k)
         moving = boxes.mover >= 0
         shapes = (boxes.center[moving], boxes.R[moving], boxes.half[moving])
         static = self._static.blocked(shapes, np.zeros((0, 4)), out=self._static_blocked.copy())
         out = [self._share(self._static_facing, static)]
         n_static = len(self.content.static)
-        cloud = cloud_at(self.content, k)
+        cloud = cloud_at(self.content, k) if cloud is None else cloud
         if len(cloud) > n_static:
             movers = Cloud(*(getattr(cloud, f)[n_static:] for f in Cloud.__dataclass_fields__))
             facing, points, dirs = _sample_rays(movers, self.sun, self.radius)

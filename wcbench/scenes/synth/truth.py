@@ -166,10 +166,10 @@ class TruthRenderer:
         self._rays_cam = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
 
     def _mirrored_sky(self, weather: str) -> Any:
-        """``sky(rays_up [N]) -> [N, 3]``: the sRGB sky a mirror sees under ``weather``."""
+        """The sRGB sky a mirror sees under ``weather``: the haze's colour [3], or a function of the
+        sine of the reflected ray's elevation (see :func:`~.materials.shade_physical`)."""
         if weather in self.reflected:
-            color = self.reflected[weather]
-            return lambda up: np.broadcast_to(color, (len(up), 3))
+            return self.reflected[weather]
         return clear_sky if weather == "clear" else overcast_sky
 
     def frame(self, k: int) -> TruthFrame:
@@ -186,7 +186,7 @@ class TruthRenderer:
         sun = self.profile.sun
         visibility, surfaces = None, None
         if sun is not None:
-            visibility = self.shadows.visibility(k)
+            visibility = self.shadows.visibility(k, cloud)
             n_static = len(self.content.static)
             albedo = np.concatenate([self._static_albedo, srgb_to_linear(cloud.albedo[n_static:])])
             surfaces = Surfaces.of(cloud, normals, cam.center + self.shift, albedo)
