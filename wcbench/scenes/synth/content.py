@@ -412,11 +412,17 @@ def _car(color: np.ndarray, spacing: float, snow: float) -> tuple[Cloud, list[Pa
     return Cloud.concat(parts), [(body_c, eye, body_h), (cab_c, eye, cab_h)]
 
 
-def _pedestrian(shirt: np.ndarray, trousers: np.ndarray, skin: np.ndarray, cadence_hz: float
-                ) -> Callable[[float], tuple[Cloud, list[Part]]]:
+def _pedestrian(shirt: np.ndarray, trousers: np.ndarray, skin: np.ndarray, cadence_hz: float, *,
+                rigid_limbs: bool = False) -> Callable[[float], tuple[Cloud, list[Part]]]:
     """A walking person in its box frame (0.9 x 0.7 x 1.8 m, centre of the box, x forward): legs and
-    arms swing about the hips and shoulders at ``cadence_hz`` strides per second."""
+    arms swing about the hips and shoulders at ``cadence_hz`` strides per second.
+
+    With ``rigid_limbs`` each limb's Gaussians are laid out once in the limb's frame and moved
+    rigidly every frame (4x faster); without, they are laid out again in place every frame, as
+    v1's pedestrians are (the same Gaussians up to rounding, which v1's bytes keep).
+    """
     ground = -0.9
+    limbs: list[Cloud] = []
 
     def at(t: float) -> tuple[Cloud, list[Part]]:
         swing = 0.42 * math.sin(2 * math.pi * cadence_hz * t)
@@ -430,9 +436,15 @@ def _pedestrian(shirt: np.ndarray, trousers: np.ndarray, skin: np.ndarray, caden
             parts.append((shoulder + R @ np.array([0.0, 0.0, -0.3]), R, np.array([0.05, 0.05, 0.3]), shirt, 0.0))
         parts.append((np.array([0.0, 0.0, ground + 1.19]), np.eye(3), np.array([0.13, 0.21, 0.31]), shirt, 0.0))
         parts.append((np.array([0.0, 0.0, ground + 1.64]), np.eye(3), np.array([0.1, 0.09, 0.12]), skin, 0.0))
-        clouds = [box_surface(c, R, h, ("+x", "-x", "+y", "-y", "+z", "-z"), 0.045,
-                       solid_albedo(col), snow=s, wet=0.9)
-                  for c, R, h, col, s in parts]
+        faces = ("+x", "-x", "+y", "-y", "+z", "-z")
+        if not rigid_limbs:
+            clouds = [box_surface(c, R, h, faces, 0.045, solid_albedo(col), snow=s, wet=0.9)
+                      for c, R, h, col, s in parts]
+        else:
+            if not limbs:
+                limbs.extend(box_surface(np.zeros(3), np.eye(3), h, faces, 0.045, solid_albedo(col), snow=s, wet=0.9)
+                             for _, _, h, col, s in parts)
+            clouds = [limb.posed(rigid_transform(R, c)) for limb, (c, R, _, _, _) in zip(limbs, parts)]
         return Cloud.concat(clouds), [(c, R, h) for c, R, h, _, _ in parts]
 
     return at
@@ -579,13 +591,13 @@ def build_content(spec: SynthSpec) -> Content:
         movers.append(Mover(f"car_{kind}" if tracked else f"car_{kind}_untracked", "Vehicle", CAR_SIZE.copy(), poses,
                              velocity, (lambda c, p: lambda k: (c, p))(cloud, parts), tracked=tracked))
 
-    def add_walker(kind: str, name: str, tracked: bool) -> None:
+    def add_walker(kind: str, name: str, tracked: bool, rigid_limbs: bool) -> None:
         poses, _ = _walker_track(kind, street, times)
         shirt = np.array([[0.7, 0.15, 0.12], [0.15, 0.35, 0.6], [0.85, 0.75, 0.2], [0.2, 0.5, 0.3]])[
             rng.integers(4)]
         trousers = np.array([[0.1, 0.12, 0.2], [0.08, 0.08, 0.08], [0.5, 0.45, 0.35]])[rng.integers(3)]
         skin = np.array([[0.8, 0.62, 0.5], [0.55, 0.4, 0.3], [0.35, 0.25, 0.2]])[rng.integers(3)]
-        walk = _pedestrian(shirt, trousers, skin, cadence_hz=1.0)
+        walk = _pedestrian(shirt, trousers, skin, cadence_hz=1.0, rigid_limbs=rigid_limbs)
         velocity = np.gradient(poses[:, :3, 3], times, axis=0)
         # a frame's lidar, shadows and render each ask for the walker's parts: built once per frame
         parts = functools.lru_cache(maxsize=2)(lambda k: walk(k / FPS))
@@ -595,11 +607,11 @@ def build_content(spec: SynthSpec) -> Content:
     for kind in spec.movers:
         add_car(kind, tracked=True)
     if spec.pedestrian is not None:
-        add_walker(spec.pedestrian, "pedestrian_0", tracked=True)
+        add_walker(spec.pedestrian, "pedestrian_0", tracked=True, rigid_limbs=False)
     for kind in spec.untracked:
         add_car(kind, tracked=False)
     for n, kind in enumerate(spec.walkers):
-        add_walker(kind, f"pedestrian_{kind}_{n}_untracked", tracked=False)
+        add_walker(kind, f"pedestrian_{kind}_{n}_untracked", tracked=False, rigid_limbs=True)
 
     return Content(spec=spec, street=street, static=Cloud.concat(clouds), boxes=Boxes.concat(boxes),
                     spheres=spheres, movers=movers, ego=ego, camera_to_vehicle=cam_to_vehicle, puddles=puddles,

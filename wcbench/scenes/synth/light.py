@@ -10,7 +10,6 @@ module knows.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
@@ -57,26 +56,15 @@ def overcast_sky(rays_up: np.ndarray, horizon: np.ndarray | tuple[float, float, 
     return linear_to_srgb(srgb_to_linear(np.asarray(horizon)) * (1.0 + 2.0 * e))
 
 
-@functools.cache
-def _cie_tilt_table(n: int = 201) -> tuple[np.ndarray, np.ndarray]:
-    """Irradiance of a plane under the CIE overcast sky by its normal's up component, relative to a
-    horizontal plane's: ([n] up components from -1 to 1, [n] ratios). A midpoint quadrature over
-    the sky's upper hemisphere (0.5 degree cells): the exact horizontal value, 7 pi / 9 of the
-    zenith luminance, is met to 1e-5, and a vertical plane gets 0.396 of it."""
-    theta = (np.arange(180) + 0.5) * (math.pi / 2 / 180)  # zenith angle
-    phi = (np.arange(720) + 0.5) * (2 * math.pi / 720)
-    th, ph = np.meshgrid(theta, phi, indexing="ij")
-    w = (1.0 + 2.0 * np.cos(th)) / 3.0 * np.sin(th) * (math.pi / 2 / 180) * (2 * math.pi / 720)  # L dOmega
-    dirs = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3)
-    up = np.linspace(-1.0, 1.0, n)
-    normals = np.stack([np.sqrt(1.0 - up * up), np.zeros(n), up], -1)
-    e = np.maximum(normals @ dirs.T, 0.0) @ w.ravel()
-    return up, e / e[-1]
-
-
 def overcast_irradiance(up: np.ndarray, ground_albedo: float) -> np.ndarray:
     """[N] irradiance of surfaces under the overcast sky relative to a horizontal one's: the CIE
     overcast sky they see plus the ground's reflection, ``ground_albedo`` (1 - n_z) / 2.
+
+    The CIE standard overcast sky has luminance L_z (1 + 2 cos theta) / 3 at zenith angle theta
+    (Moon & Spencer 1942). A plane tilted by beta (cos beta = n_z) sees (1 + cos beta) / 2 of the
+    uniform third, pi (1 + cos beta) / 2 of irradiance, and of the cosine part the integral of two
+    clamped cosines over the sphere, (2 / 3) ((pi - beta) cos beta + sin beta); a horizontal plane
+    gets 7 pi / 9 L_z in all, a vertical one 0.396 of that.
 
     Parameters
     ----------
@@ -84,8 +72,10 @@ def overcast_irradiance(up: np.ndarray, ground_albedo: float) -> np.ndarray:
         Up components of the unit normals.
     ground_albedo : float
     """
-    table_up, table = _cie_tilt_table()
-    return np.interp(up, table_up, table) + ground_albedo * (1.0 - up) / 2.0
+    cos = np.clip(up, -1.0, 1.0)
+    beta = np.arccos(cos)
+    sky = (math.pi * (1.0 + cos) / 6.0 + (4.0 / 9.0) * ((math.pi - beta) * cos + np.sin(beta))) / (7.0 * math.pi / 9.0)
+    return sky + ground_albedo * (1.0 - cos) / 2.0
 
 
 def clear_irradiance(sun: Sun, normals: np.ndarray, visibility: np.ndarray) -> np.ndarray:

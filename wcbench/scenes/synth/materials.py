@@ -89,6 +89,9 @@ class Surfaces:
     mirror_up : ndarray [N]
         Up component of the view ray mirrored about the normal: the sine of the elevation of the
         sky a mirror there shows.
+    overcast : ndarray [N]
+        Irradiance under the overcast sky relative to a horizontal surface's
+        (:func:`~.light.overcast_irradiance`).
     """
 
     cloud: Cloud
@@ -97,16 +100,20 @@ class Surfaces:
     normals: np.ndarray
     cos: np.ndarray
     mirror_up: np.ndarray
+    overcast: np.ndarray
 
     @staticmethod
-    def of(cloud: Cloud, normals: np.ndarray, eye: np.ndarray, albedo: np.ndarray | None = None) -> Surfaces:
-        """The surfaces of ``cloud`` (normals [N, 3]) seen from ``eye`` [3] (m); ``albedo``: their
-        linear albedo when the caller has it."""
+    def of(cloud: Cloud, normals: np.ndarray, eye: np.ndarray, sun: Sun, albedo: np.ndarray | None = None
+           ) -> Surfaces:
+        """The surfaces of ``cloud`` (normals [N, 3]) seen from ``eye`` [3] (m) under ``sun``'s sky
+        (its ground albedo reflects the overcast light too); ``albedo``: their linear albedo when the
+        caller has it."""
         view = cloud.means - eye
         view /= np.maximum(np.linalg.norm(view, axis=1, keepdims=True), 1e-9)
         along = np.sum(view * normals, axis=1)
-        return Surfaces(cloud, srgb_to_linear(cloud.albedo) if albedo is None else albedo, normals[:, 2], normals,
-                        np.abs(along), view[:, 2] - 2.0 * along * normals[:, 2])
+        up = normals[:, 2]
+        return Surfaces(cloud, srgb_to_linear(cloud.albedo) if albedo is None else albedo, up, normals,
+                        np.abs(along), view[:, 2] - 2.0 * along * up, overcast_irradiance(up, sun.ground_albedo))
 
 
 def shade_physical(weather: str, surfaces: Surfaces, *, sun: Sun, visibility: np.ndarray | None, sky: Any,
@@ -119,7 +126,7 @@ def shade_physical(weather: str, surfaces: Surfaces, *, sun: Sun, visibility: np
     surfaces : Surfaces
         The frame's Gaussians as seen from its camera.
     sun : Sun
-        The clear frames' sun and sky (and the ground albedo the overcast light reflects).
+        The clear frames' sun and sky.
     visibility : ndarray [N] or None
         Share of the sun each Gaussian sees (clear only).
     sky : callable or ndarray [3]
@@ -147,7 +154,7 @@ def shade_physical(weather: str, surfaces: Surfaces, *, sun: Sun, visibility: np
         color = albedo * clear_irradiance(sun, surfaces.normals, visibility)
     else:
         m = materials[weather]
-        light = (m["light"] * overcast_irradiance(up, sun.ground_albedo))[:, None]  # no sun: no shadows
+        light = (m["light"] * surfaces.overcast)[:, None]  # no sun: no shadows
         if weather == "rain":
             assert sky_seen is not None
             # a water film on every surface, thinner on steep ones that drain

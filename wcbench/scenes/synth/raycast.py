@@ -92,6 +92,7 @@ class RayBundle:
         self.plane = points @ self.basis
         self.order = np.argsort(self.plane[:, 0], kind="stable")
         self._a = self.plane[self.order, 0]
+        self._extent = (self.plane.min(0), self.plane.max(0)) if len(points) else (np.zeros(3), np.zeros(3))
 
     def __len__(self) -> int:
         return len(self.points)
@@ -120,16 +121,27 @@ class RayBundle:
         ndarray [N] bool
         """
         out = np.zeros(len(self.points), bool) if out is None else out
+        if not len(self.points):
+            return out
+        # each shape's outline in the plane (and its far end along the axis), all at once; shapes
+        # clear of every origin are skipped without a loop
+        centers, rotations, halves = boxes
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
-        for c, R, h in zip(*boxes):
-            corners = ((signs * h) @ R.T + c) @ self.basis
-            sel = self._near(corners.min(0) - self.margin, corners.max(0) + self.margin, out)
-            if len(sel):
-                out[sel] = np.isfinite(box_entry((self.points[sel] - c) @ R, self.dirs[sel] @ R, h))
-        for s in spheres:
-            c = s[:3] @ self.basis
-            r = s[3] + self.margin
-            sel = self._near(c - r, c + r, out)
-            if len(sel):
+        corners = (np.einsum("kj,mij->mki", signs, rotations * halves[:, None, :]) + centers[:, None]) @ self.basis
+        box_lo, box_hi = corners.min(1) - self.margin, corners.max(1) + self.margin
+        sphere_c = spheres[:, :3] @ self.basis
+        radius = spheres[:, 3:] + self.margin
+        lo, hi = np.concatenate([box_lo, sphere_c - radius]), np.concatenate([box_hi, sphere_c + radius])
+        p_lo, p_hi = self._extent
+        near = np.all(lo[:, :2] <= p_hi[:2], axis=1) & np.all(hi[:, :2] >= p_lo[:2], axis=1) & (hi[:, 2] >= p_lo[2])
+        for m in np.nonzero(near)[0]:
+            sel = self._near(lo[m], hi[m], out)
+            if not len(sel):
+                continue
+            if m < len(centers):
+                c, R = centers[m], rotations[m]
+                out[sel] = np.isfinite(box_entry((self.points[sel] - c) @ R, self.dirs[sel] @ R, halves[m]))
+            else:
+                s = spheres[m - len(centers)]
                 out[sel] = np.isfinite(sphere_entry(s[:3] - self.points[sel], self.dirs[sel], float(s[3])))
         return out

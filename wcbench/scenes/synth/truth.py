@@ -189,7 +189,7 @@ class TruthRenderer:
             visibility = self.shadows.visibility(k, cloud)
             n_static = len(self.content.static)
             albedo = np.concatenate([self._static_albedo, srgb_to_linear(cloud.albedo[n_static:])])
-            surfaces = Surfaces.of(cloud, normals, cam.center + self.shift, albedo)
+            surfaces = Surfaces.of(cloud, normals, cam.center + self.shift, sun, albedo)
         for w, r in self.renderers.items():
             if sun is None:
                 colors = shade_gaussians(w, cloud, normals, cam.center + self.shift, self.reflected[w])
