@@ -77,15 +77,19 @@ def _pixel_rays(scene: Scene, k: int) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def _first_shape_hit(content: Content, k: int, origin: np.ndarray, rays: np.ndarray) -> np.ndarray:
-    """[...] distance (m) from ``origin`` (street) along ``rays`` to the first box or canopy of frame k."""
+def _first_shape_hit(content: Content, k: int, origin: np.ndarray, rays: np.ndarray, reach: float = np.inf
+                     ) -> np.ndarray:
+    """[...] distance (m) from ``origin`` (street) along ``rays`` to the first box or canopy of frame k
+    (inf beyond ``reach`` m: shapes wholly farther are not tested)."""
     flat = rays.reshape(-1, 3)
     best = np.full(len(flat), np.inf)
     boxes = boxes_at(content, k)
     for c, R, h in zip(boxes.center, boxes.R, boxes.half):
-        best = np.minimum(best, box_entry(R.T @ (origin - c), flat @ R, h))
+        if np.linalg.norm(c - origin) - np.linalg.norm(h) < reach:
+            best = np.minimum(best, box_entry(R.T @ (origin - c), flat @ R, h))
     for s in content.spheres:
-        best = np.minimum(best, sphere_entry(s[:3] - origin, flat, float(s[3])))
+        if np.linalg.norm(s[:3] - origin) - s[3] < reach:
+            best = np.minimum(best, sphere_entry(s[:3] - origin, flat, float(s[3])))
     return best.reshape(rays.shape[:-1])
 
 
@@ -198,7 +202,7 @@ def _road_pixels(scene: Scene, content: Content, k: int) -> tuple[np.ndarray, np
         ok &= ~((np.abs(s - q["s"]) < q["half_length"] + 0.5) & (np.abs(d - q["d"]) < q["half_width"] + 0.5))
     for ps, pd, hl, hw in content.puddles:
         ok &= ((s - ps) / (hl + 0.5)) ** 2 + ((d - pd) / (hw + 0.5)) ** 2 > 1.0
-    ok &= _first_shape_hit(content, k, eye, rays) > t
+    ok[ok] = _first_shape_hit(content, k, eye, rays[ok], reach=30.0) > t[ok]  # nothing in front
     return ok, d, t
 
 
