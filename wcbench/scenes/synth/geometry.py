@@ -14,8 +14,8 @@ import numpy as np
 from wcbench.reference_model.transforms import quat_from_matrices, quat_multiply, quat_to_matrix
 from wcbench.scenes.synth.layout import OPACITY, SIGMA_OF_SPACING, THIN_M
 
-__all__ = ["AlbedoFn", "Cloud", "Part", "Street", "band_fraction", "box_surface", "cell_grid", "gaussian_normals",
-           "hash01", "pulse_fraction", "rigid_transform", "rot_y", "rot_z", "solid_albedo"]
+__all__ = ["AlbedoFn", "Cloud", "GlassFn", "Part", "Street", "band_fraction", "box_surface", "cell_grid",
+           "gaussian_normals", "hash01", "pulse_fraction", "rigid_transform", "rot_y", "rot_z", "solid_albedo"]
 
 
 def rot_z(angle: np.ndarray | float) -> np.ndarray:
@@ -111,7 +111,8 @@ class Cloud:
 
     means [N, 3] (m), quats [N, 4] (w, x, y, z), scales [N, 3] (m), opacities [N], albedo [N, 3]
     (RGB in [0, 1]), snow [N] (how much settling snow a Gaussian facing up takes, 0-1), wet [N]
-    (albedo factor of the wet surface), sheen [N] (weight of the wet sky reflection, 0-1).
+    (albedo factor of the wet surface), sheen [N] (weight of the wet sky reflection, 0-1), gloss [N]
+    (share of window glass, which mirrors the sky where a profile has mirror windows, 0-1).
     """
 
     means: np.ndarray
@@ -122,13 +123,14 @@ class Cloud:
     snow: np.ndarray
     wet: np.ndarray
     sheen: np.ndarray
+    gloss: np.ndarray
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
 
     @staticmethod
     def make(means: np.ndarray, quats: np.ndarray, scales: np.ndarray, albedo: np.ndarray, *,
-             snow: Any = 1.0, wet: Any = 0.85, sheen: Any = 0.0, opacity: Any = OPACITY) -> Cloud:
+             snow: Any = 1.0, wet: Any = 0.85, sheen: Any = 0.0, gloss: Any = 0.0, opacity: Any = OPACITY) -> Cloud:
         n = len(means)
 
         def col(v: Any) -> np.ndarray:
@@ -137,7 +139,7 @@ class Cloud:
         return Cloud(np.asarray(means, np.float64), np.broadcast_to(quats, (n, 4)).copy(),
                       np.broadcast_to(scales, (n, 3)).copy(), col(opacity),
                       np.clip(np.broadcast_to(albedo, (n, 3)), 0.0, 1.0).astype(np.float64),
-                      col(snow), col(wet), col(sheen))
+                      col(snow), col(wet), col(sheen), col(gloss))
 
     @staticmethod
     def concat(clouds: list[Cloud]) -> Cloud:
@@ -147,7 +149,7 @@ class Cloud:
         """The cloud moved by the rigid transform ``T`` [4, 4]."""
         q = quat_from_matrices(T[:3, :3])[0]
         return Cloud(self.means @ T[:3, :3].T + T[:3, 3], quat_multiply(q, self.quats), self.scales, self.opacities,
-                      self.albedo, self.snow, self.wet, self.sheen)
+                      self.albedo, self.snow, self.wet, self.sheen, self.gloss)
 
 
 def cell_grid(half_u: float, half_v: float, spacing_u: float, spacing_v: float
@@ -164,6 +166,9 @@ def cell_grid(half_u: float, half_v: float, spacing_u: float, spacing_v: float
 #: positions ``local`` [M, 3] (m) and the grid cell size along each box axis ``cell`` [3] (m, 0 along
 #: the face normal), so that stripes can be box-filtered over a cell.
 AlbedoFn = Callable[[str, np.ndarray, np.ndarray], np.ndarray]
+#: ``glass(face, local, cell)``: share [M] of window glass of the Gaussians of a box face, from the
+#: same arguments as an :data:`AlbedoFn`.
+GlassFn = Callable[[str, np.ndarray, np.ndarray], np.ndarray]
 #: A solid part of an object for the lidar: box centre [3], rotation [3, 3] and half size [3] (m).
 Part = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -175,11 +180,12 @@ def solid_albedo(color: Any) -> AlbedoFn:
 
 
 def box_surface(center: np.ndarray, R: np.ndarray, half: np.ndarray, faces: tuple[str, ...], spacing: float,
-         albedo: AlbedoFn, *, stretch_x: float = 1.0, **material: Any) -> Cloud:
+         albedo: AlbedoFn, *, stretch_x: float = 1.0, glass: GlassFn | None = None, **material: Any) -> Cloud:
     """Flat Gaussians tiling faces of a box.
 
     ``faces`` names outward normals of the box frame (``"+x"``, ``"-z"``...); ``albedo`` colours them
-    (:data:`AlbedoFn`). Along the box's
+    (:data:`AlbedoFn`) and ``glass``, when given, says how much of each is window glass
+    (:data:`GlassFn`, the Cloud's ``gloss``). Along the box's
     x axis the spacing is ``stretch_x`` times larger (a facade seen at a grazing angle along it).
     """
     clouds = []
@@ -197,6 +203,8 @@ def box_surface(center: np.ndarray, R: np.ndarray, half: np.ndarray, faces: tupl
         frame = R @ F
         cell = np.zeros(3)
         cell[i], cell[j] = du, dv
+        if glass is not None:
+            material["gloss"] = glass(face, local, cell)
         clouds.append(Cloud.make(center + local @ R.T, quat_from_matrices(frame),
                                   np.array([SIGMA_OF_SPACING * du, SIGMA_OF_SPACING * dv, THIN_M]),
                                   albedo(face, local, cell), **material))

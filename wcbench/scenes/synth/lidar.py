@@ -1,5 +1,6 @@
-"""The synthetic scenes' lidar: a spinning roof sensor's rays cast against the ground, the boxes
-and the tree canopies, written as drivestudio's Waymo sweep columns (docs/design.md §3)."""
+"""The synthetic scenes' lidar: a spinning roof sensor's rays (:class:`~.layout.LidarSpec`) cast
+against the ground, the boxes and the tree canopies, written as drivestudio's Waymo sweep columns
+(docs/design.md §3)."""
 
 from __future__ import annotations
 
@@ -9,29 +10,22 @@ import numpy as np
 
 from wcbench.scenes.synth.content import Boxes, Content, boxes_at
 from wcbench.scenes.synth.geometry import Street
-from wcbench.scenes.synth.layout import (
-    CURB_M,
-    LIDAR_AZIMUTH_DEG,
-    LIDAR_BEAMS,
-    LIDAR_COLUMNS,
-    LIDAR_ELEVATION_DEG,
-    LIDAR_MOUNT_M,
-    LIDAR_RANGE_M,
-    ROAD_HALF_M,
-)
+from wcbench.scenes.synth.layout import CURB_M, ROAD_HALF_M
+from wcbench.scenes.synth.raycast import box_entry, sphere_entry
 
 __all__ = ["lidar_sweep"]
 
 
-def _ray_window(center: np.ndarray, radius: float, elevation: np.ndarray, azimuth: np.ndarray
+def _ray_window(center: np.ndarray, radius: float, elevation: np.ndarray, azimuth: np.ndarray, range_m: float
                 ) -> tuple[slice, slice] | None:
     """The rectangle of a sweep's (elevation, azimuth) ray grid that can meet a sphere.
 
     ``center`` [3] is the sphere's centre relative to the sensor in the vehicle frame (m); the grid
-    axes ``elevation`` [B] and ``azimuth`` [C] (rad) are increasing. ``None`` when no ray can reach it.
+    axes ``elevation`` [B] and ``azimuth`` [C] (rad) are increasing; ``range_m`` is the sensor's
+    reach (m). ``None`` when no ray can reach it.
     """
     dist = float(np.linalg.norm(center))
-    if dist - radius > LIDAR_RANGE_M:
+    if dist - radius > range_m:
         return None
     if dist <= radius * 1.05:  # around the sensor: every ray
         return slice(0, len(elevation)), slice(0, len(azimuth))
@@ -53,7 +47,7 @@ def _ray_window(center: np.ndarray, radius: float, elevation: np.ndarray, azimut
 
 
 def _cast(origin: np.ndarray, ego_R: np.ndarray, elevation: np.ndarray, azimuth: np.ndarray, boxes: Boxes,
-          spheres: np.ndarray, street: Street) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          spheres: np.ndarray, street: Street, range_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First hits of a sweep's rays (street coordinates).
 
     Parameters
@@ -68,6 +62,8 @@ def _cast(origin: np.ndarray, ego_R: np.ndarray, elevation: np.ndarray, azimuth:
     spheres : ndarray [K, 4]
         Canopy spheres (centre, radius; m).
     street : Street
+    range_m : float
+        The sensor's reach (m): shapes beyond it are not tested.
 
     Returns
     -------
@@ -92,30 +88,20 @@ def _cast(origin: np.ndarray, ego_R: np.ndarray, elevation: np.ndarray, azimuth:
         what = np.where(np.isfinite(best), np.where(on_walk, -3, -2), -1)
         for m in range(len(boxes.center)):
             window = _ray_window(ego_R.T @ (boxes.center[m] - origin), float(np.linalg.norm(boxes.half[m])),
-                                 elevation, azimuth)
+                                 elevation, azimuth, range_m)
             if window is None:
                 continue
-            R, h = boxes.R[m], boxes.half[m]
-            o = R.T @ (origin - boxes.center[m])  # the sensor in the box frame
-            d = dirs[window] @ R
-            t1, t2 = (-h - o) / d, (h - o) / d
-            t_near = np.fmax(np.fmax(np.fmin(t1[..., 0], t2[..., 0]), np.fmin(t1[..., 1], t2[..., 1])),
-                             np.fmin(t1[..., 2], t2[..., 2]))
-            t_far = np.fmin(np.fmin(np.fmax(t1[..., 0], t2[..., 0]), np.fmax(t1[..., 1], t2[..., 1])),
-                            np.fmax(t1[..., 2], t2[..., 2]))
-            t = np.where((t_far >= t_near) & (t_near > 0), t_near, np.inf)
+            R = boxes.R[m]
+            # the sensor and the rays in the box frame
+            t = box_entry(R.T @ (origin - boxes.center[m]), dirs[window] @ R, boxes.half[m])
             better = t < best[window]
             best[window] = np.where(better, t, best[window])
             what[window] = np.where(better, m, what[window])
         for c in spheres:
-            window = _ray_window(ego_R.T @ (c[:3] - origin), float(c[3]), elevation, azimuth)
+            window = _ray_window(ego_R.T @ (c[:3] - origin), float(c[3]), elevation, azimuth, range_m)
             if window is None:
                 continue
-            oc = c[:3] - origin
-            b = dirs[window] @ oc
-            disc = b * b - (oc @ oc - c[3] ** 2)
-            t = np.where(disc >= 0, b - np.sqrt(np.maximum(disc, 0.0)), np.inf)
-            t = np.where(t > 0, t, np.inf)
+            t = sphere_entry(c[:3] - origin, dirs[window], float(c[3]))
             better = t < best[window]
             best[window] = np.where(better, t, best[window])
             what[window] = np.where(better, -4, what[window])
@@ -123,17 +109,35 @@ def _cast(origin: np.ndarray, ego_R: np.ndarray, elevation: np.ndarray, azimuth:
 
 
 def lidar_sweep(content: Content, k: int) -> np.ndarray:
-    """The sweep of frame ``k``: float32 [N, 14] in the vehicle frame of frame k (drivestudio Waymo
-    columns: ray origin 3, point 3, flow 3, flow class, ground, intensity, elongation, laser id)."""
+    """The sweep of frame ``k`` by the scene's lidar (its profile's :class:`~.layout.LidarSpec`).
+
+    Every moving object is seen, tracked or not, with its velocity in the flow columns as a real
+    sensor's processing writes them; with ``range_noise_m`` each range gets seeded Gaussian noise.
+
+    Parameters
+    ----------
+    content : Content
+    k : int
+        Frame.
+
+    Returns
+    -------
+    ndarray [N, 14] float32
+        In the vehicle frame of frame ``k`` (drivestudio Waymo columns: ray origin 3, point 3 (m),
+        flow 3 (m/s), flow class, ground, intensity, elongation, laser id).
+    """
+    spec = content.spec.profile.lidar
     ego = content.ego[k]
-    elevation = np.radians(np.linspace(*LIDAR_ELEVATION_DEG, LIDAR_BEAMS))
-    azimuth = np.radians(np.linspace(-LIDAR_AZIMUTH_DEG, LIDAR_AZIMUTH_DEG, LIDAR_COLUMNS))
-    origin_v = np.array(LIDAR_MOUNT_M)
+    elevation, azimuth = spec.elevations(), spec.azimuths()
+    origin_v = np.array(spec.mount_m)
     boxes = boxes_at(content, k)
     dirs_v, t, what = _cast(ego[:3, :3] @ origin_v + ego[:3, 3], ego[:3, :3], elevation, azimuth, boxes,
-                            content.spheres, content.street)
-    hit = np.isfinite(t) & (t <= LIDAR_RANGE_M)
+                            content.spheres, content.street, spec.range_m)
+    hit = np.isfinite(t) & (t <= spec.range_m)
     t, what, dirs_v = t[hit], what[hit], dirs_v[hit]
+    if spec.range_noise_m > 0:
+        # a stream of its own per frame: the sweeps do not depend on which frames were generated
+        t = t + spec.range_noise_m * np.random.default_rng([content.spec.seed, 7, k]).standard_normal(len(t))
     points_v = origin_v + t[:, None] * dirs_v
     box = np.maximum(what, 0)
     is_box = what >= 0

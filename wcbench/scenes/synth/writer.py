@@ -1,5 +1,5 @@
 """Writing a synthetic scene in drivestudio's Waymo layout with its truth beside it, and the cache
-of generated scenes (docs/design.md §3)."""
+of generated scenes, one folder per profile (docs/design.md §3)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import json
 import os
 import shutil
 import tempfile
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -26,20 +27,20 @@ from wcbench.scenes.synth.layout import (
     FOCAL,
     FPS,
     GLOBAL_ORIGIN,
+    HARD_SCENES,
     HEIGHT,
     MARKER,
     N_FRAMES,
     SCENES,
     SPEED,
     TRUTH_WEATHERS,
-    VERSION,
     WIDTH,
-    scene_folder,
+    SynthSpec,
 )
 from wcbench.scenes.synth.lidar import lidar_sweep
 from wcbench.scenes.synth.truth import TruthRenderer, reference_model
 
-__all__ = ["ensure_synth_1", "ensure_synth_3", "ensure_synth_scenes", "write_synth_scene"]
+__all__ = ["ensure_synth_1", "ensure_synth_3", "ensure_synth_hard_1", "ensure_synth_scenes", "write_synth_scene"]
 
 
 def _png(path: Path, image: np.ndarray) -> None:
@@ -59,12 +60,13 @@ def _savetxt(path: Path, values: np.ndarray) -> None:
 def _dynamic_masks(content: Content, k: int, camera: Camera, lidar_world: np.ndarray, shift: np.ndarray
                    ) -> dict[str, np.ndarray]:
     """drivestudio's dynamic masks of frame ``k``: per class group, the 2D bounding rectangle of the
-    projected box corners of objects moving faster than 1 m/s, skipping objects with a corner
-    behind the camera or without a lidar point in their box (occluded)."""
+    projected box corners of tracked objects moving faster than 1 m/s, skipping objects with a
+    corner behind the camera or without a lidar point in their box (occluded). Untracked movers
+    have no box, so no mask."""
     masks = {g: np.zeros((HEIGHT, WIDTH), np.uint8) for g in ("all", "human", "vehicle")}
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
     for m in content.movers:
-        if np.linalg.norm(m.velocity[k][:2]) <= 1.0:
+        if not m.tracked or np.linalg.norm(m.velocity[k][:2]) <= 1.0:
             continue
         T = m.poses[k]
         local = (lidar_world - T[:3, 3]) @ T[:3, :3]
@@ -84,21 +86,22 @@ def _dynamic_masks(content: Content, k: int, camera: Camera, lidar_world: np.nda
     return masks
 
 
-def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> dict[str, Any]:
-    """Generate synthetic scene ``index`` into ``root`` in drivestudio's Waymo layout, with truth frames.
+def write_synth_scene(root: Path, scene: int | SynthSpec, *, n_frames: int = N_FRAMES) -> dict[str, Any]:
+    """Generate a synthetic scene into ``root`` in drivestudio's Waymo layout, with truth frames.
 
     Writes ``images/{t:03d}_0.png``, ``ego_pose/{t:03d}.txt``, ``extrinsics/0.txt``,
-    ``intrinsics/0.txt``, ``lidar/{t:03d}.bin``, ``sky_masks/{t:03d}_0.png``,
-    ``dynamic_masks/{all,human,vehicle}/{t:03d}_0.png``, ``instances/instances_info.json`` and
-    ``frame_instances.json``, ``truth/{rain,snow,fog}/{t:03d}_0.png``, ``truth/weather.json`` and,
-    last, ``synth.json`` (docs/design.md §3).
+    ``intrinsics/0.txt``, ``lidar/{t:03d}.bin``, ``sky_masks/{t:03d}_0.png`` (when the profile ships
+    them), ``dynamic_masks/{all,human,vehicle}/{t:03d}_0.png``, ``instances/instances_info.json``
+    and ``frame_instances.json`` (tracked objects only), ``truth/{rain,snow,fog}/{t:03d}_0.png``,
+    ``truth/masks/{sky,shadow,movers}/{t:03d}_0.png`` (when the profile has truth masks),
+    ``truth/weather.json`` and, last, ``synth.json`` (docs/design.md §3).
 
     Parameters
     ----------
     root : Path
         Folder to write into; created if missing, must hold no scene yet.
-    index : int
-        Scene number in :data:`SCENES`.
+    scene : int or SynthSpec
+        The scene: a number in :data:`SCENES` (v1), or any spec (:data:`HARD_SCENES`...).
     n_frames : int
         Frames to write (the first ones; fewer only for quick checks: the scene sets use all).
 
@@ -113,12 +116,15 @@ def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> di
     InputError
         Without torch (the reference model renders the frames).
     """
-    spec = SCENES[index]
+    spec = SCENES[scene] if isinstance(scene, int) else scene
+    profile = spec.profile
     content = build_content(spec)
     root = Path(root)
-    for sub in ("images", "ego_pose", "extrinsics", "intrinsics", "lidar", "sky_masks", "dynamic_masks/all",
-                "dynamic_masks/human", "dynamic_masks/vehicle", "instances",
-                *(f"truth/{w}" for w in TRUTH_WEATHERS)):
+    masks = ("sky", "shadow", "movers") if profile.truth_masks else ()
+    sky_masks = ("sky_masks",) if profile.sky_masks else ()
+    for sub in ("images", "ego_pose", "extrinsics", "intrinsics", "lidar", *sky_masks, "dynamic_masks/all",
+                "dynamic_masks/human", "dynamic_masks/vehicle", "instances", *(f"truth/{w}" for w in TRUTH_WEATHERS),
+                *(f"truth/masks/{m}" for m in masks)):
         (root / sub).mkdir(parents=True, exist_ok=True)
 
     K = np.array([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
@@ -138,14 +144,17 @@ def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> di
 
     counts: dict[str, list[int]] = {"lidar_points": [], "gaussians": []}
     for k, cam in enumerate(cameras[:n_frames]):
-        frames, n_gaussians = truth.frame(k)
-        for w, frame in frames.items():
+        rendered = truth.frame(k)
+        for w, frame in rendered.frames.items():
             image = to_uint8(np.asarray(frame.image, np.float64))  # float64 math: the bytes VERSION 1 shipped
             if w == "clear":
                 _png(root / "images" / f"{k:03d}_0.png", image)
-                _png(root / "sky_masks" / f"{k:03d}_0.png", np.where(frame.alpha < 0.5, 255, 0).astype(np.uint8))
+                if profile.sky_masks:
+                    _png(root / "sky_masks" / f"{k:03d}_0.png", np.where(frame.alpha < 0.5, 255, 0).astype(np.uint8))
             else:
                 _png(root / "truth" / w / f"{k:03d}_0.png", image)
+        for name, mask in rendered.masks.items():
+            _png(root / "truth" / "masks" / name / f"{k:03d}_0.png", mask)
         _savetxt(root / "ego_pose" / f"{k:03d}.txt", global_offset @ content.ego[k])
         sweep = lidar_sweep(content, k)
         sweep.tofile(root / "lidar" / f"{k:03d}.bin")
@@ -153,13 +162,13 @@ def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> di
         for group, mask in _dynamic_masks(content, k, cam, world, shift).items():
             _png(root / "dynamic_masks" / group / f"{k:03d}_0.png", mask)
         counts["lidar_points"].append(len(sweep))
-        counts["gaussians"].append(n_gaussians)
+        counts["gaussians"].append(rendered.gaussians)
 
     instances: dict[str, Any] = {}
     frame_instances: dict[str, list[int]] = {str(k): [] for k in range(n_frames)}
-    for n, m in enumerate(content.movers):
+    for n, m in enumerate(m for m in content.movers if m.tracked):
         instances[str(n)] = {
-            "id": f"{scene_folder(index)}_{m.id}",
+            "id": f"{spec.folder}_{m.id}",
             "class_name": m.class_name,
             "frame_annotations": {
                 "frame_idx": list(range(n_frames)),
@@ -176,8 +185,8 @@ def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> di
     (root / "truth" / "weather.json").write_text(dumps_json(truth.record()), encoding="utf-8")
 
     moving = [m for m in content.movers if m.moving]
-    summary = {
-        "version": VERSION, "scene": scene_folder(index), "seed": spec.seed, "curvature_per_m": spec.curvature,
+    summary: dict[str, Any] = {
+        "version": profile.version, "scene": spec.folder, "seed": spec.seed, "curvature_per_m": spec.curvature,
         "pedestrian": spec.pedestrian, "moving_objects": [m.id for m in moving],
         "parked_cars": sum(not m.moving for m in content.movers),
         "frames": n_frames, "fps": FPS, "image_size": [WIDTH, HEIGHT], "focal_px": FOCAL, "speed_m_s": SPEED,
@@ -186,15 +195,52 @@ def write_synth_scene(root: Path, index: int, *, n_frames: int = N_FRAMES) -> di
         "lidar_points": counts["lidar_points"], "truth_weathers": TRUTH_WEATHERS,
         "global_origin_m": GLOBAL_ORIGIN.tolist(),
     }
+    if profile != SCENES[0].profile:  # what v1's scenes do not have; their marker stays as it was
+        summary.update({
+            "profile": profile.cache, "untracked_moving_objects": [m.id for m in moving if not m.tracked],
+            "lidar": asdict(profile.lidar), "sun": asdict(profile.sun) if profile.sun else None,
+            "sky_masks_shipped": profile.sky_masks, "truth_masks": list(masks),
+        })
     (root / MARKER).write_text(dumps_json(summary), encoding="utf-8")
     return summary
 
 
-def ensure_synth_scenes(count: int) -> Path:
-    """Build synthetic scenes 0 .. ``count`` - 1 once into the cache folder; return the folder holding them.
+def _ensure(specs: tuple[SynthSpec, ...]) -> Path:
+    """Build the scenes ``specs`` (of one profile) once into their cache folder; return the folder.
 
     Each scene is written into a temporary folder and renamed into place, so a killed build never
     leaves half a scene and concurrent builders race safely (the loser finds the winner's scene).
+
+    Raises
+    ------
+    InputError
+        When a scene must be generated and torch is missing, or an incomplete folder is in the way.
+    """
+    parent = cache_dir() / "scenes" / specs[0].profile.cache
+    for spec in specs:
+        root = parent / spec.folder
+        if (root / MARKER).is_file():
+            continue
+        reference_model()  # fail before any work when torch is missing
+        announce(f"generating synthetic scene {root.name} (first use only)")
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=parent))
+        try:
+            write_synth_scene(tmp, spec)
+            try:
+                os.replace(tmp, root)
+            except OSError:
+                if not (root / MARKER).is_file():  # another process won the race only if complete
+                    raise InputError(f"{root}: an incomplete synthetic scene is in the way; delete the folder "
+                                     "and it is generated again") from None
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return parent
+
+
+def ensure_synth_scenes(count: int) -> Path:
+    """Build v1 synthetic scenes 0 .. ``count`` - 1 once into the cache folder; return the folder holding them
+    (see :func:`_ensure`).
 
     Parameters
     ----------
@@ -211,26 +257,7 @@ def ensure_synth_scenes(count: int) -> Path:
     InputError
         When a scene must be generated and torch is missing, or an incomplete folder is in the way.
     """
-    parent = cache_dir() / "scenes" / f"synth-v{VERSION}"
-    for spec in SCENES[:count]:
-        root = parent / scene_folder(spec.index)
-        if (root / MARKER).is_file():
-            continue
-        reference_model()  # fail before any work when torch is missing
-        announce(f"generating synthetic scene {root.name} (first use only)")
-        parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=parent))
-        try:
-            write_synth_scene(tmp, spec.index)
-            try:
-                os.replace(tmp, root)
-            except OSError:
-                if not (root / MARKER).is_file():  # another process won the race only if complete
-                    raise InputError(f"{root}: an incomplete synthetic scene is in the way; delete the folder "
-                                     "and it is generated again") from None
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-    return parent
+    return _ensure(SCENES[:count])
 
 
 def ensure_synth_1() -> Path:
@@ -241,3 +268,9 @@ def ensure_synth_1() -> Path:
 def ensure_synth_3() -> Path:
     """Generator of the ``synth_3`` set: scenes 0-2 (see :func:`ensure_synth_scenes`)."""
     return ensure_synth_scenes(3)
+
+
+def ensure_synth_hard_1() -> Path:
+    """Generator of the ``synth_hard_1`` set: ``<cache>/scenes/synth-hard-v1``, holding ``synth_hard_000``
+    (see :func:`_ensure`)."""
+    return _ensure(HARD_SCENES[:1])
