@@ -42,6 +42,7 @@ from wcbench.reference_model.appearance.shading import (
     smoothstep,
     snow_cover,
     srgb_to_linear,
+    sunlit_irradiance,
     wet_albedo,
 )
 from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surfaces
@@ -137,6 +138,7 @@ class WeatherEditor:
         self.analysis = analysis if analysis is not None else analyse_scene(scene)
         self.surfaces: SurfaceScene = build_surfaces(scene, voxel_m=voxel_m, analysis=self.analysis)
         self._maps_memo: tuple[tuple[Any, ...], SurfaceMaps] | None = None
+        self._sun_memo: tuple[tuple[Any, ...], np.ndarray] | None = None
         # the puddle threshold per rain rate: a quantile of the field over the open ground
         ground = (self.surfaces.static_attributes[:, 3] > 0.5) & (self.surfaces.static_attributes[:, 4] > 0.5)
         field = self.surfaces.static_attributes[ground, 5]
@@ -167,6 +169,31 @@ class WeatherEditor:
             sky, matte = self._sky(index, camera, image)
             self._maps_memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte))
         return self._maps_memo[1]
+
+    def sun_visibility(self, index: int, camera: Any, image: np.ndarray) -> np.ndarray:
+        """[H, W] float32 the sun's visibility in frame ``index`` at ``camera``'s size: each pixel's
+        surface point against the shadow map of the scene's occluders and the frame's moving
+        objects, snapped to the frame's edges by a guided filter (radius 3 px at 270 rows; the
+        shadow's edge in the image is sharper than the map's 0.25 m cells); 1 without a sun."""
+        sun = self.analysis.sun
+        h, w = int(camera.height), int(camera.width)
+        if sun.direction is None:
+            return np.ones((h, w), np.float32)
+        key = (index, np.asarray(camera.K, np.float64).tobytes(), w, h)
+        if self._sun_memo is not None and self._sun_memo[0] == key:
+            return self._sun_memo[1]
+        m = self.maps(index, camera, image)
+        cloud, _ = self.surfaces.at_frame(index)
+        moving = np.asarray(cloud.means[len(self.surfaces.gaussians.static):], np.float64)
+        shadow = sun.shadow_map(moving)
+        assert shadow is not None
+        finite = np.isfinite(m.distance)
+        points = np.asarray(camera.center, np.float64) + m.rays[finite] * m.distance[finite, None]
+        vis = np.ones((h, w), np.float32)
+        vis[finite] = shadow.lit(points).astype(np.float32)
+        vis = refine(vis, image, radius=max(1, round(3 * h / 270)))
+        self._sun_memo = (key, vis)
+        return vis
 
     def overcast_sky(self, rays: np.ndarray) -> np.ndarray:
         """[H, W, 3] display RGB of the overcast sky where a weather has no haze: the CIE standard
@@ -211,9 +238,16 @@ class WeatherEditor:
         exposure = float(table["exposure"])
         # where the sky shows through partly (an edge, a wire, a branch), the surface's own colour
         lin = srgb_to_linear(decontaminate(raw, m.sky_alpha))
-        # the raw pixel stands for the albedo under the clear sky's light on its normal; weather changes
-        # the albedo (a water film, snow), then the overcast sky lights it at the weather's exposure
-        albedo = lin / clear_irradiance(n_up, model=p.light)[..., None]
+        # the raw pixel stands for the albedo under the clear sky's light on its normal (and the sun's,
+        # where the frames show where it shone); weather changes the albedo (a water film, snow), then
+        # the overcast sky lights it at the weather's exposure, shadowed and sunlit pixels alike
+        sun = self.analysis.sun
+        if sun.direction is not None:
+            clear = sunlit_irradiance(m.normal, self.sun_visibility(index, camera, raw), up=up, sun=sun.direction,
+                                      direct_to_diffuse=sun.direct_to_diffuse, ground_albedo=p.light.ground_albedo)
+        else:
+            clear = clear_irradiance(n_up, model=p.light)[..., None]
+        albedo = lin / np.maximum(clear, 1e-3)
         light = exposure * overcast_irradiance(n_up, model=p.light)[..., None]
         beta, haze_color, offset = weather.haze()
         sky_seen = haze_color if beta > 0 else p.sky_color

@@ -37,6 +37,7 @@ __all__ = [
     "smoothstep",
     "snow_cover",
     "srgb_to_linear",
+    "sunlit_irradiance",
     "wet_albedo",
 ]
 
@@ -157,6 +158,44 @@ def clear_irradiance(normal_up: np.ndarray, *, model: LightModel) -> np.ndarray:
     the units of a camera exposed so that a white horizontal surface in the sun reads 1."""
     s, clear, _ = _irradiance_tables(model)
     return np.interp(np.clip(np.asarray(normal_up, np.float64), -1.0, 1.0), s, clear).astype(np.float32)
+
+
+def sunlit_irradiance(normal: np.ndarray, visibility: np.ndarray, *, up: np.ndarray, sun: np.ndarray,
+                      direct_to_diffuse: np.ndarray, ground_albedo: float) -> np.ndarray:
+    """Per-channel irradiance of the clear sky and a sun of known direction, relative to a sunlit
+    horizontal surface's (the image-formation model of shadow removal, Guo, Dai & Hoiem 2013: sky
+    light everywhere, the sun's where it is visible).
+
+    E_c(n, v) = [(1 + n_up) / 2 + rho (1 - n_up) / 2 (1 + r_c) + v k_c max(n . s, 0)] / (1 + r_c),
+    with r_c the sun's direct light over the sky's on a horizontal surface
+    (``direct_to_diffuse``), k_c = r_c / (up . s) the same per unit of the sun's cosine, a sky of
+    uniform radiance (a plane sees (1 + n_up) / 2 of it) and ground of albedo rho lit by both.
+
+    Parameters
+    ----------
+    normal : ndarray [..., 3]
+        Unit surface normals (world).
+    visibility : ndarray [...]
+        The sun's visibility in [0, 1] (0 in a cast shadow).
+    up, sun : ndarray [3]
+        Unit up vector and unit vector toward the sun (above the horizon).
+    direct_to_diffuse : ndarray [3]
+        r_c per channel (>= 0).
+    ground_albedo : float
+
+    Returns
+    -------
+    ndarray [..., 3] float32
+    """
+    n = np.asarray(normal, np.float32)
+    s = np.asarray(sun, np.float64)
+    r = np.asarray(direct_to_diffuse, np.float32)
+    n_up = n @ np.asarray(up, np.float32)
+    cos_sun = np.clip(n @ s.astype(np.float32), 0.0, None)
+    k = r / np.float32(max(float(s @ np.asarray(up, np.float64)), 1e-3))
+    sky = ((1.0 + n_up) / 2.0)[..., None] + ground_albedo * ((1.0 - n_up) / 2.0)[..., None] * (1.0 + r)
+    direct = (np.asarray(visibility, np.float32) * cos_sun)[..., None] * k
+    return ((sky + direct) / (1.0 + r)).astype(np.float32)
 
 
 def overcast_irradiance(normal_up: np.ndarray, *, model: LightModel) -> np.ndarray:

@@ -2,8 +2,8 @@
 
 :func:`analyse_scene` reads a scene's frames at the analysis size, labels its lidar returns
 (:mod:`.motion`), marks the pixels every static return and the frame's own returns land in
-(*solid*: never sky), segments the sky (:mod:`.sky`) and finds the ego vehicle's body
-(:mod:`.ego`). The result is kept for the last scenes analysed in this process (the editor and
+(*solid*: never sky), segments the sky (:mod:`.sky`), finds the ego vehicle's body
+(:mod:`.ego`) and the clear frames' sun (:mod:`.sun`). The result is kept for the last scenes analysed in this process (the editor and
 the training views of one run ask for the same scene), keyed by the scene's folder, frames and
 analysis size.
 """
@@ -18,9 +18,11 @@ from typing import Any
 import cv2
 import numpy as np
 
+from wcbench.core.errors import InputError
 from wcbench.reference_model.scene_analysis.ego import ego_mask
 from wcbench.reference_model.scene_analysis.motion import LidarReturns, classify_returns
 from wcbench.reference_model.scene_analysis.sky import SkySegmentation, segment_sky, sky_matte
+from wcbench.reference_model.scene_analysis.sun import SunEstimate, fit_sun
 from wcbench.reference_model.scene_analysis.views import (
     ANALYSIS_WIDTH,
     AnalysisViews,
@@ -30,7 +32,7 @@ from wcbench.reference_model.scene_analysis.views import (
     resample_mask,
 )
 
-__all__ = ["SceneAnalysis", "analyse_scene", "clear_analysis_cache"]
+__all__ = ["SceneAnalysis", "analyse_scene", "clear_analysis_cache", "shipped_sky", "solid_masks"]
 
 #: How many analysed scenes this process keeps.
 _KEEP = 2
@@ -46,11 +48,12 @@ class SceneAnalysis:
     views : AnalysisViews
     returns : LidarReturns
     solid : list of ndarray [H, W] bool
-        Per frame, the pixels a static return of any sweep or one of the frame's own returns
-        projects into (isolated returns excluded).
+        Per frame, the pixels a lidar return lands in (:func:`solid_masks`): never sky.
     sky : SkySegmentation
     ego : ndarray [H, W] bool
         The ego vehicle's body (the same in every frame; all false when there is none).
+    sun : SunEstimate
+        The clear frames' sun and what casts shadows (no direction when none is seen).
     facts : dict
         For ``info.json``: counts, the sky's and the ego mask's facts, timings.
     """
@@ -60,6 +63,7 @@ class SceneAnalysis:
     solid: list[np.ndarray]
     sky: SkySegmentation
     ego: np.ndarray
+    sun: SunEstimate
     facts: dict[str, Any] = field(default_factory=dict)
 
     def sky_mask(self, k: int, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -87,6 +91,62 @@ class SceneAnalysis:
         size = (image.shape[1], image.shape[0])
         radius = max(1, round(2 * image.shape[0] / 270))
         return sky_matte(self.sky_mask(k, size), image, self.solid_mask(k, size), radius=radius)
+
+
+#: A static return of a sweep more than this many frames away marks a pixel solid only beyond
+#: this distance (m) from the camera: returns of near structure registered from far-off sweeps land
+#: pixels off (a pole 3 m away, 15 px at 480 px wide on pandaset_002_right), farther ones do not.
+_NEAR_FRAMES, _FAR_M = 2, 20.0
+
+
+def solid_masks(views: AnalysisViews, returns: LidarReturns) -> tuple[list[np.ndarray], list[int]]:
+    """Per frame k, the pixels a lidar return lands in: every return of frame k's own sweep (of the
+    nearest sweep within two frames without one), the static returns of the sweeps within
+    ``_NEAR_FRAMES`` frames of k, and the static returns of every sweep farther than ``_FAR_M``
+    from frame k's camera (isolated returns excluded); and the frames none lands in.
+
+    Returns
+    -------
+    solid : list of ndarray [H, W] bool
+    without : list of int
+    """
+    static = {j: p[returns.static_mask(j)] for j, p in returns.points.items()}
+    everything = np.concatenate(list(static.values())) if static else np.zeros((0, 3))
+    solid, without = [], []
+    for k in range(len(views)):
+        near = [static[j] for j in static if abs(j - k) <= _NEAR_FRAMES]
+        far = everything[np.einsum("ij,ij->i", everything - views.center(k), everything - views.center(k))
+                         > _FAR_M ** 2] if len(everything) else everything
+        own = returns.frame_dynamic(k)
+        pts = np.concatenate([far, own, *near]) if (near or len(own) or len(far)) else np.zeros((0, 3))
+        hits = views.hit_map(PointColumns.of(pts), k)
+        solid.append(hits)
+        if not hits.any():
+            without.append(k)
+    return solid, without
+
+
+def shipped_sky(scene: Any, size: tuple[int, int]) -> SkySegmentation | None:
+    """The scene's own sky masks at ``size`` (nearest-neighbour resize, 255 = sky) when every frame
+    ships one, else ``None``.
+
+    Raises
+    ------
+    InputError
+        A mask that is not a readable image.
+    """
+    paths = [f.sky_mask_path for f in scene.frames]
+    if not paths or any(p is None for p in paths):
+        return None
+    masks = []
+    for p in paths:
+        m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        if m is None:
+            raise InputError(f"{p}: not a readable image (a sky mask, 8-bit grayscale, was expected)")
+        masks.append(cv2.resize(m, tuple(size), interpolation=cv2.INTER_NEAREST) > 127)
+    stack = np.stack(masks)
+    return SkySegmentation(masks=stack, probability=stack.astype(np.float32), alpha=stack.astype(np.float32),
+                           facts={"source": "shipped sky masks"})
 
 
 def _key(scene: Any, size: tuple[int, int]) -> tuple[Any, ...]:
@@ -130,27 +190,19 @@ def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = None) -
     returns = classify_returns(scene, views)
     t2 = time.perf_counter()
     static = returns.static_points()
-    static_cols = PointColumns.of(static)
-    solid = []
-    without = []
-    for k in range(len(views)):
-        hits = views.hit_map(static_cols, k)
-        own = returns.frame_dynamic(k)
-        if len(own):
-            hits |= views.hit_map(own, k)
-        solid.append(hits)
-        if not hits.any():
-            without.append(k)
+    solid, without = solid_masks(views, returns)
     t3 = time.perf_counter()
-    sky = segment_sky(views, solid)
+    sky = shipped_sky(scene, size) or segment_sky(views, solid)
     t4 = time.perf_counter()
     ego, ego_facts = ego_mask(views, static)
     t5 = time.perf_counter()
-    facts = {"size": list(size), "returns": returns.facts, "sky": sky.facts, **ego_facts,
+    sun = fit_sun(views, returns, sky.masks)
+    t6 = time.perf_counter()
+    facts = {"size": list(size), "returns": returns.facts, "sky": sky.facts, **ego_facts, "sun": sun.facts,
              "frames_without_lidar_in_view": without,
              "seconds": {"views": round(t1 - t0, 2), "returns": round(t2 - t1, 2), "solid": round(t3 - t2, 2),
-                         "sky": round(t4 - t3, 2), "ego": round(t5 - t4, 2)}}
-    out = SceneAnalysis(views=views, returns=returns, solid=solid, sky=sky, ego=ego, facts=facts)
+                         "sky": round(t4 - t3, 2), "ego": round(t5 - t4, 2), "sun": round(t6 - t5, 2)}}
+    out = SceneAnalysis(views=views, returns=returns, solid=solid, sky=sky, ego=ego, sun=sun, facts=facts)
     _CACHE[key] = out
     while len(_CACHE) > _KEEP:
         _CACHE.popitem(last=False)

@@ -6,9 +6,11 @@ and poles are hit now and then, and far buildings lie beyond its range. :func:`s
 them from the image, for every frame of a scene at once (docs/design.md §7, "Sky"):
 
 1. **Seeds.** Confident sky: above the horizon, no return within 4 px, connected to the top of the
-   image through such pixels, not on the continuation of a wall above its topmost return (up to
-   the highest step edge within 5 degrees above it: a spinning lidar's upper beams are 2-5
-   degrees apart, and between two of them a wall returns nothing either), smooth (local standard
+   image through such pixels without crossing a step edge (a roof line), in a patch of seeds of
+   at least 0.3 % of the frame (a window pane mirroring the sky is smaller), not on the
+   continuation of a wall above its topmost return (up to the highest step edge within 5 degrees
+   above it: a spinning lidar's upper beams are 2-5 degrees apart, and between two of them a wall
+   returns nothing either), smooth (local standard
    deviation of L* under 0.03), static under the camera's rotation alone (see 2), and either
    within the lidar's coverage (ray elevation under 12 degrees: there the lidar would have
    returned anything within its range) or of the clear sky's blue (b* < -12, -20 < a* < 5:
@@ -31,7 +33,9 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    and hard constraints: returns and the pixels below the horizon are not sky, sky seeds are.
 5. **The boundary placed by colour** (:func:`refine_boundary`): within 3 px of it, each pixel's
    share of sky from the colour line between the nearby sky and foreground colours (alpha
-   matting's colour-line model); sky where the share is at least one half.
+   matting's colour-line model); sky where the share is at least one half. A patch of sky that
+   holds no seed and does not reach the top of the frame (a pane of a window, a gap the cut left
+   in a wall) is dropped: the sky is one with the open sky.
 
 The result is a binary mask per frame and the sky's share of each pixel (a soft matte:
 :func:`sky_matte` feathers a mask at another size), so that a wire or a branch against the sky is
@@ -66,6 +70,9 @@ _BEAM_GAP_DEG = 5.0
 #: the CIELAB step (3 rows above against 3 below) that ends a wall's continuation.
 _WALL_RUN_PX, _EDGE_DE = 6, 12.0
 _BLUE_B, _BLUE_A = -12.0, (-20.0, 5.0)
+#: A patch of seeds smaller than this share of the frame is dropped (a window pane mirroring the blue
+#: sky is smaller).
+_MIN_OPEN_SKY = 0.003
 #: Smoothness weight of the minimum cut, and the clip of the classifier's probability.
 _LAMBDA, _P_CLIP = 4.0, 0.03
 
@@ -107,6 +114,21 @@ def sky_features(image: np.ndarray, residual: np.ndarray, elevation: np.ndarray)
                      10.0 * residual, 5.0 * elevation], -1).astype(np.float32)
 
 
+def _step_edges(image: np.ndarray) -> np.ndarray:
+    """[H, W] bool: rows r where the mean CIELAB colour of the 3 rows above and of the 3 rows below
+    (r included) differ by more than 12: a roof line or a cornice, not a line of texture or a wire."""
+    h, w = image.shape[:2]
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    csum = np.concatenate([np.zeros((1, w, 3), np.float32), np.cumsum(lab, axis=0)])
+    r = np.arange(h)
+    lo_a, hi_b = np.clip(r - 3, 0, h), np.clip(r + 3, 0, h)
+    above = (csum[r] - csum[lo_a]) / np.maximum(r - lo_a, 1)[:, None, None]
+    below = (csum[hi_b] - csum[r]) / np.maximum(hi_b - r, 1)[:, None, None]
+    edge = np.sqrt(np.sum((above - below) ** 2, axis=-1)) > _EDGE_DE
+    edge[0] = False
+    return edge
+
+
 def _wall_continuation(image: np.ndarray, solid: np.ndarray, reach_px: float) -> np.ndarray:
     """[H, W] bool: per column, the pixels from the topmost return of a wall (a run of returns
     across 13 columns or more: not a pole or a mast) up to the highest step edge within ``reach_px``
@@ -117,15 +139,7 @@ def _wall_continuation(image: np.ndarray, solid: np.ndarray, reach_px: float) ->
     walls = cv2.morphologyEx(joined, cv2.MORPH_OPEN, np.ones((1, 2 * _WALL_RUN_PX + 1), np.uint8)).astype(bool)
     walls &= solid | cv2.dilate(solid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     top = np.where(walls.any(axis=0), walls.argmax(axis=0), h)
-    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
-    # a step edge, not a line of texture: the mean of the 3 rows above against the 3 rows below
-    csum = np.concatenate([np.zeros((1, w, 3), np.float32), np.cumsum(lab, axis=0)])
-    r = np.arange(h)
-    lo_a, hi_b = np.clip(r - 3, 0, h), np.clip(r + 3, 0, h)
-    above = (csum[r] - csum[lo_a]) / np.maximum(r - lo_a, 1)[:, None, None]
-    below = (csum[hi_b] - csum[r]) / np.maximum(hi_b - r, 1)[:, None, None]
-    edge = np.sqrt(np.sum((above - below) ** 2, axis=-1)) > _EDGE_DE  # a step between rows r - 1 and r
-    edge[0] = False
+    edge = _step_edges(image)
     rows = np.arange(h)[:, None]
     # the highest step edge within reach above each column's top (a wall's face may have steps of its
     # own: windows, vents, a cornice; its roof line is the last one before the sky)
@@ -257,6 +271,16 @@ def _column_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.nda
     return np.where(has, p, 0.5).astype(np.float32)
 
 
+def _seeded(mask: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+    """The components of ``mask`` (8-connected: a sky crossed by a wire stays one) that hold a seed
+    or touch the top row."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return mask.copy()
+    keep = np.unique(np.concatenate([labels[seeds & mask], labels[0][mask[0]]]))
+    return np.isin(labels, keep[keep > 0])
+
+
 def _top_connected(mask: np.ndarray) -> np.ndarray:
     """The components of ``mask`` (4-connected) that touch the top row."""
     n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=4)
@@ -264,6 +288,13 @@ def _top_connected(mask: np.ndarray) -> np.ndarray:
         return mask.copy()
     top = np.unique(labels[0][mask[0]])
     return np.isin(labels, top[top > 0])
+
+
+def _large(mask: np.ndarray, min_fraction: float) -> np.ndarray:
+    """The components of ``mask`` (8-connected) that cover at least ``min_fraction`` of the image."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_fraction * mask.size)
+    return np.isin(labels, big[big > 0])
 
 
 def _cut(image: np.ndarray, p: np.ndarray, never: np.ndarray, always: np.ndarray) -> np.ndarray:
@@ -346,7 +377,10 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         blue = (lab[..., 2] < _BLUE_B) & (lab[..., 1] > _BLUE_A[0]) & (lab[..., 1] < _BLUE_A[1])
         within = elev < math.sin(math.radians(_SEED_MAX_ELEVATION_DEG))
         smooth_static = (feat[..., 3] < 10 * _SEED_MAX_STD) & (feat[..., 6] < 10 * _SEED_MAX_RESIDUAL)
-        seeds = _top_connected((elev > 0.0) & ~near) & beyond & smooth_static & (within | blue)
+        # connected to the top through the open sky: not across a lidar return, nor a roof line; and in a
+        # patch of seeds of some size (a window mirroring the blue sky is a small one)
+        open_sky = _top_connected((elev > 0.0) & ~near & ~_step_edges(views.images[k]))
+        seeds = _large(open_sky & beyond & smooth_static & (within | blue), _MIN_OPEN_SKY)
         feats.append(feat)
         above.append(elev > 0.0)
         sky_seeds.append(seeds)
@@ -396,7 +430,10 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         p = np.where(region, 1.0 / (1.0 + np.exp(-odds)), 0.0).astype(np.float32)
         probability[k] = p
         cut = _cut(views.images[k], p, ~region | solid[k], sky_seeds[k]) & region & ~solid[k]
-        masks[k], alphas[k] = refine_boundary(views.images[k], cut, ~region | solid[k])
+        mask, alpha = refine_boundary(views.images[k], cut, ~region | solid[k])
+        # the sky is one with the open sky: a patch enclosed by the scene, with no seed, is not
+        keep = _seeded(mask, sky_seeds[k])
+        masks[k], alphas[k] = keep, np.where(mask & ~keep, 0.0, alpha).astype(np.float32)
     facts.update(classifier=f"random forest ({_TREES} trees, depth {_DEPTH}) on {len(xs)} sky and {len(xn)} "
                             f"non-sky seed pixels", sky_fraction=round(float(masks.mean()), 4))
     return SkySegmentation(masks=masks, probability=probability, alpha=alphas, facts=facts)
