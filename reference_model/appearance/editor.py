@@ -49,7 +49,7 @@ from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surf
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis, analyse_scene
 from wcbench.reference_model.weather.conditions import Weather, load_presets
 
-__all__ = ["AppearanceParams", "WeatherEditor", "decontaminate", "masked_ego"]
+__all__ = ["AppearanceParams", "WeatherEditor", "decontaminate", "masked_ego", "mirror_the_sky"]
 
 
 @dataclass(frozen=True)
@@ -159,6 +159,10 @@ class WeatherEditor:
         sky = self.analysis.sky_mask(index, (w, h))
         return sky, self.analysis.sky_matte(index, image)
 
+    def _solid(self, index: int, camera: Any) -> np.ndarray:
+        """[H, W] bool: pixels of frame ``index`` a lidar return lands in, at ``camera``'s size."""
+        return self.analysis.solid_mask(index, (int(camera.width), int(camera.height)))
+
     def maps(self, index: int, camera: Any, image: np.ndarray) -> SurfaceMaps:
         """The completed surface maps of frame ``index`` at ``camera``'s size (the last view's are
         kept: every weather of a frame shares them); ``image`` is the frame at that size (display
@@ -167,7 +171,8 @@ class WeatherEditor:
                np.asarray(camera.camera_to_world, np.float64).tobytes())
         if self._maps_memo is None or self._maps_memo[0] != key:
             sky, matte = self._sky(index, camera, image)
-            self._maps_memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte))
+            self._maps_memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte,
+                                                 solid=self._solid(index, camera)))
         return self._maps_memo[1]
 
     def sun_visibility(self, index: int, camera: Any, image: np.ndarray) -> np.ndarray:
@@ -301,7 +306,8 @@ class WeatherEditor:
                         snow_fraction_of_frame=round(float((cover > 0.5).mean()), 4))
         else:
             base = wet_albedo(albedo, float(table["damp"]) * ~m.sky) * light
-        surface = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
+        surface = mirror_the_sky(linear_to_srgb(base), raw, sky_seen)
+        surface = apply_haze(surface, m.distance, beta=beta, color=haze_color, offset_m=offset)
         # the sky: at infinity, the haze's airlight; without haze, the overcast sky
         sky = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else self.overcast_sky(m.rays)
         a = m.sky_alpha[..., None]
@@ -313,6 +319,36 @@ class WeatherEditor:
         info["timings_ms"] = {"maps": round(1e3 * (t_maps - t0), 2), "shade": round(1e3 * (t_end - t_maps), 2)}
         info["haze"] = {"beta_per_m": beta, "color": np.asarray(haze_color).tolist(), "offset_m": offset}
         return np.clip(out, 0.0, 1.0).astype(np.float32), info
+
+
+def mirror_the_sky(image: np.ndarray, raw: np.ndarray, sky: np.ndarray) -> np.ndarray:
+    """Surfaces that show the clear sky's blue in the raw frame mirror that sky (a window, a car's
+    roof, a puddle): under the weather they mirror the weather's sky, so their chroma (CIELAB a*, b*)
+    goes to the sky's; their lightness stays. The weight is 1 for the clear sky's blue (b* <= -16,
+    L* >= 50) and fades out by b* = -8 or L* = 35: a dark blue car is no mirror.
+
+    Parameters
+    ----------
+    image : ndarray [H, W, 3] float32
+        The edited surfaces, display RGB.
+    raw : ndarray [H, W, 3] float32
+        The raw frame, display RGB.
+    sky : ndarray [3]
+        The weather's sky as the surfaces see it (its haze's airlight, or the overcast sky), display RGB.
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+    """
+    lab_raw = cv2.cvtColor(np.ascontiguousarray(raw, np.float32), cv2.COLOR_RGB2Lab)
+    weight = smoothstep(-lab_raw[..., 2], 8.0, 16.0) * smoothstep(lab_raw[..., 0], 35.0, 50.0) * \
+        smoothstep(lab_raw[..., 1], -25.0, -20.0) * (1.0 - smoothstep(lab_raw[..., 1], 5.0, 10.0))
+    if not weight.any():
+        return np.asarray(image, np.float32)
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    target = cv2.cvtColor(np.asarray(sky, np.float32).reshape(1, 1, 3), cv2.COLOR_RGB2Lab)[0, 0]
+    lab[..., 1:] = lab[..., 1:] * (1.0 - weight[..., None]) + target[1:] * weight[..., None]
+    return np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2RGB), 0.0, 1.0).astype(np.float32)
 
 
 def masked_ego(raw: np.ndarray, kind: str, params: AppearanceParams) -> np.ndarray:

@@ -95,9 +95,8 @@ def _rasterize(cloud: GaussianCloud, channels: np.ndarray, camera: Any) -> tuple
     return out.color.numpy() / np.maximum(alpha, 1e-6)[..., None], alpha, out.depth.numpy()
 
 
-def _box_shells(boxes: list[tuple[np.ndarray, np.ndarray]], cloud: GaussianCloud, camera: Any, rays: np.ndarray,
-                center: np.ndarray, distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray],
-                sky: np.ndarray) -> np.ndarray:
+def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
+                distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray) -> np.ndarray:
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
     behind the object's box (the lidar sampled the object sparsely and what lies behind or under it
     shows through), the box's face stands for the object: its distance and face normal, open to
@@ -109,6 +108,8 @@ def _box_shells(boxes: list[tuple[np.ndarray, np.ndarray]], cloud: GaussianCloud
     entry into the box is found by the slab method in the box frame.
     """
     changed = np.zeros(distance.shape, bool)
+    boxes = surfaces.boxes_at(index)
+    cloud, _ = surfaces.at_frame(index)
     if not boxes or len(cloud) == 0:
         return changed
     h, w = distance.shape
@@ -121,9 +122,12 @@ def _box_shells(boxes: list[tuple[np.ndarray, np.ndarray]], cloud: GaussianCloud
         o = R.T @ (center - t)
         if np.all(np.abs(o) <= half):
             continue  # the camera inside a box (the ego vehicle's own track): no shell
-        local = (means - t) @ R
-        inside = np.all(np.abs(local) <= half + 0.1, axis=1)
-        if inside.sum() < 3:
+        near = surfaces.near(index, t, float(np.linalg.norm(half + 0.1)))
+        if near.size < 3:
+            continue
+        local = (means[near] - t) @ R
+        inside = near[np.all(np.abs(local) <= half + 0.1, axis=1)]
+        if inside.size < 3:
             continue
         cam = means[inside] @ w2c[:3, :3].T + w2c[:3, 3]
         cam = cam[cam[:, 2] > 0.1]
@@ -162,7 +166,7 @@ def _box_shells(boxes: list[tuple[np.ndarray, np.ndarray]], cloud: GaussianCloud
 
 
 def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,
-                 sky_alpha: np.ndarray | None = None) -> SurfaceMaps:
+                 sky_alpha: np.ndarray | None = None, solid: np.ndarray | None = None) -> SurfaceMaps:
     """The completed surface maps of frame ``index`` seen by ``camera`` (see the module docstring).
 
     Parameters
@@ -176,6 +180,8 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         The view's sky pixels.
     sky_alpha : ndarray [H, W] float, optional
         Its soft matte; default the mask itself.
+    solid : ndarray [H, W] bool, optional
+        Pixels a lidar return lands in: never shown as sky (their matte stays under one half).
 
     Returns
     -------
@@ -193,7 +199,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     normal = normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-6)
     fields = {name: np.clip(values[..., 3 + i], 0.0, 1.0)
               for i, name in enumerate(("ground", "open", "puddle", "track"))}
-    boxed = _box_shells(surfaces.boxes_at(index), cloud, camera, rays, center, distance, normal, fields, sky)
+    boxed = _box_shells(surfaces, index, camera, rays, center, distance, normal, fields, sky)
     covered |= boxed
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
@@ -220,6 +226,8 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     unreached = (kind == FILL_SKY) & ~sky  # nothing below to rise from: infinitely far, seen as sky
     matte[unreached] = 1.0
     sky = sky | unreached
+    if solid is not None:
+        matte = np.where(solid, np.minimum(matte, 0.49), matte).astype(np.float32)
     normal[sky] = -rays[sky]
     for name in fields:
         fields[name][sky] = 0.0

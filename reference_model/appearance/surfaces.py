@@ -265,6 +265,20 @@ class SurfaceScene:
         self._frame_memo = (index, cloud, out)
         return cloud, out
 
+    def near(self, index: int, center: np.ndarray, radius: float) -> np.ndarray:
+        """Indices into :meth:`at_frame`'s Gaussians of frame ``index`` within ``radius`` (m) of
+        ``center``: the static ones from a k-d tree made once, the frame's moving ones directly."""
+        tree = getattr(self, "_static_tree", None)
+        if tree is None:
+            tree = cKDTree(np.asarray(self.gaussians.static.means, np.float64))
+            self._static_tree = tree
+        static = np.asarray(tree.query_ball_point(np.asarray(center, np.float64), radius), np.int64)
+        cloud, _ = self.at_frame(index)
+        n = len(self.gaussians.static)
+        moving = np.asarray(cloud.means[n:], np.float64)
+        d2 = np.einsum("ij,ij->i", moving - center, moving - center)
+        return np.concatenate([static, n + np.flatnonzero(d2 <= radius * radius)])
+
     def _frame_dynamic(self, index: int) -> tuple[GaussianCloud, np.ndarray] | None:
         """The untracked dynamic returns of frame ``index`` as Gaussians (colours from the frame at
         the analysis size) and their attributes: PCA normals turned toward the camera, nothing else

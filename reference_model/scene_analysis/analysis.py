@@ -1,11 +1,11 @@
 """All the scene analyses of a scene, run once and shared by the weather editor and training.
 
 :func:`analyse_scene` reads a scene's frames at the analysis size, labels its lidar returns
-(:mod:`.motion`), marks the pixels every static return and the frame's own returns land in
-(*solid*: never sky), segments the sky (:mod:`.sky`), finds the ego vehicle's body
-(:mod:`.ego`) and the clear frames' sun (:mod:`.sun`). The result is kept for the last scenes analysed in this process (the editor and
-the training views of one run ask for the same scene), keyed by the scene's folder, frames and
-analysis size.
+(:mod:`.motion`), marks the pixels the returns land in (*solid*: never sky, :func:`solid_masks`),
+segments the sky (:mod:`.sky`; the scene's own masks when it ships them), finds the ego
+vehicle's body (:mod:`.ego`) and the clear frames' sun (:mod:`.sun`). The result is kept for the
+last scenes analysed in this process (the editor and the training views of one run ask for the
+same scene), keyed by the scene's folder, frames and analysis size.
 """
 
 from __future__ import annotations

@@ -134,7 +134,7 @@ def _wall_continuation(image: np.ndarray, solid: np.ndarray, reach_px: float) ->
     across 13 columns or more: not a pole or a mast) up to the highest step edge within ``reach_px``
     rows above it (the mean CIELAB colour of the 3 rows above and the 3 below differ by more than
     12: a roof line, a cornice, not a line of texture), or ``reach_px`` rows without one."""
-    h, w = solid.shape
+    h = solid.shape[0]
     joined = cv2.dilate(solid.astype(np.uint8), np.ones((1, 5), np.uint8))
     walls = cv2.morphologyEx(joined, cv2.MORPH_OPEN, np.ones((1, 2 * _WALL_RUN_PX + 1), np.uint8)).astype(bool)
     walls &= solid | cv2.dilate(solid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
@@ -292,7 +292,7 @@ def _top_connected(mask: np.ndarray) -> np.ndarray:
 
 def _large(mask: np.ndarray, min_fraction: float) -> np.ndarray:
     """The components of ``mask`` (8-connected) that cover at least ``min_fraction`` of the image."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_fraction * mask.size)
     return np.isin(labels, big[big > 0])
 

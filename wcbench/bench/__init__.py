@@ -14,4 +14,5 @@ SUITES = {
     "model": "wcbench.bench.model:run",
     "scale": "wcbench.bench.scale:run",
     "validity": "wcbench.bench.validity:run",
+    "streets": "wcbench.bench.streets:run",
 }

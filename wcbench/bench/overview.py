@@ -33,7 +33,7 @@ __all__ = ["HIGHER_IS_BETTER_UNITS", "pareto_flags", "pareto_front", "run_all", 
 #: Error units where a larger ``error`` is better (the model suite reports quality as PSNR).
 HIGHER_IS_BETTER_UNITS = frozenset({"psnr_db"})
 #: Suites ``bench --all`` runs, in this order (the slowest last).
-ALL_SUITES = ("metrics", "raster", "weather", "report", "scale", "validity", "model")
+ALL_SUITES = ("metrics", "raster", "weather", "report", "scale", "validity", "streets", "model")
 
 
 def pareto_flags(scores: Sequence[Sequence[float]]) -> list[bool]:

@@ -1,0 +1,316 @@
+"""Benchmark suite ``streets``: does the weather hold on streets the project has not tuned on?
+
+On every real scene beside the data (the four PandaSet cameras of ``pandaset_002``) and on the
+harder synthetic street ``synth_hard_1`` (docs/design.md §3), this suite measures what a viewer
+sees at once when the weather breaks (docs/design.md §7, "Scene analysis"; findings in
+docs/findings.md):
+
+* ``sky_<scene>``: the sky segmentation against the hand-drawn sky masks of three frames per
+  scene (``tests/data/sky_masks/``, rules in its README): intersection over union of all pixels,
+  and of the pixels no lidar return lands in (a wire or a far mast the lidar hits covers a fraction
+  of its pixel, which the masks call sky when under one half, the segmentation never); the
+  analysis' time.
+* ``editor_<scene>`` and ``weathercity_<scene>`` (the latter outside ``--quick``: the ``default``
+  profile's model, trained or loaded from the cache): over every frame of rain, snow and fog,
+  **lidar-hit pixels shown as sky** (the sky's share of a pixel at least one half where a return
+  lands: the editor's matte, WeatherCity's 1 - accumulated opacity), counted twice, for the returns
+  the analysis trusts (:func:`~wcbench.reference_model.scene_analysis.analysis.solid_masks`: the
+  frame's own sweep, the static returns of sweeps within two frames and every static return beyond
+  20 m) and for every static return of every sweep; **clear-sky blue left** (pixels that are of the
+  clear sky's blue, CIELAB b* < -12, L* > 45, -20 < a* < 5, in the raw frame and still are); the
+  **temporal flicker ratio** (mean absolute difference of consecutive frames, edited over raw); and
+  the editor's milliseconds per 480 x 270 frame (median over frames and weathers; the scene's set-up
+  separately).
+* ``synth_hard``: on the harder truth, the editor's and the raw frames' PSNR against the truth per
+  weather, over all pixels and inside the clear frames' cast shadows (``truth/masks/shadow``);
+  outside ``--quick`` also WeatherCity's main job (``quick`` profile) there, PSNR and LPIPS per
+  weather next to the raw frames'.
+
+Times are from the machine it runs on; they move with its load (the report records it).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from wcbench.bench.schema import BenchCase, BenchReport
+from wcbench.evaluation import EvaluateConfig, evaluate
+from wcbench.methods import get_method
+from wcbench.methods.physical_editor import raw_frame
+from wcbench.methods.scene_training import train_scene
+from wcbench.methods.weather_spec import resolve_physics
+from wcbench.metrics.temporal.flicker import temporal_flicker
+from wcbench.reference_model.appearance.editor import WeatherEditor
+from wcbench.reference_model.model.sky import view_directions
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene
+from wcbench.reference_model.scene_analysis.views import PointColumns, resample_mask
+from wcbench.reference_model.training.config import make_config
+from wcbench.reference_model.weather.renderer import scale_camera
+from wcbench.scenes.loaders import load_scene
+from wcbench.scenes.sets import get_scene_set
+from wcbench.units import RenderSettings
+
+__all__ = ["REAL_SCENES", "clear_sky_blue", "run", "sky_masks_folder"]
+
+#: The real scenes the suite looks for under the data root.
+REAL_SCENES = ("pandaset_002", "pandaset_002_back", "pandaset_002_front_right", "pandaset_002_right")
+EDITED = ("rain", "snow", "fog")
+#: Frames of the hand-drawn sky masks.
+MASK_FRAMES = (5, 15, 25)
+
+
+def sky_masks_folder() -> Path:
+    """The hand-drawn sky masks: ``tests/data/sky_masks`` of the source checkout (test data, not part
+    of the installed package)."""
+    return Path(__file__).resolve().parents[2] / "tests" / "data" / "sky_masks"
+
+
+def clear_sky_blue(image: np.ndarray) -> np.ndarray:
+    """[H, W] bool: pixels of the clear sky's blue (CIELAB b* < -12, L* > 45, -20 < a* < 5) in a
+    display-RGB image [H, W, 3] in [0, 1]."""
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    return (lab[..., 2] < -12.0) & (lab[..., 0] > 45.0) & (lab[..., 1] > -20.0) & (lab[..., 1] < 5.0)
+
+
+def _iou(a: np.ndarray, b: np.ndarray, where: np.ndarray | None = None) -> tuple[int, int]:
+    """(intersection, union) of two masks, over ``where``."""
+    if where is not None:
+        a, b = a & where, b & where
+    return int((a & b).sum()), int((a | b).sum())
+
+
+def _sky_case(name: str, scene: Any, masks: Path) -> BenchCase:
+    start = time.perf_counter()
+    analysis = analyse_scene(scene)
+    seconds = time.perf_counter() - start
+    per_frame, inter, union, inter_out, union_out = {}, 0, 0, 0, 0
+    for k in MASK_FRAMES:
+        path = masks / name / f"{k:03d}.png"
+        truth = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if truth is None:
+            raise RuntimeError(f"{path}: a hand-drawn sky mask was expected")
+        t = resample_mask(truth > 127, analysis.views.size)
+        p = analysis.sky.masks[k]
+        i, u = _iou(t, p)
+        io, uo = _iou(t, p, ~analysis.solid[k])
+        inter, union, inter_out, union_out = inter + i, union + u, inter_out + io, union_out + uo
+        per_frame[str(k)] = {"iou": round(i / u, 4) if u else None,
+                             "iou_outside_lidar": round(io / uo, 4) if uo else None,
+                             "false_sky_px": int((p & ~t).sum()), "missed_sky_px": int((t & ~p).sum()),
+                             "truth_sky_fraction": round(float(t.mean()), 4)}
+    iou = inter / union if union else 1.0
+    return BenchCase(name=f"sky_{name}", knob="scene", value=name, time_ms=1e3 * seconds, error=1.0 - iou,
+                     error_unit="1 - IoU vs hand-drawn masks",
+                     extra={"iou": round(iou, 4), "iou_outside_lidar": round(inter_out / union_out, 4) if union_out
+                            else 1.0, "frames": per_frame, "analysis": analysis.facts})
+
+
+def _every_sweep_hits(analysis: Any) -> list[np.ndarray]:
+    """Per frame, the pixels every static return of every sweep (and the frame's own) lands in."""
+    cols = PointColumns.of(analysis.returns.static_points())
+    out = []
+    for k in range(len(analysis.views)):
+        hits = analysis.views.hit_map(cols, k)
+        own = analysis.returns.frame_dynamic(k)
+        if len(own):
+            hits |= analysis.views.hit_map(own, k)
+        out.append(hits)
+    return out
+
+
+def _weather_checks(raws: list[np.ndarray], edits: dict[str, list[np.ndarray]], skies: list[np.ndarray],
+                    solid: list[np.ndarray], every: list[np.ndarray]) -> dict[str, Any]:
+    """Lidar-hit pixels shown as sky, clear-sky blue left and flicker ratios of edited frames."""
+    raw_stack = np.stack(raws)
+    raw_flicker = temporal_flicker(raw_stack)
+    blue_raw = [clear_sky_blue(r) for r in raws]
+    out: dict[str, Any] = {
+        "lidar_hits_as_sky": int(sum((s & h).sum() for s, h in zip(skies, solid))),
+        "lidar_hits_as_sky_every_sweep": int(sum((s & h).sum() for s, h in zip(skies, every))),
+        "frames_with_lidar_hits_as_sky": int(sum(bool((s & h).any()) for s, h in zip(skies, solid))),
+    }
+    for w, seq in edits.items():
+        out[f"clear_sky_blue_left_{w}"] = int(sum((b & clear_sky_blue(e)).sum() for b, e in zip(blue_raw, seq)))
+        out[f"flicker_ratio_{w}"] = round(temporal_flicker(np.stack(seq)) / raw_flicker, 4) if raw_flicker > 0 else None
+    out["clear_sky_blue_in_raw"] = int(sum(b.sum() for b in blue_raw))
+    return out
+
+
+def _editor_case(name: str, scene: Any) -> tuple[BenchCase, Any]:
+    analysis = analyse_scene(scene)
+    start = time.perf_counter()
+    editor = WeatherEditor(scene, analysis=analysis)
+    setup = time.perf_counter() - start
+    size = analysis.views.size
+    physics = resolve_physics(scene, "auto")
+    raws, skies, times = [], [], []
+    edits: dict[str, list[np.ndarray]] = {w: [] for w in EDITED}
+    for k in range(len(scene)):
+        raw = raw_frame(scene, k, size)
+        camera = scale_camera(scene.frames[k].camera, *size)
+        for w in EDITED:
+            t0 = time.perf_counter()
+            image, _ = editor.edit(raw, k, camera, physics[w])
+            times.append(1e3 * (time.perf_counter() - t0))
+            edits[w].append(image)
+        raws.append(raw)
+        skies.append(editor.maps(k, camera, raw).sky_alpha >= 0.5)
+    checks = _weather_checks(raws, edits, skies, analysis.solid, _every_sweep_hits(analysis))
+    ms = statistics.median(times)
+    return BenchCase(name=f"editor_{name}", knob="scene", value=name, time_ms=ms, error=None, error_unit="-",
+                     extra={"ms_per_frame_median": round(ms, 1), "ms_per_frame_mean": round(float(np.mean(times)), 1),
+                            "setup_s": round(setup, 2), "size": list(size), **checks}), analysis
+
+
+def _weathercity_case(name: str, scene: Any, analysis: Any) -> BenchCase:
+    start = time.perf_counter()
+    config = make_config("default")
+    method = get_method("weathercity", profile="default")
+    model, _, facts = train_scene(scene, config, physics=method.training_physics(scene), show_progress=False,
+                                  log=lambda *_: None)
+    method.use_model(scene, model, facts)
+    train_s = time.perf_counter() - start
+    size = analysis.views.size
+    raws, skies = [], []
+    edits: dict[str, list[np.ndarray]] = {w: [] for w in EDITED}
+    with torch.no_grad():
+        for k in range(len(scene)):
+            raws.append(raw_frame(scene, k, size))
+            cam = scale_camera(scene.frames[k].camera, *size)
+            grid = model.sky.grid(torch.from_numpy(view_directions(cam.camera_to_world, cam.K, *size)))
+            render = model.render(k, np.asarray(cam.world_to_camera), np.asarray(cam.K), size[0], size[1], ["clear"],
+                                  sky_grid=grid)
+            skies.append(1.0 - render.alpha.numpy() >= 0.5)
+    for w in EDITED:
+        method.prepare(scene, w, seed=0)
+        for k in range(len(scene)):
+            image, _ = method.render_frame(scene, w, k, seed=0)
+            edits[w].append(cv2.resize(image, size, interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+                            if (image.shape[1], image.shape[0]) != size else image.astype(np.float32) / 255.0)
+    checks = _weather_checks(raws, edits, skies, analysis.solid, _every_sweep_hits(analysis))
+    return BenchCase(name=f"weathercity_{name}", knob="scene", value=name, time_ms=1e3 * train_s, error=None,
+                     error_unit="-", extra={"holdout": facts.get("holdout"), **checks,
+                                            "train_seconds": facts.get("train_seconds")})
+
+
+def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
+    if not mask.any():
+        return None
+    mse = float(np.mean((a[mask].astype(np.float64) - b[mask].astype(np.float64)) ** 2))
+    return 10.0 * math.log10(1.0 / max(mse, 1e-12))
+
+
+def _synth_hard_case(quick: bool) -> BenchCase:
+    scene = get_scene_set("synth_hard_1").scenes[0].load()
+    analysis = analyse_scene(scene)
+    editor = WeatherEditor(scene, analysis=analysis)
+    physics = resolve_physics(scene, "auto")
+    size = scene.image_size
+    psnr: dict[str, list[float]] = {}
+    shadow: dict[str, list[float]] = {}
+    for k in range(len(scene)):
+        raw = raw_frame(scene, k, size)
+        camera = scale_camera(scene.frames[k].camera, *size)
+        mask_path = Path(scene.root) / "truth" / "masks" / "shadow" / f"{k:03d}_0.png"
+        mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+        in_shadow = mask > 127 if mask is not None else np.zeros(raw.shape[:2], bool)
+        for w in EDITED:
+            truth = cv2.cvtColor(cv2.imread(str(scene.references[w][k])), cv2.COLOR_BGR2RGB).astype(np.float32) / 255
+            edited, _ = editor.edit(raw, k, camera, physics[w])
+            for who, image in (("editor", edited), ("raw", raw)):
+                whole = _masked_psnr(image, truth, np.ones(raw.shape[:2], bool))
+                psnr.setdefault(f"{who}_{w}", []).append(whole if whole is not None else 0.0)
+                value = _masked_psnr(image, truth, in_shadow)
+                if value is not None:
+                    shadow.setdefault(f"{who}_{w}", []).append(value)
+    extra: dict[str, Any] = {f"psnr_{k}": round(float(np.mean(v)), 3) for k, v in psnr.items()}
+    extra.update({f"psnr_in_shadow_{k}": round(float(np.mean(v)), 3) for k, v in shadow.items()})
+    extra["sun"] = analysis.sun.facts
+    if not quick:
+        with tempfile.TemporaryDirectory(prefix="wcbench-streets-") as tmp:
+            for label, name, options in (("identity", "identity", {}), ("weathercity", "weathercity",
+                                                                         {"profile": "quick"})):
+                cfg = EvaluateConfig(method=name, scenes="synth_hard_1", predictions=Path(tmp) / "pred" / label,
+                                     out=Path(tmp) / "res" / label, weathers=["clear", *EDITED],
+                                     metrics=["psnr", "ssim", "lpips"],
+                                     render=RenderSettings(seed=0, show_progress=False), show_progress=False)
+                doc = evaluate(cfg, method=get_method(name, **options)).results
+                for w, outs in next(iter(doc["results"].values())).items():
+                    for metric in ("psnr", "lpips"):
+                        extra[f"{metric}_{label}_{w}"] = outs.get(metric, {}).get("value")
+                if label == "weathercity":
+                    extra.update(_weathercity_shadow_psnr(Path(tmp) / "pred" / label, scene))
+    return BenchCase(name="synth_hard", knob="scene", value="synth_hard_1", time_ms=None,
+                     error=None, error_unit="-", extra=extra)
+
+
+def _weathercity_shadow_psnr(predictions: Path, scene: Any) -> dict[str, Any]:
+    """WeatherCity's PSNR inside the clear frames' cast shadows, per weather, from its rendered frames."""
+    out: dict[str, Any] = {}
+    for w in EDITED:
+        values = []
+        for k in range(len(scene)):
+            frame = next(iter(predictions.rglob(f"{w}/{k:03d}.png")), None)
+            mask = cv2.imread(str(Path(scene.root) / "truth" / "masks" / "shadow" / f"{k:03d}_0.png"),
+                              cv2.IMREAD_GRAYSCALE)
+            if frame is None or mask is None:
+                continue
+            image = cv2.cvtColor(cv2.imread(str(frame)), cv2.COLOR_BGR2RGB).astype(np.float32) / 255
+            truth = cv2.cvtColor(cv2.imread(str(scene.references[w][k])), cv2.COLOR_BGR2RGB).astype(np.float32) / 255
+            if image.shape != truth.shape:
+                image = cv2.resize(image, (truth.shape[1], truth.shape[0]), interpolation=cv2.INTER_CUBIC)
+            value = _masked_psnr(image, truth, mask > 127)
+            if value is not None:
+                values.append(value)
+        out[f"psnr_in_shadow_weathercity_{w}"] = round(float(np.mean(values)), 3) if values else None
+    return out
+
+
+def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
+    """Run the suite (see the module docstring).
+
+    Parameters
+    ----------
+    data_root : Path or None
+        Folder holding the real scenes (:data:`REAL_SCENES`); those missing are named in the notes.
+    quick : bool
+        A smoke run: the sky and editor cases of the first real scene found, the synthetic case
+        without WeatherCity.
+
+    Returns
+    -------
+    BenchReport
+    """
+    report = BenchReport(suite="streets")
+    masks = sky_masks_folder()
+    found = [n for n in REAL_SCENES if data_root is not None and (Path(data_root) / n / "images").is_dir()]
+    missing = [n for n in REAL_SCENES if n not in found]
+    if missing:
+        report.stand_ins.append(f"real scenes not found under {data_root}: {', '.join(missing)}")
+    if quick:
+        found = found[:1]
+    for name in found:
+        scene = load_scene(Path(data_root) / name) if data_root is not None else None
+        assert scene is not None
+        if (masks / name).is_dir():
+            report.cases.append(_sky_case(name, scene, masks))
+        else:
+            report.notes.append(f"{masks / name}: no hand-drawn sky masks; sky_{name} not measured")
+        case, analysis = _editor_case(name, scene)
+        report.cases.append(case)
+        if not quick:
+            report.cases.append(_weathercity_case(name, scene, analysis))
+    report.cases.append(_synth_hard_case(quick))
+    report.notes.append("lidar_hits_as_sky counts the returns the analysis trusts (the frame's own sweep, static "
+                        "returns of sweeps within two frames, every static return beyond 20 m); "
+                        "lidar_hits_as_sky_every_sweep every static return of every sweep")
+    return report
