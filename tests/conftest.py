@@ -53,6 +53,16 @@ def demo_scene():
     return resolve_scenes("demo")[0].load()
 
 
+@pytest.fixture(scope="session")
+def synth_hard():
+    """The harder synthetic street (synth_hard_1: sun shadows, buildings above the lidar, no sky
+    masks, untracked movers), generated once into the session's cache."""
+    pytest.importorskip("torch", reason="the synth scenes are rendered by the reference model")
+    from wcbench.scenes.sets import resolve_scenes
+
+    return resolve_scenes("synth_hard_1")[0].load()
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)

@@ -14,7 +14,9 @@ whole sequence (docs/design.md §7, "Ego vehicle"):
 E = mean over pairs of (|I_k - warp_ground(I_{k+2})| - |I_k - I_{k+2}|) is positive on the ego body
 and negative on the road wherever they have texture (both are zero on a uniform surface). The body
 rises from the bottom of the image, so each column's boundary is the row above which E stops
-paying (the maximum of the sum of E - 0.002 from the bottom up), median-filtered across columns.
+paying (the maximum of the sum of E - 0.002 from the bottom up), median-filtered across columns; a
+column the warp never reaches the bottom of (it leaves the frame) takes its neighbours' boundary,
+and so does a short run of columns at a side of the image.
 A region under 1 % of the image, or a scene whose camera barely moves (under 1 m over the
 sequence: the two explanations coincide), gives no mask.
 """
@@ -109,8 +111,22 @@ def ego_mask(views: AnalysisViews, points: np.ndarray) -> tuple[np.ndarray, dict
     cum = np.cumsum(e[::-1], axis=0)  # cum[i, c]: sum of the bottom i + 1 rows
     best = np.argmax(cum, axis=0)
     peak = cum[best, np.arange(w)]
-    rows = np.where(peak > _MIN_COLUMN_SUM, best + 1, 0)
-    rows = median_filter(rows, size=max(3, (w // 32) | 1), mode="nearest")
+    rows = np.where(peak > _MIN_COLUMN_SUM, best + 1, 0).astype(np.float64)
+    # a column whose bottom the warp never reaches (it leaves the frame) has no evidence: it takes
+    # its neighbours' boundary
+    seen = (count[-max(1, h // 10):] > 0).mean(axis=0) > 0.5
+    if seen.any() and not seen.all():
+        rows[~seen] = np.interp(np.flatnonzero(~seen), np.flatnonzero(seen), rows[seen])
+    rows = median_filter(np.round(rows).astype(np.int64), size=max(3, (w // 32) | 1), mode="nearest")
+    # the image's side columns see the least motion of the road (it leaves the frame there): a short
+    # run without a body at a side takes the boundary next to it
+    body = np.flatnonzero(rows > 0)
+    if body.size:
+        edge = max(1, w // 8)
+        if 0 < body[0] <= edge:
+            rows[:body[0]] = rows[body[0]]
+        if w - 1 - edge <= body[-1] < w - 1:
+            rows[body[-1] + 1:] = rows[body[-1]]
     mask = np.arange(h)[:, None] >= (h - rows)[None, :]
     fraction = float(mask.mean())
     if fraction < _MIN_AREA:

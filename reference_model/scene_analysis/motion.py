@@ -15,9 +15,13 @@ trails and blotches in every frame. :func:`classify_returns` labels every return
   ray (the nearest return within a 3 x 3 neighbourhood at half the analysis size), and
   *confirmed* when it has one within that margin (every other frame at least two frames away
   votes, once per 0.1 m voxel of the sweep). A return seen through in at least two frames and
-  more often than it is confirmed was not there: it is dynamic. Each label is then put to the
-  vote of the return's 12 nearest neighbours in its own sweep, so an object is dynamic as a whole
-  (a parked car's silhouette edges, seen past by a moving camera, are not);
+  more often than it is confirmed was not there: it is dynamic; so is a return seen through once
+  that at most one sweep four frames away or more has a return near (in its 0.6 m voxel): a car
+  ahead moving with the camera is seen through only in the frames after it has moved on, a
+  pedestrian stays in a voxel for a few frames, a wall for all. Each label is then put to the vote
+  of the return's neighbours within 0.3 m (up to 12, at least 3) in its own sweep, so an object is
+  dynamic as a whole (a parked car's silhouette edges, seen past by a moving camera, are not; a
+  pedestrian's returns are not outvoted by the pavement's);
 * **noise**: returns of the static scene whose 0.3 m voxel holds fewer than 3 returns over all
   sweeps (birds, spray droplets, multipath).
 
@@ -52,8 +56,12 @@ _MARGIN_M, _MARGIN_REL = 0.5, 0.05
 _MIN_FRAME_GAP, _FRAME_STRIDE = 2, 2
 #: Returns are tested once per voxel of this size (m) of their sweep.
 _TEST_VOXEL_M = 0.1
-#: Neighbours whose labels a return's label is put to the vote of.
-_VOTE_K = 12
+#: A return with returns of at most this many sweeps at least _ALONE_GAP frames away in its voxel
+#: (m) is alone: one sighting through it makes it dynamic (a car ahead moving with the camera is
+#: seen through only late; a pedestrian stays in a voxel for a few frames, a wall for all).
+_SUPPORT_VOXEL_M, _ALONE_SWEEPS, _ALONE_GAP = 0.6, 1, 4
+#: Neighbours (at most, within a radius in m) whose labels a return's label is put to the vote of.
+_VOTE_K, _VOTE_RADIUS_M = 12, 0.3
 #: Noise: returns whose voxel (m) holds fewer than this many returns over the sequence.
 _NOISE_VOXEL_M, _NOISE_MIN_COUNT = 0.3, 3
 
@@ -164,6 +172,49 @@ def _nearest_depth(views: AnalysisViews, points: np.ndarray, k: int, scale: floa
     return depth, K
 
 
+def _sweep_support(points: dict[int, np.ndarray]) -> Any:
+    """A function (frame j, points [N, 3]) -> [N] int: how many sweeps at least ``_ALONE_GAP`` frames
+    from j have a return in the same ``_SUPPORT_VOXEL_M`` voxel as each point (a bit mask of the
+    sweeps per voxel, frames modulo 63)."""
+    keys, bits = [], []
+    for k, p in points.items():
+        key = _voxel_keys(p)
+        keys.append(np.unique(key))
+        bits.append(np.full(len(keys[-1]), np.int64(1) << np.int64(k % 63)))
+    if not keys:
+        return lambda j, p: np.zeros(len(p), np.int64)
+    key = np.concatenate(keys)
+    order = np.argsort(key, kind="stable")
+    key, bit = key[order], np.concatenate(bits)[order]
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    table_keys, table_bits = key[starts], np.bitwise_or.reduceat(bit, starts)
+
+    def support(j: int, p: np.ndarray) -> np.ndarray:
+        q = _voxel_keys(p)
+        i = np.clip(np.searchsorted(table_keys, q), 0, len(table_keys) - 1)
+        near_j = np.int64(0)
+        for k in range(j - _ALONE_GAP + 1, j + _ALONE_GAP):  # the sweeps close in time do not count
+            near_j |= np.int64(1) << np.int64(k % 63)
+        found = np.where(table_keys[i] == q, table_bits[i], 0) & ~near_j
+        # population count of 63-bit masks
+        count = np.zeros(len(q), np.int64)
+        for _ in range(63):
+            count += found & 1
+            found = found >> 1
+            if not found.any():
+                break
+        return count
+
+    return support
+
+
+def _voxel_keys(p: np.ndarray) -> np.ndarray:
+    """[N] int64 keys of the ``_SUPPORT_VOXEL_M`` voxels of world points (re-based scenes stay within
+    +-2^20 voxels on every axis)."""
+    ijk = np.floor(np.asarray(p, np.float64) / _SUPPORT_VOXEL_M).astype(np.int64) + (1 << 20)
+    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+
 def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: float = 0.5,
                      box_margin_m: float = 0.2) -> LidarReturns:
     """Label every lidar return of ``scene`` (see the module docstring).
@@ -202,6 +253,7 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
 
     # free space: the nearest return per pixel of every frame, at half the analysis size
     depth = {k: _nearest_depth(views, p, k, 0.5) for k, p in points.items()}
+    support = _sweep_support(points)
     seen_through = {}
     for j, p_all in points.items():
         # only what is not labelled yet, one test per 0.1 m voxel of the sweep (labels broadcast back)
@@ -228,16 +280,22 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
             margin = np.maximum(_MARGIN_M, _MARGIN_REL * z)
             through += seen & (d > z + margin)
             confirmed += seen & (np.abs(d - z) <= margin)
+        # a return no other sweep has a return near (a thing that moved on) needs one sighting through
+        alone = support(j, p) <= _ALONE_SWEEPS
         flag = np.zeros(len(p_all), bool)
-        flag[todo] = ((through >= 2) & (through > confirmed))[inverse.ravel()]
+        flag[todo] = (((through >= 2) & (through > confirmed)) | (alone & (through >= 1)))[inverse.ravel()]
         seen_through[j] = flag
 
     dynamic, counts = {}, {"tracked": 0, "semantic": 0, "free_space": 0, "returns": 0}
     for k, p in points.items():
         raw = seen_through[k] & ~tracked[k] & ~semantic[k]
         if len(p) > _VOTE_K and raw.any():
-            _, nb = cKDTree(p).query(p, k=_VOTE_K, workers=-1)
-            raw = raw[nb].mean(axis=1) > 0.5
+            # the vote of the neighbours within reach (a pedestrian's own returns, not the pavement's)
+            dist, nb = cKDTree(p).query(p, k=_VOTE_K, distance_upper_bound=_VOTE_RADIUS_M, workers=-1)
+            found = np.isfinite(dist)
+            votes = np.where(found, raw[np.minimum(nb, len(p) - 1)], False).sum(axis=1)
+            n = found.sum(axis=1)
+            raw = np.where(n >= 3, votes > 0.5 * n, raw)
         dynamic[k] = tracked[k] | semantic[k] | raw
         counts["tracked"] += int(tracked[k].sum())
         counts["semantic"] += int((semantic[k] & ~tracked[k]).sum())

@@ -1,0 +1,143 @@
+"""Scene analysis: moving returns without boxes, the ego vehicle's body, the clear frames' sun
+(docs/design.md §7)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene
+from wcbench.reference_model.scene_analysis.ego import ego_mask
+from wcbench.reference_model.scene_analysis.sun import GroundGrid, ShadowMap, sun_direction
+from wcbench.reference_model.scene_analysis.views import AnalysisViews
+
+
+def test_a_shadow_map_puts_the_shadow_away_from_the_sun():
+    pole = np.array([[0.0, 0.0, z] for z in np.arange(0.5, 10.0, 0.1)])
+    for azimuth, away in ((0.0, [-5.0, 0.0, 0.0]), (90.0, [0.0, -5.0, 0.0]), (200.0, [4.7, 1.7, 0.0])):
+        s = sun_direction([0, 0, 1], [1, 0, 0], 45.0, azimuth)
+        shadow = ShadowMap(pole, s)
+        toward = -np.asarray(away)
+        assert not shadow.lit(np.array([away]))[0]  # behind the pole, away from the sun
+        assert shadow.lit(np.array([toward]))[0]  # the sunny side
+    # a return on the receiver itself (0.4 m up) is within the margin: no shadow of its own
+    assert ShadowMap(np.array([[0.0, 0.0, 0.4]]), sun_direction([0, 0, 1], [1, 0, 0], 30.0, 0.0)).lit(
+        np.zeros((1, 3)))[0]
+
+
+def test_the_ground_grid_takes_the_low_returns_of_each_cell():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 20, (4000, 2))
+    ground = np.c_[xy, 0.1 * xy[:, 0] + 0.02 * rng.standard_normal(4000)]  # a 10 % slope along x
+    walls = np.c_[rng.uniform(0, 20, (800, 2)), rng.uniform(0, 8, 800)]  # returns above it
+    grid = GroundGrid.of(np.concatenate([ground, walls]), np.array([0.0, 0.0, 1.0]))
+    heights = grid.height(np.array([[5.0, 5.0, 3.0], [15.0, 12.0, 9.0]]))
+    # the 5th percentile of a 2 m cell: its low side, within the slope across the cell
+    np.testing.assert_allclose(heights, [0.5, 1.5], atol=0.15)
+
+
+def _moving_views(fixed_rows: int) -> tuple[AnalysisViews, np.ndarray]:
+    """A camera driving along a textured road (its frames warp as the road plane does) with the bottom
+    ``fixed_rows`` rows fixed in the image (an ego body); and returns on the road."""
+    rng = np.random.default_rng(3)
+    h, w = 60, 80
+    texture = cv2.GaussianBlur(rng.random((600, 200)).astype(np.float32), (0, 0), 1.2)
+    body = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 1.0)
+    K = np.array([[60.0, 0, w / 2], [0, 60.0, h / 2], [0, 0, 1]])
+    images, poses = [], []
+    ys, xs = np.mgrid[0:h, 0:w] + 0.5
+    for k in range(8):
+        c2w = np.eye(4)
+        # OpenCV axes looking along +x of a z-up world: x right = -y, y down = -z, z forward = +x
+        c2w[:3, :3] = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
+        c2w[:3, 3] = [0.4 * k, 0.0, 1.5]
+        rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones_like(xs)], -1) @ c2w[:3, :3].T
+        t = -1.5 / np.minimum(rays[..., 2], -1e-3)
+        X = c2w[:3, 3] + rays * np.where(rays[..., 2] < -1e-3, t, 0.0)[..., None]
+        u = np.clip((X[..., 0] * 20.0).astype(int), 0, 599)
+        v = np.clip((X[..., 1] * 20.0 + 100).astype(int), 0, 199)
+        img = np.where(rays[..., 2] < -1e-3, texture[u, v], 0.7)
+        if fixed_rows:
+            img[-fixed_rows:] = body[-fixed_rows:]
+        images.append(np.repeat(img[..., None], 3, -1).astype(np.float32))
+        poses.append(c2w)
+    views = AnalysisViews(size=(w, h), images=images, K=[K] * 8, camera_to_world=poses, up=np.array([0.0, 0.0, 1.0]),
+                          times=np.arange(8) / 10.0)
+    road = np.c_[rng.uniform(0, 20, (3000, 1)), rng.uniform(-5, 5, (3000, 1)), np.zeros((3000, 1))]
+    return views, road
+
+
+def test_the_ego_body_is_the_part_of_the_frame_that_does_not_move_with_the_road():
+    views, road = _moving_views(fixed_rows=15)
+    mask, facts = ego_mask(views, road)
+    assert mask[-12:].mean() > 0.9  # the body, fixed in the frame
+    assert mask[:-18].mean() < 0.02  # the road, which moves
+    views, road = _moving_views(fixed_rows=0)
+    mask, facts = ego_mask(views, road)
+    assert not mask.any() and facts["ego_mask"].startswith("none")
+
+
+@pytest.mark.model
+def test_untracked_movers_are_dynamic_and_the_street_is_static(synth_hard):
+    from wcbench.scenes.synth import HARD_SCENES, layout
+    from wcbench.scenes.synth.content import build_content
+
+    content = build_content(HARD_SCENES[0])
+    shift = synth_hard.world_offset - layout.GLOBAL_ORIGIN  # world -> street coordinates
+    analysis = analyse_scene(synth_hard)
+    returns = analysis.returns
+    counts = {"untracked_dynamic": 0, "untracked": 0, "street_dynamic": 0, "street": 0}
+    for k in range(0, len(synth_hard), 5):
+        pts = returns.points[k] + shift
+        on_mover, on_untracked = np.zeros(len(pts), bool), np.zeros(len(pts), bool)
+        for m in content.movers:
+            if not m.moving:
+                continue
+            T = m.poses[k]
+            inside = np.all(np.abs((pts - T[:3, 3]) @ T[:3, :3]) <= m.size / 2 + 0.15, axis=1) & (pts[:, 2] > 0.25)
+            on_mover |= inside
+            if not m.tracked:
+                on_untracked |= inside
+        dyn = returns.dynamic[k]
+        counts["untracked_dynamic"] += int((on_untracked & dyn).sum())
+        counts["untracked"] += int(on_untracked.sum())
+        counts["street_dynamic"] += int((~on_mover & dyn).sum())
+        counts["street"] += int((~on_mover).sum())
+    # the cars and pedestrians moving with no box are found; the street stays
+    assert counts["untracked"] > 200
+    assert counts["untracked_dynamic"] / counts["untracked"] > 0.8
+    assert counts["street_dynamic"] / counts["street"] < 0.01
+
+
+@pytest.mark.model
+def test_the_sun_of_the_harder_street_is_found_and_its_shadows_agree_with_the_truth(synth_hard):
+    analysis = analyse_scene(synth_hard)
+    sun = analysis.sun
+    assert sun.direction is not None, sun.facts
+    # the sun is warmer than the sky: the lit ground's excess falls from red to blue
+    r = sun.direct_to_diffuse
+    assert r[0] > r[1] > r[2] > 0
+    views = analysis.views
+    from wcbench.reference_model.appearance.editor import WeatherEditor
+
+    editor = WeatherEditor(synth_hard, analysis=analysis)
+    agree = []
+    for k in (0, 15, 29):
+        cam = synth_hard.frames[k].camera
+        raw = views.images[k]
+        vis = editor.sun_visibility(k, cam, raw) > 0.5
+        m = editor.maps(k, cam, raw)
+        truth = cv2.imread(str(synth_hard.root / "truth" / "masks" / "shadow" / f"{k:03d}_0.png"),
+                           cv2.IMREAD_GRAYSCALE) > 127
+        ground = m.ground > 0.5
+        agree.append(float((~vis == truth)[ground].mean()))
+    assert np.mean(agree) > 0.8
+
+
+@pytest.mark.model
+def test_no_sun_on_a_street_without_cast_shadows(demo_scene):
+    # the demo street's frames are lit without shadows: whatever direction fits best, it is no sun's
+    assert analyse_scene(demo_scene).sun.direction is None

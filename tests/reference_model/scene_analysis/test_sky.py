@@ -1,0 +1,123 @@
+"""Sky segmentation: the boundary placed by colour, the rotation's warp, the harder synthetic
+street's truth, and the hand-drawn masks of the real cameras (docs/design.md §7, "Sky")."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from paths import DATA, SHARED_DATA
+
+pytest.importorskip("torch")
+
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene
+from wcbench.reference_model.scene_analysis.sky import infinity_residual, refine_boundary, sky_matte
+from wcbench.reference_model.scene_analysis.views import AnalysisViews, resample_mask
+
+
+def test_the_boundary_follows_the_sky_share_of_each_pixel():
+    # a sky (blue) above a wall (brown) whose edge crosses row 10 at a quarter, a half and three quarters
+    h, w = 20, 30
+    sky, wall = np.array([0.5, 0.6, 0.9], np.float32), np.array([0.4, 0.25, 0.2], np.float32)
+    image = np.empty((h, w, 3), np.float32)
+    image[:10], image[10:] = sky, wall
+    shares = np.array([0.25, 0.5, 0.75])
+    image[10, :10] = shares[0] * sky + (1 - shares[0]) * wall
+    image[10, 10:20] = shares[1] * sky + (1 - shares[1]) * wall
+    image[10, 20:] = shares[2] * sky + (1 - shares[2]) * wall
+    cut = np.zeros((h, w), bool)
+    cut[:12] = True  # the cut went two rows too far
+    mask, alpha = refine_boundary(image, cut, np.zeros((h, w), bool))
+    # the row of mixed pixels takes its share (CIELAB is not linear in RGB: within 0.12)
+    np.testing.assert_allclose(alpha[10, 2:8], shares[0], atol=0.12)
+    np.testing.assert_allclose(alpha[10, 22:28], shares[2], atol=0.12)
+    assert not mask[11].any() and mask[9].all()  # the wall's rows are wall again, the sky's sky
+    assert not mask[10, :8].any() and mask[10, 22:28].all()  # sky where the share is over one half
+    # a pixel the lidar hits is never sky, whatever its colour
+    never = np.zeros((h, w), bool)
+    never[5, 5] = True
+    mask, alpha = refine_boundary(image, cut, never)
+    assert not mask[5, 5] and alpha[5, 5] < 0.5
+
+
+def test_the_matte_feathers_only_the_boundary_and_keeps_lidar_hits_under_a_half():
+    image = np.full((12, 12, 3), 0.3, np.float32)
+    image[:6] = 0.8
+    mask = np.zeros((12, 12), bool)
+    mask[:6] = True
+    solid = np.zeros((12, 12), bool)
+    solid[5, 3] = True
+    alpha = sky_matte(mask, image, solid, radius=2)
+    assert alpha[0].min() == 1.0 and alpha[-1].max() == 0.0  # far from the boundary: the label
+    assert alpha[5, 3] < 0.5
+
+
+def _views(images: list[np.ndarray], rotations: list[np.ndarray]) -> AnalysisViews:
+    h, w = images[0].shape[:2]
+    K = np.array([[100.0, 0, w / 2], [0, 100.0, h / 2], [0, 0, 1]])
+    poses = []
+    for R in rotations:
+        T = np.eye(4)
+        T[:3, :3] = R
+        poses.append(T)
+    return AnalysisViews(size=(w, h), images=images, K=[K] * len(images), camera_to_world=poses,
+                         up=np.array([0.0, -1.0, 0.0]), times=np.arange(len(images)) / 10.0)
+
+
+def test_the_infinity_residual_vanishes_under_a_pure_rotation(rng):
+    # frames of a far-away texture seen by a camera that only turns: the rotation's homography
+    # aligns them exactly, so the residual is ~0 (the sky); a translation would not be aligned
+    h, w = 60, 80
+    big = cv2.GaussianBlur(rng.random((400, 400, 3)).astype(np.float32), (0, 0), 2.0)
+    K = np.array([[100.0, 0, w / 2], [0, 100.0, h / 2], [0, 0, 1]])
+    shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
+    rotations, images = [], []
+    for k in range(5):
+        a = np.radians(2.0 * k)
+        R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        rotations.append(R)
+        # image k: the texture (a plane at infinity, pixel = K R^T d) rendered by the inverse map
+        H = np.linalg.inv(shift) @ K @ R.T @ np.linalg.inv(K) @ shift
+        Hb = np.array([[1, 0, 160], [0, 1, 170], [0, 0, 1.0]]) @ np.linalg.inv(H)
+        images.append(cv2.warpPerspective(big, Hb, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP))
+    views = _views(images, rotations)
+    res = infinity_residual(views, 2)
+    assert float(res[8:-8, 8:-8].mean()) < 0.01
+    # the same frames pretending the camera did not turn: the texture is misaligned
+    still = _views(images, [np.eye(3)] * 5)
+    assert float(infinity_residual(still, 2)[8:-8, 8:-8].mean()) > 3 * float(res[8:-8, 8:-8].mean())
+
+
+@pytest.mark.model
+def test_the_harder_street_sky_against_its_truth_and_never_on_a_lidar_return(synth_hard):
+    analysis = analyse_scene(synth_hard)
+    inter = union = 0
+    for k in range(0, len(synth_hard), 3):
+        truth = cv2.imread(str(synth_hard.root / "truth" / "masks" / "sky" / f"{k:03d}_0.png"), cv2.IMREAD_GRAYSCALE)
+        t = resample_mask(truth > 127, analysis.views.size)
+        p = analysis.sky.masks[k]
+        inter, union = inter + int((t & p).sum()), union + int((t | p).sum())
+        assert not (p & analysis.solid[k]).any()
+    # its buildings rise above the lidar's reach: a lidar-only sky would take their upper floors
+    assert inter / union >= 0.93
+
+
+@pytest.mark.slow
+@pytest.mark.model
+@pytest.mark.parametrize("name, bound", [("pandaset_002", 0.93), ("pandaset_002_back", 0.96),
+                                         ("pandaset_002_front_right", 0.93), ("pandaset_002_right", 0.91)])
+def test_the_real_cameras_sky_against_the_hand_drawn_masks(name, bound):
+    from wcbench.scenes.loaders import load_scene
+
+    if not (SHARED_DATA / name / "images").is_dir():
+        pytest.skip(f"{SHARED_DATA / name} not present")
+    analysis = analyse_scene(load_scene(SHARED_DATA / name))
+    inter = union = 0
+    for k in (5, 15, 25):
+        truth = cv2.imread(str(DATA / "sky_masks" / name / f"{k:03d}.png"), cv2.IMREAD_GRAYSCALE) > 127
+        t = resample_mask(truth, analysis.views.size)
+        outside = ~analysis.solid[k]  # a pixel the lidar hits is never sky; the masks' rule is coverage
+        p = analysis.sky.masks[k]
+        inter += int((t & p & outside).sum())
+        union += int(((t | p) & outside).sum())
+    assert inter / union >= bound
