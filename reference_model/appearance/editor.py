@@ -2,18 +2,26 @@
 
 :class:`WeatherEditor` edits raw frame k under a :class:`~wcbench.reference_model.weather.conditions.Weather`
 (the same object the physics renderer draws: its rate, visibility and haze), per pixel, from the
-surface maps of the scene's lidar (:mod:`.maps`) and the models of :mod:`.shading`:
+scene analysis (:mod:`wcbench.reference_model.scene_analysis`: moving returns, sky, ego vehicle,
+sun), the surface maps of the scene's static lidar (:mod:`.maps`) and the models of
+:mod:`.shading` (docs/design.md §7, "Weather appearance"):
 
-1. **overcast light** (every edited weather): the clear sky's sun divided out and the overcast
-   sky's light put in, per normal, at the weather's exposure;
-2. **rain**: a water film on open surfaces (full on horizontal ones, damp on vertical ones, less in
-   the wheel paths), puddles where the world-anchored puddle field exceeds the rate's threshold,
-   and a Fresnel-weighted reflection of the scene and sky mirrored about the ground plane (a
-   blurred one on wet asphalt, a sharp one in puddles);
+1. **overcast light** (every edited weather): the raw pixel over the clear sky's light on its
+   normal (with the sun's where the analysis found one and the pixel is not in its cast shadow)
+   stands for the albedo; the overcast sky's light is put in at the weather's exposure, so
+   shadowed and sunlit pixels end under one light;
+2. **rain**: a water film on the albedo of open surfaces (full on horizontal ones, damp on
+   vertical ones, less in the wheel paths), puddles where the world-anchored puddle field exceeds
+   the rate's threshold, and a Fresnel-weighted reflection of the scene and sky mirrored about the
+   ground plane (a blurred one on wet asphalt, a sharp one in puddles);
 3. **snow**: cover on surfaces facing up and open to the sky, its amount from the rate, the wheel
    paths mostly cleared, damp bare surfaces and a cooler white balance;
-4. **haze**: Koschmieder's law with the weather's own haze (fog visibility, or the rain or snow
-   extinction beyond the particles), the sky at infinity taking the airlight.
+4. **mirrors of the clear sky** (a window, a car's roof showing its blue) take the weather's sky;
+5. **haze**: Koschmieder's law with the weather's own haze (fog visibility, or the rain or snow
+   extinction beyond the particles);
+6. **the sky**, composited by its matte: the haze's airlight or the overcast sky, over the edited
+   surfaces freed of the clear sky showing through a mixed pixel; the ego vehicle's body keeps its
+   raw pixels at the weather's exposure.
 
 No particles are drawn: a method that renders the weather draws its own. Everything is anchored in
 the world (surface attributes on lidar Gaussians, noise fields over the ground plane), so the
@@ -260,10 +268,13 @@ class WeatherEditor:
         if kind == "rain":
             rate = weather.precipitation_rate()
             fraction = p.puddle_fraction(rate)
-            threshold = float(np.quantile(self._puddle_values, 1.0 - fraction)) if fraction > 0 else np.inf
             ground = refine(m.ground, raw, radius=radius)
             openness = refine(m.open, raw, radius=radius)
-            puddle = smoothstep(m.puddle, threshold, threshold + 0.03) * ground * openness
+            if fraction > 0:
+                threshold = float(np.quantile(self._puddle_values, 1.0 - fraction))
+                puddle = smoothstep(m.puddle, threshold, threshold + 0.03) * ground * openness
+            else:  # no puddle at all (a drizzle, or puddle_max 0)
+                puddle = np.zeros_like(ground)
             vertical_wet = float(table["wetness_vertical"])
             wet = (vertical_wet + (float(table["wetness_horizontal"]) - vertical_wet) * smoothstep(n_up, 0.3, 0.9))
             wet = wet * openness * (1.0 - (1.0 - float(table["track_wetness"])) * m.track)

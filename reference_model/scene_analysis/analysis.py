@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from wcbench.core.errors import InputError
+from wcbench.core.progress import announce
 from wcbench.reference_model.scene_analysis.ego import ego_mask
 from wcbench.reference_model.scene_analysis.motion import LidarReturns, classify_returns
 from wcbench.reference_model.scene_analysis.sky import SkySegmentation, segment_sky, sky_matte
@@ -65,6 +66,10 @@ class SceneAnalysis:
     ego: np.ndarray
     sun: SunEstimate
     facts: dict[str, Any] = field(default_factory=dict)
+
+    def record(self) -> dict[str, Any]:
+        """What the analysis found, for ``info.json`` (its facts without the timings)."""
+        return {k: v for k, v in self.facts.items() if k != "seconds"}
 
     def sky_mask(self, k: int, size: tuple[int, int] | None = None) -> np.ndarray:
         """[H, W] bool sky of frame ``k`` at ``size`` (default the analysis size)."""
@@ -159,7 +164,7 @@ def clear_analysis_cache() -> None:
     _CACHE.clear()
 
 
-def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = None) -> SceneAnalysis:
+def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = announce) -> SceneAnalysis:
     """Analyse ``scene`` at ``width`` px wide (see the module docstring), or return this process's
     earlier analysis of it.
 
@@ -170,8 +175,8 @@ def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = None) -
         tracks, ``up``, ``class_names``).
     width : int
         Analysis width (px); the frames' own when they are narrower.
-    log : callable, optional
-        Told what is being done (one line), e.g. ``print``.
+    log : callable or None
+        Told what is being done (one line; default: on stderr unless ``WCBENCH_PROGRESS=0``).
 
     Returns
     -------
@@ -183,7 +188,8 @@ def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = None) -
         _CACHE.move_to_end(key)
         return _CACHE[key]
     if log is not None:
-        log(f"analysing scene {getattr(scene, 'id', '')}: moving returns, sky, ego vehicle ({size[0]}x{size[1]})")
+        log(f"analysing scene {getattr(scene, 'id', '')} ({len(scene.frames)} frames at {size[0]}x{size[1]}): "
+            "moving returns, sky, ego vehicle, sun")
     t0 = time.perf_counter()
     views = build_analysis_views(scene, size)
     t1 = time.perf_counter()

@@ -37,6 +37,10 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    holds no seed and does not reach the top of the frame (a pane of a window, a gap the cut left
    in a wall) is dropped: the sky is one with the open sky.
 
+A frame no lidar return lands in gets no seeds of its own (nothing in it is confirmed empty): its
+sky is the scene's classifier's, cut with the frame's contrast, and only where it reaches the top
+of the frame; a scene with no seed in any frame has no sky (``facts["fallback"]``).
+
 The result is a binary mask per frame and the sky's share of each pixel (a soft matte:
 :func:`sky_matte` feathers a mask at another size), so that a wire or a branch against the sky is
 a mixed pixel, not a band.
@@ -381,6 +385,8 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         # patch of seeds of some size (a window mirroring the blue sky is a small one)
         open_sky = _top_connected((elev > 0.0) & ~near & ~_step_edges(views.images[k]))
         seeds = _large(open_sky & beyond & smooth_static & (within | blue), _MIN_OPEN_SKY)
+        if not solid[k].any():  # no lidar in view: nothing here is confirmed empty, and no seed is made
+            seeds = np.zeros_like(seeds)
         feats.append(feat)
         above.append(elev > 0.0)
         sky_seeds.append(seeds)

@@ -201,5 +201,5 @@ def build_views(
         "ignored_pixels": round(float(ignore.mean()), 4),
     }
     if analysis is not None:
-        facts["scene_analysis"] = analysis.facts
+        facts["scene_analysis"] = analysis.record()
     return views, facts

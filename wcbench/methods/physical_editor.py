@@ -210,10 +210,12 @@ class PhysicalEditorMethod(FrameRenderer):
         return physics_record(resolved) if resolved is not None else "none: clear is the raw frame"
 
     def describe(self) -> dict[str, Any]:
-        """The appearance parameters and the surfaces' counts (the physics: :meth:`physics`)."""
+        """The appearance parameters, the surfaces' counts and what the scene analysis found (moving
+        returns, sky, ego vehicle, sun; the physics: :meth:`physics`)."""
         if self._editor is None:
             return {}
-        return {"appearance_parameters": self._editor.params.to_json(), "surfaces": self._editor.surfaces.facts}
+        return {"appearance_parameters": self._editor.params.to_json(), "surfaces": self._editor.surfaces.facts,
+                "analysis": self._editor.analysis.record()}
 
     def setup_timings(self) -> dict[str, float]:
         """``setup_s``: building the lidar surfaces."""

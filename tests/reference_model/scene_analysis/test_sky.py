@@ -121,3 +121,19 @@ def test_the_real_cameras_sky_against_the_hand_drawn_masks(name, bound):
         inter += int((t & p & outside).sum())
         union += int(((t | p) & outside).sum())
     assert inter / union >= bound
+
+
+@pytest.mark.model
+def test_a_frame_no_lidar_return_lands_in_gets_no_invented_sky(synth_hard):
+    from wcbench.reference_model.scene_analysis.sky import segment_sky
+
+    analysis = analyse_scene(synth_hard)
+    solid = [s.copy() for s in analysis.solid]
+    k = 12
+    solid[k][:] = False  # the lidar covers none of frame 12
+    sky = segment_sky(analysis.views, solid)
+    truth = cv2.imread(str(synth_hard.root / "truth" / "masks" / "sky" / f"{k:03d}_0.png"), cv2.IMREAD_GRAYSCALE) > 127
+    t = resample_mask(truth, analysis.views.size)
+    false_sky = sky.masks[k] & ~t
+    # the scene's classifier, trained on the other frames, still finds its sky; no wall becomes sky
+    assert false_sky.mean() < 0.01 and (sky.masks[k] & t).sum() > 0.8 * t.sum()
