@@ -16,10 +16,9 @@ sun), the surface maps of the scene's static lidar (:mod:`.maps`) and the models
    ground plane (a blurred one on wet asphalt, a sharp one in puddles);
 3. **snow**: cover on surfaces facing up and open to the sky, its amount from the rate, the wheel
    paths mostly cleared, damp bare surfaces and a cooler white balance;
-4. **mirrors of the clear sky** (a window, a car's roof showing its blue) take the weather's sky;
-5. **haze**: Koschmieder's law with the weather's own haze (fog visibility, or the rain or snow
+4. **haze**: Koschmieder's law with the weather's own haze (fog visibility, or the rain or snow
    extinction beyond the particles);
-6. **the sky**, composited by its matte: the haze's airlight or the overcast sky, over the edited
+5. **the sky**, composited by its matte: the haze's airlight or the overcast sky, over the edited
    surfaces freed of the clear sky showing through a mixed pixel; the ego vehicle's body keeps its
    raw pixels at the weather's exposure.
 
@@ -57,7 +56,7 @@ from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surf
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis, analyse_scene
 from wcbench.reference_model.weather.conditions import Weather, load_presets
 
-__all__ = ["AppearanceParams", "WeatherEditor", "decontaminate", "masked_ego", "mirror_the_sky"]
+__all__ = ["AppearanceParams", "WeatherEditor", "decontaminate", "masked_ego"]
 
 
 @dataclass(frozen=True)
@@ -317,8 +316,7 @@ class WeatherEditor:
                         snow_fraction_of_frame=round(float((cover > 0.5).mean()), 4))
         else:
             base = wet_albedo(albedo, float(table["damp"]) * ~m.sky) * light
-        surface = mirror_the_sky(linear_to_srgb(base), raw, sky_seen)
-        surface = apply_haze(surface, m.distance, beta=beta, color=haze_color, offset_m=offset)
+        surface = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
         # the sky: at infinity, the haze's airlight; without haze, the overcast sky
         sky = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else self.overcast_sky(m.rays)
         a = m.sky_alpha[..., None]
@@ -330,36 +328,6 @@ class WeatherEditor:
         info["timings_ms"] = {"maps": round(1e3 * (t_maps - t0), 2), "shade": round(1e3 * (t_end - t_maps), 2)}
         info["haze"] = {"beta_per_m": beta, "color": np.asarray(haze_color).tolist(), "offset_m": offset}
         return np.clip(out, 0.0, 1.0).astype(np.float32), info
-
-
-def mirror_the_sky(image: np.ndarray, raw: np.ndarray, sky: np.ndarray) -> np.ndarray:
-    """Surfaces that show the clear sky's blue in the raw frame mirror that sky (a window, a car's
-    roof, a puddle): under the weather they mirror the weather's sky, so their chroma (CIELAB a*, b*)
-    goes to the sky's; their lightness stays. The weight is 1 for the clear sky's blue (b* <= -16,
-    L* >= 50) and fades out by b* = -8 or L* = 35: a dark blue car is no mirror.
-
-    Parameters
-    ----------
-    image : ndarray [H, W, 3] float32
-        The edited surfaces, display RGB.
-    raw : ndarray [H, W, 3] float32
-        The raw frame, display RGB.
-    sky : ndarray [3]
-        The weather's sky as the surfaces see it (its haze's airlight, or the overcast sky), display RGB.
-
-    Returns
-    -------
-    ndarray [H, W, 3] float32
-    """
-    lab_raw = cv2.cvtColor(np.ascontiguousarray(raw, np.float32), cv2.COLOR_RGB2Lab)
-    weight = smoothstep(-lab_raw[..., 2], 8.0, 16.0) * smoothstep(lab_raw[..., 0], 35.0, 50.0) * \
-        smoothstep(lab_raw[..., 1], -25.0, -20.0) * (1.0 - smoothstep(lab_raw[..., 1], 5.0, 10.0))
-    if not weight.any():
-        return np.asarray(image, np.float32)
-    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
-    target = cv2.cvtColor(np.asarray(sky, np.float32).reshape(1, 1, 3), cv2.COLOR_RGB2Lab)[0, 0]
-    lab[..., 1:] = lab[..., 1:] * (1.0 - weight[..., None]) + target[1:] * weight[..., None]
-    return np.clip(cv2.cvtColor(lab, cv2.COLOR_Lab2RGB), 0.0, 1.0).astype(np.float32)
 
 
 def masked_ego(raw: np.ndarray, kind: str, params: AppearanceParams) -> np.ndarray:

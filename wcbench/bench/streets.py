@@ -16,8 +16,9 @@ docs/findings.md):
   lands: the editor's matte, WeatherCity's 1 - accumulated opacity), counted twice, for the returns
   the analysis trusts (:func:`~wcbench.reference_model.scene_analysis.analysis.solid_masks`: the
   frame's own sweep, the static returns of sweeps within two frames and every static return beyond
-  20 m) and for every static return of every sweep; **clear-sky blue left** (pixels that are of the
-  clear sky's blue, CIELAB b* < -12, L* > 45, -20 < a* < 5, in the raw frame and still are); the
+  20 m) and for every static return of every sweep; **clear-sky blue left** (pixels of the
+  hand-drawn sky of the three masked frames that are of the clear sky's blue, CIELAB b* < -12,
+  L* > 45, -20 < a* < 5, in the raw frame and still are; a blue sign or car keeps its paint); the
   **temporal flicker ratio** (mean absolute difference of consecutive frames, edited over raw); and
   the editor's milliseconds per 480 x 270 frame (median over frames and weathers; the scene's set-up
   separately).
@@ -127,12 +128,23 @@ def _every_sweep_hits(analysis: Any) -> list[np.ndarray]:
     return out
 
 
+def _hand_sky(name: str, size: tuple[int, int], n_frames: int) -> list[np.ndarray]:
+    """Per frame, the hand-drawn sky at ``size`` (all false on the frames without a mask)."""
+    out = [np.zeros((size[1], size[0]), bool) for _ in range(n_frames)]
+    for k in MASK_FRAMES:
+        mask = cv2.imread(str(sky_masks_folder() / name / f"{k:03d}.png"), cv2.IMREAD_GRAYSCALE)
+        if mask is not None and k < n_frames:
+            out[k] = resample_mask(mask > 127, size)
+    return out
+
+
 def _weather_checks(raws: list[np.ndarray], edits: dict[str, list[np.ndarray]], skies: list[np.ndarray],
-                    solid: list[np.ndarray], every: list[np.ndarray]) -> dict[str, Any]:
-    """Lidar-hit pixels shown as sky, clear-sky blue left and flicker ratios of edited frames."""
+                    solid: list[np.ndarray], every: list[np.ndarray], hand_sky: list[np.ndarray]) -> dict[str, Any]:
+    """Lidar-hit pixels shown as sky, clear-sky blue left in the hand-drawn sky and flicker ratios of
+    edited frames."""
     raw_stack = np.stack(raws)
     raw_flicker = temporal_flicker(raw_stack)
-    blue_raw = [clear_sky_blue(r) for r in raws]
+    blue_raw = [clear_sky_blue(r) & h for r, h in zip(raws, hand_sky)]
     out: dict[str, Any] = {
         "lidar_hits_as_sky": int(sum((s & h).sum() for s, h in zip(skies, solid))),
         "lidar_hits_as_sky_every_sweep": int(sum((s & h).sum() for s, h in zip(skies, every))),
@@ -141,7 +153,7 @@ def _weather_checks(raws: list[np.ndarray], edits: dict[str, list[np.ndarray]], 
     for w, seq in edits.items():
         out[f"clear_sky_blue_left_{w}"] = int(sum((b & clear_sky_blue(e)).sum() for b, e in zip(blue_raw, seq)))
         out[f"flicker_ratio_{w}"] = round(temporal_flicker(np.stack(seq)) / raw_flicker, 4) if raw_flicker > 0 else None
-    out["clear_sky_blue_in_raw"] = int(sum(b.sum() for b in blue_raw))
+    out["clear_sky_blue_in_raw_sky"] = int(sum(b.sum() for b in blue_raw))
     return out
 
 
@@ -164,7 +176,8 @@ def _editor_case(name: str, scene: Any) -> tuple[BenchCase, Any]:
             edits[w].append(image)
         raws.append(raw)
         skies.append(editor.maps(k, camera, raw).sky_alpha >= 0.5)
-    checks = _weather_checks(raws, edits, skies, analysis.solid, _every_sweep_hits(analysis))
+    checks = _weather_checks(raws, edits, skies, analysis.solid, _every_sweep_hits(analysis),
+                             _hand_sky(name, size, len(scene)))
     ms = statistics.median(times)
     return BenchCase(name=f"editor_{name}", knob="scene", value=name, time_ms=ms, error=None, error_unit="-",
                      extra={"ms_per_frame_median": round(ms, 1), "ms_per_frame_mean": round(float(np.mean(times)), 1),
@@ -196,7 +209,8 @@ def _weathercity_case(name: str, scene: Any, analysis: Any) -> BenchCase:
             image, _ = method.render_frame(scene, w, k, seed=0)
             edits[w].append(cv2.resize(image, size, interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
                             if (image.shape[1], image.shape[0]) != size else image.astype(np.float32) / 255.0)
-    checks = _weather_checks(raws, edits, skies, analysis.solid, _every_sweep_hits(analysis))
+    checks = _weather_checks(raws, edits, skies, analysis.solid, _every_sweep_hits(analysis),
+                             _hand_sky(name, size, len(scene)))
     return BenchCase(name=f"weathercity_{name}", knob="scene", value=name, time_ms=1e3 * train_s, error=None,
                      error_unit="-", extra={"holdout": facts.get("holdout"), **checks,
                                             "train_seconds": facts.get("train_seconds")})
