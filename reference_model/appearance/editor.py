@@ -271,7 +271,8 @@ class WeatherEditor:
             openness = refine(m.open, raw, radius=radius)
             if fraction > 0:
                 threshold = float(np.quantile(self._puddle_values, 1.0 - fraction))
-                puddle = smoothstep(m.puddle, threshold, threshold + 0.03) * ground * openness
+                # a puddle's edge fades over a band of the noise (the water thins out at its rim)
+                puddle = smoothstep(m.puddle, threshold - 0.03, threshold + 0.05) * ground * openness
             else:  # no puddle at all (a drizzle, or puddle_max 0)
                 puddle = np.zeros_like(ground)
             vertical_wet = float(table["wetness_vertical"])

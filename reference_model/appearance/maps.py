@@ -100,8 +100,10 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
     behind the object's box (the lidar sampled the object sparsely and what lies behind or under it
     shows through), the box's face stands for the object: its distance and face normal, open to
-    the sky, not ground (``distance``, ``normal`` and ``fields`` are updated in place). A car's roof
-    takes snow, its doors do not, and the road under it stays hidden. Returns the pixels changed.
+    the sky, not ground; where it sees a lidar surface on the object (within 0.3 m of its box), the
+    box's face gives the normal (a car's panels are smooth; a stray return's normal is not)
+    (``distance``, ``normal`` and ``fields`` are updated in place). A car's roof takes snow, its
+    doors do not, and the road under it stays hidden. Returns the pixels changed.
 
     The silhouette is the convex hull of the projections of the surface Gaussians inside the box
     (grown by 0.1 m), so the air around a car inside its box keeps what lies behind it; the ray's
@@ -147,16 +149,22 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
             t1, t2 = (-half - o) / d, (half - o) / d
         near = np.nanmax(np.minimum(t1, t2), axis=1)
         far = np.nanmin(np.maximum(t1, t2), axis=1)
-        hit = (far >= near) & (near > 0.0) & (near + _BOX_SLACK_M < distance[rr, cc])
+        enters = (far >= near) & (near > 0.0)
+        seen = distance[rr, cc]
+        behind = enters & (near + _BOX_SLACK_M < seen)  # the lidar's surfaces show through the object
+        on = np.zeros_like(enters)  # the lidar's surface lies on the object: the box's face is its shape
+        finite = enters & np.isfinite(seen)
+        on[finite] = np.all(np.abs(o + d[finite] * seen[finite, None]) <= half + _BOX_SLACK_M, axis=1)
+        hit = behind | on
         if not hit.any():
             continue
-        rr, cc, near, d = rr[hit], cc[hit], near[hit], d[hit]
+        rr, cc, near, d, behind = rr[hit], cc[hit], near[hit], d[hit], behind[hit]
         entry = o + d * near[:, None]
         axis = np.argmax(np.abs(entry) / half, axis=1)  # the face the ray enters through
         face = np.zeros((rr.size, 3))
         face[np.arange(rr.size), axis] = np.sign(entry[np.arange(rr.size), axis])
         normal[rr, cc] = face @ R.T
-        distance[rr, cc] = near
+        distance[rr[behind], cc[behind]] = near[behind]
         fields["ground"][rr, cc] = 0.0
         fields["open"][rr, cc] = 1.0
         fields["puddle"][rr, cc] = 0.0

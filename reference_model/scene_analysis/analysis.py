@@ -107,8 +107,9 @@ _NEAR_FRAMES, _FAR_M = 2, 20.0
 def solid_masks(views: AnalysisViews, returns: LidarReturns) -> tuple[list[np.ndarray], list[int]]:
     """Per frame k, the pixels a lidar return lands in: every return of frame k's own sweep (of the
     nearest sweep within two frames without one), the static returns of the sweeps within
-    ``_NEAR_FRAMES`` frames of k, and the static returns of every sweep farther than ``_FAR_M``
-    from frame k's camera (isolated returns excluded); and the frames none lands in.
+    ``_NEAR_FRAMES`` frames of k (twice that for a frame without its own sweep), and the static
+    returns of every sweep farther than ``_FAR_M`` from frame k's camera (isolated returns
+    excluded); and the frames none lands in.
 
     Returns
     -------
@@ -119,7 +120,9 @@ def solid_masks(views: AnalysisViews, returns: LidarReturns) -> tuple[list[np.nd
     everything = np.concatenate(list(static.values())) if static else np.zeros((0, 3))
     solid, without = [], []
     for k in range(len(views)):
-        near = [static[j] for j in static if abs(j - k) <= _NEAR_FRAMES]
+        # a frame without its own sweep takes the static returns of the nearest sweeps on either side
+        reach = _NEAR_FRAMES if k in static else 2 * _NEAR_FRAMES
+        near = [static[j] for j in static if abs(j - k) <= reach]
         far = everything[np.einsum("ij,ij->i", everything - views.center(k), everything - views.center(k))
                          > _FAR_M ** 2] if len(everything) else everything
         own = returns.frame_dynamic(k)
