@@ -237,7 +237,7 @@ def _frame_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.ndar
         if len(x) < 20 * components:
             return None
         x = x[rng.choice(len(x), min(len(x), max_samples), replace=False)].astype(np.float64)
-        em = cv2.ml.EM_create()
+        em = cv2.ml.EM_create()  # type: ignore[attr-defined]  # the stubs lack the ml module
         em.setClustersNumber(components)
         em.setCovarianceMatrixType(cv2.ml.EM_COV_MAT_DIAGONAL)
         em.setTermCriteria((cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-3))
@@ -406,7 +406,7 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
     xs = xs[rng.choice(len(xs), min(len(xs), _MAX_SEEDS), replace=False)]
     if len(xn):
         xn = xn[rng.choice(len(xn), min(len(xn), _MAX_SEEDS), replace=False)]
-        forest = cv2.ml.RTrees_create()
+        forest = cv2.ml.RTrees_create()  # type: ignore[attr-defined]  # the stubs lack the ml module
         forest.setMaxDepth(_DEPTH)
         forest.setMinSampleCount(10)
         forest.setTermCriteria((cv2.TERM_CRITERIA_MAX_ITER, _TREES, 0))

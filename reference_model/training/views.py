@@ -192,7 +192,7 @@ def build_views(
         views.append(TrainingView(frame=k, time=float(f.timestamp) - t0, camera_to_world=c2w, K=K, width=width,
                                   height=height, images=images, depth=depth, sky=sky, dynamic=dynamic,
                                   ignore=ignore.copy()))
-    facts = {
+    facts: dict[str, Any] = {
         "size": [width, height],
         "sky_masks": "shipped" if shipped else ("segmented: from the image, checked by the lidar"
                                                 if analysis is not None else "none"),

@@ -49,6 +49,7 @@ from wcbench.methods import get_method
 from wcbench.methods.physical_editor import raw_frame
 from wcbench.methods.scene_training import train_scene
 from wcbench.methods.weather_spec import resolve_physics
+from wcbench.methods.weathercity import WeatherCityMethod
 from wcbench.metrics.temporal.flicker import temporal_flicker
 from wcbench.reference_model.appearance.editor import WeatherEditor
 from wcbench.reference_model.model.sky import view_directions
@@ -187,7 +188,7 @@ def _editor_case(name: str, scene: Any) -> tuple[BenchCase, Any]:
 def _weathercity_case(name: str, scene: Any, analysis: Any) -> BenchCase:
     start = time.perf_counter()
     config = make_config("default")
-    method = get_method("weathercity", profile="default")
+    method = WeatherCityMethod(profile="default")
     model, _, facts = train_scene(scene, config, physics=method.training_physics(scene), show_progress=False,
                                   log=lambda *_: None)
     method.use_model(scene, model, facts)
