@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wcbench.core.classes import canonical_class
-from wcbench.reference_model.scene_analysis.views import AnalysisViews
+from wcbench.reference_model.scene_analysis.views import AnalysisViews, pixel_indices
 from wcbench.reference_model.scene_graph.lidar_init import moving_tracks
 from wcbench.reference_model.transforms import apply_linear
 
@@ -159,13 +159,7 @@ def _nearest_depth(views: AnalysisViews, points: np.ndarray, k: int, scale: floa
     eroded over 3 x 3 (inf without a return), the scaled intrinsics)."""
     w, h = max(1, round(views.width * scale)), max(1, round(views.height * scale))
     K = np.diag([w / views.width, h / views.height, 1.0]) @ views.K[k]
-    w2c = views.world_to_camera(k)
-    cam = points @ w2c[:3, :3].T + w2c[:3, 3]
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.floor(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(np.int64)
-        v = np.floor(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(np.int64)
-    ok = (z > 0.3) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v, z, ok = pixel_indices(points, views.world_to_camera(k), K, (w, h))
     depth = np.full((h, w), np.float32(1e9), np.float32)
     np.minimum.at(depth, (v[ok], u[ok]), z[ok].astype(np.float32))
     depth = cv2.erode(depth, np.ones((3, 3), np.uint8))
@@ -266,14 +260,8 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
         for k, (dmap, K) in depth.items():
             if abs(k - j) < _MIN_FRAME_GAP or (k - j) % _FRAME_STRIDE:
                 continue
-            w2c = views.world_to_camera(k)
-            cam = p @ w2c[:3, :3].T + w2c[:3, 3]
-            z = cam[:, 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                u = np.floor(K[0, 0] * cam[:, 0] / z + K[0, 2]).astype(np.int64)
-                v = np.floor(K[1, 1] * cam[:, 1] / z + K[1, 2]).astype(np.int64)
             h, w = dmap.shape
-            ok = (z > 0.3) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            u, v, z, ok = pixel_indices(p, views.world_to_camera(k), K, (w, h))
             d = np.full(len(p), np.float32(1e9), np.float32)
             d[ok] = dmap[v[ok], u[ok]]
             seen = ok & (d < 1e8)

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from wcbench.reference_model.scene_analysis.motion import LidarReturns
-from wcbench.reference_model.scene_analysis.views import AnalysisViews
+from wcbench.reference_model.scene_analysis.views import AnalysisViews, pixel_indices
 from wcbench.reference_model.scene_graph.completion import FILL_WALL, complete_distance, ground_height_below
 
 __all__ = ["GroundGrid", "ShadowMap", "SunEstimate", "completed_structure", "fit_sun", "sun_direction"]
@@ -217,16 +217,9 @@ def completed_structure(views: AnalysisViews, returns: LidarReturns, sky: np.nda
     static = returns.static_points()
     out = []
     for k in range(0, len(views), every):
-        w2c = views.world_to_camera(k)
-        cam = static @ w2c[:3, :3].T + w2c[:3, 3]
-        K = views.K[k]
-        front = cam[:, 2] > 0.3
-        cam = cam[front]
-        u = np.floor(K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]).astype(np.int64)
-        v = np.floor(K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]).astype(np.int64)
-        ok = (u >= 0) & (u < views.width) & (v >= 0) & (v < views.height)
+        u, v, z, ok = pixel_indices(static, views.world_to_camera(k), views.K[k], views.size)
         depth = np.full((views.height, views.width), np.float32(np.inf), np.float32)
-        np.minimum.at(depth, (v[ok], u[ok]), cam[ok, 2].astype(np.float32))
+        np.minimum.at(depth, (v[ok], u[ok]), z[ok].astype(np.float32))
         depth = cv2.erode(np.where(np.isfinite(depth), depth, 1e9).astype(np.float32), np.ones((3, 3), np.uint8))
         known = depth < 1e8
         rays = views.rays(k).astype(np.float64)

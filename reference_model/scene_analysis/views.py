@@ -17,7 +17,8 @@ import numpy as np
 from wcbench.core.image_io import read_rgb8
 from wcbench.reference_model.transforms import project_points
 
-__all__ = ["ANALYSIS_WIDTH", "AnalysisViews", "PointColumns", "analysis_size", "build_analysis_views", "resample_mask"]
+__all__ = ["ANALYSIS_WIDTH", "AnalysisViews", "PointColumns", "analysis_size", "build_analysis_views", "pixel_indices",
+           "resample_mask"]
 
 #: Width (px) the scene analyses run at, unless the frames are narrower.
 ANALYSIS_WIDTH = 480
@@ -166,6 +167,22 @@ class PointColumns:
         rel = (p - origin).astype(np.float32)
         return cls(x=np.ascontiguousarray(rel[:, 0]), y=np.ascontiguousarray(rel[:, 1]),
                    z=np.ascontiguousarray(rel[:, 2]), origin=origin)
+
+
+def pixel_indices(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray, size: tuple[int, int], *,
+                  near: float = 0.3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(column [N] int64, row [N] int64, camera depth [N], inside [N] bool) of world ``points``
+    [N, 3] in a pinhole view of (width, height) ``size`` (pixel centres at +0.5, so the pixel is the
+    floor of the projection); inside: in front (z > ``near``) and within the image."""
+    w2c = np.asarray(world_to_camera, np.float64)
+    cam = np.asarray(points, np.float64) @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(np.nan_to_num(K[0, 0] * cam[:, 0] / z + K[0, 2], nan=-1.0, posinf=-1.0, neginf=-1.0))
+        v = np.floor(np.nan_to_num(K[1, 1] * cam[:, 1] / z + K[1, 2], nan=-1.0, posinf=-1.0, neginf=-1.0))
+    u, v = u.astype(np.int64), v.astype(np.int64)
+    inside = (z > near) & (u >= 0) & (u < size[0]) & (v >= 0) & (v < size[1])
+    return u, v, z, inside
 
 
 def build_analysis_views(scene: Any, size: tuple[int, int]) -> AnalysisViews:
