@@ -16,7 +16,6 @@ import pytest
 from wcbench.reference_model.weather.conditions import load_presets
 from wcbench.scenes import synth
 from wcbench.scenes.scene import Scene
-from wcbench.scenes.sets import resolve_scenes
 from wcbench.scenes.synth import layout
 from wcbench.scenes.synth.content import Content, boxes_at, build_content
 from wcbench.scenes.synth.light import overcast_irradiance, srgb_to_linear
@@ -29,20 +28,10 @@ SPEC = synth.HARD_SCENES[0]
 MASKS = ("sky", "shadow", "movers")
 
 
-@pytest.fixture(scope="module")
-def hard_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A private cache holding synth_hard_1's scene, generated once for the module."""
-    cache = tmp_path_factory.mktemp("synth_hard_cache")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("WCBENCH_CACHE", str(cache))
-        synth.ensure_synth_hard_1()
-    return cache
-
-
 @pytest.fixture
-def hard(hard_cache: Path, monkeypatch: pytest.MonkeyPatch) -> Scene:
-    monkeypatch.setenv("WCBENCH_CACHE", str(hard_cache))
-    return resolve_scenes("synth_hard_1")[0].load()
+def hard(synth_hard: Scene) -> Scene:
+    """synth_hard_1, generated once for the session (conftest)."""
+    return synth_hard
 
 
 @pytest.fixture(scope="module")
