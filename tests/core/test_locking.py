@@ -23,19 +23,26 @@ from wcbench.core.locking import EntryLock, LockTimeoutError
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="EntryLock serialises with flock (POSIX)")
 
 
-def make_or_load(folder: str, barrier: Any, queue: Any) -> None:
-    """One process's request for the entry ``folder/model.npy``: make it ("train": counted, slow) if it
-    is missing, else load it; what it did, the result and its messages go to ``queue``."""
+def make_or_load(folder: str, barrier: Any, waiting: Any, queue: Any) -> None:
+    """One process's request for the entry ``folder/model.npy``: make it ("train": counted) if it is
+    missing, else load it; what it did, the result and its messages go to ``queue``."""
     entry = Path(folder) / "model.npy"
     said: list[str] = []
+
+    def log(message: str) -> None:
+        said.append(message)
+        waiting.set()
+
     barrier.wait()  # both ask at the same moment
-    with EntryLock(Path(folder) / "model.lock", what="training demo", timeout_s=60, log=said.append):
+    with EntryLock(Path(folder) / "model.lock", what="training demo", timeout_s=60, log=log):
         if entry.exists():
             role, result = "loaded", np.load(entry)
         else:
             with open(Path(folder) / "trainings.txt", "a") as fh:
                 fh.write(f"{os.getpid()}\n")
-            time.sleep(1.0)  # training: long enough that the other process must wait for it
+            # training, which lasts until the other process waits for it however the two are scheduled
+            assert waiting.wait(timeout=60)
+            time.sleep(0.3)
             result = np.random.default_rng(7).normal(size=(64, 3)).astype(np.float32)
             np.save(entry, result)
             role = "trained"
@@ -44,8 +51,8 @@ def make_or_load(folder: str, barrier: Any, queue: Any) -> None:
 
 def test_two_processes_asking_for_one_entry_make_it_once_and_the_other_loads_it(tmp_path: Path) -> None:
     ctx = multiprocessing.get_context("spawn")  # fresh interpreters, as two `wcbench train` runs
-    barrier, queue = ctx.Barrier(2), ctx.Queue()
-    procs = [ctx.Process(target=make_or_load, args=(str(tmp_path), barrier, queue)) for _ in range(2)]
+    barrier, waiting, queue = ctx.Barrier(2), ctx.Event(), ctx.Queue()
+    procs = [ctx.Process(target=make_or_load, args=(str(tmp_path), barrier, waiting, queue)) for _ in range(2)]
     for p in procs:
         p.start()
     reports = [queue.get(timeout=120) for _ in procs]
