@@ -104,3 +104,72 @@ def test_filter2d_jitter_is_seeded_per_frame_and_supervision_drops_streaks(demo_
                                                                                               seed=0)
     assert not np.allclose(other.mean(), (j1.astype(int) - a).mean(), atol=0.05)  # each frame its own draw
     assert Filter2DMethod().parameters("rain") == Filter2DMethod(effects=True, jitter=0.0).parameters("rain")
+
+
+#: One process asking for the demo street's TINY model (``train_scene``, as `wcbench train` and `run`
+#: do); it reports what it did and a digest of the model it ends up with. Its trainer counts every
+#: training and, in the process that holds the lock, starts only once the other process says it
+#: waits, so the two requests always overlap however the machine schedules them.
+TWO_REQUESTS = """
+import hashlib, json, os, sys, time
+from pathlib import Path
+from wcbench.methods import scene_training
+from wcbench.reference_model.training.config import make_config
+from wcbench.scenes.sets import resolve_scenes
+
+waiting, trainings = Path(sys.argv[1]), Path(sys.argv[2])
+train = scene_training.Trainer.train
+
+def counted_train(self, *args, **kwargs):
+    with trainings.open("a") as fh:
+        fh.write(f"{os.getpid()}\\n")
+    deadline = time.monotonic() + 120
+    while not waiting.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return train(self, *args, **kwargs)
+
+scene_training.Trainer.train = counted_train
+said = []
+
+def log(message):
+    said.append(message)
+    if "waiting for another process training" in message:
+        waiting.touch()
+
+scene = resolve_scenes("demo")[0].load()
+model, _, facts = scene_training.train_scene(scene, make_config("quick", **json.loads(sys.argv[3])),
+                                             show_progress=False, log=log)
+digest = hashlib.sha256()
+for name, tensor in sorted(model.state_dict().items()):
+    digest.update(name.encode() + tensor.detach().cpu().numpy().tobytes())
+print(json.dumps({"pid": os.getpid(), "resumed_at": facts["resumed_at"], "train_seconds": facts["train_seconds"],
+                  "lock_wait_seconds": facts["lock_wait_seconds"], "checkpoint": facts["checkpoint"],
+                  "model": digest.hexdigest(), "said": said}))
+"""
+
+
+@pytest.mark.model
+def test_two_processes_training_one_model_train_once_and_the_second_loads_it(tmp_path, demo_scene):
+    pytest.importorskip("torch")
+    import subprocess
+    import sys
+
+    # the demo scene is in the session's cache (demo_scene), so both processes only read it
+    args = [str(tmp_path / "waiting"), str(tmp_path / "trainings"), TINY]
+    procs = [subprocess.Popen([sys.executable, "-c", TWO_REQUESTS, *args], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    for p, (_, err) in zip(procs, outs):
+        assert p.returncode == 0, err[-2000:]
+    reports = [json.loads(out.strip().splitlines()[-1]) for out, _ in outs]
+    trainings = (tmp_path / "trainings").read_text().split()
+    assert len(trainings) == 1  # one training in all
+    trained, loaded = sorted(reports, key=lambda r: r["resumed_at"])
+    assert trained["pid"] == int(trainings[0]) and trained["resumed_at"] == 0
+    assert loaded["resumed_at"] == 24  # loaded the finished checkpoint: no step of its own
+    assert loaded["train_seconds"] == trained["train_seconds"] and loaded["checkpoint"] == trained["checkpoint"]
+    assert loaded["model"] == trained["model"]  # the same model, parameter for parameter
+    waits = [m for m in loaded["said"] if "waiting for another process" in m]
+    assert len(waits) == 1 and f"training demo_street (pid {trained['pid']}, since " in waits[0]
+    assert not [m for m in trained["said"] if "waiting" in m]
+    assert trained["lock_wait_seconds"] == 0 and loaded["lock_wait_seconds"] > 0

@@ -2,8 +2,9 @@
 
 The trained model goes to the cache (keyed by the scene, the settings and the supervision), where
 `wcbench run --method weathercity` with the same options finds it; a killed training resumes from
-its last checkpoint. What was built, skipped and measured (time, Gaussians per node, held-out PSNR)
-is printed and written to OUT/<scene>/training.json.
+its last checkpoint. A second process asking for a model being trained waits for it, then loads
+it. What was built, skipped and measured (time, Gaussians per node, held-out PSNR) is printed and
+written to OUT/<scene>/training.json.
 
 Examples::
 

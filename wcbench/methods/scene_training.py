@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from wcbench.core.errors import InputError
+from wcbench.core.locking import EntryLock
 from wcbench.core.models.store import ModelStore
 from wcbench.core.models.vgg16 import load_vgg16_features
 from wcbench.core.paths import cache_dir
@@ -56,11 +57,14 @@ from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.fog import visibility_from_density
 from wcbench.scenes.scene import Scene
 
-__all__ = ["VERSION", "TrainingInputs", "check_supervision", "content_loss_for", "supervision_frames",
+__all__ = ["LOCK_TIMEOUT_S", "VERSION", "TrainingInputs", "check_supervision", "content_loss_for", "supervision_frames",
            "train_scene", "training_hazes", "training_inputs"]
 
 #: Bumped whenever training or rendering changes what a cached model or a frame would be.
 VERSION = "1"
+#: Seconds a training waits while another process trains the same model (a hung holder, not a long
+#: training, is what it guards against: the default profile trains a real scene in minutes).
+LOCK_TIMEOUT_S = 6 * 3600.0
 #: VGG16 layer of the content loss ("relu4_1-level" features; docs/design.md §6).
 CONTENT_LAYERS = ("relu4_1",)
 
@@ -280,6 +284,7 @@ def train_scene(
     content: ContentLoss | str | None = "auto",
     show_progress: bool = True,
     log: Any = print,
+    lock_timeout_s: float | None = LOCK_TIMEOUT_S,
 ) -> tuple[WeatherCityModel, list[TrainingView], dict[str, Any]]:
     """Train (or load the cached) WeatherCity model of ``scene``.
 
@@ -308,6 +313,9 @@ def train_scene(
     show_progress : bool
     log : callable
         Where one-line phase messages go.
+    lock_timeout_s : float or None
+        Seconds to wait while another process trains the same model (same checkpoint folder)
+        before giving up; ``None``: no limit. The waiting process then loads that model.
 
     Returns
     -------
@@ -316,6 +324,11 @@ def train_scene(
         Every frame's view (held-out frames included).
     facts : dict
         What was built, skipped and measured (``info.json``).
+
+    Raises
+    ------
+    LockTimeoutError
+        When another process still trains the same model after ``lock_timeout_s``.
     """
     start = time.perf_counter()
     size = config.size_for(scene.image_size)
@@ -343,29 +356,35 @@ def train_scene(
     def make_trainer(m: WeatherCityModel) -> Trainer:
         return Trainer(m, views, config, content=content_loss, hazes=inputs.hazes)
 
-    info = read_checkpoint_info(folder)
-    if info is not None and info.get("key") == key:
-        trainer = load_checkpoint(folder, model=model, views=views, make_trainer=make_trainer)
-        resumed = trainer.step_index
-    else:
-        trainer, resumed = make_trainer(model), 0
-    prep_s = time.perf_counter() - start
-    if trainer.step_index < config.iterations:
-        if resumed:
-            log(f"weathercity {scene.id}: resuming at step {resumed} of {config.iterations}")
-        bar = progress(range(trainer.step_index, config.iterations), desc=f"training {scene.id}",
-                       total=config.iterations - trainer.step_index, enabled=show_progress, unit="step")
-        steps = iter(bar)
-        next(steps, None)  # the bar counts a step each time the next one is asked for
+    # One training per checkpoint: a second process asking for the same model waits here, then loads
+    # what the first saved (docs/guide.md "WeatherCity"; a killed holder's lock is taken over at once)
+    entry = folder.resolve()
+    lock = EntryLock(entry.with_name(f"{entry.name}.lock"), what=f"training {scene.id}", timeout_s=lock_timeout_s,
+                     log=lambda m: log(f"weathercity {scene.id}: {m}"))
+    with lock:
+        info = read_checkpoint_info(folder)
+        if info is not None and info.get("key") == key:
+            trainer = load_checkpoint(folder, model=model, views=views, make_trainer=make_trainer)
+            resumed = trainer.step_index
+        else:
+            trainer, resumed = make_trainer(model), 0
+        prep_s = time.perf_counter() - start - lock.waited_s
+        if trainer.step_index < config.iterations:
+            if resumed:
+                log(f"weathercity {scene.id}: resuming at step {resumed} of {config.iterations}")
+            bar = progress(range(trainer.step_index, config.iterations), desc=f"training {scene.id}",
+                           total=config.iterations - trainer.step_index, enabled=show_progress, unit="step")
+            steps = iter(bar)
+            next(steps, None)  # the bar counts a step each time the next one is asked for
 
-        def on_step(s: Any) -> None:
-            next(steps, None)
-            if hasattr(bar, "set_postfix") and s.step % 10 == 0:
-                bar.set_postfix(loss=f"{s.loss:.4f}", psnr=f"{s.psnr_clear:.2f}", gaussians=s.gaussians)
+            def on_step(s: Any) -> None:
+                next(steps, None)
+                if hasattr(bar, "set_postfix") and s.step % 10 == 0:
+                    bar.set_postfix(loss=f"{s.loss:.4f}", psnr=f"{s.psnr_clear:.2f}", gaussians=s.gaussians)
 
-        trainer.train(callback=on_step, checkpoint=lambda t: save_checkpoint(t, folder, extra={"key": key}))
-        if hasattr(bar, "close"):
-            bar.close()
+            trainer.train(callback=on_step, checkpoint=lambda t: save_checkpoint(t, folder, extra={"key": key}))
+            if hasattr(bar, "close"):
+                bar.close()
     held = [v for v in views if v.frame in config.holdout]
     facts: dict[str, Any] = {
         "version": VERSION,
@@ -384,6 +403,7 @@ def train_scene(
         "resumed_at": resumed,
         "train_seconds": round(trainer.train_seconds, 3),
         "prepare_seconds": round(prep_s, 3),
+        "lock_wait_seconds": round(lock.waited_s, 3),  # while another process trained this model
         "densify": trainer.densify_log[-1] if trainer.densify_log else None,
     }
     if held:

@@ -7,10 +7,14 @@ line per entry. Only sources that need no decision of the user are fetched unask
 registry or a download pinned to a sha256, never a TorchScript archive to trust or an unpinned
 file (:attr:`~wcbench.core.models.store.ModelSource.fetch_on_use`).
 
-Offline (``--offline`` or ``WCBENCH_OFFLINE=1``) nothing is fetched. A fetch that fails (no
-network, a registry that cannot be reached) is given a few seconds, no retry, and the host is not
-tried again in the same run; what needed the weights is then skipped with the reason, and the run
-goes on. Every outcome is recorded (``results.json`` ``models``).
+Offline (``--offline`` or ``WCBENCH_OFFLINE=1``) nothing is fetched. A fetch is given a few
+seconds of silence, no retry. When its host cannot be reached (connection refused, name not
+resolved, timed out, no route: :class:`~wcbench.core.models.store_errors.SourceUnreachableError`)
+the host is not tried again in the same run. Any other failure (an HTTP error such as 404, a
+package the registry does not have, a file that is not the pinned one, a conversion that fails)
+is reported as what it is and leaves the host to the next entry. Either way what needed the
+weights is skipped with the reason, and the run goes on. Every outcome is recorded
+(``results.json`` ``models``).
 """
 
 from __future__ import annotations
@@ -23,8 +27,9 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlparse
 
+from wcbench.core.errors import WcbenchError
 from wcbench.core.models.store import ModelStore
-from wcbench.core.models.store_errors import ModelStoreError, SourceMismatchError, UntrustedTorchScriptError
+from wcbench.core.models.store_errors import SourceUnreachableError
 
 __all__ = ["FETCH_TIMEOUT_S", "OFFLINE_ENV", "FetchOutcome", "fetch_missing", "is_offline"]
 
@@ -51,7 +56,8 @@ class FetchOutcome:
     status : str
         ``"installed"`` (there before the run), ``"fetched"`` (in this run), ``"offline"`` (missing,
         fetching off), ``"not-fetchable"`` (missing; its source needs the user: ``models pull`` or
-        ``import``) or ``"failed"`` (the fetch failed; ``reason`` says why).
+        ``import``) or ``"failed"`` (the fetch failed; ``reason`` says why: the host could not be
+        reached, or what failed once it answered).
     sha256 : str or None
         Of the installed main file.
     verified : bool or None
@@ -145,18 +151,20 @@ def fetch_missing(names: Iterable[str], *, store: ModelStore | None = None, offl
         start = time.perf_counter()
         try:
             store.pull(name, timeout_s=timeout_s)
-        except (SourceMismatchError, UntrustedTorchScriptError) as exc:
-            seconds = time.perf_counter() - start
-            outcomes[name] = FetchOutcome(name, "failed", seconds=seconds, reason=f"{exc}")
-            say(f"  {name}: not installed ({exc})")
-            continue
-        except ModelStoreError as exc:
+        except SourceUnreachableError as exc:
             seconds = time.perf_counter() - start
             first = _cause(exc)
-            unreachable[host] = first
+            unreachable[host] = first  # only a host that did not answer: nothing else from it will come
             outcomes[name] = FetchOutcome(name, "failed", seconds=seconds,
-                                          reason=f"fetch failed after {seconds:.1f} s ({first}); {missing}")
-            say(f"  {name}: fetch failed after {seconds:.1f} s; what needs it is skipped ({first})")
+                                          reason=f"{host} could not be reached ({first}); {missing}")
+            say(f"  {name}: {host} could not be reached after {seconds:.1f} s, not tried again in this run; "
+                f"what needs it is skipped ({first})")
+            continue
+        except WcbenchError as exc:  # the host answered: an HTTP error, a file not the pinned one, a conversion
+            seconds = time.perf_counter() - start
+            first = _cause(exc)
+            outcomes[name] = FetchOutcome(name, "failed", seconds=seconds, reason=f"{first}; {missing}")
+            say(f"  {name}: not installed ({first}); what needs it is skipped")
             continue
         seconds = time.perf_counter() - start
         sha = store.sha256(name)

