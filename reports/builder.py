@@ -434,6 +434,7 @@ def build_report(
         script=(_TEMPLATES / "report.js").read_text(encoding="utf-8"),
         folders=folders, methods=tb.methods, scenes_list=tb.scenes, weathers=weathers,
         colors=media.colors, flags=flags, markers=MARKERS, tables=tables, scoring=_scoring_notes(folders),
+        skipped=tb.skipped_metrics(),
         runtime=_runtime_facts(folders, tb.methods), scenes=scenes, bench=bench_sections,
         provenance=_provenance(folders), display=display, frames=frames, animation_frames=animation_frames,
     )

@@ -28,6 +28,10 @@ else:  # pragma: no cover - Python 3.10
 
 DASH = "\u2013"
 MEAN = "mean"
+#: The row of the scene's raw frames scored against the ground truth (``results.json`` ``raw_frames``).
+RAW_FRAMES = "raw frames (no edit)"
+#: Methods whose rows are yardsticks, never ranked: they return the raw frames.
+BASELINE_METHODS = ("identity",)
 _DISPLAY = Path(__file__).with_name("display.toml")
 
 
@@ -137,6 +141,7 @@ class Row:
     scene: str
     cells: list[Cell]
     scene_rowspan: int = 0  # > 0 on the first row of a scene block
+    baseline: bool = False  # a yardstick row (raw frames, identity): shown, never bold or underlined
 
 
 @dataclass
@@ -232,6 +237,16 @@ class TableBuilder:
         for (_, _, output), (m, _) in self._means.items():
             all_values.setdefault(output, []).append(m)
         self.decimals = {o: display.decimals(o) or choose_decimals(v) for o, v in all_values.items()}
+        # yardsticks: the identity method's rows, and the raw frames against the truth each folder recorded
+        self.baselines = {f.label for f in folders if f.method in BASELINE_METHODS}
+        self._raw: dict[tuple[str, str, str], list[float | None]] = {}
+        for f in folders:
+            for scene, weathers in (f.doc.get("raw_frames") or {}).items():
+                for weather, outputs in weathers.items():
+                    for output, r in outputs.items():
+                        value = r.get("value") if isinstance(r, dict) else None
+                        self._raw.setdefault((scene, weather, output), []).append(
+                            float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None)
 
     # -- cells ----------------------------------------------------------------------------------
 
@@ -265,6 +280,56 @@ class TableBuilder:
         assert count == len(scenes)
         return base.cell(value, format_value(value, self.decimals[output]))
 
+    def _raw_scene_cell(self, scene: str, weather: str, output: str) -> Cell:
+        base = _Where(RAW_FRAMES, scene, weather, output)
+        if weather == "clear":
+            return base.cell(None, DASH, "the ground truth of clear is the raw frames themselves")
+        found = self._raw.get((scene, weather, output))
+        if not found:
+            return base.cell(None, DASH, f"no results folder records the raw frames' {output} on {scene} / {weather} "
+                                         "(no ground truth, or scored by an older wcbench)")
+        if any(v is None for v in found):
+            return base.cell(None, DASH, f"no value: the raw frames' {output} is not a finite number")
+        texts = sorted({format_value(v, self.decimals.get(output, 3)) for v in found if v is not None})
+        if len(texts) > 1:
+            return base.cell(None, DASH, f"the results folders' raw-frames {output} differ ({', '.join(texts)}): "
+                                         "scored at other sizes or settings")
+        value = float(found[0])  # type: ignore[arg-type]
+        return base.cell(value, texts[0])
+
+    def _raw_mean_cell(self, weather: str, output: str) -> Cell:
+        base = _Where(RAW_FRAMES, MEAN, weather, output)
+        scenes = sorted({s for (_, s, w, o) in self._rows if (w, o) == (weather, output)})
+        parts = [self._raw_scene_cell(s, weather, output) for s in scenes]
+        missing = [(s, c.reason) for s, c in zip(scenes, parts) if c.value is None]
+        if not scenes or missing:
+            reasons = sorted({r for _, r in missing}) or [f"no method has {output} in {weather}"]
+            return base.cell(None, DASH, "; ".join(reasons))
+        value = sum(float(c.value) for c in parts if c.value is not None) / len(parts)
+        return base.cell(value, format_value(value, self.decimals.get(output, 3)))
+
+    def _raw_row(self, columns: list[Column], scene: str = MEAN) -> Row | None:
+        """The raw frames' row of a ground-truth table (``None`` when every column is clear, whose
+        truth is the raw frames)."""
+        if all(c.weather == "clear" for c in columns):
+            return None
+        cells = [self._raw_mean_cell(c.weather, c.output) if scene == MEAN else
+                 self._raw_scene_cell(scene, c.weather, c.output) for c in columns]
+        return Row(RAW_FRAMES, scene, cells, baseline=True)
+
+    def skipped_metrics(self) -> list[tuple[str, str, str]]:
+        """What was not computed: (metric label, reason, where: methods and (scene / weather) units),
+        one per metric and reason, in display order."""
+        skips = self.df[self.df.status == "skipped"]
+        out = []
+        for (metric, reason), rows in skips.groupby(["metric", "reason"], sort=False):
+            methods = sorted(set(rows["method"]))
+            units = sorted({f"{s} / {w}" for s, w in rows[["scene", "weather"]].itertuples(index=False)})
+            where = f"{', '.join(methods)}: {', '.join(units)}"
+            out.append((self.display.label(str(metric)), str(reason), where, str(metric)))
+        out.sort(key=lambda t: (self.display.output_key(t[3]), t[1]))
+        return [(label, reason, where) for label, reason, where, _ in out]
+
     def _flag(self, cell: Cell, scenes: list[str]) -> Cell:
         if cell.value is not None:
             is_mean = cell.scene == MEAN
@@ -295,11 +360,12 @@ class TableBuilder:
             f"{w}: {', '.join(labels)}" for w, labels in dropped.items()) + "."
         return columns, [(text, "\n".join(sorted(reasons)))]
 
-    @staticmethod
-    def _rank(cells: list[Cell], higher_is_better: bool | None) -> None:
-        """Bold the best and underline the second of a column (by the shown text: ties share a rank)."""
+    def _rank(self, cells: list[Cell], higher_is_better: bool | None) -> None:
+        """Bold the best and underline the second of a column (by the shown text: ties share a rank);
+        the yardstick rows (raw frames, identity) are left out: the marks go to the real methods."""
         if higher_is_better is None:
             return
+        cells = [c for c in cells if c.method != RAW_FRAMES and c.method not in self.baselines]
         shown = sorted({float(c.text) for c in cells if c.value is not None}, reverse=higher_is_better)
         if len([c for c in cells if c.value is not None]) < 2:
             return
@@ -338,8 +404,11 @@ class TableBuilder:
         that have one, computed from the same cells."""
         columns, notes = self._columns(outputs)
         rows = [Row(m, MEAN, [self._flag(self._mean_cell(m, c.weather, c.output),
-                                         self._scenes_of.get((m, c.weather), [])) for c in columns])
+                                         self._scenes_of.get((m, c.weather), [])) for c in columns],
+                    baseline=m in self.baselines)
                 for m in self.methods]
+        raw = self._raw_row(columns) if group == "reference" else None
+        rows += [raw] if raw is not None else []
         label = str(self.display.summary.get("label", "summary"))
         summarised = [o for o in outputs if self.display.summary_weathers(o)
                       and any(c.output == o for c in columns)]
@@ -352,6 +421,8 @@ class TableBuilder:
             self._rank([r.cells[j] for r in rows], c.higher_is_better)
         g = self.display.groups[group]
         caption = f"{g['caption']} Scenes: {', '.join(self.scenes)}."
+        if raw is not None:
+            caption += f" Row '{RAW_FRAMES}': the scene's raw frames scored against the same truth, a yardstick."
         if summarised:
             caption += f" Columns '{label}': the mean over weathers of the cells beside them, by the paper's rule: " \
                        f"{self.display.summary.get('rule', '')}."
@@ -362,8 +433,11 @@ class TableBuilder:
         columns, notes = self._columns(outputs)
         rows: list[Row] = []
         for s in self.scenes:
-            block = [Row(m, s, [self._flag(self._scene_cell(m, s, c.weather, c.output), [s]) for c in columns])
+            block = [Row(m, s, [self._flag(self._scene_cell(m, s, c.weather, c.output), [s]) for c in columns],
+                         baseline=m in self.baselines)
                      for m in self.methods]
+            raw = self._raw_row(columns, s) if group == "reference" else None
+            block += [raw] if raw is not None else []
             for j, c in enumerate(columns):
                 self._rank([r.cells[j] for r in block], c.higher_is_better)
             block[0].scene_rowspan = len(block)

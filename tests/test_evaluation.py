@@ -272,3 +272,25 @@ def test_worker_threads_and_kept_frames_change_no_number(demo_scene, tmp_path, m
         assert len(reads) == (1 if fast else 2) * 3 * len(demo_scene), name
     assert docs["fast"]["results"] == docs["twin"]["results"]
     assert FRAME_CACHE.nbytes == len(demo_scene) * 320 * 180 * 3  # only the raw frames stay, for other units
+
+
+def test_results_carry_the_raw_frames_scored_against_a_truth(tmp_path, monkeypatch):
+    """With a rain truth (here the scene's own frames in reverse order), results.json holds the raw
+    frames' PSNR and SSIM against it, equal to the identity method's (which returns the raw frames)."""
+    from wcbench.scenes.scene import Scene
+
+    def truth(self, weather):
+        frames = [f.image_path for f in self.frames]
+        return frames if weather == "clear" else frames[::-1]
+
+    monkeypatch.setattr(Scene, "reference_paths", truth)
+    out = tmp_path / "identity"
+    assert main(["run", "--method", "identity", "--scenes", "demo", "--out", str(out), "--weathers", "rain",
+                     "clear", "--metrics", "psnr", "ssim", "--no-progress"]) == 0
+    doc = json.loads((out / "results.json").read_text())
+    raw = doc["raw_frames"]["demo_street"]
+    assert set(raw) == {"rain"}  # clear's truth is the raw frames themselves: no yardstick row
+    for output in ("psnr", "ssim"):
+        scored = doc["results"]["demo_street"]["rain"][output]["value"]
+        assert raw["rain"][output]["value"] == pytest.approx(scored, rel=1e-9)
+        assert 0 < scored < (1.0 if output == "ssim" else 60.0)  # a real comparison, not frames with themselves

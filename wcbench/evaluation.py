@@ -447,6 +447,7 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
     warnings: list[dict[str, Any]] = []
     resized: list[dict[str, Any]] = []
     working: list[dict[str, Any]] = []
+    raw_frames: dict[str, Any] = {}
     for o in outcomes:
         rec = o.result
         results.setdefault(o.unit.scene.id, {})[o.unit.weather] = rec["outputs"]
@@ -455,12 +456,15 @@ def assemble_results(config: dict[str, Any], inputs: dict[str, Any], outcomes: l
         partial += [rec["partial"]] if "partial" in rec else []
         resized += [rec["resized"]] if "resized" in rec else []
         working += [rec["working_size"]] if "working_size" in rec else []
+        if rec.get("raw_frames"):
+            raw_frames.setdefault(o.unit.scene.id, {})[o.unit.weather] = rec["raw_frames"]
     doc: dict[str, Any] = json_safe({
         "kind": "wcbench-results", "schema_version": SCHEMA_VERSION,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(), "machine": machine_info(), "config": config,
         "inputs": inputs, "results": results, "skipped": skipped, "partial": partial, "resized": resized,
         "warnings": warnings, "working_size": working, "models": models or {}, "scene_facts": scene_facts or {},
+        "raw_frames": raw_frames,
     })
     for sid, facts in sorted((scene_facts or {}).items()):
         if facts.get("source_weather_flag"):

@@ -27,6 +27,8 @@
       "warnings": [{"scene", "weather", "kind", "message", ...}],
       "models": {entry: {"status", "sha256", "verified", "fetched", "seconds", "reason"}},
       "scene_facts": {scene: {"source_weather", "source_weather_flag", "undistorted", ...}},
+      "raw_frames": {scene: {weather: {output: {"metric", "value", "variant", "reason",
+                                                "higher_is_better"}}}},
       "checksum": sha256 of the document without this key (a hand-edited file is detected)
     }
 
@@ -49,8 +51,10 @@ resized for scoring: ``{"scene", "weather", "from": scene size, "to": size score
 "interpolation"}``; each output's ``variant`` ends with ``scored at WxH`` when that size is not the
 scene's. ``models`` names the model-store entries the metrics and the method needed, each with its
 status (``installed``, ``fetched`` in this run, ``offline``, ``not-fetchable`` or ``failed``;
-:mod:`wcbench.core.models.fetch`). The keys ``partial``, ``resized``, ``warnings``, ``working_size``
-and ``models`` may be absent from
+:mod:`wcbench.core.models.fetch`). ``raw_frames`` holds, for every edited weather with a ground truth, the
+reference metrics (PSNR, SSIM, LPIPS) of the scene's raw frames against that truth, scored like the
+predictions: the yardstick the report shows beside the methods. The keys ``partial``, ``resized``,
+``warnings``, ``working_size``, ``models`` and ``raw_frames`` may be absent from
 files of earlier wcbench versions, and so may ``config.scored_at`` and the ``predictions_resized``
 and ``rule`` of ``working_size`` (those scored a method at its own render size).
 """

@@ -11,6 +11,7 @@ any order or place and assembled afterwards (docs/design.md §1, §9).
 
 from __future__ import annotations
 
+import copy
 import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -211,6 +212,7 @@ class WorkUnit:
             "size": list(p.size),
             "frames": p.frame_indices, "missing": p.missing, "partial_reason": p.partial_reason,
             "check_unedited": [self.check_unedited, UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH],
+            "raw_frames": True,  # results carry the raw frames' scores against the truth (older ones do not)
         })
 
     def work_path(self, out: Path) -> Path:
@@ -327,6 +329,16 @@ class WorkUnit:
                 m.reset()
                 active[name] = m
         needs_ref = refs is not None and any(m.needs_reference for m in active.values())
+        # The raw frames scored against the same truth, the yardstick of the ground-truth table (docs/guide.md,
+        # "The report"): a shallow copy of each reference metric (its reset() gives fresh accumulators, the
+        # weights stay shared) fed the source frames in the same pass, so no frame is read twice. Clear has
+        # no such row: its truth is the raw frames.
+        baseline: dict[str, Metric] = {}
+        if needs_ref and self.weather != "clear":
+            for name, m in active.items():
+                if m.needs_reference:
+                    baseline[name] = copy.copy(m)
+                    baseline[name].reset()
         reads_frames = any(m.reads_frames for m in active.values())
         # Every method of a scene is scored at one size, the scene's working size (the paper scores
         # every method at the dataset's frames; docs/design.md §8, "Scoring"): frames a method
@@ -388,6 +400,8 @@ class WorkUnit:
             reference = buffers["reference"][:n] if needs_ref else None
             for m in active.values():
                 m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
+            for m in baseline.values():
+                m.update(buffers["source"][:n], source=buffers["source"][:n], reference=reference)
 
         for pred8, src8, ref8 in frames:
             to_float(pred8, out=buffers["pred"][filled])
@@ -414,6 +428,11 @@ class WorkUnit:
                     "higher_is_better": m.higher_is_better, "per_frame": value.per_frame, "extra": value.extra,
                 }
         result: dict[str, Any] = {"outputs": outputs, "skipped": skipped, "warnings": []}
+        if baseline:
+            result["raw_frames"] = {
+                out_name: {"metric": name, "value": value.value, "variant": value.variant + at, "reason": value.reason,
+                           "higher_is_better": m.higher_is_better}
+                for name, m in baseline.items() for out_name, value in m.compute().items()}
         warning = None if check is None else check.warning(
             scene=scene.id, weather=self.weather, where=preds.location or preds.files[0],
             hint=self.method.info.unedited_hint)

@@ -191,6 +191,48 @@ class Trainer:
             self._order = list(self.rng.permutation(len(self.train_views)))
         return self.train_views[self._order.pop()]
 
+    def _weather_step(self, it: int) -> bool:
+        """Whether step ``it`` renders every supervised weather (else the clear one alone)."""
+        return len(self.weathers) > 1 and it % max(self.config.weather_interval, 1) == 0
+
+    def _content_step(self, it: int) -> bool:
+        """Whether step ``it`` adds the content loss (every ``content_interval``-th weather step)."""
+        cfg = self.config
+        return (self.content is not None and cfg.content_weight > 0 and self._weather_step(it)
+                and (it // max(cfg.weather_interval, 1)) % max(cfg.content_interval, 1) == 0)
+
+    def _densify_after(self, done: int) -> bool:
+        """Whether the step that makes ``done`` steps densifies after its update."""
+        cfg = self.config
+        return cfg.densify_from <= done <= cfg.densify_until and done % cfg.densify_interval == 0
+
+    def step_kinds(self, start: int, stop: int) -> list[str]:
+        """What each of the steps ``start..stop-1`` of :meth:`train` does, as it costs: ``"clear"`` or
+        ``"weather"``, with ``"+content"``, ``"+densify"`` and ``"+checkpoint"`` when it computes the
+        content loss, densifies, or follows a checkpoint (``train`` saves one after a step's callback,
+        so its time falls before the next step's). The schedule is fixed in advance; the progress line's
+        time left weighs each kind by its measured time (:class:`wcbench.core.progress.TimeLeft`).
+
+        Parameters
+        ----------
+        start, stop : int
+            The first step and the step after the last (``config.iterations`` for a whole training).
+
+        Returns
+        -------
+        list of str
+            One kind per step.
+        """
+        interval = self.config.checkpoint_interval
+        kinds = []
+        for it in range(start, stop):
+            parts = ["weather" if self._weather_step(it) else "clear"]
+            parts += ["content"] * self._content_step(it)
+            parts += ["densify"] * self._densify_after(it + 1)
+            parts += ["checkpoint"] * (it > start and it % interval == 0)
+            kinds.append("+".join(parts))
+        return kinds
+
     def step(self) -> StepLog:
         """One optimisation step (with densification and a checkpoint when they are due)."""
         cfg = self.config
@@ -198,7 +240,7 @@ class Trainer:
         it = self.step_index
         v = self._next_view()
         tv = self._tensors[v.frame]
-        all_weathers = len(self.weathers) > 1 and it % max(cfg.weather_interval, 1) == 0
+        all_weathers = self._weather_step(it)
         weathers = self.weathers if all_weathers else ("clear",)
         want_depth = cfg.depth_weight > 0 and tv.depth is not None
         target = tv.targets["clear"] if len(weathers) == 1 else torch.cat([tv.targets[w] for w in weathers], -1)
@@ -212,8 +254,7 @@ class Trainer:
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
         terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
         logged: dict[str, float] = {f"rgb_{w}": float(x) for w, x in zip(weathers, per_weather.detach())}
-        if self.content is not None and cfg.content_weight > 0 and all_weathers \
-                and (it // max(cfg.weather_interval, 1)) % max(cfg.content_interval, 1) == 0:
+        if self._content_step(it) and self.content is not None:
             cc = self.content(render.images[..., 3:], v.frame, tv.targets["clear"], tv.non_sky)
             terms.append((cfg.content_weight, cc))
             logged["content"] = float(cc.detach())
@@ -241,7 +282,7 @@ class Trainer:
         self.optimizer.zero_grad()
         self.step_index += 1
         marks.append(("optimizer", time.perf_counter()))
-        if cfg.densify_from <= self.step_index <= cfg.densify_until and self.step_index % cfg.densify_interval == 0:
+        if self._densify_after(self.step_index):
             self.densify()
         marks.append(("densify", time.perf_counter()))
         with torch.no_grad():

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from report_helpers import expected_text, result_values, rewrite_results, skip_output
 
+from wcbench.bench.report import make_results_folders
 from wcbench.reports import build_report
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
@@ -81,3 +82,22 @@ def test_report_in_headless_chromium_offline(small, tmp_path, browser):
     weight = page.evaluate("getComputedStyle(document.querySelector('td.r1 .v')).fontWeight")
     assert int(weight) >= 700
     page.close()
+
+
+def test_every_table_fits_a_1400_px_page(tmp_path, browser):
+    """Every weather (16 temporal columns) and a long method name: no table wider than the page's
+    column at 1400 px (a wider one would scroll sideways inside its box)."""
+    folders, _ = make_results_folders(tmp_path / "res", methods=("tint", "weathercity-long-name"), scenes=("scene_a",),
+                                      weathers=("clear", "rain", "snow", "fog"), n_frames=3, size=(32, 18))
+    out = tmp_path / "report.html"
+    build_report(folders, out, frames=False)
+    page = browser.new_page()
+    page.goto(out.as_uri(), wait_until="load")
+    page.evaluate("document.querySelectorAll('details').forEach(d => d.open = true)")
+    widths = page.evaluate("""[...document.querySelectorAll('.table-wrap')].map(w => ({
+        id: w.querySelector('table').id, table: w.querySelector('table').scrollWidth, box: w.clientWidth,
+        page: document.documentElement.scrollWidth, columns: w.querySelectorAll('thead tr:last-child th').length}))""")
+    page.close()
+    assert any(w["id"] == "t-temporal" and w["columns"] == 16 for w in widths), widths
+    assert all(w["table"] <= w["box"] <= 1400 for w in widths), [w for w in widths if w["table"] > w["box"]]
+    assert all(w["page"] <= 1400 for w in widths)

@@ -18,6 +18,7 @@ from report_helpers import expected_text, parse_report, result_values, rewrite_r
 
 from wcbench.cli import main
 from wcbench.reports import build_report
+from wcbench.reports.tables import RAW_FRAMES
 
 
 def _numeric(cells):
@@ -417,3 +418,76 @@ def test_the_papers_summary_columns_follow_its_rule_in_html_csv_and_latex(tmp_pa
               if r["weather"] == "mean (paper's rule)" and r["table"] == "t-paper"}
     assert in_csv == {(c["data-method"], c["data-output"]): c["value"] for c in summary}
     assert "mean (paper's rule)" in (tmp_path / "r.tex").read_text()
+
+
+def _with_truth(doc, *, method_psnr, raw_psnr):
+    """Give every scene a rain ground truth: the method's PSNR there and the raw frames' against it."""
+    doc["raw_frames"] = {}
+    for scene, weathers in doc["results"].items():
+        if "rain" in weathers:
+            weathers["rain"]["psnr"] = {"metric": "psnr", "value": method_psnr, "variant": "", "reason": "",
+                                        "higher_is_better": True, "per_frame": [], "extra": {}}
+            doc["raw_frames"].setdefault(scene, {})["rain"] = {
+                "psnr": {"metric": "psnr", "value": raw_psnr, "variant": "", "reason": "", "higher_is_better": True}}
+
+
+def _row(table, method):
+    return next(r for r in table.rows if r.method == method)
+
+
+def test_skipped_metrics_are_listed_with_their_reasons_beside_the_tables(small, tmp_path):
+    reason = "weights not installed: clip-vit-b32 (wcbench models fetch clip-vit-b32)"
+    for folder in small.values():
+        def skip_everywhere(doc):
+            for scene, weathers in list(doc["results"].items()):
+                for weather in list(weathers):
+                    if any(r["metric"] == "clip_s" for r in weathers[weather].values()):
+                        skip_output(doc, scene, weather, "clip_s", reason)
+        rewrite_results(folder, skip_everywhere)
+    out = tmp_path / "r.html"
+    build_report(list(small.values()), out, frames=False)
+    text = out.read_text()
+    block = re.search(r'<div class="skipped" id="skipped">(.*?)</div>', text, re.S)
+    assert block is not None, "no list of skipped metrics"
+    assert "<strong>CLIP-S</strong>: " + html.escape(reason) in block.group(1)
+    # where the tables are, and the checks say it rather than only "verified"
+    assert text.index('id="skipped"') > text.index('id="tables"')
+    assert re.search(r'class="skipped-note">Not computed: [^<]*CLIP-S', text)
+
+
+def test_ground_truth_table_has_a_raw_frames_row_that_is_never_marked(small, tmp_path):
+    for i, folder in enumerate(small.values()):
+        rewrite_results(folder, lambda d, i=i: _with_truth(d, method_psnr=20.0 + i, raw_psnr=31.25))
+    out = tmp_path / "r.html"
+    outcome = build_report(list(small.values()), out, frames=False, csv=True)
+    table = next(t for t in outcome.tables if t.id == "t-reference")
+    raw = _row(table, RAW_FRAMES)
+    assert raw.baseline
+    j = next(j for j, c in enumerate(table.columns) if (c.weather, c.output) == ("rain", "psnr"))
+    assert raw.cells[j].text == "31.25" and raw.cells[j].rank == 0  # the highest PSNR, yet not bold
+    assert [r.cells[j].rank for r in table.rows if r.method != RAW_FRAMES].count(1) == 1
+    clear = next(j for j, c in enumerate(table.columns) if c.weather == "clear")
+    assert raw.cells[clear].value is None and "raw frames themselves" in raw.cells[clear].reason
+    scene_table = next(t for t in outcome.tables if t.id == "s-reference")
+    assert [r.scene for r in scene_table.rows if r.method == RAW_FRAMES] == ["scene_a", "scene_b"]
+    assert f'data-method="{RAW_FRAMES}"' in out.read_text()
+    assert RAW_FRAMES in out.with_suffix(".csv").read_text()
+
+
+def test_identity_rows_are_yardsticks_and_bold_goes_to_a_real_method(small, tmp_path):
+    def as_identity(doc):
+        doc["config"]["method"] = "identity"
+        for weathers in doc["results"].values():
+            for outputs in weathers.values():
+                for r in outputs.values():  # the best number of every column
+                    if r["value"] is not None:
+                        r["value"] = 1e3 if r["higher_is_better"] else -1e3
+    rewrite_results(small["tint"], as_identity)
+    outcome = build_report(list(small.values()), tmp_path / "r.html", frames=False)
+    table = next(t for t in outcome.tables if t.id == "t-paper")
+    identity = _row(table, "identity")
+    assert identity.baseline and all(c.rank == 0 for c in identity.cells)
+    for j in range(len(table.columns)):
+        ranked = [r.cells[j].rank for r in table.rows if r.method != "identity"]
+        if sum(r.cells[j].value is not None for r in table.rows if r.method != "identity") >= 2:
+            assert 1 in ranked, table.columns[j]

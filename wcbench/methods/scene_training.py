@@ -15,6 +15,7 @@ It lives beside the methods because its supervision is other methods' frames.
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from collections.abc import Mapping
@@ -283,7 +284,7 @@ def train_scene(
     store: ModelStore | None = None,
     content: ContentLoss | str | None = "auto",
     show_progress: bool = True,
-    log: Any = print,
+    log: Any = None,
     lock_timeout_s: float | None = LOCK_TIMEOUT_S,
 ) -> tuple[WeatherCityModel, list[TrainingView], dict[str, Any]]:
     """Train (or load the cached) WeatherCity model of ``scene``.
@@ -311,8 +312,9 @@ def train_scene(
         The content loss to use (tests inject a small network); ``"auto"``: the real VGG16 when
         installed, else the term is skipped and the reason recorded.
     show_progress : bool
-    log : callable
-        Where one-line phase messages go.
+    log : callable, optional
+        Where one-line phase messages go (default: printed to stdout at once, flushed, since a pipe
+        or a file would otherwise hold them back until the training ends).
     lock_timeout_s : float or None
         Seconds to wait while another process trains the same model (same checkpoint folder)
         before giving up; ``None``: no limit. The waiting process then loads that model.
@@ -331,6 +333,8 @@ def train_scene(
         When another process still trains the same model after ``lock_timeout_s``.
     """
     start = time.perf_counter()
+    if log is None:
+        log = functools.partial(print, flush=True)
     size = config.size_for(scene.image_size)
     log(f"weathercity {scene.id}: {size[0]}x{size[1]} views, supervision from {supervision}")
     inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers,
@@ -372,8 +376,13 @@ def train_scene(
         if trainer.step_index < config.iterations:
             if resumed:
                 log(f"weathercity {scene.id}: resuming at step {resumed} of {config.iterations}")
+            # each kind of step (clear, weather, content loss, densification, checkpoint) is timed apart for
+            # the time left; the first step compiles the kernels (up to a minute), hence the line before it
             bar = progress(range(trainer.step_index, config.iterations), desc=f"training {scene.id}",
-                           total=config.iterations - trainer.step_index, enabled=show_progress, unit="step")
+                           total=config.iterations - trainer.step_index, enabled=show_progress, unit="step",
+                           kinds=trainer.step_kinds(trainer.step_index, config.iterations),
+                           starting=f"{config.iterations - trainer.step_index} steps; the first sets up and "
+                                    "compiles the kernels (the time left comes once a few steps are measured)")
             steps = iter(bar)
             next(steps, None)  # the bar counts a step each time the next one is asked for
 
