@@ -69,7 +69,7 @@ def test_train_cli_writes_facts_and_a_second_call_loads_the_checkpoint(tmp_path,
 
 @pytest.mark.parametrize("args, message", [
     (["--setting", "iterations"], "expected KEY=VALUE"),
-    (["--setting", "colour=1"], "unknown training settings"),
+    (["--setting", "colour=1"], "settings.colour=1: settings takes no option colour"),
     (["--profile", "fast"], "unknown training profile"),
     (["--ablation", "no-sky"], "unknown ablation"),
     (["--holdout", "40"], "has frames 0..11"),
