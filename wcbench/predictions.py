@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from wcbench.core.errors import InputError
+from wcbench.core.frame_ranges import frames_outside
 from wcbench.core.image_io import (
     IMAGE_EXTENSIONS,
     VIDEO_EXTENSIONS,
@@ -391,8 +392,8 @@ def match_predictions(
             raise InputError(f"frames {frames_text(list(frames))}: scoring needs one contiguous run of frames "
                              "(temporal metrics compare neighbours), e.g. 0-9")
         if selected[0] < 0 or selected[-1] >= len(scene.frames):
-            raise InputError(f"frames {frames_text(selected)}: outside scene {scene.id!r}'s frames "
-                             f"0-{len(scene.frames) - 1}")
+            n = len(scene.frames)
+            raise InputError(frames_outside([k for k in selected if not 0 <= k < n], n, scene_id=scene.id))
     layouts = [pattern] if isinstance(pattern, str) else list(pattern)
     for lay in layouts:
         if lay.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", lay) or ".." in lay.replace("\\", "/").split("/"):

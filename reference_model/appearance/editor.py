@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from wcbench.core.errors import InputError
+from wcbench.core.options import Option, Range, validate_options
 from wcbench.reference_model.appearance.maps import SurfaceMaps, mirror_render, refine, surface_maps
 from wcbench.reference_model.appearance.shading import (
     LightModel,
@@ -56,7 +57,71 @@ from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surf
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis, analyse_scene
 from wcbench.reference_model.weather.conditions import Weather, load_presets
 
-__all__ = ["AppearanceParams", "WeatherEditor", "decontaminate", "masked_ego"]
+__all__ = ["APPEARANCE_KEYS", "AppearanceParams", "WeatherEditor", "appearance_options", "decontaminate",
+           "masked_ego"]
+
+
+#: Bounds and meaning of every key of the presets' ``[appearance]`` tables (``TABLE.KEY``; sources of
+#: the values: the comments of presets.toml). The keys must be those of the presets:
+#: :func:`appearance_options` refuses a key with no entry here and an entry of no key.
+APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
+    "light.sun_elevation_deg": (Range(0, 90), "elevation of the raw frames' sun (deg)"),
+    "light.direct_to_diffuse": (Range(0), "clear sky's direct-normal over diffuse horizontal irradiance"),
+    "light.ground_albedo": (Range(0, 1), "albedo of the ground"),
+    "rain.exposure": (Range(0, low_open=True), "linear exposure of the overcast scene relative to the clear one"),
+    "rain.wetness_horizontal": (Range(0, 1), "water film on open horizontal surfaces"),
+    "rain.wetness_vertical": (Range(0, 1), "water film on open vertical surfaces"),
+    "rain.fresnel_f0": (Range(0, 1), "water's Fresnel reflectance at normal incidence"),
+    "rain.sheen_road": (Range(0, 1), "share of the Fresnel reflection that is a mirror on wet asphalt"),
+    "rain.sheen_puddle": (Range(0, 1), "share of the Fresnel reflection that is a mirror in puddles"),
+    "rain.rough_blur_px": (Range(0), "blur of the rough reflection (px at 270 rows)"),
+    "rain.puddle_max": (Range(0, 1), "largest fraction of the open ground under puddles"),
+    "rain.puddle_rate_mm_h": (Range(0, low_open=True), "rain rate scale of the puddle fraction (mm/h)"),
+    "rain.track_wetness": (Range(0, 1), "water film in the wheel paths, as a fraction of the rest"),
+    "snow.exposure": (Range(0, low_open=True), "linear exposure of the overcast scene relative to the clear one"),
+    "snow.accumulation_h": (Range(0), "hours of snowfall on the ground"),
+    "snow.full_cover_mm": (Range(0, low_open=True), "liquid water (mm) that hides asphalt"),
+    "snow.facing_from": (Range(-1, 1), "up-component of a normal above which snow settles"),
+    "snow.facing_full": (Range(-1, 1), "up-component of a normal above which snow covers fully"),
+    "snow.snow_albedo": (Range(0, 1), "fresh snow's albedo"),
+    "snow.white_balance": (Range(0, low_open=True), "per-channel linear gains under snow light (R, G, B)"),
+    "snow.damp": (Range(0, 1), "water film on bare surfaces"),
+    "snow.track_cover": (Range(0, 1), "snow cover in the wheel paths, as a fraction of the rest"),
+    "fog.exposure": (Range(0, low_open=True), "linear exposure of the overcast scene relative to the clear one"),
+    "fog.damp": (Range(0, 1), "water film on surfaces"),
+    "sky.color": (Range(0, 1), "overcast sky at the horizon (linear R, G, B)"),
+}
+
+
+def appearance_options() -> dict[str, Option]:
+    """The ``appearance`` option of the physical editor: a table per ``[appearance]`` table of the
+    presets, a key per preset value (its kind from the value: a number, or a list of as many), bounded
+    by :data:`APPEARANCE_KEYS`.
+
+    Raises
+    ------
+    ValueError
+        A preset key without an entry in :data:`APPEARANCE_KEYS`, or an entry of no preset key.
+    """
+    tables: dict[str, Option] = {}
+    seen = set()
+    for table, values in load_presets().get("appearance", {}).items():
+        keys: dict[str, Option] = {}
+        for key, default in values.items():
+            full = f"{table}.{key}"
+            if full not in APPEARANCE_KEYS:
+                raise ValueError(f"appearance.{full}: a preset key without declared bounds (APPEARANCE_KEYS)")
+            bounds, doc = APPEARANCE_KEYS[full]
+            seen.add(full)
+            if isinstance(default, list):
+                keys[key] = Option(key, "floats", doc, default=default, range=bounds, length=len(default))
+            else:
+                keys[key] = Option(key, "float", doc, default=default, range=bounds)
+        tables[table] = Option(table, "table", f"the presets' [appearance.{table}] table", table=keys)
+    stray = sorted(set(APPEARANCE_KEYS) - seen)
+    if stray:
+        raise ValueError(f"APPEARANCE_KEYS: entries of no preset key: {stray}")
+    return tables
 
 
 @dataclass(frozen=True)
@@ -85,16 +150,13 @@ class AppearanceParams:
         Raises
         ------
         ValueError
-            An unknown table or key in ``overrides``.
+            (:class:`~wcbench.core.options.OptionError`) An unknown table or key in ``overrides``, or
+            a value outside its declared kind and bounds (:func:`appearance_options`).
         """
         base = {k: dict(v) for k, v in load_presets().get("appearance", {}).items()}
-        for kind, table in (overrides or {}).items():
-            if kind not in base:
-                raise ValueError(f"appearance: unknown table {kind!r}; known: {sorted(base)}")
-            unknown = sorted(set(table) - set(base[kind]))
-            if unknown:
-                raise ValueError(f"appearance.{kind}: unknown keys {unknown}; known: {sorted(base[kind])}")
-            base[kind].update(table)
+        checked = validate_options(appearance_options(), overrides or {}, path="appearance", owner="appearance")
+        for kind, table in checked.items():
+            base[kind].update({k: list(v) if isinstance(v, tuple) else v for k, v in table.items()})
         return cls(light=LightModel.from_mapping(base["light"]), rain=base["rain"], snow=base["snow"],
                    fog=base["fog"], sky_color=np.asarray(base["sky"]["color"], np.float32))
 

@@ -8,9 +8,12 @@ the ``default`` profile are chosen from the time-versus-quality table of ``wcben
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields, replace
+from functools import cache
 from typing import Any
 
-__all__ = ["ABLATIONS", "PROFILES", "TrainConfig", "make_config"]
+from wcbench.core.options import Option, Range, options_from_dataclass, validate_options
+
+__all__ = ["ABLATIONS", "PROFILES", "SETTING_RANGES", "TrainConfig", "make_config", "settings_options"]
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,7 @@ class TrainConfig:
     holdout : tuple of int
         Frames left out of training (for held-out evaluation).
     seed : int
+        Random seed of the initialisation and the optimisation.
     checkpoint_interval : int
         Steps between checkpoints (a killed training resumes from the last one).
     profile, ablation : str
@@ -204,22 +208,49 @@ ABLATIONS: dict[str, dict[str, Any]] = {
 }
 
 
+#: The bounds of every numeric training setting (``lr.KEY``: one learning rate); a field added to
+#: :class:`TrainConfig` without one makes :func:`settings_options` fail (docs/guide.md, "Method options").
+SETTING_RANGES: dict[str, Range] = {
+    "width": Range(1), "height": Range(0), "iterations": Range(1), "feature_dim": Range(1), "hidden": Range(1),
+    "ssim_weight": Range(0, 1), "content_weight": Range(0), "content_interval": Range(1),
+    "content_size": Range(1), "depth_weight": Range(0), "opacity_weight": Range(0), "deform_weight": Range(0),
+    "weather_interval": Range(1),
+    **{f"lr.{k}": Range(0, low_open=True) for k in ("means", "log_scales", "quats", "object_quats",
+                                                    "opacity_logits", "features", "decoders", "sky", "offsets")},
+    "means_lr_final": Range(0, 1, low_open=True), "sky_map": Range(1), "voxel_m": Range(0, low_open=True),
+    "node_voxel_m": Range(0, low_open=True), "init_opacity": Range(0, 1, low_open=True, high_open=True),
+    "moving_threshold_m": Range(0), "budget": Range(1), "densify_from": Range(0), "densify_until": Range(0),
+    "densify_interval": Range(1), "densify_grad": Range(0, low_open=True), "prune_opacity": Range(0, 1, high_open=True),
+    "split_scale": Range(0, low_open=True), "seed": Range(0), "checkpoint_interval": Range(1),
+}
+
+
+@cache
+def settings_options() -> dict[str, Option]:
+    """The training settings a run may override (``settings.KEY``), derived from :class:`TrainConfig`'s
+    fields, type hints and Attributes, bounded by :data:`SETTING_RANGES`. ``holdout``, ``profile`` and
+    ``ablation`` are options of their own, not settings."""
+    return options_from_dataclass(TrainConfig, ranges=SETTING_RANGES, skip=("holdout", "profile", "ablation"))
+
+
 def make_config(profile: str = "default", *, ablation: str = "", **overrides: Any) -> TrainConfig:
     """The settings of a profile, an ablation and explicit overrides (in that order).
 
     Raises
     ------
     ValueError
-        On an unknown profile, ablation or setting.
+        On an unknown profile or ablation; :class:`~wcbench.core.options.OptionError` (a ValueError)
+        on an unknown setting or a value outside its declared type and range (:func:`settings_options`),
+        except ``holdout``, which is checked against the scene.
     """
     if profile not in PROFILES:
         raise ValueError(f"unknown training profile {profile!r}; profiles: {sorted(PROFILES)}")
     if ablation not in ABLATIONS:
         raise ValueError(f"unknown ablation {ablation!r}; ablations: {sorted(a for a in ABLATIONS if a)}")
-    known = {f.name for f in fields(TrainConfig)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown training settings {unknown}; known: {sorted(known)}")
+    holdout = overrides.pop("holdout", None)
+    overrides = validate_options(settings_options(), overrides, path="settings", owner="settings")
+    if holdout is not None:
+        overrides["holdout"] = tuple(holdout)
     base = TrainConfig()
     lr = dict(base.lr)
     lr.update(overrides.pop("lr", {}))

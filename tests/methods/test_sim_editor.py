@@ -169,7 +169,7 @@ def test_the_render_key_covers_the_truth_frames(truth_scene, tmp_path):
 
 
 def test_severity_is_checked():
-    with pytest.raises(InputError, match=r"severity must be in \[0, 1\]"):
+    with pytest.raises(InputError, match=r"severity=1.5: expected a number in \[0, 1\]"):
         get_method("sim-editor", severity=1.5)
 
 

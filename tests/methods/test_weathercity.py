@@ -69,11 +69,11 @@ def test_train_cli_writes_facts_and_a_second_call_loads_the_checkpoint(tmp_path,
 
 @pytest.mark.parametrize("args, message", [
     (["--setting", "iterations"], "expected KEY=VALUE"),
-    (["--setting", "colour=1"], "unknown training settings"),
-    (["--profile", "fast"], "unknown training profile"),
-    (["--ablation", "no-sky"], "unknown ablation"),
+    (["--setting", "colour=1"], "settings.colour=1: settings takes no option colour"),
+    (["--profile", "fast"], "profile=fast: expected one of 'default', 'quick'"),
+    (["--ablation", "no-sky"], "ablation=no-sky: expected one of '', 'no-wgs'"),
     (["--holdout", "40"], "has frames 0..11"),
-    (["--supervision", "nowhere"], "or READER:DIR (e.g. qwen-image:edits/)"),
+    (["--supervision", "nowhere"], "supervision=nowhere: expected 'physical-editor', 'filter2d'"),
 ])
 @pytest.mark.model
 def test_train_cli_refuses_bad_options_by_name(tmp_path, capsys, args, message):

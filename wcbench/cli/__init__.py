@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import typing
 from collections.abc import Sequence
 
 from wcbench import __version__
@@ -31,9 +32,19 @@ COMMANDS = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line, ``wcbench VERB: error: ...`` (exit 2): the usage
+    block is for ``--help``, not printed above every mistake (docs/guide.md, "Method options")."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        """Print ``PROG: error: MESSAGE`` (its first line) on stderr and exit with 2."""
+        first = message.splitlines()[0] if message else "bad arguments"
+        self.exit(2, f"{self.prog}: error: {first} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser (imports every verb module, none of which imports heavy code)."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="wcbench",
         description="Weather editing of driving scenes: render, evaluate and benchmark methods.",
         epilog="Run `wcbench VERB --help` for the options of each verb.",

@@ -179,13 +179,13 @@ def parse_frame_spec(spec: str, *, option: str = "--frames") -> list[int]:
             if "-" in part[1:]:
                 a, b = part.split("-", 1)
                 lo, hi = int(a), int(b)
-                if hi < lo:
-                    raise ValueError
-                out.update(range(lo, hi + 1))
             else:
-                out.add(int(part))
+                lo = hi = int(part)
         except ValueError:
             raise InputError(f"{option}: cannot parse {part!r}; use e.g. 17, 0-9 or 0,5,10") from None
+        if hi < lo:
+            raise InputError(f"{option}: the range {part} is reversed; write {hi}-{lo}")
+        out.update(range(lo, hi + 1))
     if not out:
         raise InputError(f"{option}: {spec!r} selects no frame")
     return sorted(out)
@@ -195,8 +195,8 @@ def frames_option(text: str) -> tuple[int, ...]:
     """argparse type of ``--frames`` on run and evaluate."""
     try:
         return tuple(parse_frame_spec(text))
-    except InputError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    except InputError as exc:  # argparse names the option itself
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--frames: ")) from None
 
 
 def add_frame_and_size_arguments(parser: argparse.ArgumentParser, *, size_help: str) -> None:

@@ -55,6 +55,7 @@ from wcbench.cli.common import (
     weathers_from,
 )
 from wcbench.core.errors import InputError
+from wcbench.core.frame_ranges import frames_outside
 from wcbench.core.weathers import WEATHERS
 
 HELP = "render a scene under rain, snow or fog (lidar-initialised Gaussians + weather physics)"
@@ -125,7 +126,7 @@ def parse_frames(frames: tuple[int, ...] | None, n: int) -> list[int]:
         return list(range(n))
     bad = [k for k in frames if not 0 <= k < n]
     if bad:
-        raise InputError(f"--frames: {bad} outside the scene's frames 0-{n - 1}")
+        raise InputError(frames_outside(bad, n, option="--frames"))
     return sorted(frames)
 
 
@@ -206,11 +207,22 @@ def _method_options(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     """Render every selected scene through the units of work ``run`` uses; return 0."""
     from wcbench.core.storage import check_writable_folder
-    from wcbench.methods import get_method
+    from wcbench.methods import get_method, method_options, validate_method_options
     from wcbench.scenes.sets import data_root_from, resolve_scenes
     from wcbench.units import RenderSettings, WorkUnit
 
     get_method(args.method)  # an unknown name fails before any scene is loaded
+    if "weathers" not in method_options(args.method):  # render hands --weathers to the method as its option
+        raise InputError(f"--method {args.method}: method {args.method!r} takes no option weathers: render draws "
+                         f"the --weathers physics with a method that takes them (see `wcbench methods show NAME`)")
+    given = method_options_from(args)
+    own = {"weathers": "auto", **({"voxel_m": args.voxel} if args.voxel is not None else {}),
+           **({"init_frames": []} if args.init_frames is not None else {})}  # render's own, set per scene
+    clash = sorted(set(given) & set(own))
+    if clash:
+        raise InputError(f"--method-option {', '.join(clash)}: set by render's own options "
+                         "(--weathers/--preset..., --voxel, --init-frames)")
+    validate_method_options(args.method, {**own, **given})  # every option checked before any scene is loaded
     kinds = _weathers(args)
     for kind in kinds:  # bad weather options fail before any scene is loaded or folder made
         _weather(args, kind)
@@ -221,11 +233,6 @@ def run(args: argparse.Namespace) -> int:
     for ref in resolve_scenes(args.scenes, data_root=data_root_from(args.data_root)):
         scene = ref.load()
         options = _method_options(args, len(scene))
-        given = method_options_from(args)
-        clash = sorted(set(options) & set(given))
-        if clash:
-            raise InputError(f"--method-option {', '.join(clash)}: set by render's own options "
-                             "(--weathers/--preset..., --voxel, --init-frames)")
         method = get_method(args.method, **options, **given)
         method.request_size(size)  # type: ignore[attr-defined]  # runnable: the unit renders it
         settings = RenderSettings(frames=tuple(parse_frames(args.frames, len(scene))), **settings_base)

@@ -45,25 +45,24 @@ TRAINING_OPTIONS = ("ablation", "holdout", "jitter", "profile", "settings", "sup
 
 
 def training_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The weathercity method options ``args`` give, read as ``run`` reads them, ``holdout`` as ints.
+    """The weathercity method options ``args`` give, read as ``run`` reads them and checked as its
+    constructor's (``holdout`` as a tuple of ints).
 
     Raises
     ------
     InputError
-        On an option that only concerns rendering, or a malformed ``holdout``.
+        On an option that only concerns rendering; ``OptionError`` on a value weathercity's declared
+        option does not allow (:func:`wcbench.methods.validate_method_options`).
     """
+    from wcbench.methods import validate_method_options
+
     options = method_options_from(args)
     other = sorted(set(options) - set(TRAINING_OPTIONS))
     if other:
         raise InputError(f"train: method option {', '.join(other)} concerns rendering, not training (give it to "
                          f"`wcbench run` or `wcbench render`); train takes {', '.join(TRAINING_OPTIONS)}")
-    holdout = options.get("holdout")
-    if holdout is not None:
-        values = holdout if isinstance(holdout, (list, tuple)) else [holdout]
-        if not all(isinstance(h, int) and not isinstance(h, bool) for h in values):
-            raise InputError(f"--holdout: expected frame numbers, e.g. 5,15,25, got {holdout!r}")
-        options["holdout"] = tuple(values)
-    return options
+    # weathercity's declared options (types, ranges, settings.*), checked before any scene is read
+    return validate_method_options("weathercity", options)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,24 +83,17 @@ def run(args: argparse.Namespace) -> int:
     """Train every scene of the set; print and write what each training measured."""
     from wcbench.core.models.fetch import fetch_missing, is_offline
     from wcbench.core.storage import atomic_write_json, check_writable_folder
-    from wcbench.methods.scene_training import train_scene
+    from wcbench.methods.scene_training import check_supervision, train_scene
     from wcbench.methods.weather_spec import parse_weathers, resolve_physics
     from wcbench.reference_model.training.config import make_config
     from wcbench.scenes.sets import resolve_scenes
 
-    options = training_options(args)
-    try:
-        settings = options.get("settings") or {}
-        if not isinstance(settings, dict):
-            raise ValueError(f"settings must be a dict of training settings, got {settings!r}")
-        config = make_config(options.get("profile", "default"), ablation=options.get("ablation", ""),
-                             holdout=options.get("holdout", ()), **settings)
-        jitter = float(options.get("jitter", 0.0))
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"train: {exc}") from None
-    if not 0.0 <= jitter <= 1.0:
-        raise InputError(f"--jitter must be in [0, 1], got {jitter}")
+    options = training_options(args)  # every value checked against weathercity's declared options
+    config = make_config(options.get("profile", "default"), ablation=options.get("ablation", ""),
+                         holdout=options.get("holdout", ()), **(options.get("settings") or {}))
+    jitter = float(options.get("jitter", 0.0))
     supervision = str(options.get("supervision", "physical-editor"))
+    check_supervision(supervision, jitter)  # a jitter the supervision would ignore
     weathers = parse_weathers(options.get("weathers"), who="train")
     if args.out is not None:
         check_writable_folder(args.out)

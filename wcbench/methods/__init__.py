@@ -12,6 +12,7 @@ import inspect
 from typing import Any
 
 from wcbench.core.errors import InputError
+from wcbench.core.options import Option, validate_options
 from wcbench.core.registry import LazyRegistry
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import Method, MethodInfo, RunnableMethod
@@ -64,15 +65,52 @@ def _factory(name: str) -> Any:
         raise MethodUnavailableError(name, exc.name or str(exc)) from None
 
 
-def method_options(name: str) -> list[str]:
-    """The options the method registered as ``name`` takes (keyword arguments of its factory).
+def _any_value(value: Any) -> Any:
+    return value
+
+
+def method_schema(name: str) -> dict[str, Option]:
+    """The declared options of the method registered as ``name``: its factory's ``OPTIONS`` (type,
+    range, default, meaning of each keyword option). A factory that declares none (a plugin's) has
+    its keyword parameters, each taking any value.
 
     Raises
     ------
     UnknownNameError, MethodUnavailableError
     """
-    params = inspect.signature(_factory(METHODS.canonical(name))).parameters
-    return [p for p, v in params.items() if v.kind in (v.KEYWORD_ONLY, v.POSITIONAL_OR_KEYWORD)]
+    factory = _factory(METHODS.canonical(name))
+    declared = getattr(factory, "OPTIONS", None)
+    if declared is not None:
+        return dict(declared)
+    params = inspect.signature(factory).parameters
+    return {p: Option(p, "custom", "an undeclared option of the method's factory", check=_any_value,
+                      allowed="any value")
+            for p, v in params.items() if v.kind in (v.KEYWORD_ONLY, v.POSITIONAL_OR_KEYWORD)}
+
+
+def method_options(name: str) -> list[str]:
+    """The names of the options the method registered as ``name`` takes (:func:`method_schema`).
+
+    Raises
+    ------
+    UnknownNameError, MethodUnavailableError
+    """
+    return list(method_schema(name))
+
+
+def validate_method_options(name: str, options: dict[str, Any]) -> dict[str, Any]:
+    """Check ``options`` against the declared options of method ``name`` before anything is built or
+    written; return them as the constructor takes them (lists of numbers as tuples).
+
+    Raises
+    ------
+    OptionError
+        One line naming the first unknown option or bad value and what is allowed
+        (``physical-editor option size=5: expected a list of 2 integers >= 1 or null``).
+    UnknownNameError, MethodUnavailableError
+    """
+    name = METHODS.canonical(name, warn=False)
+    return validate_options(method_schema(name), options, prefix=f"{name} option ", owner=f"method {name!r}")
 
 
 def get_method(name: str, **options: Any) -> Method:
@@ -82,8 +120,9 @@ def get_method(name: str, **options: Any) -> Method:
     ------
     UnknownNameError
         With close-name suggestions.
-    InputError
-        If the method does not take one of ``options`` (the message lists the ones it takes).
+    OptionError
+        If the method does not take one of ``options``, or a value is not one its declared option
+        allows (:func:`validate_method_options`).
 
     Warns
     -----
@@ -94,11 +133,7 @@ def get_method(name: str, **options: Any) -> Method:
     """
     name = METHODS.canonical(name)
     factory = _factory(name)
-    unknown = sorted(set(options) - set(method_options(name)))
-    if unknown:
-        takes = ", ".join(method_options(name)) or "none"
-        raise InputError(f"method {name!r} takes no option {', '.join(unknown)} (it takes: {takes})")
-    method = factory(**options)
+    method = factory(**validate_method_options(name, options))
     if not isinstance(method, Method):
         raise TypeError(f"method {name!r} does not implement the Method protocol")
     return method
@@ -111,5 +146,6 @@ def is_runnable(method: Method) -> bool:
 
 __all__ = [
     "METHODS", "METHOD_ALIASES", "WEATHERS", "Method", "MethodInfo", "MethodUnavailableError", "RunnableMethod",
-    "canonical_method_name", "get_method", "is_runnable", "method_options",
+    "canonical_method_name", "get_method", "is_runnable", "method_options", "method_schema",
+    "validate_method_options",
 ]

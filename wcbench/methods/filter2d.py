@@ -29,13 +29,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_uint8
+from wcbench.core.options import Option, Range
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer
@@ -290,6 +291,14 @@ class Filter2DMethod(FrameRenderer):
         weathers=WEATHERS,
         layout="writes <out>/filter2d/<scene>/<weather>/{frame:03d}.png + info.json",
     )
+
+    OPTIONS: ClassVar[dict[str, Option]] = {
+        "effects": Option("effects", "bool", "draw the rain streaks and snowflakes", default=True),
+        "jitter": Option("jitter", "float", "seeded per-frame tone, colour and structure perturbation",
+                         default=0.0, range=Range(0, 1)),
+        "visibility_m": Option("visibility_m", "float", "fog visibility (m); default the scene's requested fog's",
+                               range=Range(0, low_open=True), nullable=True),
+    }
 
     def __init__(self, *, effects: bool = True, jitter: float = 0.0, visibility_m: float | None = None):
         if not 0.0 <= float(jitter) <= 1.0:

@@ -9,16 +9,17 @@ both render it through the same units of work (:mod:`wcbench.units`).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import to_uint8
+from wcbench.core.options import Option, Range
 from wcbench.core.progress import phase
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
-from wcbench.methods.runnable import FrameRenderer
+from wcbench.methods.runnable import FrameRenderer, size_option
 from wcbench.methods.weather_spec import (
     WeathersOption,
     describe_option,
@@ -26,6 +27,7 @@ from wcbench.methods.weather_spec import (
     physics_record,
     resolve_physics,
     truth_draw,
+    weathers_option,
 )
 from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.weather.conditions import Weather
@@ -58,6 +60,17 @@ class LidarInitMethod(FrameRenderer):
     """
 
     version = "1"
+
+    OPTIONS: ClassVar[dict[str, Option]] = {
+        "weathers": weathers_option(who="lidar-init"),
+        "size": size_option("output (width, height) in pixels; default the scene's size times scale"),
+        "scale": Option("scale", "float", "output size as a fraction of the scene's", default=0.25,
+                        range=Range(0, 4, low_open=True)),
+        "voxel_m": Option("voxel_m", "float", "voxel of the lidar initialisation (m)", default=0.2,
+                          range=Range(0, low_open=True)),
+        "init_frames": Option("init_frames", "ints", "frames whose lidar sweeps build the scene (default: all)",
+                              range=Range(0), nullable=True),
+    }
 
     def __init__(
         self,

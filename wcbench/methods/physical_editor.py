@@ -22,24 +22,26 @@ from __future__ import annotations
 import hashlib
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_uint8
+from wcbench.core.options import Option
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
-from wcbench.methods.runnable import FrameRenderer
+from wcbench.methods.runnable import FrameRenderer, size_option
 from wcbench.methods.weather_spec import (
     WeathersOption,
     describe_option,
     parse_weathers,
     physics_record,
     resolve_physics,
+    weathers_option,
 )
-from wcbench.reference_model.appearance.editor import AppearanceParams, WeatherEditor
+from wcbench.reference_model.appearance.editor import AppearanceParams, WeatherEditor, appearance_options
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import scale_camera
 from wcbench.scenes.scene import Scene
@@ -145,6 +147,12 @@ class PhysicalEditorMethod(FrameRenderer):
     """
 
     version = VERSION
+    OPTIONS: ClassVar[dict[str, Option]] = {
+        "weathers": weathers_option(who=NAME),
+        "appearance": Option("appearance", "table", "overrides of the presets' [appearance] tables, e.g. "
+                             "appearance.rain.puddle_max=0.2", table=appearance_options()),
+        "size": size_option("output (width, height) in pixels; default 480 px wide at the scene's aspect ratio"),
+    }
 
     def __init__(self, *, weathers: Any = None, appearance: dict[str, Any] | None = None,
                  size: Sequence[int] | None = None):

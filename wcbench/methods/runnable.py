@@ -14,12 +14,14 @@ import json
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from wcbench.core.errors import InputError, ResultsExistError
+from wcbench.core.frame_ranges import frames_outside
 from wcbench.core.image_io import read_rgb8, resize_rgb8, write_mp4, write_png
+from wcbench.core.options import Option, Range
 from wcbench.core.progress import progress
 from wcbench.core.storage import atomic_write_json, sha256_file, sha256_json
 from wcbench.core.timing import FrameTimer
@@ -58,11 +60,21 @@ def _rendered_frames(folder: Path) -> list[int] | None:
     return frames or None
 
 
+def size_option(doc: str) -> Option:
+    """The declared ``size`` option of a method: (width, height) in pixels, or null (the method's own)."""
+    return Option("size", "ints", doc, length=2, range=Range(1), nullable=True)
+
+
 class FrameRenderer(ABC):
-    """Base class of methods wcbench runs frame by frame."""
+    """Base class of methods wcbench runs frame by frame.
+
+    A subclass declares the keyword options of its constructor in ``OPTIONS`` (name -> :class:`Option`;
+    :func:`wcbench.methods.validate_method_options` checks them before it is built).
+    """
 
     info: MethodInfo
     version: str = "1"
+    OPTIONS: ClassVar[dict[str, Option]] = {}
 
     def parameters(self, weather: str) -> dict[str, Any]:
         """Settings that change the frames (recorded in ``info.json`` and part of the resume key)."""
@@ -232,7 +244,7 @@ class FrameRenderer(ABC):
         indices = list(range(len(scene))) if frames is None else sorted(set(frames))
         outside = [k for k in indices if not 0 <= k < len(scene)]
         if outside or not indices:
-            raise InputError(f"frames {outside or 'none'}: outside scene {scene.id!r}'s frames 0-{len(scene) - 1}")
+            raise InputError(frames_outside(outside, len(scene), scene_id=scene.id))
         key = self._key(scene, weather, seed, indices)
         out_dir.mkdir(parents=True, exist_ok=True)
         done_info = self._check_existing(out_dir, key, overwrite)

@@ -30,13 +30,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, resize_rgb8, to_uint8
+from wcbench.core.options import Option, Range
 from wcbench.core.storage import sha256_file, sha256_json
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.filter2d import FOG_COLOR, overlay_strokes, smear_blotches, smooth_warp, tone_jitter
@@ -366,6 +367,11 @@ class SimEditorMethod(FrameRenderer):
                "ground-truth frames of the weather (Scene.references; the raw frames for clear)",
     )
     version = VERSION
+
+    OPTIONS: ClassVar[dict[str, Option]] = {
+        "severity": Option("severity", "float", "amplitude of every simulated editor error (0: none)",
+                           default=DEFAULT_SEVERITY, range=Range(0, 1)),
+    }
 
     def __init__(self, *, severity: float = DEFAULT_SEVERITY):
         self.severity = _check_severity(severity)

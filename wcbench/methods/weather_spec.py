@@ -32,13 +32,28 @@ from pathlib import Path
 from typing import Any
 
 from wcbench.core.errors import InputError
+from wcbench.core.options import Option
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.fog import visibility_from_density
 from wcbench.scenes.scene import Scene
 
-__all__ = ["DRAWS", "EDITED", "WeatherRequest", "WeathersOption", "check_consistent", "describe_option",
-           "has_truth_weather", "parse_weathers", "physics_record", "requested_fields", "resolve_physics",
-           "truth_draw", "truth_physics", "truth_seeds"]
+__all__ = [
+    "DRAWS",
+    "EDITED",
+    "WeatherRequest",
+    "WeathersOption",
+    "check_consistent",
+    "describe_option",
+    "has_truth_weather",
+    "parse_weathers",
+    "physics_record",
+    "requested_fields",
+    "resolve_physics",
+    "truth_draw",
+    "truth_physics",
+    "truth_seeds",
+    "weathers_option",
+]
 
 EDITED = ("rain", "snow", "fog")
 #: The fields of a Weather that are random draws, not requests: never taken from a scene's record.
@@ -157,6 +172,23 @@ def parse_weathers(value: Any, *, who: str) -> WeathersOption:
         except (TypeError, ValueError) as exc:
             raise InputError(f"{who}: weathers[{kind!r}]: {exc}") from None
     return out
+
+
+def weathers_option(*, who: str) -> Option:
+    """The declared ``weathers`` option of a method ``who`` (checked by :func:`parse_weathers`)."""
+
+    def check(value: Any) -> Any:
+        try:
+            parse_weathers(value, who=who)
+        except InputError as exc:
+            raise ValueError(str(exc).removeprefix(f"{who}: ")) from None
+        return value
+
+    return Option("weathers", "custom", "the physics weather per kind: 'auto' (a scene's recorded weather, else "
+                  "the presets), 'truth' (the record, required), 'presets', or Weather fields per kind",
+                  default="auto", nullable=True, check=check,
+                  allowed="'auto', 'truth', 'presets' or a table of rain/snow/fog -> Weather fields, e.g. "
+                          "weathers.rain.preset=heavy")
 
 
 def describe_option(option: WeathersOption, kind: str) -> dict[str, Any] | str:

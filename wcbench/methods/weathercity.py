@@ -23,18 +23,21 @@ skipped, the supervision, and the whole-frame render FPS.
 from __future__ import annotations
 
 import time
-from typing import Any
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import to_uint8
+from wcbench.core.options import Option, Range
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
 from wcbench.methods.physical_editor import check_lidar, raw_frame
 from wcbench.methods.protocol import MethodInfo
-from wcbench.methods.runnable import FrameRenderer
+from wcbench.methods.runnable import FrameRenderer, size_option
 from wcbench.methods.scene_training import VERSION, check_supervision, train_scene
 from wcbench.methods.sim_editor import supervision_severity, truth_paths
 from wcbench.methods.weather_spec import (
@@ -47,18 +50,67 @@ from wcbench.methods.weather_spec import (
     resolve_physics,
     truth_draw,
     truth_physics,
+    weathers_option,
 )
 from wcbench.reference_model.appearance.editor import AppearanceParams, masked_ego
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
-from wcbench.reference_model.training.config import make_config
+from wcbench.reference_model.training.config import ABLATIONS, PROFILES, make_config, settings_options
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import GaussianArrays, WeatherRenderer, camera_velocity, scale_camera
 from wcbench.scenes.scene import Scene
 
-__all__ = ["WeatherCityMethod"]
+__all__ = ["WeatherCityMethod", "check_supervision_spec"]
+
+#: What ``supervision`` allows, in words.
+SUPERVISION_FORMS = (f"{PHYSICAL_EDITOR!r}, 'filter2d', 'sim-editor[:SEVERITY]' or READER:DIR "
+                     "(a reader of `wcbench methods list` and a folder, e.g. qwen-image:edits/)")
+
+
+def check_supervision_spec(spec: Any) -> str:
+    """``spec`` if it names a supervision that can be read: a built-in editor, sim-editor with a
+    severity in [0, 1], or an output reader's name and an existing folder (checked before any work).
+
+    Raises
+    ------
+    ValueError
+        Saying what is allowed.
+    """
+    from wcbench.methods import METHODS, MethodUnavailableError, get_method
+
+    if not isinstance(spec, str):
+        raise ValueError(f"expected {SUPERVISION_FORMS}")
+    if spec in (PHYSICAL_EDITOR, "filter2d") or supervision_severity(spec) is not None:
+        return spec
+    reader, sep, folder = spec.partition(":")
+    if not (sep and folder and reader in METHODS):
+        raise ValueError(f"expected {SUPERVISION_FORMS}")
+    try:
+        kind = get_method(reader).info.kind
+    except MethodUnavailableError:
+        kind = "unavailable"
+    if kind != "reader":
+        raise ValueError(f"{reader!r} is no output reader; expected {SUPERVISION_FORMS}")
+    if not Path(folder).expanduser().is_dir():
+        raise ValueError(f"{folder} is not a folder; expected {SUPERVISION_FORMS}")
+    return spec
+
+
+def _check_edits(value: Any) -> Any:
+    """``value`` if it parses as object edits (:func:`parse_edits`)."""
+    if not isinstance(value, (str, list, tuple)):
+        raise ValueError("expected an edit such as 'remove class=Car', or a list of them")
+    parse_edits(value)
+    return value
+
+
+def _check_content(value: Any) -> Any:
+    """``"auto"``, ``None`` or a content loss object (Python only)."""
+    if value == "auto" or value is None or callable(value):
+        return value
+    raise ValueError("expected 'auto' or null (from Python: a ContentLoss)")
 
 
 class WeatherCityMethod(FrameRenderer):
@@ -97,6 +149,25 @@ class WeatherCityMethod(FrameRenderer):
     """
 
     version = VERSION
+    OPTIONS: ClassVar[dict[str, Option]] = {
+        "supervision": Option("supervision", "custom", "edited frames it learns from", default=PHYSICAL_EDITOR,
+                              check=check_supervision_spec, allowed=SUPERVISION_FORMS),
+        "jitter": Option("jitter", "float", "per-frame perturbation of the filter2d supervision", default=0.0,
+                         range=Range(0, 1)),
+        "profile": Option("profile", "str", "training profile", default="default", choices=tuple(PROFILES)),
+        "ablation": Option("ablation", "str", "named ablation ('': none)", default="",
+                           choices=tuple(ABLATIONS)),
+        "settings": Option("settings", "table", "training settings overriding the profile's (settings.KEY=VALUE)",
+                           table=settings_options()),
+        "holdout": Option("holdout", "ints", "frames left out of training and scored", default=[],
+                          range=Range(0)),
+        "weathers": weathers_option(who="weathercity"),
+        "size": size_option("render (width, height) in pixels; default the training size"),
+        "edits": Option("edits", "custom", "object edits, e.g. 'remove class=Car except ids=3,7'", nullable=True,
+                        check=_check_edits, allowed="an edit such as 'remove class=Car', or a list of them"),
+        "content": Option("content", "custom", "the content loss: 'auto' (VGG16) or null (off)", default="auto",
+                          nullable=True, check=_check_content, allowed="'auto' or null"),
+    }
 
     def __init__(
         self,
@@ -197,6 +268,15 @@ class WeatherCityMethod(FrameRenderer):
                 truth_paths(scene, kind)
         if self.supervision == PHYSICAL_EDITOR:
             check_lidar(scene)
+        if self.edits:  # an edit that selects no track of the scene fails here, not after the training
+            try:
+                # the scene graph's objects are some of the scene's tracks (the moving ones): an edit that
+                # selects no track at all can never select one of them
+                tracks: dict[str, Any] = {str(t.id): SimpleNamespace(track_id=str(t.id), class_name=t.class_name)
+                                          for t in scene.tracks}
+                placement_for(self.edits, tracks)
+            except ValueError as exc:
+                raise InputError(f"weathercity: {exc}") from None
 
     def native_size(self, scene: Scene) -> tuple[int, int]:
         """``size`` if given, else the training resolution."""
