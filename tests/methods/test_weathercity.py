@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,6 +67,20 @@ def test_train_cli_writes_facts_and_a_second_call_loads_the_checkpoint(tmp_path,
     assert main(args) == 0
     again = json.loads((tmp_path / "t" / "demo_street" / "training.json").read_text())
     assert again["resumed_at"] == 24 and again["train_seconds"] == facts["train_seconds"]
+
+
+@pytest.mark.model
+def test_one_scene_by_a_relative_and_an_absolute_path_trains_once(tmp_path, demo_scene, monkeypatch):
+    pytest.importorskip("torch")
+    root = Path(demo_scene.root).resolve()
+    monkeypatch.chdir(tmp_path)
+    base = ["train", "--profile", "quick", "--no-progress", "--checkpoint", str(tmp_path / "ckpt"), "--holdout", "5"]
+    base += [f"--setting={k}={json.dumps(v)}" for k, v in json.loads(TINY).items()]
+    resumed = []
+    for spelling in (os.path.relpath(root, tmp_path), str(root)):
+        assert main([*base, "--scenes", spelling, "--out", str(tmp_path / "t")]) == 0
+        resumed.append(json.loads(next((tmp_path / "t").glob("*/training.json")).read_text())["resumed_at"])
+    assert resumed == [0, 24]  # the second spelling loads the first's model: the key holds no path
 
 
 @pytest.mark.parametrize("args, message", [

@@ -351,7 +351,9 @@ def train_scene(
     key = sha256_json({"version": VERSION, "scene": scene.id, "sources": inputs.sources, "config": config.to_json(),
                        "supervision": made, "trained": trained, "content": content_note,
                        "hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
-                       "lidar": [str(f.lidar_path) for f in scene.frames]})
+                       # by content, as the images: one scene reached by two spellings of its path trains once
+                       "lidar": [sha256_file(f.lidar_path) if f.lidar_path is not None else None
+                                 for f in scene.frames]})
     folder = folder or cache_dir() / "weathercity" / f"{scene.id}-{key[:16]}"
     log(f"weathercity {scene.id}: building the scene graph")
     train_views = [v for v in views if v.frame not in config.holdout]
