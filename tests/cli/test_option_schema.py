@@ -178,8 +178,9 @@ ROWS = [
       "--edit", "remove class=Unicorn"],
      "'Unicorn']}: selects no object"),
     (["run", "--method", "weathercity", "--supervision", "foo"], "weathercity option supervision=foo: expected"),
-    (["run", "--method", "identity", "--frames", "0-99"], "frames 12-99 are beyond scene 'demo_street''s 12 frames"),
-    (["render", "--weathers", "rain", "--frames", "0-99"], "frames 12-99 are beyond the scene's 12 frames"),
+    (["run", "--method", "identity", "--frames", "0-99"],
+     "frames 12-99 are beyond the 12 frames (0-11) of scene 'demo_street'"),
+    (["render", "--weathers", "rain", "--frames", "0-99"], "frames 12-99 are beyond the 12 frames (0-11) of the scene"),
 ]
 
 

@@ -83,7 +83,7 @@ def test_cli_parses_frames_and_rejects_bad_input() -> None:
     for bad in ("5-2", "x", ","):
         with pytest.raises(InputError):
             parse_frame_spec(bad)
-    with pytest.raises(InputError, match=r"frame 12 is beyond the scene's 10 frames \(0-9\)"):
+    with pytest.raises(InputError, match=r"frame 12 is beyond the 10 frames \(0-9\) of the scene"):
         parse_frames((12,), 10)
     parser = argparse.ArgumentParser()
     from wcbench.cli import render

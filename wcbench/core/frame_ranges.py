@@ -23,12 +23,12 @@ def ranges_text(frames: Sequence[int]) -> str:
 
 def frames_outside(outside: Sequence[int], n: int, *, scene_id: str | None = None, option: str = "") -> str:
     """The one-line refusal of frames ``outside`` a scene of ``n`` frames (``option``: the flag that
-    asked for them), summarised as ranges: ``frames 30-99 are beyond the scene's 30 frames (0-29)``."""
-    scene = f"scene {scene_id!r}'s" if scene_id else "the scene's"
+    asked for them), summarised as ranges: ``frames 30-99 are beyond the 30 frames (0-29) of scene 'x'``."""
+    scene = f"scene {scene_id!r}" if scene_id else "the scene"
     lead = f"{option}: " if option else ""
     if not outside:
-        return f"{lead}no frame selected; {scene} frames are 0-{n - 1}"
+        return f"{lead}no frame selected; the frames of {scene} are 0-{n - 1}"
     count = len(set(outside))
     word = "frame" if count == 1 else "frames"
     verb = "is" if count == 1 else "are"
-    return f"{lead}{word} {ranges_text(outside)} {verb} beyond {scene} {n} frames (0-{n - 1})"
+    return f"{lead}{word} {ranges_text(outside)} {verb} beyond the {n} frames (0-{n - 1}) of {scene}"
