@@ -4,6 +4,7 @@ process taken over, and a wait that times out with a message naming the holder."
 
 from __future__ import annotations
 
+import importlib
 import json
 import multiprocessing
 import os
@@ -15,7 +16,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 
 from wcbench.core.locking import EntryLock, LockTimeoutError
@@ -23,9 +23,23 @@ from wcbench.core.locking import EntryLock, LockTimeoutError
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="EntryLock serialises with flock (POSIX)")
 
 
+#: One process's request for the entry ``folder/model.npy``, as a module file: a spawned interpreter
+#: imports its target by module name, and the tests folder is not importable outside the checkout.
+WORKER = r'''
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from wcbench.core.locking import EntryLock
+
+
 def make_or_load(folder: str, barrier: Any, waiting: Any, queue: Any) -> None:
-    """One process's request for the entry ``folder/model.npy``: make it ("train": counted) if it is
-    missing, else load it; what it did, the result and its messages go to ``queue``."""
+    # make the entry ("train": counted) if it is missing, else load it; what it did, the result and
+    # its messages go to the queue
     entry = Path(folder) / "model.npy"
     said: list[str] = []
 
@@ -47,9 +61,20 @@ def make_or_load(folder: str, barrier: Any, waiting: Any, queue: Any) -> None:
             np.save(entry, result)
             role = "trained"
     queue.put({"pid": os.getpid(), "role": role, "result": result.tolist(), "said": said})
+'''
 
 
-def test_two_processes_asking_for_one_entry_make_it_once_and_the_other_loads_it(tmp_path: Path) -> None:
+def _worker(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Any:
+    folder = tmp_path / "worker"
+    folder.mkdir()
+    (folder / "lock_worker.py").write_text(WORKER)
+    monkeypatch.syspath_prepend(str(folder))  # spawned children get the parent's sys.path
+    return importlib.import_module("lock_worker")
+
+
+def test_two_processes_asking_for_one_entry_make_it_once_and_the_other_loads_it(tmp_path: Path,
+                                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    make_or_load = _worker(tmp_path, monkeypatch).make_or_load
     ctx = multiprocessing.get_context("spawn")  # fresh interpreters, as two `wcbench train` runs
     barrier, waiting, queue = ctx.Barrier(2), ctx.Event(), ctx.Queue()
     procs = [ctx.Process(target=make_or_load, args=(str(tmp_path), barrier, waiting, queue)) for _ in range(2)]
