@@ -34,6 +34,7 @@ from wcbench.core.errors import InputError
 from wcbench.core.image_io import to_uint8
 from wcbench.core.options import Option, Range
 from wcbench.core.weathers import WEATHERS
+from wcbench.methods import METHODS, MethodUnavailableError, get_method
 from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
 from wcbench.methods.physical_editor import check_lidar, raw_frame
 from wcbench.methods.protocol import MethodInfo
@@ -78,8 +79,6 @@ def check_supervision_spec(spec: Any) -> str:
     ValueError
         Saying what is allowed.
     """
-    from wcbench.methods import METHODS, MethodUnavailableError, get_method
-
     if not isinstance(spec, str):
         raise ValueError(f"expected {SUPERVISION_FORMS}")
     if spec in (PHYSICAL_EDITOR, "filter2d") or supervision_severity(spec) is not None:
