@@ -29,7 +29,7 @@ NOT_HERE_PATTERNS = {
     r"--predictions (my_frames|cn_out|controlnet_out|fresco_rain)/": "needs another tool's outputs",
     r"--scenes pandaset_002 --data-root \.\./shared/data --out runs/wc\b|--out runs/wc-edit|--out runs/train\b":
         "trains the default profile (about 7 minutes each): measured by `wcbench bench model` instead",
-    r"^wcbench bench (--all|all|model|metrics|raster|weather|report|scale|validity)\b":
+    r"^wcbench bench (--all|all|model|metrics|raster|weather|report|scale|validity|streets)\b":
         "benchmarks (measured, not smoke-tested)",
     r"^wcbench models pull|^wcbench models import": "downloads weights or needs a checkpoint file",
     r"^wcbench report runs/identity": "needs the three pandaset runs of the report section",
