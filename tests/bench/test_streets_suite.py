@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from paths import SHARED_DATA
+from paths import DATA, SHARED_DATA
 
 pytest.importorskip("torch")
 
@@ -21,9 +21,11 @@ def test_clear_sky_blue_is_the_blue_of_a_clear_sky_not_of_a_car_or_an_overcast_s
 
 @pytest.mark.slow
 @pytest.mark.model
-def test_bench_streets_quick_runs_on_a_real_scene_and_the_harder_street():
+def test_bench_streets_quick_runs_on_a_real_scene_and_the_harder_street(monkeypatch):
     from wcbench.bench.schema import validate_benchmark
-    from wcbench.bench.streets import run
+    from wcbench.bench.streets import SKY_MASKS_ENV, run
+
+    monkeypatch.setenv(SKY_MASKS_ENV, str(DATA / "sky_masks"))  # the installed package is not the checkout
 
     if not (SHARED_DATA / "pandaset_002" / "images").is_dir():
         pytest.skip(f"{SHARED_DATA / 'pandaset_002'} not present")

@@ -6,7 +6,8 @@ sees at once when the weather breaks (docs/design.md §7, "Scene analysis"; find
 docs/findings.md):
 
 * ``sky_<scene>``: the sky segmentation against the hand-drawn sky masks of three frames per
-  scene (``tests/data/sky_masks/``, rules in its README): intersection over union of all pixels,
+  scene (``tests/data/sky_masks/`` of the checkout or ``$WCBENCH_SKY_MASKS``, rules in its
+  README): intersection over union of all pixels,
   and of the pixels no lidar return lands in (a wire or a far mast the lidar hits covers a fraction
   of its pixel, which the masks call sky when under one half, the segmentation never); the
   analysis' time.
@@ -33,6 +34,7 @@ Times are from the machine it runs on; they move with its load (the report recor
 from __future__ import annotations
 
 import math
+import os
 import statistics
 import tempfile
 import time
@@ -61,7 +63,7 @@ from wcbench.scenes.loaders import load_scene
 from wcbench.scenes.sets import get_scene_set
 from wcbench.units import RenderSettings
 
-__all__ = ["REAL_SCENES", "clear_sky_blue", "run", "sky_masks_folder"]
+__all__ = ["REAL_SCENES", "SKY_MASKS_ENV", "clear_sky_blue", "run", "sky_masks_folder"]
 
 #: The real scenes the suite looks for under the data root.
 REAL_SCENES = ("pandaset_002", "pandaset_002_back", "pandaset_002_front_right", "pandaset_002_right")
@@ -70,10 +72,19 @@ EDITED = ("rain", "snow", "fog")
 MASK_FRAMES = (5, 15, 25)
 
 
+#: Where the hand-drawn sky masks are, when not in the checkout the package runs from.
+SKY_MASKS_ENV = "WCBENCH_SKY_MASKS"
+
+
 def sky_masks_folder() -> Path:
-    """The hand-drawn sky masks: ``tests/data/sky_masks`` of the source checkout (test data, not part
-    of the installed package)."""
-    return Path(__file__).resolve().parents[2] / "tests" / "data" / "sky_masks"
+    """The hand-drawn sky masks (test data, not part of the installed package): ``$WCBENCH_SKY_MASKS``
+    when set, else ``tests/data/sky_masks`` of the source checkout the package runs from (an
+    editable install), else of the working directory (an installed package run from a clone)."""
+    given = os.environ.get(SKY_MASKS_ENV)
+    if given:
+        return Path(given)
+    checkout = Path(__file__).resolve().parents[2] / "tests" / "data" / "sky_masks"
+    return checkout if checkout.is_dir() else Path.cwd() / "tests" / "data" / "sky_masks"
 
 
 def clear_sky_blue(image: np.ndarray) -> np.ndarray:
