@@ -146,7 +146,7 @@ def test_no_sun_on_a_street_without_cast_shadows(demo_scene):
 def test_no_sun_where_the_best_direction_lights_a_few_bright_receivers():
     # synth_1's clear frames cast no shadow, yet its brighter materials fit a low sun that lights 7 %
     # of the ground, warm and 1.9x brighter: refused for the small lit share (relit by it, the
-    # editor's weather lost 3.5 dB against the truth)
+    # editor lost 3.5 dB of rain and 3.4 of fog against the truth)
     pytest.importorskip("torch", reason="the synth scenes are rendered by the reference model")
     from wcbench.scenes.sets import resolve_scenes
 
