@@ -35,7 +35,9 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    share of sky from the colour line between the nearby sky and foreground colours (alpha
    matting's colour-line model); sky where the share is at least one half. A patch of sky that
    holds no seed and does not reach the top of the frame (a pane of a window, a gap the cut left
-   in a wall) is dropped: the sky is one with the open sky.
+   in a wall) is dropped: the sky is one with the open sky. Patches apart by 2 px or less (at 480
+   wide: a lamp's arm, a pole's crossbar, a bundle of wires) count as one, so the sky under an arm
+   stays sky.
 
 A frame no lidar return lands in gets no seeds of its own (nothing in it is confirmed empty): its
 sky is the scene's classifier's, cut with the frame's contrast, and only where it reaches the top
@@ -275,14 +277,18 @@ def _column_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.nda
     return np.where(has, p, 0.5).astype(np.float32)
 
 
-def _seeded(mask: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+def _seeded(mask: np.ndarray, seeds: np.ndarray, *, bridge_px: int = 0) -> np.ndarray:
     """The components of ``mask`` (8-connected: a sky crossed by a wire stays one) that hold a seed
-    or touch the top row."""
-    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    or touch the top row; with ``bridge_px``, components apart by at most that many pixels (a lamp's
+    arm, a pole's crossbar, a bundle of wires: not a wall) count as one."""
+    joined = mask.astype(np.uint8)
+    if bridge_px > 0:
+        joined = cv2.morphologyEx(joined, cv2.MORPH_CLOSE, np.ones((2 * bridge_px + 1,) * 2, np.uint8))
+    n, labels = cv2.connectedComponents(joined, connectivity=8)
     if n <= 1:
         return mask.copy()
     keep = np.unique(np.concatenate([labels[seeds & mask], labels[0][mask[0]]]))
-    return np.isin(labels, keep[keep > 0])
+    return np.isin(labels, keep[keep > 0]) & mask
 
 
 def _top_connected(mask: np.ndarray) -> np.ndarray:
@@ -383,8 +389,8 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         smooth_static = (feat[..., 3] < 10 * _SEED_MAX_STD) & (feat[..., 6] < 10 * _SEED_MAX_RESIDUAL)
         # connected to the top through the open sky: not across a lidar return, nor a roof line; and in a
         # patch of seeds of some size (a window mirroring the blue sky is a small one)
-        open_sky = _top_connected((elev > 0.0) & ~near & ~_step_edges(views.images[k]))
-        seeds = _large(open_sky & beyond & smooth_static & (within | blue), _MIN_OPEN_SKY)
+        clear = (elev > 0.0) & ~near & ~_step_edges(views.images[k])
+        seeds = _large(_top_connected(clear) & beyond & smooth_static & (within | blue), _MIN_OPEN_SKY)
         if not solid[k].any():  # no lidar in view: nothing here is confirmed empty, and no seed is made
             seeds = np.zeros_like(seeds)
         feats.append(feat)
@@ -438,7 +444,7 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         cut = _cut(views.images[k], p, ~region | solid[k], sky_seeds[k]) & region & ~solid[k]
         mask, alpha = refine_boundary(views.images[k], cut, ~region | solid[k])
         # the sky is one with the open sky: a patch enclosed by the scene, with no seed, is not
-        keep = _seeded(mask, sky_seeds[k])
+        keep = _seeded(mask, sky_seeds[k], bridge_px=max(1, round(2 * w / 480)))
         masks[k], alphas[k] = keep, np.where(mask & ~keep, 0.0, alpha).astype(np.float32)
     facts.update(classifier=f"random forest ({_TREES} trees, depth {_DEPTH}) on {len(xs)} sky and {len(xn)} "
                             f"non-sky seed pixels", sky_fraction=round(float(masks.mean()), 4))
