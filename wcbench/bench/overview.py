@@ -24,6 +24,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from wcbench.bench.code_version import measured_code
 from wcbench.bench.schema import BenchReport, validate_benchmark
 from wcbench.core.storage import atomic_write_text
 from wcbench.reports.media import bench_figure
@@ -167,16 +168,22 @@ def _slug(text: str) -> str:
 
 
 def run_all(suites: dict[str, Callable[..., BenchReport]], *, out: Path, data_root: Path | None, quick: bool,
-            echo: Callable[[str], None] = print) -> dict[str, Any]:
+            echo: Callable[[str], None] = print, command: Callable[[str], str] | None = None) -> dict[str, Any]:
     """Run ``suites`` (name -> ``run(data_root=, quick=)``) in turn, writing ``out/<suite>.json`` after
-    each, then :func:`summarize` ``out``; what :func:`summarize` returns, plus ``seconds`` per suite."""
+    each, then :func:`summarize` ``out``; what :func:`summarize` returns, plus ``seconds`` per suite.
+
+    Each JSON records the digests of the code it measured (:mod:`.code_version`) and, when given,
+    ``command(suite)``: the command that runs that suite alone.
+    """
     out.mkdir(parents=True, exist_ok=True)
     seconds = {}
     for name, run in suites.items():
         echo(f"bench --all: {name} ...")
+        code = measured_code(name)
         t = time.perf_counter()
         report = run(data_root=data_root, quick=quick)
         seconds[name] = round(time.perf_counter() - t, 1)
+        report.code, report.command = code, None if command is None else command(name)
         report.write(out / f"{name}.json")
         echo(f"bench --all: {name} done in {seconds[name]:.0f} s ({len(report.cases)} cases)")
     return {**summarize(out), "seconds": seconds}

@@ -9,6 +9,8 @@ A benchmark file is::
       "created": "2026-11-22T10:00:00+00:00",
       "machine": {"cpu": ..., "cores": 2, "memory_gb": 23.4, ...},
       "versions": {"python": ..., "numpy": ..., "torch": ...},
+      "code": {"wcbench": "0.1.0", "digests": {"wcbench.bench.raster": "3f2a...", ...}},
+      "command": "wcbench bench raster --data-root ../shared/data --out bench/raster.json",
       "notes": ["free text: what was substituted, what could not run"],
       "cases": [
         {"name": "b_pandaset_117k",      # unique within the suite
@@ -27,12 +29,20 @@ default for its knob may say so with ``"default": true`` (the report marks it). 
 also says ``"stands_for_knobs": true`` stands for the defaults of every knob of its suite that varies one
 setting away from it (the knob rows of ``bench model``): the summary puts it in each such knob's
 front and chart.
+
+``code`` (the digests of the code the suite measures, :mod:`.code_version`, taken when the suite
+starts) and ``command`` (the command line that wrote the file, with the ``WCBENCH_BENCH_*``
+variables set) are written by ``wcbench bench``; ``null`` where a suite was run from Python, absent
+in files written before they were recorded. The docs test reads ``code`` to call a committed JSON
+older than the code it measures (docs/guide.md, "Numbers in the docs").
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import os
+import shlex
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -88,13 +98,16 @@ class BenchReport:
     """A suite's cases plus free-text notes (substitutions, skipped cases).
 
     ``stand_ins`` says what data was missing and what stood in for it (the CLI prints each as a
-    warning: numbers on stand-in data are not the documented ones).
+    warning: numbers on stand-in data are not the documented ones). ``code`` and ``command`` are
+    what ``wcbench bench`` records of the code measured and of its own invocation (module docstring).
     """
 
     suite: str
     cases: list[BenchCase] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     stand_ins: list[str] = field(default_factory=list)
+    code: dict[str, Any] | None = None
+    command: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The whole report in the benchmark schema (see module docstring)."""
@@ -108,6 +121,8 @@ class BenchReport:
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             "machine": machine_info(),
             "versions": package_versions(),
+            "code": self.code,
+            "command": self.command,
             "notes": list(self.notes),
             "stand_ins": list(self.stand_ins),
             "cases": [c.to_json() for c in self.cases],
@@ -151,6 +166,16 @@ class BenchReport:
         return "\n".join(lines)
 
 
+def bench_command(args: Sequence[str], *, environ: Mapping[str, str] = os.environ) -> str:
+    """The shell command ``wcbench ARGS`` as a benchmark JSON records it (``command``).
+
+    The ``WCBENCH_BENCH_*`` variables set in ``environ`` (they choose what a suite runs, e.g.
+    ``WCBENCH_BENCH_MODEL_GROUPS``) come first, as ``NAME=value``.
+    """
+    env = [f"{k}={shlex.quote(v)}" for k, v in sorted(environ.items()) if k.startswith("WCBENCH_BENCH_")]
+    return " ".join([*env, shlex.join(["wcbench", *args])])
+
+
 def _fmt(v: Any) -> str:
     if v is None:
         return "-"
@@ -166,6 +191,9 @@ def validate_benchmark(obj: dict[str, Any]) -> None:
     for key in ("suite", "created", "machine", "versions", "notes", "cases"):
         if key not in obj:
             raise ValueError(f"benchmark file lacks {key!r}")
+    code = obj.get("code")
+    if code is not None and not (isinstance(code, dict) and isinstance(code.get("digests"), dict)):
+        raise ValueError(f"benchmark file's 'code' is not a record of digests: {code!r}")
     for case in obj["cases"]:
         missing = [k for k in _REQUIRED if k not in case]
         if missing:

@@ -68,6 +68,14 @@ def _json_path(out: Path, suite: str) -> Path:
     return out if out.suffix.lower() == ".json" else out / f"{suite}.json"
 
 
+def _suite_args(args: argparse.Namespace, suite: str, path: Path | None, *, threads: str | None) -> list[str]:
+    """The arguments of ``wcbench`` that run ``suite`` alone as ``args`` ran it, writing ``path``."""
+    out = [] if path is None else ["--out", str(path)]
+    data_root = [] if args.data_root is None else ["--data-root", str(args.data_root)]
+    threads_arg = [] if threads is None else ["--threads", threads]
+    return ["bench", suite, *data_root, *(["--quick"] if args.quick else []), *threads_arg, *out]
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the suite, print its table, write the JSON (or list the suites, or run them all)."""
     from wcbench.core.storage import check_writable_folder
@@ -110,7 +118,12 @@ def run(args: argparse.Namespace) -> int:
             options["threads"] = parse_threads(args.threads)
         except ValueError as exc:
             raise InputError(f"--threads: {exc}") from None
+    from wcbench.bench.code_version import measured_code
+    from wcbench.bench.schema import bench_command
+
+    code = measured_code(args.suite)  # the code as the suite starts, not as it may be an hour later
     report = suites.get(args.suite)(data_root=data_root_from(args.data_root), quick=args.quick, **options)
+    report.code, report.command = code, bench_command(_suite_args(args, args.suite, path, threads=args.threads))
     print(report.format_table())
     if path is not None:
         report.write(path)
@@ -124,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_all(args: argparse.Namespace, suites: LazyRegistry) -> int:
     from wcbench.bench.overview import ALL_SUITES, run_all, summarize
+    from wcbench.bench.schema import bench_command
     from wcbench.core.storage import check_writable_folder
     from wcbench.scenes.sets import data_root_from
 
@@ -136,7 +150,8 @@ def _run_all(args: argparse.Namespace, suites: LazyRegistry) -> int:
             order = [n for n in ALL_SUITES if n in suites] + [n for n in suites.names() if n not in ALL_SUITES]
             done = run_all({n: suites.get(n) for n in order}, out=out,
                            data_root=data_root_from(args.data_root), quick=args.quick,
-                           echo=lambda line: print(line, file=sys.stderr, flush=True))
+                           echo=lambda line: print(line, file=sys.stderr, flush=True),
+                           command=lambda n: bench_command(_suite_args(args, n, out / f"{n}.json", threads=None)))
     except ValueError as exc:
         raise InputError(str(exc)) from None
     print(f"wrote {out / 'summary.md'} and {len(done['charts'])} charts in {out / 'charts'}")
