@@ -80,9 +80,9 @@ def test_identical_images_give_null_psnr_with_reason(demo_scene, tmp_path):
                  "--out", str(out), "--metrics", "psnr,ssim"]) == 0
     text = (out / "results.json").read_text()
     assert "NaN" not in text and "Infinity" not in text
-    psnr = json.loads(text)["results"]["demo_street"]["clear"]["psnr"]
+    psnr = json.loads(text)["results"]["demo"]["clear"]["psnr"]
     assert psnr["value"] is None and "identical" in psnr["reason"]
-    assert json.loads(text)["results"]["demo_street"]["clear"]["ssim"]["value"] == 1.0
+    assert json.loads(text)["results"]["demo"]["clear"]["ssim"]["value"] == 1.0
 
 
 def test_changed_inputs_refuse_to_overwrite_then_overwrite(demo_scene, tmp_path, capsys):
@@ -111,7 +111,7 @@ def test_killed_run_resumes_with_identical_numbers(demo_scene, tmp_path):
     # cwd outside the source tree: `python -m` puts the cwd first on sys.path
     subprocess.run([*base, "--out", str(ref_out)], check=True, env=env, capture_output=True, cwd=tmp_path)
     proc = subprocess.Popen([*base, "--out", str(out)], env=env, stdout=subprocess.DEVNULL, cwd=tmp_path)
-    work = out / ".work" / "demo_street"
+    work = out / ".work" / "demo"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not (work.is_dir() and any(work.glob("*.json"))):
         time.sleep(0.002)
@@ -132,11 +132,11 @@ def test_run_renders_then_evaluates_and_resumes(tmp_path, capsys):
     args = ["run", "--method", "filter2d", "--scenes", "demo", "--out", str(out),
             "--weathers", "rain,fog", "--metrics", "temporal_flicker,fps"]
     assert main(args) == 0
-    info = json.loads((out / "filter2d" / "demo_street" / "rain" / "info.json").read_text())
+    info = json.loads((out / "filter2d" / "demo" / "rain" / "info.json").read_text())
     assert info["method"] == "filter2d" and len(info["frames"]) == 12
     assert info["timings"]["fps"] > 0 and info["timings"]["resolution"] == [320, 180]
     doc = json.loads((out / "results.json").read_text())
-    fps = doc["results"]["demo_street"]["rain"]["fps"]
+    fps = doc["results"]["demo"]["rain"]["fps"]
     assert fps["value"] == pytest.approx(info["timings"]["fps"])
     frames_before = {p: p.stat().st_mtime_ns for p in (out / "filter2d").rglob("*.png")}
     assert main(args) == 0
@@ -158,7 +158,7 @@ def test_identity_method_is_perfect_on_content(tmp_path):
     out = tmp_path / "id"
     assert main(["run", "--method", "identity", "--scenes", "demo", "--out", str(out), "--weathers", "clear,rain",
                  "--metrics", "ssim,temporal_flicker"]) == 0
-    res = json.loads((out / "results.json").read_text())["results"]["demo_street"]
+    res = json.loads((out / "results.json").read_text())["results"]["demo"]
     assert res["clear"]["ssim"]["value"] == 1.0
     assert res["rain"]["temporal_flicker_ratio"]["value"] == 1.0
 
@@ -196,14 +196,14 @@ def test_every_method_of_a_scene_is_scored_at_the_scenes_working_size(tmp_path):
     assert main(["run", "--method", "filter2d", "--scale", "0.5", "--out", str(tmp_path / "half"), *common]) == 0
     assert main(["run", "--method", "identity", "--out", str(tmp_path / "full"), *common]) == 0
     half, full = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("half", "full"))
-    rule = {"rule": "scene working size", "sizes": {"demo_street": [320, 180]}}
+    rule = {"rule": "scene working size", "sizes": {"demo": [320, 180]}}
     assert half["config"]["scored_at"] == full["config"]["scored_at"] == rule
     [record] = half["working_size"]
     assert (record["from"], record["to"], record["predictions"]) == ([320, 180], [320, 180], [160, 90])
     assert record["predictions_resized"] and record["rule"] == "scene working size"
     assert "bicubic" in record["interpolation"]
     assert full["working_size"] == []
-    h, f = (d["results"]["demo_street"]["rain"] for d in (half, full))
+    h, f = (d["results"]["demo"]["rain"] for d in (half, full))
     assert {o: r["variant"] for o, r in h.items()} == {o: r["variant"] for o, r in f.items()}
     assert not any("scored at" in r["variant"] for r in h.values())
     assert len(h["temporal_flicker"]["per_frame"]) == 3
@@ -212,10 +212,10 @@ def test_every_method_of_a_scene_is_scored_at_the_scenes_working_size(tmp_path):
     assert main(["evaluate", "--method", "filter2d", "--predictions", str(tmp_path / "half" / "filter2d"),
                  "--scale", "0.5", "--out", str(tmp_path / "asked"), *common]) == 0
     asked = json.loads((tmp_path / "asked" / "results.json").read_text())
-    assert asked["config"]["scored_at"] == {"rule": "asked", "sizes": {"demo_street": [160, 90]}}
+    assert asked["config"]["scored_at"] == {"rule": "asked", "sizes": {"demo": [160, 90]}}
     [record] = asked["working_size"]
     assert (record["to"], record["predictions_resized"], record["rule"]) == ([160, 90], False, "asked")
-    assert asked["results"]["demo_street"]["rain"]["temporal_flicker"]["variant"].endswith("; scored at 160x90")
+    assert asked["results"]["demo"]["rain"]["temporal_flicker"]["variant"].endswith("; scored at 160x90")
 
 
 def test_results_scored_under_the_earlier_size_rule_are_never_served_as_up_to_date(tmp_path, capsys):
@@ -288,9 +288,9 @@ def test_results_carry_the_raw_frames_scored_against_a_truth(tmp_path, monkeypat
     assert main(["run", "--method", "identity", "--scenes", "demo", "--out", str(out), "--weathers", "rain",
                      "clear", "--metrics", "psnr", "ssim", "--no-progress"]) == 0
     doc = json.loads((out / "results.json").read_text())
-    raw = doc["raw_frames"]["demo_street"]
+    raw = doc["raw_frames"]["demo"]
     assert set(raw) == {"rain"}  # clear's truth is the raw frames themselves: no yardstick row
     for output in ("psnr", "ssim"):
-        scored = doc["results"]["demo_street"]["rain"][output]["value"]
+        scored = doc["results"]["demo"]["rain"][output]["value"]
         assert raw["rain"][output]["value"] == pytest.approx(scored, rel=1e-9)
         assert 0 < scored < (1.0 if output == "ssim" else 60.0)  # a real comparison, not frames with themselves

@@ -177,7 +177,7 @@ def test_a_frame_selection_reads_only_those_frames(demo_scene, tmp_path):
         match_predictions(demo_scene, "rain", root, frames=[2, 3, 4, 5])
     with pytest.raises(InputError, match="one contiguous run of frames"):
         match_predictions(demo_scene, "rain", root, frames=[2, 4, 5])
-    with pytest.raises(InputError, match=r"frame 12 is beyond the 12 frames \(0-11\) of scene 'demo_street'"):
+    with pytest.raises(InputError, match=r"frame 12 is beyond the 12 frames \(0-11\) of scene 'demo'"):
         match_predictions(demo_scene, "rain", root, frames=[10, 11, 12])
 
 

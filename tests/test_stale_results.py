@@ -31,7 +31,7 @@ def test_another_fps_is_not_served_from_the_cache(preds, tmp_path):
     out = tmp_path / "out"
     assert main(_args(preds, out, "--fps", "10")) == 0
     assert main(_args(preds, out, "--fps", "25", "--overwrite")) == 0
-    assert _doc(out)["results"]["demo_street"]["rain"]["fps"]["value"] == 25.0
+    assert _doc(out)["results"]["demo"]["rain"]["fps"]["value"] == 25.0
 
 
 def test_an_edited_info_json_is_not_up_to_date(preds, tmp_path, capsys):
@@ -43,14 +43,14 @@ def test_an_edited_info_json_is_not_up_to_date(preds, tmp_path, capsys):
     assert main(_args(preds, out)) == 2  # other inputs: never replaced silently
     assert "other inputs" in capsys.readouterr().err
     assert main(_args(preds, out, "--overwrite")) == 0
-    assert _doc(out)["results"]["demo_street"]["rain"]["fps"]["value"] == 7.0
+    assert _doc(out)["results"]["demo"]["rain"]["fps"]["value"] == 7.0
 
 
 def test_an_edited_unit_file_is_recomputed(preds, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(_args(preds, out)) == 0
-    truth = _doc(out)["results"]["demo_street"]["rain"]["temporal_flicker"]["value"]
-    unit = out / ".work" / "demo_street" / "rain.json"
+    truth = _doc(out)["results"]["demo"]["rain"]["temporal_flicker"]["value"]
+    unit = out / ".work" / "demo" / "rain.json"
     rec = json.loads(unit.read_text())
     rec["result"]["outputs"]["temporal_flicker"]["value"] = 123.0
     unit.write_text(json.dumps(rec))
@@ -58,7 +58,7 @@ def test_an_edited_unit_file_is_recomputed(preds, tmp_path, capsys):
     capsys.readouterr()
     assert main(_args(preds, out)) == 0
     assert "1 computed, 1 reused" in capsys.readouterr().out
-    assert _doc(out)["results"]["demo_street"]["rain"]["temporal_flicker"]["value"] == truth
+    assert _doc(out)["results"]["demo"]["rain"]["temporal_flicker"]["value"] == truth
     unit.write_text("[1, 2, 3]")  # not even a unit file: recomputed as well
     (out / "results.json").unlink()
     assert main(_args(preds, out)) == 0
@@ -69,13 +69,13 @@ def test_an_edited_results_json_is_rebuilt_not_served(preds, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(_args(preds, out)) == 0
     doc = _doc(out)
-    truth = doc["results"]["demo_street"]["rain"]["temporal_flicker"]["value"]
-    doc["results"]["demo_street"]["rain"]["temporal_flicker"]["value"] = 0.0
+    truth = doc["results"]["demo"]["rain"]["temporal_flicker"]["value"]
+    doc["results"]["demo"]["rain"]["temporal_flicker"]["value"] = 0.0
     (out / "results.json").write_text(json.dumps(doc))
     capsys.readouterr()
     assert main(_args(preds, out)) == 0
     assert "up to date" not in capsys.readouterr().out
-    assert _doc(out)["results"]["demo_street"]["rain"]["temporal_flicker"]["value"] == truth
+    assert _doc(out)["results"]["demo"]["rain"]["temporal_flicker"]["value"] == truth
     assert main(_args(preds, out)) == 0
     assert "up to date" in capsys.readouterr().out  # intact again
 

@@ -48,7 +48,7 @@ def test_supervision_cases_compare_per_weather_and_in_the_mean(monkeypatch, tmp_
     import wcbench.bench.validity as validity
 
     def doc(psnr: dict[str, float], flicker: dict[str, float]) -> dict:
-        return {"results": {"synth_000": {w: {"psnr": {"value": psnr[w]}, "temporal_flicker": {"value": flicker[w]},
+        return {"results": {"synth_1": {w: {"psnr": {"value": psnr[w]}, "temporal_flicker": {"value": flicker[w]},
                                               "lpips": {"value": 0.1}} for w in psnr}}}
 
     calls = []
@@ -67,7 +67,7 @@ def test_supervision_cases_compare_per_weather_and_in_the_mean(monkeypatch, tmp_
     # only the supervisions whose editor entry ran get a case (here sim-editor 0.5)
     assert [c.name for c in cases] == ["supervised_sim-editor_0.5"]
     assert calls == [("weathercity_sim-editor_0.5", "weathercity",
-                      {"supervision": "sim-editor:0.5", "profile": "default", "weathers": "truth"},
+                      {"supervision": "sim-editor:0.5", "profile": "default", "physics": "truth"},
                       ("clear", "rain", "snow", "fog"))]
     x = cases[0].extra
     assert x["psnr_clear_vs_raw"] == pytest.approx(34.0)  # the clear unit stays out of the weathers' means

@@ -191,7 +191,7 @@ def test_metric_option_reaches_the_metric(preds, tmp_path):
                  "--metrics", "flow_warping_error", "--metric-option", "flow_warping_error.flow=farneback"]) == 0
     doc = json.loads((out / "results.json").read_text())
     assert doc["config"]["metric_config"]["flow_warping_error"]["config"] == {"flow": "farneback"}
-    assert "farneback" in doc["results"]["demo_street"]["rain"]["flow_warping_error"]["variant"]
+    assert "farneback" in doc["results"]["demo"]["rain"]["flow_warping_error"]["variant"]
 
 
 def test_an_unknown_method_is_reported_before_a_missing_out(capsys):

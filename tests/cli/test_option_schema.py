@@ -173,13 +173,13 @@ ROWS = [
     (["run", "--method", "weathercity", "--method-option", "settings.iterations=-3"],
      "settings.iterations=-3: expected an integer >= 1"),
     (["train", "--method-option", "settings.iterations=-3"], "settings.iterations=-3: expected an integer >= 1"),
-    (["run", "--method", "lidar-init", "--method-option", "weathers=truth"], "truth/weather.json: not found"),
+    (["run", "--method", "lidar-init", "--method-option", "physics=truth"], "truth/weather.json: not found"),
     (["run", "--method", "weathercity", "--profile", "quick", "--ablation", "no-content-loss",
       "--edit", "remove class=Unicorn"],
      "'Unicorn']}: selects no object"),
     (["run", "--method", "weathercity", "--supervision", "foo"], "weathercity option supervision=foo: expected"),
     (["run", "--method", "identity", "--frames", "0-99"],
-     "frames 12-99 are beyond the 12 frames (0-11) of scene 'demo_street'"),
+     "frames 12-99 are beyond the 12 frames (0-11) of scene 'demo'"),
     (["render", "--weathers", "rain", "--frames", "0-99"], "frames 12-99 are beyond the 12 frames (0-11) of the scene"),
 ]
 

@@ -100,14 +100,33 @@ def test_cli_parses_frames_and_rejects_bad_input() -> None:
         _weather(args, "fog")
 
 
-def test_method_option_that_render_sets_itself_is_refused_by_name(tmp_path, capsys):
+@pytest.mark.parametrize("name", ["physics", "weathers"])  # weathers: the old name of physics
+def test_method_option_that_render_sets_itself_is_refused_by_name(tmp_path, capsys, name):
     from wcbench.cli import main
 
     code = main(["render", "--scenes", "demo", "--weathers", "rain", "--out", str(tmp_path), "--no-progress",
-                 "--method-option", "weathers={}"])
+                 "--method-option", f"{name}={{}}"])
     assert code == 2
-    assert "--method-option weathers: set by render's own options" in capsys.readouterr().err
+    # named as given, in one line (no deprecation line before the refusal)
+    assert capsys.readouterr().err.strip().endswith(f"--method-option {name}: set by render's own options "
+                                                    "(--weathers/--preset..., --voxel, --init-frames)")
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("method", ["lidar-init", "weathercity"])
+def test_weather_options_with_clear_alone_are_refused_naming_them(tmp_path, capsys, method):
+    """``--weathers clear`` has no physics weather: the weather options the user gave are named, not
+    an option the user never gave (the ``physics`` dict render would build from them)."""
+    from wcbench.cli import main
+
+    code = main(["render", "--method", method, "--scenes", "demo", "--weathers", "clear", "--preset", "heavy",
+                 "--fog-mode", "postprocess", "--out", str(tmp_path / "o"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert err.endswith("--preset, --fog-mode: --weathers clear has no weather to set; the weather options "
+                        "apply to rain, snow and fog"), err
+    assert "physics" not in err and "weathers[" not in err
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_render_of_some_frames_is_evaluated_as_is(tmp_path: Path, capsys) -> None:

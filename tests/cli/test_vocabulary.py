@@ -129,9 +129,9 @@ def test_method_option_keys_nest_and_a_key_given_twice_is_refused(capsys: pytest
     args = build_parser().parse_args([
         "run", "--method", "weathercity", "--scenes", "demo", "--out", "o",
         "--method-option", 'settings={"budget": 9}', "--method-option", "settings.iterations=500",
-        "--method-option", "weathers.rain.preset=heavy", "--method-option", "holdout=3-5"])
+        "--method-option", "physics.rain.preset=heavy", "--method-option", "holdout=3-5"])
     assert method_options_from(args) == {"settings": {"budget": 9, "iterations": 500},
-                                         "weathers": {"rain": {"preset": "heavy"}}, "holdout": [3, 4, 5]}
+                                         "physics": {"rain": {"preset": "heavy"}}, "holdout": [3, 4, 5]}
     args = build_parser().parse_args(["run", "--method", "weathercity", "--scenes", "demo", "--out", "o",
                                       "--profile", "quick", "--method-option", "profile=default"])
     with pytest.raises(InputError, match="method option profile given twice: as --profile and as --method-option"):

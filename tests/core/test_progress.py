@@ -66,17 +66,17 @@ def test_time_left_comes_from_the_steady_items_not_the_slow_first_ones(piped, mo
     clock = iter(readings)
     monkeypatch.setattr(progress_module.time, "perf_counter", lambda: next(clock))
     monkeypatch.setenv("WCBENCH_PROGRESS_INTERVAL", "1e-9")
-    bar = Progress(range(300), desc="training synth_000", total=300, unit="step", bar=False,
+    bar = Progress(range(300), desc="training synth_1", total=300, unit="step", bar=False,
                    starting="300 steps; the first compiles")
     for _ in range(9):
         bar.advance()
     lines = capsys.readouterr().err.strip().splitlines()
-    assert lines[0] == "training synth_000: 300 steps; the first compiles"  # said before any step
-    assert lines[1] == "training synth_000: 1/300 steps, 8.6 s, time left: estimating"
+    assert lines[0] == "training synth_1: 300 steps; the first compiles"  # said before any step
+    assert lines[1] == "training synth_1: 1/300 steps, 8.6 s, time left: estimating"
     assert all(line.endswith("time left: estimating") for line in lines[1:8])  # fewer than 6 steady steps
     # 8 steps: 6 steady ones of 0.1 s (the 4.5 s second step is warm-up), times the 292 left
-    assert lines[8] == "training synth_000: 8/300 steps, 13.7 s, about 29.2 s left"
-    assert lines[9] == "training synth_000: 9/300 steps, 13.8 s, about 29.1 s left"
+    assert lines[8] == "training synth_1: 8/300 steps, 13.7 s, about 29.2 s left"
+    assert lines[9] == "training synth_1: 9/300 steps, 13.8 s, about 29.1 s left"
 
 
 def _replay(times, kinds, *, every):

@@ -67,7 +67,7 @@ def test_dask_scores_every_unit_as_the_local_executor_does(two_scenes, cluster, 
         # rendered on the cluster too: the same frames, so the same numbers but the timings
         ran = evaluate(_cfg(method, two_scenes, tmp_path / "run" / method, render=True), executor=cluster)
         assert _numbers(ran.results, timed=False) == _numbers(local.results, timed=False)
-        for scene in ("demo_street", "demo_copy"):
+        for scene in ("demo", "demo_copy"):
             for w in WEATHERS:
                 a = json.loads((preds / scene / w / "info.json").read_text())["frames"]
                 b = json.loads((tmp_path / "run" / method / method / scene / w / "info.json").read_text())["frames"]
@@ -151,7 +151,11 @@ def test_cli_options_of_the_executor(tmp_path, capsys):
 
 def test_two_scene_ids_that_clash_are_refused(tmp_path):
     demo = resolve_scenes("demo")[0].path
-    with pytest.raises(InputError, match="more than once"):
+    copy = tmp_path / "demo"  # another folder, whose id is the set's scene's
+    shutil.copytree(demo, copy)
+    with pytest.raises(InputError, match=r"scene ids \['demo'\] come up more than once"):
+        resolve_scenes(f"{copy},demo")
+    with pytest.raises(InputError, match="one scene folder given twice"):  # one folder, two names
         resolve_scenes(f"{demo},demo")
 
 

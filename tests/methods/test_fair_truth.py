@@ -21,7 +21,7 @@ from wcbench.methods import get_method
 from wcbench.methods.filter2d import Filter2DMethod, fog_filter
 from wcbench.methods.weather_spec import (
     EDITED,
-    parse_weathers,
+    parse_physics,
     physics_record,
     requested_fields,
     resolve_physics,
@@ -58,7 +58,7 @@ def test_no_resolved_weather_carries_the_truths_seed(synth: Scene, option, seed)
     """Whatever the option, with the default seed or a given one: the run's seed, never the truth's."""
     truth = _truth(synth)
     assert {truth[k]["seed"] for k in EDITED} == {1001}
-    parsed = parse_weathers(option, who="test")
+    parsed = parse_physics(option, who="test")
     physics = resolve_physics(synth, parsed) if seed is None else resolve_physics(synth, parsed, seed=seed)
     for kind, weather in physics.items():
         assert weather.seed == (0 if seed is None else seed), kind
@@ -89,21 +89,21 @@ def test_the_truths_record_keeps_its_seed_but_resolution_drops_it(synth: Scene) 
     # a method that draws no particles may take that run seed: nothing of the truth is drawn
     assert resolve_physics(synth, "auto", seed=1001, draws=False)["fog"].seed == 1001
     # asked for by name, it is rendered and recorded as the truth's draw
-    named = parse_weathers({"rain": {"preset": "heavy", "seed": 1001}}, who="test")
+    named = parse_physics({"rain": {"preset": "heavy", "seed": 1001}}, who="test")
     rain = resolve_physics(synth, named, seed=0)["rain"]
     assert rain.seed == 1001
     record = truth_draw(synth, rain, option=named)
-    assert record["used"] is True and record["seed_from"] == "weathers option"
+    assert record["used"] is True and record["seed_from"] == "physics option"
     assert truth_draw(synth, resolve_physics(synth, "auto")["rain"], option="auto") == {
         "used": False, "particle_seed": 0, "truth_particle_seed": 1001, "seed_from": "run",
         "note": "no ground-truth frame, particle seed or other random draw of the truth"}
 
 
-def test_weathers_truth_needs_the_record_and_a_named_seed_is_checked(demo_scene: Scene) -> None:
+def test_physics_truth_needs_the_record_and_a_named_seed_is_checked(demo_scene: Scene) -> None:
     with pytest.raises(InputError, match=r"truth[/\\]weather\.json: not found"):
         resolve_physics(demo_scene, "truth")
-    with pytest.raises(InputError, match=r"weathers\['rain'\]: seed must be an integer >= 0"):
-        parse_weathers({"rain": {"seed": -1}}, who="test")
+    with pytest.raises(InputError, match=r"physics\['rain'\]: seed must be an integer >= 0"):
+        parse_physics({"rain": {"seed": -1}}, who="test")
     # no record: nothing to refuse, any run seed draws the presets
     assert resolve_physics(demo_scene, "auto", seed=1001)["rain"] == Weather(kind="rain", seed=1001)
 
@@ -219,7 +219,7 @@ def test_weathercity_physics_and_truth_draw_without_training(synth: Scene) -> No
     assert wc.truth_draw(synth, "snow", seed=0)["used"] is False
     assert all(w.seed == 0 for w in wc.training_physics(synth).values())  # the model serves every seed
     # `wcbench train` trains with the same physics, so that `run` finds its model
-    assert resolve_physics(synth, parse_weathers(None, who="train"), seed=0, draws=False) == wc.training_physics(synth)
+    assert resolve_physics(synth, parse_physics(None, who="train"), seed=0, draws=False) == wc.training_physics(synth)
     with pytest.raises(InputError, match="draw the truth's own particles"):
         wc.physics(synth, "rain", seed=1001)
     # trained on the simulated editor's edits of the truth frames: said so

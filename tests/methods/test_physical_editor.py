@@ -17,7 +17,7 @@ pytest.importorskip("torch")
 
 from wcbench.methods.weather_spec import (
     check_consistent,
-    parse_weathers,
+    parse_physics,
     physics_record,
     resolve_physics,
 )
@@ -30,10 +30,10 @@ def test_run_edits_every_weather_without_flicker_and_records_its_physics(tmp_pat
     args = ["run", "--method", "physical-editor", "--scenes", "demo", "--out", str(out), "--no-progress",
             "--metrics", "temporal_flicker"]
     assert main(args) == 0
-    root = out / "physical-editor" / "demo_street"
+    root = out / "physical-editor" / "demo"
     # the demo street is 320x180, under the editor's 480 px: edited at its own size, clear is the raw frame
     np.testing.assert_array_equal(read_rgb8(root / "clear" / "003.png"), read_rgb8(demo_scene.frames[3].image_path))
-    results = json.loads((out / "results.json").read_text())["results"]["demo_street"]
+    results = json.loads((out / "results.json").read_text())["results"]["demo"]
     for kind in ("rain", "snow", "fog"):
         info = json.loads((root / kind / "info.json").read_text())
         physics = info["parameters"]["physics"]
@@ -71,15 +71,15 @@ def test_a_scene_without_lidar_exits_2_naming_what_is_missing(tmp_path, demo_sce
     assert not list(out.rglob("*.png"))
 
 
-def test_weathers_option_and_resolution(demo_scene):
-    assert parse_weathers(None, who="m") == "auto"
-    with pytest.raises(InputError, match="'auto', 'truth', 'presets'"):
-        parse_weathers("sunny", who="m")
-    with pytest.raises(InputError, match=r"weathers\['hail'\]: not an edited weather"):
-        parse_weathers({"hail": {}}, who="m")
-    with pytest.raises(InputError, match=r"weathers\['rain'\]"):
-        parse_weathers({"rain": {"rate_mm_h": -1}}, who="m")
-    given = parse_weathers({"fog": {"visibility_m": 60}}, who="m")
+def test_physics_option_and_resolution(demo_scene):
+    assert parse_physics(None, who="m") == "auto"
+    with pytest.raises(InputError, match="m: physics must be 'auto', 'truth', 'presets'"):
+        parse_physics("sunny", who="m")
+    with pytest.raises(InputError, match=r"physics\['hail'\]: not an edited weather"):
+        parse_physics({"hail": {}}, who="m")
+    with pytest.raises(InputError, match=r"physics\['rain'\]"):
+        parse_physics({"rain": {"rate_mm_h": -1}}, who="m")
+    given = parse_physics({"fog": {"visibility_m": 60}}, who="m")
     physics = resolve_physics(demo_scene, given, seed=5)
     assert physics["fog"].visibility_m == 60 and physics["rain"] == Weather(kind="rain", seed=5)
     # "auto" on a scene that records no weather: the presets
@@ -118,7 +118,7 @@ def test_weathercity_supervision_is_checked_against_its_physics(tmp_path, demo_s
     assert np.abs(frames["fog"][4].astype(float) - own.astype(float)).mean() > 1.0
     # a folder of edits that records its weather: the same physics reads as consistent...
     edits = tmp_path / "edits"
-    editor = get_method("physical-editor", weathers={"fog": {"visibility_m": 60.0}})
+    editor = get_method("physical-editor", physics={"fog": {"visibility_m": 60.0}})
     editor.render(demo_scene, "fog", edits / "fog", show_progress=False)
     with pytest.raises(InputError, match=r"fog[/\\]info\.json: its fog was made with visibility 60 m, the run's "
                                          r"physics fog has visibility 150 m"):

@@ -22,8 +22,8 @@ def test_render_and_run_give_identical_frames(tmp_path: Path, capsys: pytest.Cap
     assert main(["render", "--scenes", "demo", "--weathers", "rain", "--out", str(render_out),
                  "--no-video", "--no-progress"]) == 0
     capsys.readouterr()
-    a = run_out / "lidar-init" / "demo_street" / "rain"
-    b = render_out / "lidar-init" / "demo_street" / "rain"
+    a = run_out / "lidar-init" / "demo" / "rain"
+    b = render_out / "lidar-init" / "demo" / "rain"
     frames = sorted(p.name for p in a.glob("*.png"))
     assert len(frames) == 12 and frames == sorted(p.name for p in b.glob("*.png"))
     for name in frames:
@@ -38,13 +38,13 @@ def test_render_refuses_a_method_without_physics_weather(tmp_path: Path, capsys:
     code = main(["render", "--method", "filter2d", "--scenes", "demo", "--weathers", "rain", "--out", str(tmp_path)])
     assert code == 2
     err = capsys.readouterr().err
-    assert "method 'filter2d' takes no option weathers" in err
+    assert "method 'filter2d' takes no option physics" in err
     assert not any(tmp_path.iterdir())
 
 
 def test_method_options_are_checked_before_construction() -> None:
     pytest.importorskip("torch")  # lidar-init is a reference-model method
-    assert {"weathers", "size", "scale", "voxel_m", "init_frames"} <= set(method_options("lidar-init"))
+    assert {"physics", "size", "scale", "voxel_m", "init_frames"} <= set(method_options("lidar-init"))
     assert method_options("identity") == []
     with pytest.raises(InputError, match="takes no option voxel"):
         get_method("filter2d", voxel=0.1)
@@ -54,7 +54,7 @@ def test_run_sizes_a_two_dimensional_method_too(tmp_path: Path, capsys: pytest.C
     out = tmp_path / "run"
     assert main(["run", "--method", "filter2d", "--scenes", "demo", "--weathers", "rain", "--scale", "0.5",
                  "--frames", "0-3", "--metrics", "temporal_flicker", "--out", str(out), "--no-progress"]) == 0
-    info = json.loads((out / "filter2d" / "demo_street" / "rain" / "info.json").read_text())
+    info = json.loads((out / "filter2d" / "demo" / "rain" / "info.json").read_text())
     assert info["size"] == [160, 90] and [f["index"] for f in info["frames"]] == [0, 1, 2, 3]
     doc = json.loads((out / "results.json").read_text())
     # rendered at 160x90, scored at the scene's working size like every other method of the scene

@@ -152,9 +152,9 @@ def test_a_scene_without_truth_is_refused_by_name(demo_scene, tmp_path, capsys):
     # clear needs no references: its truth is the raw frames
     assert main(["run", "--method", "sim-editor", "--scenes", "demo", "--weathers", "clear", "--frames", "0-3",
                  "--metrics", "psnr", "--method-option", "severity=0.5", "--out", str(out), "--no-progress"]) == 0
-    info = json.loads((out / "sim-editor" / "demo_street" / "clear" / "info.json").read_text())
+    info = json.loads((out / "sim-editor" / "demo" / "clear" / "info.json").read_text())
     assert info["parameters"]["severity"] == 0.5 and info["frames"][0]["info"]["warp"] == ["lane lines"]
-    psnr = json.loads((out / "results.json").read_text())["results"]["demo_street"]["clear"]["psnr"]["value"]
+    psnr = json.loads((out / "results.json").read_text())["results"]["demo"]["clear"]["psnr"]["value"]
     assert 20 < psnr < 40
 
 

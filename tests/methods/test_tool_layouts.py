@@ -149,7 +149,7 @@ def test_turboedit_output_tree_scores_as_written(demo_scene, tmp_path, capsys):
                              "--out", str(out), *CHEAP)
     assert code == 0, err
     doc = _results(out)
-    res = doc["results"]["demo_street"]
+    res = doc["results"]["demo"]
     assert set(res) == {"rain", "snow"}
     assert len(res["rain"]["temporal_flicker"]["per_frame"]) == len(frames) - 1
     assert res["rain"]["fps"]["value"] == 2.5
@@ -157,7 +157,7 @@ def test_turboedit_output_tree_scores_as_written(demo_scene, tmp_path, capsys):
     assert {(s["weather"], s["metric"]) for s in doc["skipped"]} == {("rain", "psnr"), ("snow", "psnr")}
     # the preset declares that TurboEdit resizes: resized once, recorded with the interpolation
     assert doc["resized"] == [
-        {"scene": "demo_street", "weather": w, "from": [[512, 512]], "to": [320, 180],
+        {"scene": "demo", "weather": w, "from": [[512, 512]], "to": [320, 180],
          "interpolation": doc["config"]["resize_interpolation"]} for w in ("rain", "snow")]
     assert "INTER_AREA" in doc["config"]["resize_interpolation"]
     assert doc["partial"] == [] and doc["warnings"] == []
@@ -356,11 +356,11 @@ def test_climatenerf_results_tree_ignores_depth_maps_and_reads_smog_as_fog(demo_
                              "--out", str(out), *CHEAP)
     assert code == 0, err
     doc = _results(out)
-    assert sorted(doc["results"]["demo_street"]) == ["fog", "snow"]
-    fog = doc["inputs"]["scenes"]["demo_street"]["fog"]
+    assert sorted(doc["results"]["demo"]) == ["fog", "snow"]
+    fog = doc["inputs"]["scenes"]["demo"]["fog"]
     assert fog["location"] == str(results / "demo_street" / "smog" / "frames")
     assert fog["ignored"] == [f"{i:03d}-depth.png" for i in range(12)]
-    assert doc["config"]["scene_folders"]["demo_street"]["matched"] == "demo_street"
+    assert doc["config"]["scene_folders"]["demo"]["matched"] == "demo_street"
     # the same folder read without the ignore rule: the depth siblings are extra files
     with pytest.raises(InputError, match=r"extra files \['000-depth.png'"):
         match_predictions(demo_scene, "snow", results / "demo_street", pattern="{weather}/frames/{frame}-rgb.png")
@@ -505,7 +505,7 @@ def test_controlnet_documented_convention(demo_scene, tmp_path, capsys):
                              "--out", str(out), *CHEAP)
     assert code == 0, err
     doc = _results(out)
-    assert list(doc["results"]["demo_street"]) == ["snow"]
+    assert list(doc["results"]["demo"]) == ["snow"]
     assert doc["resized"][0]["from"] == [[896, 512]]
     assert main(["methods", "list", "-v"]) == 0
     listing = capsys.readouterr().out

@@ -27,7 +27,7 @@ def test_run_weathercity_trains_renders_at_its_resolution_scores_and_records_tra
             "--weathers", "clear", "fog", "--metrics", "psnr", "fps", "--no-progress",
             "--method-option", f"settings={TINY}", "--method-option", "holdout=[5]"]
     assert main(args) == 0
-    info = json.loads((out / "weathercity" / "demo_street" / "fog" / "info.json").read_text())
+    info = json.loads((out / "weathercity" / "demo" / "fog" / "info.json").read_text())
     assert info["size"] == [96, 54]
     assert info["timings"]["train_s"] > 0
     # the physics it rendered (the fog preset: the demo records no weather), and no draw of a truth
@@ -40,7 +40,7 @@ def test_run_weathercity_trains_renders_at_its_resolution_scores_and_records_tra
     assert training["content_loss"].startswith("skipped:")  # no VGG16 in the test's model store
     assert np.isfinite(training["holdout"]["mean_psnr"])
     results = json.loads((out / "results.json").read_text())
-    clear = results["results"]["demo_street"]["clear"]
+    clear = results["results"]["demo"]["clear"]
     # the trained model's 96x54 frames against the raw ones at the scene's working size, as every
     # method's (20.3 dB here: enlarged 3.3x, they lack the raw frames' detail)
     assert clear["psnr"]["value"] > 18.0
@@ -48,7 +48,7 @@ def test_run_weathercity_trains_renders_at_its_resolution_scores_and_records_tra
         ("clear", [96, 54], [320, 180])]  # fog: only FPS, which reads no frames
     # a second run finds the finished frames: nothing is trained or rendered again
     assert main(args) == 0
-    again = json.loads((out / "weathercity" / "demo_street" / "fog" / "info.json").read_text())
+    again = json.loads((out / "weathercity" / "demo" / "fog" / "info.json").read_text())
     assert again["timings"]["train_s"] == info["timings"]["train_s"]
     assert json.loads((out / "results.json").read_text())["results"] == results["results"]
 
@@ -60,12 +60,12 @@ def test_train_cli_writes_facts_and_a_second_call_loads_the_checkpoint(tmp_path,
             "--checkpoint", str(tmp_path / "ckpt"), "--holdout", "5"]
     args += [f"--setting={k}={json.dumps(v)}" for k, v in json.loads(TINY).items()]
     assert main(args) == 0
-    facts = json.loads((tmp_path / "t" / "demo_street" / "training.json").read_text())
+    facts = json.loads((tmp_path / "t" / "demo" / "training.json").read_text())
     assert facts["iterations"] == 24 and facts["resumed_at"] == 0
     assert (tmp_path / "ckpt" / "checkpoint.json").is_file()
     assert "held-out PSNR" in capsys.readouterr().out
     assert main(args) == 0
-    again = json.loads((tmp_path / "t" / "demo_street" / "training.json").read_text())
+    again = json.loads((tmp_path / "t" / "demo" / "training.json").read_text())
     assert again["resumed_at"] == 24 and again["train_seconds"] == facts["train_seconds"]
 
 
@@ -186,6 +186,6 @@ def test_two_processes_training_one_model_train_once_and_the_second_loads_it(tmp
     assert loaded["train_seconds"] == trained["train_seconds"] and loaded["checkpoint"] == trained["checkpoint"]
     assert loaded["model"] == trained["model"]  # the same model, parameter for parameter
     waits = [m for m in loaded["said"] if "waiting for another process" in m]
-    assert len(waits) == 1 and f"training demo_street (pid {trained['pid']}, since " in waits[0]
+    assert len(waits) == 1 and f"training demo (pid {trained['pid']}, since " in waits[0]
     assert not [m for m in trained["said"] if "waiting" in m]
     assert trained["lock_wait_seconds"] == 0 and loaded["lock_wait_seconds"] > 0

@@ -314,8 +314,8 @@ def test_real_run_with_report_flag_writes_a_report_beside_results(tmp_path, caps
     assert main(["run", "--method", "filter2d", "--scenes", "demo", "--out", str(out), "--weathers", "rain",
                  "clear", "--metrics", "temporal_flicker", "psnr", "fps", "--no-progress", "--report"]) == 0
     assert "report.html" in capsys.readouterr().out
-    files = json.loads((out / "results.json").read_text())["inputs"]["files"]["demo_street"]
-    assert files["weathers"]["rain"]["predictions"][0] == "filter2d/demo_street/rain/000.png"  # inside: relative
+    files = json.loads((out / "results.json").read_text())["inputs"]["files"]["demo"]
+    assert files["weathers"]["rain"]["predictions"][0] == "filter2d/demo/rain/000.png"  # inside: relative
     assert Path(files["source"][0]).is_absolute() and files["size"] == [320, 180]
     parsed = parse_report(out / "report.html")
     values = result_values([out])
@@ -355,10 +355,10 @@ def test_the_readme_report_example_gives_a_report_without_a_flag(tmp_path, capsy
     [record] = [r for r in lidar["working_size"] if r["weather"] == "rain"]
     assert (record["predictions"], record["to"], record["predictions_resized"]) == ([80, 45], [320, 180], True)
     # said as a fact, not a flag
-    assert "demo_street (320x180 frames) scored at 320x180; lidar-init's 80x45 frames resized to it." \
+    assert "demo (320x180 frames) scored at 320x180; lidar-init's 80x45 frames resized to it." \
         in html.unescape(page)
     # FPS stays the method's own: measured at the size it renders at, shown in the runtime table
-    assert lidar["results"]["demo_street"]["rain"]["fps"]["extra"]["resolution"] == [80, 45]
+    assert lidar["results"]["demo"]["rain"]["fps"]["extra"]["resolution"] == [80, 45]
     assert "<td>80x45</td>" in page
 
 

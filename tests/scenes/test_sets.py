@@ -74,3 +74,41 @@ def test_a_name_of_two_scenes_is_refused():
                                          r"'2': nuscenes_002, pandaset_002\)"):
         check_scene_names("mixed", refs)
     check_scene_names("one", refs[1:])
+
+
+def test_a_one_scene_set_calls_its_scene_by_the_sets_name():
+    """``--scenes synth_1`` runs scene ``synth_1`` (progress lines, <out>/<method>/<scene>/, results,
+    report), not the generator's folder name: every built-in set of one scene does (docs/design.md §3)."""
+    from wcbench.scenes.sets import _specs
+
+    single = {name: spec["scenes"][0] for name, spec in _specs().items() if len(spec["scenes"]) == 1}
+    assert {"demo", "synth_1", "synth_hard_1", "pandaset_002"} <= set(single)
+    for name, scene in single.items():
+        assert scene["id"] == name, (name, scene)
+    # the data folders keep the generators' names: the scene's other name, which a prediction folder may carry
+    assert {name: scene["path"] for name, scene in single.items() if scene["path"] != name} == {
+        "demo": "demo_street", "synth_1": "synth_000", "synth_hard_1": "synth_hard_000"}
+    # a set of several scenes calls each by the data's name for it, each a different one
+    for name, spec in _specs().items():
+        ids = [s["id"] for s in spec["scenes"]]
+        assert len(set(ids)) == len(ids) and (len(ids) == 1 or name not in ids), name
+
+
+def test_the_demo_scene_is_named_demo_and_its_folder_still_matches(demo_scene, tmp_path):
+    from wcbench.predictions import find_scene_folder
+
+    [ref] = resolve_scenes("demo")
+    assert ref.id == demo_scene.id == "demo" and ref.path.name == "demo_street"
+    # predictions written under the folder's name (an older run's layout) are still this scene's
+    (tmp_path / "demo_street" / "rain").mkdir(parents=True)
+    found = find_scene_folder(tmp_path, ref, n_scenes=2)
+    assert (found.scene_id, found.path.name, found.matched) == ("demo", "demo_street", "demo_street")
+
+
+def test_one_scene_folder_under_two_names_is_refused():
+    """``demo`` and its folder by path are one scene (as ``synth_1`` is ``synth_3``'s first): given
+    twice it would be rendered and scored twice under two names."""
+    [ref] = resolve_scenes("demo")
+    with pytest.raises(InputError, match=r"one scene folder given twice \(.*demo_street as demo, demo_street\); "
+                                         r"give it once"):
+        resolve_scenes(f"demo,{ref.path}")

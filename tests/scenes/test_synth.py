@@ -108,7 +108,11 @@ def test_synth_sets_are_listed_and_generated_once(synth_env):
     marker = synth_env / "scenes" / f"synth-v{synth.VERSION}" / "synth_000" / layout.MARKER
     before = marker.stat().st_mtime_ns
     s = get_scene_set("synth_1")
-    assert [r.id for r in s.scenes] == ["synth_000"] and s.scenes[0].path == marker.parent
+    # called by the set's name, the one the user gives (its folder: synth_000, synth_3's first scene)
+    assert [r.id for r in s.scenes] == ["synth_1"] and s.scenes[0].path == marker.parent
+    from wcbench.scenes.sets import _specs
+
+    assert _specs()["synth_3"]["scenes"][0] == {"id": "synth_000", "path": marker.parent.name}
     assert s.scenes[0].options == {"camera": 0, "start": 0, "count": 30}
     assert marker.stat().st_mtime_ns == before  # found in the cache, not built again
 
@@ -245,7 +249,7 @@ def test_weathercity_renders_the_truths_requested_weather_never_its_seed(scene0:
     from wcbench.reference_model.weather.conditions import Weather
 
     truth = json.loads((scene0.root / "truth" / "weather.json").read_text(encoding="utf-8"))
-    method = WeatherCityMethod(profile="quick", weathers="truth")
+    method = WeatherCityMethod(profile="quick", physics="truth")
     physics = truth_physics(scene0)
     assert sorted(physics) == ["fog", "rain", "snow"]
     for kind in ("rain", "snow", "fog"):
@@ -255,10 +259,10 @@ def test_weathercity_renders_the_truths_requested_weather_never_its_seed(scene0:
         assert chosen.seed == 7 != truth[kind]["seed"]
     assert method.weather_for("snow", 7, scene0).max_particles == 30000
     # without a recorded weather: the preset, seeded by the run; "auto" (the default) reads the record
-    assert WeatherCityMethod(weathers="presets").weather_for("rain", 7, scene0).seed == 7
+    assert WeatherCityMethod(physics="presets").weather_for("rain", 7, scene0).seed == 7
     assert WeatherCityMethod().weather_for("rain", 7, scene0) == method.weather_for("rain", 7, scene0)
     assert WeatherCityMethod().weather_for("rain", 7, demo_scene).seed == 7
-    # the truth's own seed is refused for the particles unless the weathers option names it
+    # the truth's own seed is refused for the particles unless the physics option names it
     with pytest.raises(InputError, match="draw the truth's own particles"):
         WeatherCityMethod().weather_for("rain", truth["rain"]["seed"], scene0)
     method.check_scene(scene0, "snow")
@@ -270,5 +274,5 @@ def test_weathercity_renders_the_truths_requested_weather_never_its_seed(scene0:
     assert hazes["rain"].offset_m == truth["rain"]["renderer"]["fog"]["offset_m"] > 0
     with pytest.raises(InputError, match=r"truth[/\\]weather\.json: not found"):
         method.check_scene(demo_scene, "rain")
-    with pytest.raises(InputError, match="weathers must be"):
-        WeatherCityMethod(weathers="sunny")
+    with pytest.raises(InputError, match="physics must be"):
+        WeatherCityMethod(physics="sunny")

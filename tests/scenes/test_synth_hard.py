@@ -83,7 +83,8 @@ def _first_shape_hit(content: Content, k: int, origin: np.ndarray, rays: np.ndar
 
 
 def test_set_loads_without_sky_masks_with_truth_masks(hard: Scene) -> None:
-    assert hard.id == "synth_hard_000" and len(hard) == 30 and hard.image_size == (480, 270)
+    assert hard.id == "synth_hard_1" and hard.root.name == "synth_hard_000"  # the set's name; the generator's folder
+    assert len(hard) == 30 and hard.image_size == (480, 270)
     assert hard.source_format == "drivestudio_waymo"
     assert not (hard.root / "sky_masks").exists()
     assert all(f.sky_mask_path is None and f.lidar_path is not None for f in hard.frames)

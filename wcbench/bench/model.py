@@ -140,7 +140,7 @@ def _timed_training(step: Callable[[], Any], marks: list[float],
 def _fps_rain_fog(scene: Scene, model: Any, config: TrainConfig, facts: dict[str, Any]) -> dict[str, Any]:
     """Whole-frame render time of ``paper`` rain with exact fog (200 m visibility), median over frames."""
     rain = Weather(kind="rain", preset="paper", visibility_m=200.0, fog_mode="exact")
-    method = WeatherCityMethod(weathers={"rain": rain})
+    method = WeatherCityMethod(physics={"rain": rain})
     method.config = config
     method.use_model(scene, model, facts)
     method.prepare(scene, "rain", seed=0)

@@ -27,7 +27,7 @@ Cases
     supervision's frames themselves: PSNR against the truth (``closer_psnr``: WeatherCity's is
     higher), and temporal flicker next to the truth's own (``closer_flicker``: WeatherCity's is
     nearer it), in the mean and per weather; ``psnr_clear_vs_raw``, the same run's clear
-    reconstruction. WeatherCity renders the weather the truth requested (``weathers="truth"``:
+    reconstruction. WeatherCity renders the weather the truth requested (``physics="truth"``:
     rate, visibility, wind) with the run's particle seed, never the truth's (docs/design.md §4):
     the editor's frames start from the truth's own particles, WeatherCity draws its own, and
     another draw of heavy snow alone is about 34 dB from the truth (heavy rain 47 dB), a cap near
@@ -245,7 +245,7 @@ def _supervision_cases(scenes: str, root: Path, per_entry: dict[str, list[dict[s
         if editor is None:
             continue
         seconds, doc = _run_entry(f"weathercity_{label}", "weathercity",
-                                  {"supervision": supervision, "profile": "default", "weathers": "truth"},
+                                  {"supervision": supervision, "profile": "default", "physics": "truth"},
                                   scenes, root, metrics, weathers=("clear", *EDITED))
         units = _units(doc)
         clear = [u for u in units if u["weather"] == "clear"]

@@ -10,6 +10,9 @@ method options     ``--method-option KEY=VALUE`` and the       train ``--setting
                    shorthands ``--profile --supervision        (= ``--method-option settings.KEY=VALUE``)
                    --jitter --ablation --holdout`` (run,
                    render, train alike)
+physics weather    ``--method-option physics=...``             ``--method-option weathers=...``
+                   (lidar-init, physical-editor,               (``--weathers`` lists weather kinds)
+                   weathercity)
 metric options     ``--metric-option METRIC.KEY=VALUE``
 progress, offline  ``--no-progress``, ``--offline``
 frames, size       ``--frames``, ``--scale`` | ``--width/--height``
@@ -17,8 +20,9 @@ method names       hyphenated: ``lidar-init``                  ``lidar_init`` (a
 =================  ==========================================  ===================================
 
 A deprecated spelling works as its replacement, says so in ``--help`` and prints one line on
-stderr when used (``wcbench: --output is deprecated, use --out``). ``tests/cli/test_vocabulary.py``
-checks every command against this table.
+stderr when used (``wcbench: --output is deprecated, use --out``; a method option's old name:
+``wcbench: method option weathers is deprecated, use physics``, and ``wcbench methods show``
+lists it as such). ``tests/cli/test_vocabulary.py`` checks every command against this table.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from typing import Any
 from wcbench.core.errors import InputError, UnknownNameError
 from wcbench.core.weathers import WEATHERS
 from wcbench.core.working_size import METRIC_RESOLUTION, SizeRequest, parse_metric_resolution
-from wcbench.methods import METHODS
+from wcbench.methods import METHODS, validate_method_options
 
 #: Namespace attribute listing the deprecated spellings a command line used.
 DEPRECATED_USED = "_deprecated_used"
@@ -304,7 +308,7 @@ def add_method_options(parser: argparse.ArgumentParser, *, edit: bool = True) ->
     group.add_argument("--method-option", action="append", default=[], metavar="KEY=VALUE",
                        help="any option of the method, repeatable; VALUE is read as JSON when it parses, and "
                             "KEY.SUB=VALUE sets one entry of a dict option, e.g. settings.iterations=500, "
-                            "weathers.rain.preset=heavy (weathercity)")
+                            "physics.rain.preset=heavy (weathercity)")
     group.add_argument("--profile", default=None, help="training profile of a trained method: default, quick")
     group.add_argument("--supervision", default=None,
                        help="edited frames a trained method learns from: physical-editor (built in, the "
@@ -375,6 +379,24 @@ def method_options_from(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError(f"method option {', '.join(twice)} given twice: as "
                          f"{', '.join('--' + shown[k] for k in twice)} and as --method-option; give it once")
     return {**out, **flags}
+
+
+def checked_method_options(args: argparse.Namespace, method: str,
+                           options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The method options of ``args`` (or ``options``) checked against method ``method``'s declared
+    options, as its constructor takes them: an option given by its old name (``weathers``) is
+    passed on under its new one (``physics``) and said once on stderr
+    (``wcbench: method option weathers is deprecated, use physics``), after its value is checked.
+
+    Raises
+    ------
+    InputError
+        As :func:`method_options_from`; ``OptionError`` as
+        :func:`wcbench.methods.validate_method_options` (an option given by both names: both named).
+    """
+    given = method_options_from(args) if options is None else options
+    return validate_method_options(method, given,
+                                   deprecated=lambda old, new: warn_deprecated(f"method option {old}", new, args))
 
 
 def parse_key_values(items: list[str], *, option: str, example: str, form: str = "KEY=VALUE") -> dict[str, Any]:

@@ -22,10 +22,12 @@ With ``--method weathercity`` the scene is the trained WeatherCity model instead
 or loaded from the cache; the method options ``--method-option``, ``--profile``, ``--supervision``,
 ``--jitter``, ``--ablation``, ``--holdout`` and ``--edit`` as for ``run``), rendered at any size.
 
-The weather options (``--preset``, ``--rate``, ``--visibility``...) apply to every weather of
-``--weathers``; without any, each weather is the scene's requested one, as ``run`` renders it (the
-method's ``weathers="auto"``: a ``synth_*`` scene's recorded rate, visibility and wind, else the
-presets). The particle seed is ``--seed``, never the truth's (docs/design.md §4).
+The weather options (``--preset``, ``--rate``, ``--visibility``...) apply to every edited weather
+of ``--weathers`` (``clear`` has none to set); without any, each weather is the scene's requested
+one, as ``run`` renders it (the method's ``physics="auto"``: a ``synth_*`` scene's recorded rate,
+visibility and wind, else the presets). render hands them to the method as its ``physics`` option,
+so ``--method-option physics=...`` is refused. The particle seed is ``--seed``, never the truth's
+(docs/design.md §4).
 
 ``render`` is a front of the units of work ``wcbench run`` renders through: the same method, seed,
 weather and size give the same frames either way: both take ``--frames`` and ``--scale`` or
@@ -48,6 +50,7 @@ from wcbench.cli.common import (
     add_progress_argument,
     add_scene_arguments,
     add_weathers_argument,
+    checked_method_options,
     method_name,
     method_options_from,
     parse_frame_spec,
@@ -191,12 +194,17 @@ def _weathers(args: argparse.Namespace) -> list[str]:
 _WEATHER_FLAGS = ("preset", "rate", "count", "visibility", "fog_density", "fog_color", "wind", "exposure")
 
 
+def _weather_flags(args: argparse.Namespace) -> list[str]:
+    """The weather options ``args`` give, spelled as on the command line (``--preset``)."""
+    given = [f"--{flag.replace('_', '-')}" for flag in _WEATHER_FLAGS if getattr(args, flag) is not None]
+    return given + (["--fog-mode"] if args.fog_mode != "exact" else [])
+
+
 def _method_options(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
-    """Options of the method: the weathers (``"auto"`` when no weather option is given, as ``run``
-    renders them), and the scene settings that were given."""
-    given = any(getattr(args, flag) is not None for flag in _WEATHER_FLAGS) or args.fog_mode != "exact"
-    options: dict[str, Any] = {"weathers": {kind: _weather(args, kind) for kind in _weathers(args)
-                                            if kind != "clear"} if given else "auto"}
+    """Options of the method: the physics of the weathers (``"auto"`` when no weather option is
+    given, as ``run`` renders them), and the scene settings that were given."""
+    options: dict[str, Any] = {"physics": {kind: _weather(args, kind) for kind in _weathers(args)
+                                           if kind != "clear"} if _weather_flags(args) else "auto"}
     if args.voxel is not None:
         options["voxel_m"] = args.voxel
     if args.init_frames is not None:
@@ -207,23 +215,30 @@ def _method_options(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     """Render every selected scene through the units of work ``run`` uses; return 0."""
     from wcbench.core.storage import check_writable_folder
-    from wcbench.methods import get_method, method_options, validate_method_options
+    from wcbench.methods import get_method, method_options, renamed_method_options, validate_method_options
+    from wcbench.methods.weather_spec import OPTION
     from wcbench.scenes.sets import data_root_from, resolve_scenes
     from wcbench.units import RenderSettings, WorkUnit
 
     get_method(args.method)  # an unknown name fails before any scene is loaded
-    if "weathers" not in method_options(args.method):  # render hands --weathers to the method as its option
-        raise InputError(f"--method {args.method}: method {args.method!r} takes no option weathers: render draws "
-                         f"the --weathers physics with a method that takes them (see `wcbench methods show NAME`)")
-    given = method_options_from(args)
-    own = {"weathers": "auto", **({"voxel_m": args.voxel} if args.voxel is not None else {}),
+    if OPTION not in method_options(args.method):  # render hands the --weathers physics to the method's option
+        raise InputError(f"--method {args.method}: method {args.method!r} takes no option {OPTION}: render draws "
+                         f"the --weathers physics with a method that takes it (see `wcbench methods show NAME`)")
+    raw = method_options_from(args)
+    own = {OPTION: "auto", **({"voxel_m": args.voxel} if args.voxel is not None else {}),
            **({"init_frames": []} if args.init_frames is not None else {})}  # render's own, set per scene
-    clash = sorted(set(given) & set(own))
+    renamed = renamed_method_options(args.method)
+    clash = sorted(key for key in raw if renamed.get(key, key) in own)  # named as given (an old name too)
     if clash:
         raise InputError(f"--method-option {', '.join(clash)}: set by render's own options "
                          "(--weathers/--preset..., --voxel, --init-frames)")
+    given = checked_method_options(args, args.method, raw)
     validate_method_options(args.method, {**own, **given})  # every option checked before any scene is loaded
     kinds = _weathers(args)
+    flags = _weather_flags(args)
+    if flags and kinds == ["clear"]:  # said here, not as the physics of a weather nobody asked for
+        raise InputError(f"{', '.join(flags)}: --weathers clear has no weather to set; the weather options "
+                         "apply to rain, snow and fog")
     for kind in kinds:  # bad weather options fail before any scene is loaded or folder made
         _weather(args, kind)
     check_writable_folder(args.out)

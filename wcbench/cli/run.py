@@ -20,9 +20,9 @@ from wcbench.cli.common import (
     add_frame_and_size_arguments,
     add_method_options,
     add_scene_arguments,
+    checked_method_options,
     executor_from,
     method_name,
-    method_options_from,
     parse_metric_options,
     size_request_from,
     split_list,
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     if args.frames and list(args.frames) != list(range(args.frames[0], args.frames[-1] + 1)):
         raise InputError(f"--frames {','.join(map(str, args.frames))}: run scores one contiguous run of frames "
                          "(temporal metrics compare neighbours), e.g. 0-9")
-    method = get_method(args.method, **method_options_from(args))
+    method = get_method(args.method, **checked_method_options(args, args.method))
     size = size_request_from(args)
     if size is not None:
         if not is_runnable(method):

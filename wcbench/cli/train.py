@@ -1,6 +1,6 @@
 """Train the WeatherCity model of each scene, without rendering or evaluating.
 
-The trained model goes to the cache (keyed by the scene, the settings and the supervision), where
+The trained model goes to the cache (keyed by the scene's data, the settings and the supervision), where
 `wcbench run --method weathercity` with the same options finds it; a killed training resumes from
 its last checkpoint. A second process asking for a model being trained waits for it, then loads
 it. What was built, skipped and measured (time, Gaussians per node, held-out PSNR) is printed and
@@ -34,6 +34,7 @@ from wcbench.cli.common import (
     add_output_argument,
     add_progress_argument,
     add_scene_arguments,
+    checked_method_options,
     method_options_from,
 )
 from wcbench.core.errors import InputError
@@ -41,7 +42,7 @@ from wcbench.core.errors import InputError
 HELP = "train the weathercity model of each scene (cached for `run`)"
 
 #: The method options of weathercity that concern training (the others, edits and size, only rendering).
-TRAINING_OPTIONS = ("ablation", "holdout", "jitter", "profile", "settings", "supervision", "weathers")
+TRAINING_OPTIONS = ("ablation", "holdout", "jitter", "physics", "profile", "settings", "supervision")
 
 
 def training_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -54,15 +55,16 @@ def training_options(args: argparse.Namespace) -> dict[str, Any]:
         On an option that only concerns rendering; ``OptionError`` on a value weathercity's declared
         option does not allow (:func:`wcbench.methods.validate_method_options`).
     """
-    from wcbench.methods import validate_method_options
+    from wcbench.methods import renamed_method_options
 
     options = method_options_from(args)
-    other = sorted(set(options) - set(TRAINING_OPTIONS))
+    renamed = renamed_method_options("weathercity")  # an old name (weathers) is its new one's (physics)
+    other = sorted(key for key in options if renamed.get(key, key) not in TRAINING_OPTIONS)
     if other:
         raise InputError(f"train: method option {', '.join(other)} concerns rendering, not training (give it to "
                          f"`wcbench run` or `wcbench render`); train takes {', '.join(TRAINING_OPTIONS)}")
     # weathercity's declared options (types, ranges, settings.*), checked before any scene is read
-    return validate_method_options("weathercity", options)
+    return checked_method_options(args, "weathercity", options)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     from wcbench.core.models.fetch import fetch_missing, is_offline
     from wcbench.core.storage import atomic_write_json, check_writable_folder
     from wcbench.methods.scene_training import check_supervision, train_scene
-    from wcbench.methods.weather_spec import parse_weathers, resolve_physics
+    from wcbench.methods.weather_spec import OPTION, parse_physics, resolve_physics
     from wcbench.reference_model.training.config import make_config
     from wcbench.scenes.sets import resolve_scenes
 
@@ -94,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     jitter = float(options.get("jitter", 0.0))
     supervision = str(options.get("supervision", "physical-editor"))
     check_supervision(supervision, jitter)  # a jitter the supervision would ignore
-    weathers = parse_weathers(options.get("weathers"), who="train")
+    physics = parse_physics(options.get(OPTION), who="train")
     if args.out is not None:
         check_writable_folder(args.out)
     refs = resolve_scenes(args.scenes, data_root=args.data_root)
@@ -107,10 +109,10 @@ def run(args: argparse.Namespace) -> int:
         bad = [h for h in config.holdout if not 0 <= h < len(scene)]
         if bad:
             raise InputError(f"--holdout {bad}: {scene.id} has frames 0..{len(scene) - 1}")
-        # the physics `run --method weathercity` trains with (same weathers option; seed 0 and no particle
+        # the physics `run --method weathercity` trains with (same physics option; seed 0 and no particle
         # draw, as WeatherCityMethod.training_physics), so that it finds this model
         _, _, facts = train_scene(scene, config, supervision=supervision, jitter=jitter,
-                                  physics=resolve_physics(scene, weathers, seed=0, draws=False),
+                                  physics=resolve_physics(scene, physics, seed=0, draws=False),
                                   folder=args.checkpoint,
                                   show_progress=not args.no_progress)
         path = args.out / scene.id / "training.json"

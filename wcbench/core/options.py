@@ -17,6 +17,7 @@ import math
 import numbers
 import re
 import typing
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -105,6 +106,10 @@ class Option:
         allowed.
     allowed : str
         What a ``custom`` option allows (for its errors and the listing).
+    renamed_to : str
+        Set on an option's old name, kept for one release: the new name. The value is checked by
+        this option (its messages name the old name, as given) and handed on under the new name,
+        with a deprecation warning; both names given together are refused.
     """
 
     name: str
@@ -118,6 +123,7 @@ class Option:
     table: Mapping[str, Option] | None = None
     check: Callable[[Any], Any] | None = field(default=None, compare=False)
     allowed: str = ""
+    renamed_to: str = ""
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -216,9 +222,16 @@ def _check_one(opt: Option, value: Any, path: str, prefix: str) -> Any:
         raise OptionError(f"{prefix}{path}={describe_value(value)}: {message}", path=path) from None
 
 
+def _warn_renamed(old: str, new: str, *, prefix: str) -> None:
+    # attributed to the caller of get_method (here <- validate_options <- validate_method_options <- get_method)
+    warnings.warn(f"{prefix}{old} is deprecated, use {new}", DeprecationWarning, stacklevel=5)
+
+
 def validate_options(schema: Mapping[str, Option], values: Mapping[str, Any], *, prefix: str = "",
-                     path: str = "", owner: str = "") -> dict[str, Any]:
-    """Check ``values`` against ``schema``; return them converted (lists of numbers as tuples).
+                     path: str = "", owner: str = "",
+                     deprecated: Callable[[str, str], None] | None = None) -> dict[str, Any]:
+    """Check ``values`` against ``schema``; return them converted (lists of numbers as tuples), an
+    option given by its old name (:attr:`Option.renamed_to`) under its new one.
 
     Parameters
     ----------
@@ -231,6 +244,10 @@ def validate_options(schema: Mapping[str, Option], values: Mapping[str, Any], *,
         Dotted name of the table ``values`` is (``settings``); ``""`` at the top.
     owner : str
         Who takes the options, for an unknown key's message (a method's name).
+    deprecated : callable, optional
+        Called as ``deprecated(old, new)`` (dotted names) for each option given by its old name,
+        once its value is checked; default: a :class:`DeprecationWarning` saying
+        ``PREFIX OLD is deprecated, use NEW`` (the command line prints its own line instead).
 
     Returns
     -------
@@ -240,20 +257,33 @@ def validate_options(schema: Mapping[str, Option], values: Mapping[str, Any], *,
     ------
     OptionError
         On the first unknown key (with close names) or value the option does not allow, in one
-        line: ``PREFIX PATH=VALUE: expected ALLOWED``.
+        line: ``PREFIX PATH=VALUE: expected ALLOWED``; on an option given by both its old and its
+        new name (both named).
     """
     out: dict[str, Any] = {}
     for key, value in values.items():
         full = f"{path}.{key}" if path else str(key)
         opt = schema.get(key)
         if opt is None:
-            close = difflib.get_close_matches(str(key), list(schema), n=2, cutoff=0.6)
+            close = difflib.get_close_matches(str(key), [k for k, o in schema.items() if not o.renamed_to], n=2,
+                                              cutoff=0.6)
             hint = f" (did you mean {' or '.join(close)}?)" if close else ""
             where = f"{owner} takes" if owner else "there is"
-            known = ", ".join(schema) or "none"
+            known = ", ".join(k for k, o in schema.items() if not o.renamed_to) or "none"
             raise OptionError(f"{prefix}{full}={describe_value(value)}: {where} no option {key}{hint}; "
                               f"it takes: {known}", path=full)
-        out[key] = _check_one(opt, value, full, prefix)
+        checked = _check_one(opt, value, full, prefix)
+        if opt.renamed_to:
+            new = f"{path}.{opt.renamed_to}" if path else opt.renamed_to
+            if opt.renamed_to in values:
+                raise OptionError(f"{prefix}{full} and {new} both given: {full} is the deprecated name of {new}; "
+                                  f"give {new} only", path=full)
+            if deprecated is not None:
+                deprecated(full, new)
+            else:
+                _warn_renamed(full, new, prefix=prefix)
+            key = opt.renamed_to
+        out[key] = checked
     return out
 
 
@@ -262,6 +292,9 @@ def schema_lines(schema: Mapping[str, Option], *, path: str = "") -> list[str]:
     lines = []
     for name, opt in schema.items():
         full = f"{path}.{name}" if path else name
+        if opt.renamed_to:
+            lines.append(f"{full}  deprecated name of {opt.renamed_to} (accepted for one release)")
+            continue
         if opt.kind == "table" and opt.table is not None:
             lines.append(f"{full}  (table)  {opt.doc}")
             lines.extend(schema_lines(opt.table, path=full))

@@ -9,6 +9,7 @@ old spellings (``lidar_init``, ``sim_editor``...) are deprecated aliases (:data:
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from typing import Any
 
 from wcbench.core.errors import InputError
@@ -98,19 +99,41 @@ def method_options(name: str) -> list[str]:
     return list(method_schema(name))
 
 
-def validate_method_options(name: str, options: dict[str, Any]) -> dict[str, Any]:
+def renamed_method_options(name: str) -> dict[str, str]:
+    """Old name -> new name of each renamed option of method ``name`` (accepted for one release).
+
+    Raises
+    ------
+    UnknownNameError, MethodUnavailableError
+    """
+    return {key: opt.renamed_to for key, opt in method_schema(name).items() if opt.renamed_to}
+
+
+def validate_method_options(name: str, options: dict[str, Any], *,
+                            deprecated: Callable[[str, str], None] | None = None) -> dict[str, Any]:
     """Check ``options`` against the declared options of method ``name`` before anything is built or
-    written; return them as the constructor takes them (lists of numbers as tuples).
+    written; return them as the constructor takes them (lists of numbers as tuples, an option given
+    by its old name under its new one).
+
+    Parameters
+    ----------
+    name : str
+    options : dict
+    deprecated : callable, optional
+        Called as ``deprecated(old, new)`` for an option given by its old name; default a
+        :class:`DeprecationWarning` (see :func:`wcbench.core.options.validate_options`).
 
     Raises
     ------
     OptionError
         One line naming the first unknown option or bad value and what is allowed
-        (``physical-editor option size=5: expected a list of 2 integers >= 1 or null``).
+        (``physical-editor option size=5: expected a list of 2 integers >= 1 or null``), or an
+        option given by both its old and its new name.
     UnknownNameError, MethodUnavailableError
     """
     name = METHODS.canonical(name, warn=False)
-    return validate_options(method_schema(name), options, prefix=f"{name} option ", owner=f"method {name!r}")
+    return validate_options(method_schema(name), options, prefix=f"{name} option ", owner=f"method {name!r}",
+                            deprecated=deprecated)
 
 
 def get_method(name: str, **options: Any) -> Method:
@@ -128,6 +151,8 @@ def get_method(name: str, **options: Any) -> Method:
     -----
     DeprecationWarning
         When ``name`` is an old spelling (``lidar_init``); the method of the current name is returned.
+        When an option is given by its old name (``weathers``, now ``physics``); it is passed on
+        under the new one.
     MethodUnavailableError
         If its code needs a package that is not installed.
     """
@@ -147,5 +172,5 @@ def is_runnable(method: Method) -> bool:
 __all__ = [
     "METHODS", "METHOD_ALIASES", "WEATHERS", "Method", "MethodInfo", "MethodUnavailableError", "RunnableMethod",
     "canonical_method_name", "get_method", "is_runnable", "method_options", "method_schema",
-    "validate_method_options",
+    "renamed_method_options", "validate_method_options",
 ]

@@ -21,13 +21,14 @@ from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer, size_option
 from wcbench.methods.weather_spec import (
-    WeathersOption,
+    PhysicsSpec,
     describe_option,
-    parse_weathers,
+    old_physics_option,
+    physics_argument,
+    physics_option,
     physics_record,
     resolve_physics,
     truth_draw,
-    weathers_option,
 )
 from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.weather.conditions import Weather
@@ -44,8 +45,8 @@ class LidarInitMethod(FrameRenderer):
 
     Parameters
     ----------
-    weathers : "auto", "truth", "presets" or dict, optional
-        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_weathers`; a dict
+    physics : "auto", "truth", "presets" or dict, optional
+        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_physics`; a dict
         of :class:`Weather` or of its fields). Default ``"auto"``: the weather a scene's truth
         requested where it records one (``synth_*``), else each kind's default preset.
     size : (int, int), optional
@@ -57,12 +58,14 @@ class LidarInitMethod(FrameRenderer):
         Voxel size of the lidar initialisation (m).
     init_frames : list of int, optional
         Frames whose lidar sweeps build the scene (default: all).
+    weathers : optional
+        Deprecated name of ``physics`` (one release; a :class:`DeprecationWarning`).
     """
 
     version = "1"
 
     OPTIONS: ClassVar[dict[str, Option]] = {
-        "weathers": weathers_option(who="lidar-init"),
+        "physics": physics_option(who="lidar-init"),
         "size": size_option("output (width, height) in pixels; default the scene's size times scale"),
         "scale": Option("scale", "float", "output size as a fraction of the scene's", default=0.25,
                         range=Range(0, 4, low_open=True)),
@@ -70,22 +73,24 @@ class LidarInitMethod(FrameRenderer):
                           range=Range(0, low_open=True)),
         "init_frames": Option("init_frames", "ints", "frames whose lidar sweeps build the scene (default: all)",
                               range=Range(0), nullable=True),
+        "weathers": old_physics_option(who="lidar-init"),
     }
 
     def __init__(
         self,
         *,
-        weathers: Any = None,
+        physics: Any = None,
         size: tuple[int, int] | None = None,
         scale: float = 0.25,
         voxel_m: float = 0.2,
         init_frames: list[int] | None = None,
+        weathers: Any = None,
     ):
         if not 0 < scale <= 4:
             raise InputError(f"scale must be in (0, 4], got {scale}")
         if size is not None and (size[0] < 1 or size[1] < 1):
             raise InputError(f"size must be positive, got {size}")
-        self.weathers: WeathersOption = parse_weathers(weathers, who="lidar-init")
+        self.physics_spec: PhysicsSpec = physics_argument(physics, weathers, who="lidar-init")
         self.size, self.scale, self.voxel_m, self.init_frames = size, scale, voxel_m, init_frames
         self.info = MethodInfo(
             name="lidar-init",
@@ -107,21 +112,21 @@ class LidarInitMethod(FrameRenderer):
         ------
         InputError
             ``seed`` is the particle seed of the scene's truth (:func:`resolve_physics`), or
-            ``weathers="truth"`` on a scene that records none.
+            ``physics="truth"`` on a scene that records none.
         """
         if kind == "clear":
             return Weather(kind="clear", seed=seed)
-        return resolve_physics(scene, self.weathers, seed=seed)[kind]
+        return resolve_physics(scene, self.physics_spec, seed=seed)[kind]
 
     def parameters(self, weather: str) -> dict[str, Any]:
         """The weather option (the resolved weather: :meth:`physics`) and scene settings."""
-        return {"weather": "clear" if weather == "clear" else describe_option(self.weathers, weather),
+        return {"weather": "clear" if weather == "clear" else describe_option(self.physics_spec, weather),
                 "init": {"voxel_m": self.voxel_m, "frames": self.init_frames}}
 
     def check_scene(self, scene: Scene, weather: str) -> None:
-        """``weathers="truth"`` needs the scene's recorded weather (checked before any render)."""
+        """``physics="truth"`` needs the scene's recorded weather (checked before any render)."""
         if weather != "clear":
-            resolve_physics(scene, self.weathers, draws=False)
+            resolve_physics(scene, self.physics_spec, draws=False)
 
     def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
         """The physics weather its particles and fog are drawn with (clear: none)."""
@@ -132,7 +137,7 @@ class LidarInitMethod(FrameRenderer):
     def truth_draw(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any]:
         """Its particle seed against the truth's (:func:`~wcbench.methods.weather_spec.truth_draw`)."""
         return truth_draw(scene, None if weather == "clear" else self.weather_for(weather, seed, scene),
-                          option=self.weathers)
+                          option=self.physics_spec)
 
     def native_size(self, scene: Scene) -> tuple[int, int]:
         """``size`` if given, else the scene's size times ``scale``."""

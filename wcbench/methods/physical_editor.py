@@ -34,12 +34,13 @@ from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer, size_option
 from wcbench.methods.weather_spec import (
-    WeathersOption,
+    PhysicsSpec,
     describe_option,
-    parse_weathers,
+    old_physics_option,
+    physics_argument,
+    physics_option,
     physics_record,
     resolve_physics,
-    weathers_option,
 )
 from wcbench.reference_model.appearance.editor import AppearanceParams, WeatherEditor, appearance_options
 from wcbench.reference_model.weather.conditions import Weather
@@ -134,8 +135,8 @@ class PhysicalEditorMethod(FrameRenderer):
 
     Parameters
     ----------
-    weathers : "auto", "truth", "presets" or dict, optional
-        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_weathers`;
+    physics : "auto", "truth", "presets" or dict, optional
+        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_physics`;
         default ``"auto"``: the weather a scene's truth requested where it records one, else the
         presets).
     appearance : dict, optional
@@ -144,19 +145,22 @@ class PhysicalEditorMethod(FrameRenderer):
     size : (int, int), optional
         Output (width, height); default 480 px wide at the scene's aspect ratio (WeatherCity's
         training size), or the scene's size when smaller.
+    weathers : optional
+        Deprecated name of ``physics`` (one release; a :class:`DeprecationWarning`).
     """
 
     version = VERSION
     OPTIONS: ClassVar[dict[str, Option]] = {
-        "weathers": weathers_option(who=NAME),
+        "physics": physics_option(who=NAME),
         "appearance": Option("appearance", "table", "overrides of the presets' [appearance] tables, e.g. "
                              "appearance.rain.puddle_max=0.2", table=appearance_options()),
         "size": size_option("output (width, height) in pixels; default 480 px wide at the scene's aspect ratio"),
+        "weathers": old_physics_option(who=NAME),
     }
 
-    def __init__(self, *, weathers: Any = None, appearance: dict[str, Any] | None = None,
-                 size: Sequence[int] | None = None):
-        self.weathers: WeathersOption = parse_weathers(weathers, who=NAME)
+    def __init__(self, *, physics: Any = None, appearance: dict[str, Any] | None = None,
+                 size: Sequence[int] | None = None, weathers: Any = None):
+        self.physics_spec: PhysicsSpec = physics_argument(physics, weathers, who=NAME)
         try:
             self.appearance = AppearanceParams.load(appearance)
         except ValueError as exc:
@@ -179,8 +183,9 @@ class PhysicalEditorMethod(FrameRenderer):
         self._weather: Weather | None = None
 
     def parameters(self, weather: str) -> dict[str, Any]:
-        """The weather option and the appearance overrides (the resolved weather: :meth:`physics`)."""
-        return {"weathers": "clear" if weather == "clear" else describe_option(self.weathers, weather),
+        """The weather the physics option asks for and the appearance overrides (the resolved weather:
+        :meth:`physics`)."""
+        return {"weather": "clear" if weather == "clear" else describe_option(self.physics_spec, weather),
                 "appearance": self._appearance_overrides}
 
     def native_size(self, scene: Scene) -> tuple[int, int]:
@@ -193,10 +198,10 @@ class PhysicalEditorMethod(FrameRenderer):
         return DEFAULT_WIDTH, max(1, round(DEFAULT_WIDTH * h / w))
 
     def check_scene(self, scene: Scene, weather: str) -> None:
-        """The scene needs lidar; ``weathers="truth"`` needs its recorded weather."""
+        """The scene needs lidar; ``physics="truth"`` needs its recorded weather."""
         check_lidar(scene)
         if weather != "clear":
-            resolve_physics(scene, self.weathers, draws=False)
+            resolve_physics(scene, self.physics_spec, draws=False)
 
     def prepare(self, scene: Scene, weather: str, *, seed: int) -> None:
         """Build the scene's lidar surfaces once per scene; resolve ``weather``'s physics."""
@@ -210,7 +215,9 @@ class PhysicalEditorMethod(FrameRenderer):
     def _resolve(self, scene: Scene, weather: str, seed: int) -> Weather | None:
         """The physics weather of ``weather`` (``None`` for clear); it draws no particles, so any
         ``seed`` is accepted."""
-        return None if weather == "clear" else resolve_physics(scene, self.weathers, seed=seed, draws=False)[weather]
+        if weather == "clear":
+            return None
+        return resolve_physics(scene, self.physics_spec, seed=seed, draws=False)[weather]
 
     def physics(self, scene: Scene, weather: str, *, seed: int) -> dict[str, Any] | str:
         """The resolved physics (what a supervision check compares); clear: none."""

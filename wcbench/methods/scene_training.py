@@ -118,7 +118,7 @@ def supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitte
     if spec == "filter2d":
         fog = edited.get("fog")
         beta = fog.haze()[0] if fog is not None else 0.0
-        # the run's physics visibility, which a weathers option may have set apart from the scene's
+        # the run's physics visibility, which a physics option may have set apart from the scene's
         f2d = Filter2DMethod(effects=False, jitter=jitter,
                              visibility_m=visibility_from_density(beta) if beta > 0 else None)
         for w in weathers:
@@ -152,7 +152,8 @@ def supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitte
     root = Path(folder).expanduser()
     if not root.is_dir():
         raise InputError(f"--supervision {spec!r}: {root} is not a folder")
-    scene_root = root / scene.id if (root / scene.id).is_dir() else root
+    # the scene's folder of edits, named like the scene or its data folder (an older run's layout)
+    scene_root = next((root / n for n in (scene.id, Path(scene.root).name) if (root / n).is_dir()), root)
     hashes: dict[str, list[str]] = {}
     missing: dict[str, str] = {}
     checked: dict[str, str] = {}
@@ -305,7 +306,8 @@ def train_scene(
         them and their haze is composed into the training renders (``config.through_haze``).
         Default: each kind's default preset.
     folder : Path, optional
-        Where the checkpoint goes; default the cache folder ``weathercity/<scene>-<key>``.
+        Where the checkpoint goes; default the cache folder ``weathercity/<data folder>-<key>``, keyed by
+        the scene's data, not by its name in the run.
     store : ModelStore, optional
         Where the VGG16 weights of the content loss come from.
     content : ContentLoss, None or "auto"
@@ -348,13 +350,16 @@ def train_scene(
     else:
         content_loss, content_note = content, "injected" if content is not None else "off"
     made = {k: v for k, v in inputs.supervision.items() if k != "timings"}  # what makes the frames, not how fast
-    key = sha256_json({"version": VERSION, "scene": scene.id, "sources": inputs.sources, "config": config.to_json(),
+    # keyed by the scene's data (its folder's name, its files' content), not by the name a run gives it:
+    # synth_1's scene is synth_3's first, one street trained once (docs/design.md §3, "Scene names")
+    data = Path(scene.root).resolve().name
+    key = sha256_json({"version": VERSION, "scene": data, "sources": inputs.sources, "config": config.to_json(),
                        "supervision": made, "trained": trained, "content": content_note,
                        "hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
                        # by content, as the images: one scene reached by two spellings of its path trains once
                        "lidar": [sha256_file(f.lidar_path) if f.lidar_path is not None else None
                                  for f in scene.frames]})
-    folder = folder or cache_dir() / "weathercity" / f"{scene.id}-{key[:16]}"
+    folder = folder or cache_dir() / "weathercity" / f"{data}-{key[:16]}"
     log(f"weathercity {scene.id}: building the scene graph")
     train_views = [v for v in views if v.frame not in config.holdout]
     model, graph_facts = build_model(scene, train_views, config, weathers=trained)

@@ -6,13 +6,13 @@ haze, wind, particle seed). WeatherCity's particles and haze, the haze its train
 through, the built-in editors that make its supervision (``physical-editor``, ``filter2d``'s fog)
 and ``lidar-init`` all read that object (docs/design.md §4):
 
-* :func:`parse_weathers` turns the ``weathers`` option (``"auto"``, ``"truth"``, ``"presets"`` or a
+* :func:`parse_physics` turns the ``physics`` option (``"auto"``, ``"truth"``, ``"presets"`` or a
   dict of Weather fields per kind) into a spec; :func:`resolve_physics` gives a scene's weathers
   under it: ``"auto"`` (the default) is the scene's *requested* weather where it records one
   (``truth/weather.json`` of the ``synth_*`` scenes: preset, rate, visibility, wind...), else the
   presets;
 * a Weather's fields are requests (what a user asks for) except its particle ``seed``, a random
-  draw: a scene's record never gives it. The seed is the run's (``--seed``), or one a ``weathers``
+  draw: a scene's record never gives it. The seed is the run's (``--seed``), or one a ``physics``
   dict names; a method that draws particles is refused a run seed that equals the truth's
   (:func:`resolve_physics`), so no method renders the truth's own particles unless asked to by
   name, and :func:`truth_draw` records which draw a render used (``info.json``
@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -40,19 +41,23 @@ from wcbench.scenes.scene import Scene
 __all__ = [
     "DRAWS",
     "EDITED",
+    "OLD_OPTION",
+    "OPTION",
+    "PhysicsSpec",
     "WeatherRequest",
-    "WeathersOption",
     "check_consistent",
     "describe_option",
     "has_truth_weather",
-    "parse_weathers",
+    "old_physics_option",
+    "parse_physics",
+    "physics_argument",
+    "physics_option",
     "physics_record",
     "requested_fields",
     "resolve_physics",
     "truth_draw",
     "truth_physics",
     "truth_seeds",
-    "weathers_option",
 ]
 
 EDITED = ("rain", "snow", "fog")
@@ -60,11 +65,15 @@ EDITED = ("rain", "snow", "fog")
 DRAWS = ("seed",)
 #: Relative difference above which two rates or visibilities contradict each other.
 _TOLERANCE = 0.01
+#: The method option giving the spec; ``weathers`` is its old name (deprecated for one release: on
+#: the command line ``--weathers`` lists weather kinds, docs/design.md §4).
+OPTION = "physics"
+OLD_OPTION = "weathers"
 
 
 @dataclass(frozen=True)
 class WeatherRequest:
-    """A weather asked for in a ``weathers`` dict.
+    """A weather asked for in a ``physics`` dict.
 
     Attributes
     ----------
@@ -79,7 +88,7 @@ class WeatherRequest:
 
 
 #: ``"auto"``, ``"truth"``, ``"presets"`` or a request per kind.
-WeathersOption = str | dict[str, WeatherRequest]
+PhysicsSpec = str | dict[str, WeatherRequest]
 
 
 def _truth_file(scene: Scene) -> Path:
@@ -101,7 +110,7 @@ def truth_physics(scene: Scene) -> dict[str, Weather]:
     """
     path = _truth_file(scene)
     if not path.is_file():
-        raise InputError(f"{path}: not found; weathers='truth' renders the weather a scene's ground truth "
+        raise InputError(f"{path}: not found; physics='truth' renders the weather a scene's ground truth "
                          "requested, and only the synth_* scenes record it")
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -130,31 +139,41 @@ def requested_fields(weather: Weather) -> dict[str, Any]:
     return desc
 
 
-def parse_weathers(value: Any, *, who: str) -> WeathersOption:
-    """The ``weathers`` option of a method: ``None`` or ``"auto"``, ``"truth"``, ``"presets"``, or a dict
+def parse_physics(value: Any, *, who: str, name: str = OPTION) -> PhysicsSpec:
+    """The ``physics`` option of a method: ``None`` or ``"auto"``, ``"truth"``, ``"presets"``, or a dict
     of kind -> Weather fields (a :class:`Weather` or a :class:`WeatherRequest` is taken as it is).
 
     A dict entry's ``seed`` is the particle seed asked for by name; without one the run's seed is
     used. A :class:`Weather` object stands for its requested fields (its seed is not a request).
 
+    Parameters
+    ----------
+    value : any
+    who : str
+        The method (or command) the option was given to, first in every message.
+    name : str
+        The option's name as the user gave it, in every message (``"weathers"``: the deprecated
+        name, :data:`OLD_OPTION`).
+
     Raises
     ------
     InputError
-        Another string, an unknown kind or bad Weather fields (``who`` names the method).
+        Another string, an unknown kind or bad Weather fields.
     """
     if value is None:
         return "auto"
     if isinstance(value, str):
         if value not in ("auto", "truth", "presets"):
-            raise InputError(f"{who}: weathers must be 'auto', 'truth', 'presets' or a dict of kind -> Weather "
+            raise InputError(f"{who}: {name} must be 'auto', 'truth', 'presets' or a dict of kind -> Weather "
                              f"fields, got {value!r}")
         return value
     if not isinstance(value, Mapping):
-        raise InputError(f"{who}: weathers must be a dict of kind -> Weather fields, got {type(value).__name__}")
+        raise InputError(f"{who}: {name} must be a dict of kind -> Weather fields, got {type(value).__name__}")
     out: dict[str, WeatherRequest] = {}
     for kind, fields in value.items():
         if kind not in EDITED:
-            raise InputError(f"{who}: weathers[{kind!r}]: not an edited weather (one of {', '.join(EDITED)})")
+            raise InputError(f"{who}: {name}[{kind!r}]: not an edited weather (one of {', '.join(EDITED)}; clear "
+                             "has no physics)")
         if isinstance(fields, WeatherRequest):
             out[kind] = fields
             continue
@@ -162,36 +181,66 @@ def parse_weathers(value: Any, *, who: str) -> WeathersOption:
             out[kind] = WeatherRequest(fields)
             continue
         if not isinstance(fields, Mapping):
-            raise InputError(f"{who}: weathers[{kind!r}]: expected a dict of Weather fields, got {fields!r}")
+            raise InputError(f"{who}: {name}[{kind!r}]: expected a dict of Weather fields, got {fields!r}")
         given = dict(fields)
         seed = given.pop("seed", None)
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
-            raise InputError(f"{who}: weathers[{kind!r}]: seed must be an integer >= 0, got {seed!r}")
+            raise InputError(f"{who}: {name}[{kind!r}]: seed must be an integer >= 0, got {seed!r}")
         try:
             out[kind] = WeatherRequest(Weather(kind=kind, **given), seed=seed)
         except (TypeError, ValueError) as exc:
-            raise InputError(f"{who}: weathers[{kind!r}]: {exc}") from None
+            raise InputError(f"{who}: {name}[{kind!r}]: {exc}") from None
     return out
 
 
-def weathers_option(*, who: str) -> Option:
-    """The declared ``weathers`` option of a method ``who`` (checked by :func:`parse_weathers`)."""
+def physics_argument(physics: Any = None, weathers: Any = None, *, who: str) -> PhysicsSpec:
+    """The spec of a method's ``physics`` keyword, or of its deprecated name ``weathers`` (one release).
 
+    Raises
+    ------
+    InputError
+        Both given (naming both), or a value :func:`parse_physics` refuses.
+
+    Warns
+    -----
+    DeprecationWarning
+        ``weathers`` given: it is the old name of ``physics``.
+    """
+    if weathers is None:
+        return parse_physics(physics, who=who)
+    if physics is not None:
+        raise InputError(f"{who}: {OLD_OPTION} and {OPTION} both given: {OLD_OPTION} is the deprecated name of "
+                         f"{OPTION}; give {OPTION} only")
+    warnings.warn(f"{who} option {OLD_OPTION} is deprecated, use {OPTION}", DeprecationWarning, stacklevel=3)
+    return parse_physics(weathers, who=who, name=OLD_OPTION)
+
+
+def _option(name: str, *, who: str, doc: str, renamed_to: str = "") -> Option:
     def check(value: Any) -> Any:
         try:
-            parse_weathers(value, who=who)
+            parse_physics(value, who=who, name=name)
         except InputError as exc:
             raise ValueError(str(exc).removeprefix(f"{who}: ")) from None
         return value
 
-    return Option("weathers", "custom", "the physics weather per kind: 'auto' (a scene's recorded weather, else "
-                  "the presets), 'truth' (the record, required), 'presets', or Weather fields per kind",
-                  default="auto", nullable=True, check=check,
-                  allowed="'auto', 'truth', 'presets' or a table of rain/snow/fog -> Weather fields, e.g. "
-                          "weathers.rain.preset=heavy")
+    return Option(name, "custom", doc, default="auto", nullable=True, check=check, renamed_to=renamed_to,
+                  allowed=f"'auto', 'truth', 'presets' or a table of rain/snow/fog -> Weather fields, e.g. "
+                          f"{name}.rain.preset=heavy")
 
 
-def describe_option(option: WeathersOption, kind: str) -> dict[str, Any] | str:
+def physics_option(*, who: str) -> Option:
+    """The declared ``physics`` option of a method ``who`` (checked by :func:`parse_physics`)."""
+    return _option(OPTION, who=who, doc="the physics weather per kind: 'auto' (a scene's recorded weather, else "
+                   "the presets), 'truth' (the record, required), 'presets', or Weather fields per kind")
+
+
+def old_physics_option(*, who: str) -> Option:
+    """``weathers``, the deprecated name of the ``physics`` option (one release): checked alike, then
+    handed on as ``physics`` (:func:`wcbench.core.options.validate_options`)."""
+    return _option(OLD_OPTION, who=who, doc=f"deprecated name of {OPTION}", renamed_to=OPTION)
+
+
+def describe_option(option: PhysicsSpec, kind: str) -> dict[str, Any] | str:
     """What ``option`` says of ``kind`` without a scene (recorded in a method's parameters)."""
     if option == "truth":
         return "truth (the requested weather of each scene's truth/weather.json, required; never its seed)"
@@ -204,18 +253,18 @@ def describe_option(option: WeathersOption, kind: str) -> dict[str, Any] | str:
     return desc
 
 
-def resolve_physics(scene: Scene, option: WeathersOption, *, seed: int = 0,
+def resolve_physics(scene: Scene, option: PhysicsSpec, *, seed: int = 0,
                     truth: Mapping[str, Weather] | None = None, draws: bool = True) -> dict[str, Weather]:
     """The physics weather of every edited kind for ``scene`` under ``option``.
 
     Every field comes from a request (the scene's record, the presets or the option); the particle
-    seed never comes from the scene's record: it is ``seed`` (the run's), or the one a ``weathers``
+    seed never comes from the scene's record: it is ``seed`` (the run's), or the one a ``physics``
     dict names for that kind.
 
     Parameters
     ----------
     scene : Scene
-    option : WeathersOption
+    option : PhysicsSpec
         ``"auto"``: the requested fields of the scene's recorded weather (``truth/weather.json``)
         where it ships one, else the presets; ``"truth"``: the same, the record required;
         ``"presets"``: each kind's default preset; a dict: those weathers (the presets for kinds
@@ -259,12 +308,12 @@ def resolve_physics(scene: Scene, option: WeathersOption, *, seed: int = 0,
                 raise InputError(
                     f"--seed {seed}: scene {scene.id!r}'s true {k} was rendered with this particle seed "
                     f"({_truth_file(scene)}), so a method drawing {k} with it would draw the truth's own "
-                    f"particles. Choose another --seed, or name the seed in the weathers option "
-                    f"('weathers={{\"{k}\": {{\"seed\": {seed}}}}}') to render them on purpose")
+                    f"particles. Choose another --seed, or name the seed in the physics option "
+                    f"('physics={{\"{k}\": {{\"seed\": {seed}}}}}') to render them on purpose")
     return out
 
 
-def truth_draw(scene: Scene, weather: Weather | None, *, option: WeathersOption | None = None,
+def truth_draw(scene: Scene, weather: Weather | None, *, option: PhysicsSpec | None = None,
                reads: str | None = None) -> dict[str, Any]:
     """What of the scene's ground truth a render used (``info.json`` ``parameters.truth_draw``).
 
@@ -273,8 +322,8 @@ def truth_draw(scene: Scene, weather: Weather | None, *, option: WeathersOption 
     scene : Scene
     weather : Weather, optional
         The physics weather the render drew its particles from (``None``: it draws none).
-    option : WeathersOption, optional
-        The ``weathers`` option it was resolved under (says whether a seed was named).
+    option : PhysicsSpec, optional
+        The ``physics`` option it was resolved under (says whether a seed was named).
     reads : str, optional
         What of the truth the method reads besides (``sim-editor``: the truth frames); ``None``:
         nothing.
@@ -284,7 +333,7 @@ def truth_draw(scene: Scene, weather: Weather | None, *, option: WeathersOption 
     dict
         ``used`` (bool: the truth's frames, or its particle seed, went into the frames),
         ``particle_seed`` and ``truth_particle_seed`` (``None`` where there is none), ``seed_from``
-        (``"run"``: ``--seed``; ``"weathers option"``: named) and ``note``.
+        (``"run"``: ``--seed``; ``"physics option"``: named) and ``note``.
     """
     out: dict[str, Any] = {"used": reads is not None, "particle_seed": None, "truth_particle_seed": None,
                            "seed_from": None}
@@ -293,7 +342,7 @@ def truth_draw(scene: Scene, weather: Weather | None, *, option: WeathersOption 
         named = isinstance(option, dict) and weather.kind in option and option[weather.kind].seed is not None
         same = theirs is not None and int(weather.seed) == theirs
         out.update(used=bool(out["used"] or same), particle_seed=int(weather.seed), truth_particle_seed=theirs,
-                   seed_from="weathers option" if named else "run")
+                   seed_from="physics option" if named else "run")
         if same:
             out["note"] = (f"the truth's own particle seed (from the {out['seed_from']}): its {weather.kind} "
                            "particles are the truth's")
@@ -341,11 +390,11 @@ def check_consistent(kind: str, physics: Weather, record: Mapping[str, Any], *, 
     if kind in ("rain", "snow") and _differs(record.get("rate_mm_h"), mine["rate_mm_h"]):
         raise InputError(f"{source}: its {kind} was made at {record.get('rate_mm_h')} mm/h, the run's physics "
                          f"{kind} is {mine['rate_mm_h']} mm/h; edit at the run's rate or set the run's "
-                         f"weathers to the supervision's")
+                         f"physics to the supervision's")
     if _differs(record.get("visibility_m"), mine["visibility_m"]):
         def show(v: Any) -> str:
             return "no haze" if v is None else f"{float(v):.4g} m"
 
         raise InputError(f"{source}: its {kind} was made with visibility {show(record.get('visibility_m'))}, "
                          f"the run's physics {kind} has visibility {show(mine['visibility_m'])}; edit with the "
-                         f"run's visibility or set the run's weathers to the supervision's")
+                         f"run's visibility or set the run's physics to the supervision's")

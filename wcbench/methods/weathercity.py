@@ -43,15 +43,16 @@ from wcbench.methods.scene_training import VERSION, check_supervision, train_sce
 from wcbench.methods.sim_editor import supervision_severity, truth_paths
 from wcbench.methods.weather_spec import (
     EDITED,
-    WeathersOption,
+    PhysicsSpec,
     describe_option,
     has_truth_weather,
-    parse_weathers,
+    old_physics_option,
+    physics_argument,
+    physics_option,
     physics_record,
     resolve_physics,
     truth_draw,
     truth_physics,
-    weathers_option,
 )
 from wcbench.reference_model.appearance.editor import AppearanceParams, masked_ego
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
@@ -131,12 +132,12 @@ class WeatherCityMethod(FrameRenderer):
         Training settings overriding the profile's (see :class:`TrainConfig`).
     holdout : sequence of int
         Frames left out of training (their held-out PSNR goes to info.json).
-    weathers : "auto", "truth", "presets" or dict, optional
-        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_weathers`). Default
+    physics : "auto", "truth", "presets" or dict, optional
+        The physics weather per kind (:func:`~wcbench.methods.weather_spec.parse_physics`). Default
         ``"auto"``: the weather a scene's truth requested where it records one
         (``truth/weather.json`` of the ``synth_*`` scenes: preset, rate, visibility, wind), else
         each kind's default preset; ``"truth"`` requires the record; a dict gives the
-        :class:`Weather` fields (``--method-option 'weathers={"rain": {"preset": "heavy"}}'``).
+        :class:`Weather` fields (``--method-option 'physics={"rain": {"preset": "heavy"}}'``).
         The particle seed is always the run's (``--seed``), never the truth's: a run seed equal to
         it is refused on that scene, and only a dict that names a ``seed`` renders another.
     size : (int, int), optional
@@ -145,6 +146,8 @@ class WeatherCityMethod(FrameRenderer):
         Object edits (``"remove class=Car except ids=3,7"``, a JSON list...).
     content : ContentLoss, None or "auto"
         See :func:`~wcbench.methods.scene_training.train_scene`.
+    weathers : optional
+        Deprecated name of ``physics`` (one release; a :class:`DeprecationWarning`).
     """
 
     version = VERSION
@@ -160,12 +163,13 @@ class WeatherCityMethod(FrameRenderer):
                            table=settings_options()),
         "holdout": Option("holdout", "ints", "frames left out of training and scored", default=[],
                           range=Range(0)),
-        "weathers": weathers_option(who="weathercity"),
+        "physics": physics_option(who="weathercity"),
         "size": size_option("render (width, height) in pixels; default the training size"),
         "edits": Option("edits", "custom", "object edits, e.g. 'remove class=Car except ids=3,7'", nullable=True,
                         check=_check_edits, allowed="an edit such as 'remove class=Car', or a list of them"),
         "content": Option("content", "custom", "the content loss: 'auto' (VGG16) or null (off)", default="auto",
                           nullable=True, check=_check_content, allowed="'auto' or null"),
+        "weathers": old_physics_option(who="weathercity"),
     }
 
     def __init__(
@@ -177,10 +181,11 @@ class WeatherCityMethod(FrameRenderer):
         ablation: str = "",
         settings: dict[str, Any] | None = None,
         holdout: tuple[int, ...] | list[int] = (),
-        weathers: Any = None,
+        physics: Any = None,
         size: tuple[int, int] | None = None,
         edits: str | list[Any] | None = None,
         content: Any = "auto",
+        weathers: Any = None,
     ):
         try:
             self.config = make_config(profile, ablation=ablation, holdout=tuple(int(h) for h in holdout),
@@ -192,7 +197,7 @@ class WeatherCityMethod(FrameRenderer):
             raise InputError(f"weathercity: jitter must be in [0, 1], got {jitter}")
         check_supervision(supervision, float(jitter))  # a bad sim-editor severity fails before training
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
-        self.weathers: WeathersOption = parse_weathers(weathers, who="weathercity")
+        self.physics_spec: PhysicsSpec = physics_argument(physics, weathers, who="weathercity")
         self._physics: dict[str, dict[str, Weather]] = {}
         self.size = None if size is None else (int(size[0]), int(size[1]))
         self.info = MethodInfo(
@@ -220,7 +225,7 @@ class WeatherCityMethod(FrameRenderer):
 
     def weather_for(self, kind: str, seed: int, scene: Scene, *, draws: bool = True) -> Weather:
         """The physics weather of ``kind`` for ``scene`` with particle seed ``seed`` (the run's, or
-        one the ``weathers`` dict names): the scene's requested weather under ``"auto"``/``"truth"``
+        one the ``physics`` dict names): the scene's requested weather under ``"auto"``/``"truth"``
         where it records one, else the given or preset weather.
 
         Raises
@@ -231,12 +236,12 @@ class WeatherCityMethod(FrameRenderer):
         """
         if kind == "clear":
             return Weather(kind="clear", seed=seed)
-        return resolve_physics(scene, self.weathers, seed=seed, truth=self._recorded(scene), draws=draws)[kind]
+        return resolve_physics(scene, self.physics_spec, seed=seed, truth=self._recorded(scene), draws=draws)[kind]
 
     def _recorded(self, scene: Scene) -> dict[str, Weather] | None:
         """The scene's recorded weather (``truth/weather.json``), read once per scene folder; ``None``
         when it has none (and the option does not require it)."""
-        if self.weathers == "truth" or has_truth_weather(scene):
+        if self.physics_spec == "truth" or has_truth_weather(scene):
             key = str(scene.root)
             if key not in self._physics:
                 self._physics[key] = truth_physics(scene)
@@ -254,14 +259,14 @@ class WeatherCityMethod(FrameRenderer):
         :meth:`physics`; the seed is recorded apart)."""
         return {"training": self.config.to_json(), "supervision": self.supervision, "jitter": self.jitter,
                 "edits": [e.to_json() for e in self.edits],
-                "weather": describe_option(self.weathers, weather) if weather != "clear" else "clear"}
+                "weather": describe_option(self.physics_spec, weather) if weather != "clear" else "clear"}
 
     def check_scene(self, scene: Scene, weather: str) -> None:
-        """With ``weathers="truth"`` the scene must ship ``truth/weather.json`` describing ``weather``;
+        """With ``physics="truth"`` the scene must ship ``truth/weather.json`` describing ``weather``;
         with sim-editor supervision, truth frames of every edited weather; with the physical editor,
         lidar (checked before any render)."""
         if weather != "clear":
-            resolve_physics(scene, self.weathers, truth=self._recorded(scene), draws=False)
+            resolve_physics(scene, self.physics_spec, truth=self._recorded(scene), draws=False)
         if supervision_severity(self.supervision) is not None:
             for kind in EDITED:
                 truth_paths(scene, kind)
@@ -358,7 +363,7 @@ class WeatherCityMethod(FrameRenderer):
             reads = (f"trained on {self.supervision}'s edits of the scene's ground-truth frames (truth/): a "
                      "calibration of the validity bench, not a competitor's input")
         physics = None if weather == "clear" else self.weather_for(weather, seed, scene)
-        return truth_draw(scene, physics, option=self.weathers, reads=reads)
+        return truth_draw(scene, physics, option=self.physics_spec, reads=reads)
 
     def setup_timings(self) -> dict[str, float]:
         """``train_s``: the seconds the model's training took (recorded in its checkpoint, so a model

@@ -11,6 +11,12 @@ A spec names a layout, loader options and scene folders relative to the data roo
     # optional per scene: aliases = ["23"], other names tools give the scene's folder (a prediction
     # folder may also be named like the scene id or the scene's data folder, here "788")
 
+A scene is called by its ``id`` in progress lines, the output layout (``<out>/<method>/<scene>/``),
+results and reports. A set of one scene calls it by the set's name, the name the user gave
+(``--scenes synth_1``: scene ``synth_1``, data folder ``synth_000``); the scenes of a larger set are
+called by the data's names for them (``waymo_023``, ``synth_001``). A prediction folder may still
+carry the data folder's name (docs/design.md §3, "Scene names").
+
 drivestudio names a processed scene folder by its index zero-padded to three digits (``023``,
 ``002``) and its configs select it by the plain index (``data.scene_idx=23``), which tools such as
 WeatherCity carry into their run names; a set lists both spellings its data folder does not
@@ -68,7 +74,8 @@ class SceneRef:
     Attributes
     ----------
     id : str
-        Scene id used in output folders (e.g. ``"waymo_788"``).
+        Scene id used in output folders and reports (e.g. ``"waymo_788"``; a one-scene set's:
+        the set's name).
     format : str
         Loader name (``"drivestudio_waymo"``, ``"drivestudio_nuscenes"``, ``"builtin"``).
     path : Path
@@ -186,7 +193,8 @@ def resolve_scenes(
     Raises
     ------
     InputError
-        Two entries give scenes of the same id (their outputs would share folders).
+        Two entries give scenes of the same id (their outputs would share folders), or one scene
+        folder under two names (``synth_1,synth_3``: ``synth_1`` is ``synth_3``'s first scene).
     """
     text = str(name_or_path)
     if "," in text and not Path(text).expanduser().is_dir():
@@ -197,6 +205,13 @@ def resolve_scenes(
         if twice:
             raise InputError(f"--scenes {text!r}: scene ids {twice} come up more than once "
                              "(a scene folder's id is its folder name)")
+        names: dict[Path, list[str]] = {}
+        for r in refs:
+            names.setdefault(r.path.resolve(), []).append(r.id)
+        again = {path: ids for path, ids in names.items() if len(ids) > 1}
+        if again:
+            listing = "; ".join(f"{path} as {', '.join(ids)}" for path, ids in again.items())
+            raise InputError(f"--scenes {text!r}: one scene folder given twice ({listing}); give it once")
         return refs
     return _resolve_one(text, data_root=data_root)
 

@@ -222,7 +222,7 @@ def _ensure(specs: tuple[SynthSpec, ...]) -> Path:
         if (root / MARKER).is_file():
             continue
         reference_model()  # fail before any work when torch is missing
-        announce(f"generating synthetic scene {root.name} (first use only)")
+        announce(f"generating the synthetic scene {root} (first use only)")  # a folder: sets name the scene
         parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=parent))
         try:
