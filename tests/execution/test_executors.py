@@ -137,6 +137,7 @@ def test_threads_are_shared_out_and_missing_resources_are_refused(cluster):
         cluster._resources(["gpu"])
 
 
+@pytest.mark.slow  # 20 s: starts local Dask clusters; the executor's scoring is tested above
 def test_cli_options_of_the_executor(tmp_path, capsys):
     assert main(["run", "--method", "filter2d", "--scenes", "demo", "--out", str(tmp_path / "a"),
                  "--workers", "2"]) == 2

@@ -69,6 +69,7 @@ def test_train_cli_writes_facts_and_a_second_call_loads_the_checkpoint(tmp_path,
     assert again["resumed_at"] == 24 and again["train_seconds"] == facts["train_seconds"]
 
 
+@pytest.mark.slow  # 25 s: two CLI trainings end to end
 @pytest.mark.model
 def test_one_scene_by_a_relative_and_an_absolute_path_trains_once(tmp_path, demo_scene, monkeypatch):
     pytest.importorskip("torch")
@@ -164,6 +165,7 @@ print(json.dumps({"pid": os.getpid(), "resumed_at": facts["resumed_at"], "train_
 """
 
 
+@pytest.mark.slow  # 22 s: two processes; the lock itself is tested in tests/core/test_locking.py
 @pytest.mark.model
 def test_two_processes_training_one_model_train_once_and_the_second_loads_it(tmp_path, demo_scene):
     pytest.importorskip("torch")

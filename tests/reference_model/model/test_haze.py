@@ -75,6 +75,7 @@ def test_offset_haze_matches_the_numpy_channels_and_composition():
                                atol=1e-6, rtol=0)
 
 
+@pytest.mark.slow  # 57 s: a decoder trained to convergence; the compositing it relies on is tested above
 def test_a_decoder_fitted_through_the_haze_learns_the_colors_behind_it():
     # Targets: the fog render of known colors. Fitted through the haze, the fog decoder recovers
     # those colors; fitted to the hazed frames as they are (no haze), it learns the haze into them.
