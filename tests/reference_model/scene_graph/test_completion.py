@@ -10,6 +10,7 @@ from wcbench.reference_model.scene_graph.completion import (
     FILL_KNOWN,
     FILL_SKY,
     FILL_WALL,
+    closing_among,
     complete_distance,
     ground_height_below,
 )
@@ -66,11 +67,63 @@ def test_a_gap_in_a_canopy_rises_from_the_nearest_known_pixel_below():
     distance[2:4, 5] = 20.0 / z_per_m[2:4, 5]
     known[15:17, 5] = True  # its lower canopy, 6 m away
     distance[15:17, 5] = 6.0 / z_per_m[15:17, 5]
+    # the column's own rule (no horizontal closing: alone in its row, a 1 px column is a thin dip)
     out, kind, _ = complete_distance(distance, known, np.zeros((h, w), bool), rays, np.array([0.0, 0, 1.6]),
-                                     np.array([0.0, 0, 1.0]), 0.0, forward=FORWARD)
+                                     np.array([0.0, 0, 1.0]), 0.0, forward=FORWARD, thin_fraction=0.0)
     np.testing.assert_allclose((out * z_per_m)[4:15, 5], 6.0, rtol=1e-9)  # from row 15, not row 3
     np.testing.assert_allclose((out * z_per_m)[:2, 5], 20.0, rtol=1e-9)
     assert np.all(kind[4:15, 5] == FILL_WALL)
+
+
+def test_a_pole_in_front_of_a_facade_does_not_carry_its_distance_up_the_facade():
+    rays, z_per_m = _level_camera(h=40, w=120)
+    h, w = z_per_m.shape
+    known = np.zeros((h, w), bool)
+    distance = np.full((h, w), np.inf)
+    known[15:25, 10:110] = True  # a facade 20 m ahead, its top return at row 15
+    distance[15:25, 10:110] = 20.0 / z_per_m[15:25, 10:110]
+    pole = np.s_[12:25, 50:52]  # a 2 px pole 5 m ahead, its top above the facade's
+    known[pole] = True
+    distance[pole] = 5.0 / z_per_m[pole]
+    sky = np.zeros((h, w), bool)
+    args = (sky, rays, np.array([0.0, 0, 1.6]), np.array([0.0, 0, 1.0]), 0.0)
+    out, kind, _ = complete_distance(distance, known, *args, forward=FORWARD)  # 1/60 of 120: 2 px each side
+    depth = out * z_per_m
+    np.testing.assert_allclose(depth[:12, 10:110], 20.0, rtol=1e-9)  # the facade rises above the pole too
+    assert np.all(kind[:12, 10:110] == FILL_WALL)
+    np.testing.assert_allclose(depth[pole], 5.0, rtol=1e-9)  # what the lidar saw is kept
+    # without the closing, the pole's columns carry its 5 m up the facade
+    depth = complete_distance(distance, known, *args, forward=FORWARD, thin_fraction=0.0)[0] * z_per_m
+    np.testing.assert_allclose(depth[:12, 50:52], 5.0, rtol=1e-9)
+    # a wide sign (30 px) is a structure of its own: its distance rises above it
+    wide = np.s_[12:25, 40:70]
+    known[wide] = True
+    distance[wide] = 8.0 / z_per_m[wide]
+    depth = complete_distance(distance, known, *args, forward=FORWARD)[0] * z_per_m
+    np.testing.assert_allclose(depth[:12, 44:66], 8.0, rtol=1e-9)
+    np.testing.assert_allclose(depth[:12, 10:38], 20.0, rtol=1e-9)
+
+
+@pytest.mark.parametrize("half", [1, 2, 4])
+def test_the_closing_among_known_pixels_equals_its_written_out_definition(rng, half):
+    h, w = 17, 23
+    values = rng.uniform(1.0, 80.0, (h, w))
+    mask = rng.random((h, w)) < 0.6
+
+    def window(grid, y, x):
+        ys, xs = slice(max(0, y - half), y + half + 1), slice(max(0, x - half), x + half + 1)
+        return grid[ys, xs][mask[ys, xs]]
+
+    dilated = np.full((h, w), -np.inf)
+    for y, x in zip(*np.nonzero(mask)):
+        dilated[y, x] = window(values, y, x).max()
+    expected = values.copy()
+    for y, x in zip(*np.nonzero(mask)):
+        expected[y, x] = window(dilated, y, x).min()
+    got = closing_among(values, mask, half)
+    np.testing.assert_allclose(got, expected, rtol=1e-6)  # float32 inside
+    assert np.array_equal(got[~mask], values[~mask])
+    assert np.all(got[mask] >= values[mask] * (1 - 1e-6))  # a closing only fills
 
 
 def test_ground_height_below_a_camera():
