@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+
+from wcbench.core.options import Option
 
 #: Weathers whose visibility loss invalidates content-consistency metrics (paper's rule, docs/design.md §5).
 CONTENT_INVALID_WEATHERS = frozenset({"fog"})
@@ -120,6 +122,29 @@ def as_float_images(x: Any, *, name: str) -> np.ndarray:
     if a.size and not (a.min() >= 0.0 and a.max() <= 1.0):
         raise ValueError(f"{name}: float images must be finite and in [0, 1]")
     return a
+
+
+def python_object_option(name: str, doc: str, *, accepts: Callable[[Any], bool], what: str) -> Option:
+    """An option only Python callers give (an injected model, a model store): ``None`` (the metric's
+    own) or ``what``, which no value of the command line is.
+
+    Parameters
+    ----------
+    name, doc : str
+        The option's keyword and meaning.
+    accepts : callable
+        ``accepts(value)`` is true for the objects the option takes (``callable``, an ``isinstance``).
+    what : str
+        Those objects in words (``"a ModelStore"``), for the listing and the errors.
+    """
+    allowed = f"{what} (Python API only)"
+
+    def check(value: Any) -> Any:
+        if not accepts(value):
+            raise ValueError(f"expected {allowed} or null")
+        return value
+
+    return Option(name, "custom", doc, default=None, nullable=True, check=check, allowed=allowed)
 
 
 def check_same_shape(a: np.ndarray, b: np.ndarray, *, names: tuple[str, str]) -> None:
@@ -223,6 +248,24 @@ class Metric(ABC):
     min_frames: ClassVar[int] = 1
     #: Reads the frames (FPS does not): scored at the metric working resolution.
     reads_frames: ClassVar[bool] = True
+    #: The keyword options of the constructor (name -> :class:`~wcbench.core.options.Option`: type,
+    #: range or choices, default, meaning), declared beside it and checked before any work
+    #: (:func:`~wcbench.metrics.registry.validate_metric_options`; docs/guide.md, "Metric options");
+    #: ``None``: undeclared (a plugin's metric), its keywords then take any value.
+    OPTIONS: ClassVar[dict[str, Option] | None] = None
+
+    @classmethod  # noqa: B027 - an optional hook
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """The rules no single option's schema states: between options, or against files (a model of
+        the catalogue, a weather of a prompts file). ``options`` are the ones given, each already
+        checked against :attr:`OPTIONS`. Reads files, writes nothing; by default there are none.
+
+        Raises
+        ------
+        OptionError
+            Whose ``path`` is the option at fault and whose message says what is allowed (the
+            caller adds the metric, the option and the value).
+        """
 
     def skip_reason(self, ctx: MetricContext) -> str | None:
         """Why this metric cannot run on ``ctx`` (``None``: it can)."""
@@ -310,6 +353,10 @@ class PerFrameReferenceMetric(Metric):
     identical_value: ClassVar[float | None] = None
     #: Smallest frame side the metric takes (checked before any frame is skipped as identical).
     min_side: ClassVar[int] = 1
+    OPTIONS: ClassVar[dict[str, Option] | None] = {
+        "skip_identical": Option("skip_identical", "bool", "give a frame equal to its reference its exact value "
+                                 "without computing it (off only to measure what that saves)", default=True),
+    }
 
     def __init__(self, *, skip_identical: bool = True) -> None:
         self.skip_identical = bool(skip_identical)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from wcbench.core.options import Option
 from wcbench.metrics.base import Metric, MetricContext, MetricValue
 
 
@@ -17,6 +18,7 @@ class FPS(Metric):
     outputs = ("fps",)
     higher_is_better = True
     reads_frames = False
+    OPTIONS: ClassVar[dict[str, Option] | None] = {}  # the frame rate is --fps, given to every unit
 
     def __init__(self) -> None:
         self._ctx: MetricContext | None = None

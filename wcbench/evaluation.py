@@ -44,7 +44,7 @@ from wcbench.execution import Executor
 from wcbench.execution.local import LocalExecutor
 from wcbench.methods import Method, canonical_method_name, get_method, is_runnable
 from wcbench.metrics.base import Metric
-from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric
+from wcbench.metrics.registry import DEFAULT_METRICS, METRICS, create_metric, validate_metric_options
 from wcbench.predictions import (
     RESIZE_INTERPOLATION,
     PredictionSequence,
@@ -162,6 +162,36 @@ def _check_weathers(method: Method, weathers: list[str]) -> None:
         if w not in method.info.weathers:
             raise InputError(f"method {method.info.name!r} does not support weather {w!r} "
                              f"(supports {', '.join(method.info.weathers)})")
+
+
+def check_metrics(cfg: EvaluateConfig) -> tuple[list[str], dict[str, dict[str, Any]]]:
+    """The metrics ``cfg`` computes and their options, checked before anything is created, fetched
+    or written: every name is registered, every option is one its metric declares, with a value it
+    allows (:func:`~wcbench.metrics.registry.validate_metric_options`), and is given to a metric
+    that is computed.
+
+    Returns
+    -------
+    names : list of str
+        ``cfg.metrics`` (default :data:`DEFAULT_METRICS`) without repeats.
+    options : dict
+        ``{metric: {key: value}}`` as the constructors take them.
+
+    Raises
+    ------
+    UnknownNameError, OptionError, InputError
+        In one line: an unknown metric; an option a metric does not take, or not with that value
+        (naming metric, option, value and what is allowed); options for a metric not computed.
+    """
+    names = list(dict.fromkeys(cfg.metrics or DEFAULT_METRICS))
+    for n in names:
+        if n not in METRICS:
+            raise UnknownNameError("metric", n, METRICS.names())
+    stray = sorted(set(cfg.metric_options) - set(names))
+    if stray:
+        raise InputError(f"options given for metrics that are not computed: {', '.join(stray)} "
+                         f"(computed: {', '.join(names)})")
+    return names, {n: validate_metric_options(n, opts) for n, opts in cfg.metric_options.items()}
 
 
 def _metric_config(names: list[str], options: dict[str, dict[str, Any]], *, method: Method,
@@ -317,21 +347,15 @@ def check_out_folder(
     Raises
     ------
     UnknownNameError, InputError
-        Unknown method, weather or metric; ``cfg.out`` holds results of another schema version.
+        Unknown method, weather or metric, or a metric option it does not allow (:func:`check_metrics`);
+        ``cfg.out`` holds results of another schema version.
     ResultsExistError
         ``cfg.out`` holds finished results for another method, scene set, weathers or metrics.
     """
     method = method if method is not None else get_method(cfg.method)
-    metric_names = list(dict.fromkeys(cfg.metrics or DEFAULT_METRICS))
-    for n in metric_names:
-        if n not in METRICS:
-            raise UnknownNameError("metric", n, METRICS.names())
+    metric_names, _ = check_metrics(cfg)
     if cfg.weathers:
         _check_weathers(method, cfg.weathers)
-    stray = sorted(set(cfg.metric_options) - set(metric_names))
-    if stray:
-        raise InputError(f"options given for metrics that are not computed: {', '.join(stray)} "
-                         f"(computed: {', '.join(metric_names)})")
     results_path = cfg.out / RESULTS_JSON
     previous = read_results(results_path) if results_path.is_file() and not cfg.overwrite else None
     if previous is not None:
@@ -379,9 +403,11 @@ def evaluate(cfg: EvaluateConfig, *, method: Method | None = None, executor: Exe
         units that failed (:class:`~wcbench.execution.UnitsFailedError`) after the others finish.
     """
     executor = executor or LocalExecutor()
+    # the metrics and their options first: a bad one is refused before any folder is made or weight fetched
+    _, metric_options = check_metrics(cfg)
     # paths resolved once: the same folder given relative or absolute is the same input
     cfg = replace(cfg, predictions=cfg.predictions.resolve(), out=cfg.out.resolve(),
-                  scenes=normalized_scenes(cfg.scenes))
+                  scenes=normalized_scenes(cfg.scenes), metric_options=metric_options)
     check_writable_folder(cfg.out)
     with FolderLock(cfg.out):  # one run per output folder; results are checked under the lock
         sweep_temporary_files(cfg.out)  # what a killed run was writing when it died

@@ -27,10 +27,18 @@ from typing import Any, ClassVar
 import numpy as np
 
 from wcbench.core.models.store import ModelStore, StoreBacked
+from wcbench.core.options import Option, OptionError, Range
 from wcbench.core.storage import sha256_file
-from wcbench.metrics.base import Metric, MetricContext, MetricValue, check_same_shape, finite_or_none
+from wcbench.metrics.base import (
+    Metric,
+    MetricContext,
+    MetricValue,
+    check_same_shape,
+    finite_or_none,
+    python_object_option,
+)
 from wcbench.metrics.clip.encoder import BACKENDS, DEFAULT_MODEL, ClipEmbedder, shared_clip_encoder
-from wcbench.metrics.clip.preprocess import ClipPreprocess
+from wcbench.metrics.clip.preprocess import CROPS, ClipPreprocess
 from wcbench.metrics.clip.tokenizer import VOCAB_ENTRY
 
 if sys.version_info >= (3, 11):
@@ -166,11 +174,58 @@ def _frames(x: np.ndarray | None, name: str) -> np.ndarray:
     return a[None] if a.ndim == 3 else a
 
 
+def _model_option(value: Any) -> str:
+    """A ``model`` option's value: a name (whether the catalogue has it is :meth:`_ClipMetric.check_options`'s)."""
+    if isinstance(value, str) and value:
+        return value
+    raise ValueError("expected a CLIP model of the catalogue (`wcbench models list`), e.g. " + DEFAULT_MODEL)
+
+
+def _weather_option(value: Any) -> str:
+    """A ``weather`` option's value: a name (whether the prompts file has it is
+    :meth:`ClipDirectionalScore.check_options`'s)."""
+    if isinstance(value, str) and value:
+        return value
+    raise ValueError("expected a weather of the prompts file, e.g. rain")
+
+
+def _prompts_option(value: Any) -> str | os.PathLike[str]:
+    """A ``prompts`` option's value: a readable texts file (:func:`load_weather_prompts` takes it)."""
+    if not isinstance(value, (str, os.PathLike)) or not str(value):
+        raise ValueError("expected a path to a TOML file of weather texts (as weather_prompts.toml)")
+    try:
+        load_weather_prompts(value)
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"expected a readable TOML file of weather texts: {exc}") from None
+    return value  # a ValueError of load_weather_prompts names the file and the text at fault
+
+
 class _ClipMetric(StoreBacked, Metric):
     """Shared set-up of the CLIP metrics: which model, which embedder, which preprocessing."""
 
     higher_is_better: ClassVar[bool] = True
     needs_texts: ClassVar[bool] = False
+    OPTIONS: ClassVar[dict[str, Option] | None] = {
+        "model": Option("model", "custom", "CLIP model of the model store", default=DEFAULT_MODEL,
+                        check=_model_option, allowed="a CLIP model of the catalogue (`wcbench models list`)"),
+        "embedder": python_object_option("embedder", "injected embedder in place of the model (tests, custom "
+                                         "models)", accepts=lambda v: isinstance(v, ClipEmbedder),
+                                         what="a ClipEmbedder"),
+        "store": python_object_option("store", "model store the weights are read from (default $WCBENCH_MODELS)",
+                                      accepts=lambda v: isinstance(v, ModelStore), what="a ModelStore"),
+        "backend": Option("backend", "str", "how the model runs: onnx (onnxruntime), torch (needs the [model] "
+                          "extra)", default="onnx", choices=BACKENDS),
+        "crop": Option("crop", "str", "center crops to CLIP's square as CLIP does (a 16:9 frame loses its sides), "
+                       "squash keeps the whole frame", default="center", choices=CROPS),
+        "batch_size": Option("batch_size", "int", "frames per inference call", default=16, range=Range(1)),
+    }
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """A ``model`` given is an entry of the catalogue (of ``store`` when one is given), unless an
+        ``embedder`` replaces it."""
+        if "model" in options and options.get("embedder") is None:
+            cls.check_model_option("model", options["model"], options.get("store"), example=DEFAULT_MODEL)
 
     def __init__(
         self,
@@ -311,6 +366,27 @@ class ClipDirectionalScore(_ClipMetric):
     description: ClassVar[str] = "CLIP-DS: alignment of the CLIP image edit direction with the weather text"
     outputs: ClassVar[tuple[str, ...]] = ("clip_ds", "clip_ds_directional")
     needs_texts: ClassVar[bool] = True
+    OPTIONS: ClassVar[dict[str, Option] | None] = {
+        "weather": Option("weather", "custom", "weather whose texts every sequence is scored with; null: each "
+                          "sequence's own", nullable=True, check=_weather_option,
+                          allowed="a weather of the prompts file, e.g. rain"),
+        "prompts": Option("prompts", "custom", "TOML file of the texts of each weather; null: the built-in "
+                          "weather_prompts.toml", nullable=True, check=_prompts_option,
+                          allowed="a path to a TOML file of weather texts"),
+        **(_ClipMetric.OPTIONS or {}),
+    }
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """As :class:`ClipScore`, and a ``weather`` given has texts in the prompts file."""
+        super().check_options(options)
+        weather = options.get("weather")
+        if weather is not None:
+            path = options.get("prompts")
+            known = load_weather_prompts(path)
+            if weather not in known:
+                where = path if path is not None else f"the built-in {DEFAULT_PROMPTS.name}"
+                raise OptionError(f"expected a weather of {where}: {', '.join(known)}", path="weather")
 
     def __init__(
         self,

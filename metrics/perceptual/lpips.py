@@ -21,13 +21,14 @@ import json
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from wcbench.core.models.lpips_sdist import read_weights
 from wcbench.core.models.store import ModelStore, StoreBacked
+from wcbench.core.options import Option
 from wcbench.metrics.base import (
     Metric,
     MetricContext,
@@ -36,6 +37,7 @@ from wcbench.metrics.base import (
     check_min_side,
     finite_or_none,
     frame_values_skipping_identical,
+    python_object_option,
 )
 from wcbench.metrics.perceptual.spec import LPIPS_SCALE, LPIPS_SHIFT, NETS, NORM_EPS
 
@@ -52,6 +54,8 @@ _VGG_BLOCKS = ((0, 2), (5, 7), (10, 12, 14), (17, 19, 21), (24, 26, 28))
 #: Smallest frame side each backbone takes: AlexNet's stride-4 convolution and two 3x3 stride-2
 #: pools leave one pixel at 31 px; VGG's four 2x2 pools at 16 px.
 MIN_SIDE = {"alex": 31, "vgg": 16}
+#: How the network runs: ``auto`` (ONNX when exported, else numpy), ``onnx``, ``numpy`` or ``torch``.
+BACKENDS = ("auto", "onnx", "numpy", "torch")
 # im2col working set per matmul (bytes): bounds memory on full-resolution frames
 _IM2COL_BYTES = 64 << 20
 
@@ -204,9 +208,9 @@ class _TorchLPIPS:
 
 def _check_net_backend(net: str, backend: str) -> None:
     if net not in NETS:
-        raise ValueError(f"net must be 'alex' or 'vgg', got {net!r}")
-    if backend not in ("auto", "onnx", "numpy", "torch"):
-        raise ValueError(f"backend must be 'auto', 'onnx', 'numpy' or 'torch', got {backend!r}")
+        raise ValueError(f"net must be one of {', '.join(map(repr, NETS))}, got {net!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
 
 
 def _resolve_backend(model_dir: Path, backend: str) -> str:
@@ -308,6 +312,18 @@ class LPIPS(StoreBacked, Metric):
     outputs = ("lpips",)
     higher_is_better = False
     needs_reference = True
+    OPTIONS: ClassVar[dict[str, Option] | None] = {
+        "net": Option("net", "str", "backbone whose features are compared (weights lpips-NET)", default="alex",
+                      choices=NETS),
+        "backend": Option("backend", "str", "how the network runs: auto is onnx when exported, else numpy; "
+                          "torch needs the [model] extra", default="auto", choices=BACKENDS),
+        "store": python_object_option("store", "model store the weights are read from (default $WCBENCH_MODELS)",
+                                      accepts=lambda v: isinstance(v, ModelStore), what="a ModelStore"),
+        "distance": python_object_option("distance", "injected distance(pred, reference) -> [B] in place of "
+                                         "the network (tests)", accepts=callable, what="a callable"),
+        "skip_identical": Option("skip_identical", "bool", "give a frame equal to its reference 0 without "
+                                 "running the network (off only to measure what that saves)", default=True),
+    }
 
     def __init__(
         self,

@@ -19,14 +19,22 @@ from __future__ import annotations
 import hashlib
 import json
 from collections import OrderedDict
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
-from wcbench.core.models.store import StoreBacked
-from wcbench.metrics.base import Metric, MetricContext, MetricValue, as_float_image_pair, finite_or_none
-from wcbench.metrics.semantic.loading import load_segmenter
+from wcbench.core.models.store import ModelStore, StoreBacked
+from wcbench.core.options import Option, Range
+from wcbench.metrics.base import (
+    Metric,
+    MetricContext,
+    MetricValue,
+    as_float_image_pair,
+    finite_or_none,
+    python_object_option,
+)
+from wcbench.metrics.semantic.loading import BACKENDS, load_segmenter
 from wcbench.metrics.semantic.segmenter import SPEC_FILE
 
 __all__ = [
@@ -201,6 +209,19 @@ def sem_cs(
     return float(finite.mean()) if finite.size else float("nan")
 
 
+_SEGMENTER_ALLOWED = ("a segmenter of the catalogue (`wcbench models list`), e.g. segformer-b0-ade "
+                      "(Python API: also a segmenter callable)")
+
+
+def _segmenter_option(value: Any) -> str | Segmenter:
+    """A ``segmenter`` option's value: a name (whether the catalogue has it is
+    :meth:`SemanticConsistency.check_options`'s) or a callable. ``None`` (label maps given directly)
+    is the Python API's alone: an evaluation gives frames."""
+    if (isinstance(value, str) and value) or callable(value):
+        return value
+    raise ValueError(f"expected {_SEGMENTER_ALLOWED}")
+
+
 class SemanticConsistency(StoreBacked, Metric):
     """Sem-CS between the source frames and the edit: per-frame mean and pooled fwIoU.
 
@@ -231,6 +252,30 @@ class SemanticConsistency(StoreBacked, Metric):
     outputs = ("sem_cs", "sem_cs_pooled")
     higher_is_better = True
     compares_content = True
+    OPTIONS: ClassVar[dict[str, Option] | None] = {
+        "segmenter": Option("segmenter", "custom", "ADE20K segmenter of the model store that segments source "
+                            "and edit", default=DEFAULT_SEGMENTER, check=_segmenter_option, allowed=_SEGMENTER_ALLOWED),
+        "num_classes": Option("num_classes", "int", "classes of the segmenter (150 for ADE20K)",
+                              default=ADE20K_CLASSES, range=Range(1)),
+        "ignore_index": Option("ignore_index", "int", "label left out of the counts in both maps (ADE20K's "
+                               "'other'); null: none", default=255, range=Range(0), nullable=True),
+        "backend": Option("backend", "str", "how a named segmenter runs: onnx (onnxruntime), torch (needs the "
+                          "[model] extra)", default="onnx", choices=BACKENDS),
+        "store": python_object_option("store", "model store the weights are read from (default $WCBENCH_MODELS)",
+                                      accepts=lambda v: isinstance(v, ModelStore), what="a ModelStore"),
+        "segmenter_name": Option("segmenter_name", "str", "name recorded for an injected segmenter callable; "
+                                 "null: its name attribute", nullable=True),
+        "source_cache": Option("source_cache", "int", "segmentations of this many distinct source frames kept "
+                               "(a source scored for several weathers is segmented once)", default=32,
+                               range=Range(0)),
+    }
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """A ``segmenter`` named is an entry of the catalogue (of ``store`` when one is given)."""
+        if isinstance(options.get("segmenter"), str):
+            cls.check_model_option("segmenter", options["segmenter"], options.get("store"),
+                                   example="segformer-b0-ade")
 
     def __init__(
         self,
@@ -243,8 +288,8 @@ class SemanticConsistency(StoreBacked, Metric):
         segmenter_name: str | None = None,
         source_cache: int = 32,
     ) -> None:
-        if backend not in ("onnx", "torch"):
-            raise ValueError(f"backend must be 'onnx' or 'torch', got {backend!r}")
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
         self.num_classes, self.ignore_index, self.backend = int(num_classes), ignore_index, backend
         self._store = store
         self._model_name: str | None = segmenter if isinstance(segmenter, str) else None

@@ -16,7 +16,10 @@ import numpy as np
 from wcbench.core.models.store import ModelStore
 from wcbench.metrics.semantic.segmenter import OnnxSegmenter
 
-__all__ = ["load_segmenter"]
+__all__ = ["BACKENDS", "load_segmenter"]
+
+#: How a named segmenter runs: onnxruntime (the scoring default) or torch (the ``[model]`` extra).
+BACKENDS = ("onnx", "torch")
 
 
 def load_segmenter(
@@ -51,8 +54,8 @@ def load_segmenter(
     ValueError
         On an unknown backend.
     """
-    if backend not in ("onnx", "torch"):
-        raise ValueError(f"backend must be 'onnx' or 'torch', got {backend!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
     key = os.fspath(name_or_dir)
     if Path(key).is_dir():
         # a folder outside the store: nothing pinned its source (docs/design.md §6)

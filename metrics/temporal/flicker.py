@@ -20,13 +20,14 @@ import hashlib
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
 
 from wcbench.core.byte_cache import ByteBudgetCache
 from wcbench.core.image_io import to_uint8
+from wcbench.core.options import Option
 from wcbench.core.parallel import parallel_map
 from wcbench.metrics.base import (
     Metric,
@@ -332,6 +333,7 @@ class TemporalFlicker(Metric):
     outputs = ("temporal_flicker", "temporal_flicker_ratio")
     higher_is_better = False
     min_frames = 2
+    OPTIONS: ClassVar[dict[str, Option] | None] = {}
 
     def __init__(self) -> None:
         self.reset()
@@ -385,6 +387,16 @@ class TemporalFlicker(Metric):
         return out
 
 
+_FLOW_ALLOWED = f"one of {', '.join(map(repr, FLOW_METHODS))} (Python API: also a flow callable)"
+
+
+def _flow_option(value: Any) -> str | FlowFn:
+    """``flow`` as :class:`FlowWarpingError` takes it: a name of :data:`FLOW_METHODS` or a callable."""
+    if (isinstance(value, str) and value in FLOW_METHODS) or callable(value):
+        return value
+    raise ValueError(f"expected {_FLOW_ALLOWED}")
+
+
 class FlowWarpingError(Metric):
     """Flow warping error with flow and occlusion mask from the source sequence (docs/design.md §5).
 
@@ -399,6 +411,10 @@ class FlowWarpingError(Metric):
     outputs = ("flow_warping_error", "flow_warping_error_ratio")
     higher_is_better = False
     min_frames = 2
+    OPTIONS: ClassVar[dict[str, Option] | None] = {
+        "flow": Option("flow", "custom", "optical flow between neighbouring source frames (OpenCV's)", default="dis",
+                       check=_flow_option, allowed=_FLOW_ALLOWED),
+    }
 
     def __init__(self, *, flow: str | FlowFn = "dis"):
         if isinstance(flow, str) and flow not in FLOW_METHODS:

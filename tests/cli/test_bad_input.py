@@ -178,7 +178,8 @@ def test_run_refuses_a_reader(capsys, tmp_path):
 def test_metric_options_are_checked(capsys, preds, tmp_path):
     code, err = _evaluate(capsys, predictions=preds, out=tmp_path / "o",
                           extra=["--metric-option", "temporal_flicker.colour=1"])
-    _assert_refused(code, err, tmp_path / "o", "metric 'temporal_flicker' has no option colour")
+    _assert_refused(code, err, tmp_path / "o",
+                    "metric option temporal_flicker.colour=1: metric 'temporal_flicker' takes no option colour")
     code, err = _evaluate(capsys, predictions=preds, out=tmp_path / "o", extra=["--metric-option", "ssim.x=1"])
     _assert_refused(code, err, tmp_path / "o", "options given for metrics that are not computed: ssim")
     code, err = _evaluate(capsys, predictions=preds, out=tmp_path / "o", extra=["--metric-option", "oops"])

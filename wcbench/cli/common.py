@@ -261,7 +261,8 @@ def add_progress_argument(parser: argparse.ArgumentParser) -> None:
 def parse_metric_options(items: list[str]) -> dict[str, dict[str, Any]]:
     """``["sem_cs.segmenter=segformer-b0-ade", "clip_s.batch_size=8"]`` -> ``{metric: {key: value}}``.
 
-    Values are read as JSON when they parse (numbers, booleans), else kept as text.
+    Values are read as JSON when they parse (numbers, booleans), else kept as text; whether a metric
+    takes them is :func:`~wcbench.evaluation.check_metrics`'s to say (before any work).
 
     Raises
     ------

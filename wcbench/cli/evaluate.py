@@ -64,7 +64,7 @@ def add_evaluate_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--metric-option", action="append", default=[], metavar="METRIC.KEY=VALUE",
                         help="option of one metric, repeatable, e.g. sem_cs.segmenter=segformer-b0-ade, "
                              "clip_s.backend=torch, flow_warping_error.flow=deepflow (VALUE is read as JSON "
-                             "when it parses, else as text)")
+                             "when it parses, else as text); each metric's options: `wcbench metrics show NAME`")
     parser.add_argument("--metric-resolution", type=metric_resolution, default=METRIC_RESOLUTION,
                         metavar="PX|native", help=METRIC_RESOLUTION_HELP)
     parser.add_argument("--overwrite", action="store_true", help="replace finished results of other inputs")
@@ -122,7 +122,7 @@ def report(outcome: object) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and print a summary."""
-    from wcbench.evaluation import EvaluateConfig, evaluate
+    from wcbench.evaluation import EvaluateConfig, check_metrics, evaluate
 
     cfg = EvaluateConfig(
         method=args.method, scenes=args.scenes, predictions=args.predictions, out=args.out,
@@ -133,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         show_progress=not args.no_progress, metric_options=parse_metric_options(args.metric_option),
         offline=args.offline,
     )
+    check_metrics(cfg)  # before an executor starts (a Dask cluster); evaluate checks again
     with executor_from(args) as executor:
         outcome = evaluate(cfg, executor=executor)
     report(outcome)

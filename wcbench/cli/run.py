@@ -49,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Render, then evaluate (one pass over the units of work)."""
-    from wcbench.evaluation import EvaluateConfig, evaluate
+    from wcbench.evaluation import EvaluateConfig, check_metrics, evaluate
     from wcbench.methods import get_method, is_runnable
     from wcbench.units import RenderSettings
 
@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         render=RenderSettings(seed=args.seed, frames=args.frames, overwrite=args.overwrite,
                               show_progress=not args.no_progress),
     )
+    check_metrics(cfg)  # before an executor starts (a Dask cluster); evaluate checks again
     with executor_from(args) as executor:
         outcome = evaluate(cfg, method=method, executor=executor)
     report(outcome)

@@ -39,6 +39,7 @@ detects a mixed result.
 from __future__ import annotations
 
 import datetime as _dt
+import difflib
 import errno
 import hashlib
 import http.client
@@ -71,6 +72,7 @@ from wcbench.core.models.store_errors import (
     UntrustedTorchScriptError,
 )
 from wcbench.core.models.torchscript import is_torchscript_archive, torchscript_refusal, trusted_key, trusting
+from wcbench.core.options import OptionError
 from wcbench.core.registry import import_string
 from wcbench.core.storage import atomic_write_json, sha256_file
 
@@ -773,6 +775,25 @@ class StoreBacked:
     """
 
     _store: ModelStore | None
+
+    @staticmethod
+    def check_model_option(key: str, name: Any, store: ModelStore | None, *, example: str) -> None:
+        """Check a metric option naming a model (``key=name``) against the catalogue of ``store``
+        (``None``: ``ModelStore()``'s, the built-in catalogues); reads no weights, writes nothing.
+
+        Raises
+        ------
+        OptionError
+            ``name`` is no entry of the catalogue (``path`` is ``key``; the message says what is
+            allowed, with close names).
+        """
+        entries = (store if store is not None else ModelStore()).entries
+        if name in entries:
+            return
+        close = difflib.get_close_matches(str(name), list(entries), n=2, cutoff=0.6)
+        hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        raise OptionError(f"expected a model of the catalogue (`wcbench models list`), e.g. {example}{hint}",
+                          path=key)
 
     @property
     def store(self) -> ModelStore:
