@@ -36,6 +36,10 @@ MAX_EXTENT = 1e7
 #: orders of magnitude of headroom below float32's 3.4e38 for the geometric factors; colors are
 #: RGB in [0, 1] or features of order 1.
 MAX_ABS_COLOR = 1e15
+#: Largest camera depth drawn (metres): float32's largest value. The depth image and its gradients
+#: are float32; a centre beyond it (a finite Gaussian under an extreme view matrix) would be Inf
+#: there, so it is culled with those beyond ``far`` (docs/design.md §9).
+MAX_DEPTH = 3.4028234663852886e38
 
 #: Names of the per-Gaussian cull counters in ``RenderOutput.meta`` (see :func:`cull_counts`).
 CULL_NONFINITE, CULL_NEAR_FAR, CULL_DEGENERATE, CULL_TRANSPARENT, CULL_OFFSCREEN = 1, 2, 3, 4, 5

@@ -63,6 +63,7 @@ from wcbench.reference_model.raster.common import (
     CULL_OFFSCREEN,
     CULL_TRANSPARENT,
     EPS2D,
+    MAX_DEPTH,
     MAX_EXTENT,
     QUAT_EPS2,
     SIGMA_EXTENT,
@@ -403,7 +404,8 @@ def _project_lanes(buf: np.ndarray, Vt: tuple, tv: tuple, intr: tuple, lims: tup
         x1 = min(min(max(np.floor(mx + ex - 0.5), -1.0), wf), wf - 1.0)
         y0 = max(min(max(np.ceil(my - ey - 0.5), -1.0), hf), 0.0)
         y1 = min(min(max(np.floor(my + ey - 0.5), -1.0), hf), hf - 1.0)
-        why = (CULL_NONFINITE if buf[_LFIN * _PL + ln] == 0.0 else CULL_NEAR_FAR if not (z > near and z < far)
+        why = (CULL_NONFINITE if buf[_LFIN * _PL + ln] == 0.0
+               else CULL_NEAR_FAR if not (z > near and z < far and z <= MAX_DEPTH)
                else CULL_DEGENERATE if not proper else CULL_TRANSPARENT if not (o255 >= _O255_MIN)
                else CULL_OFFSCREEN if not (x0 <= x1 and y0 <= y1) else 0)
         buf[_LMX * _PL + ln] = mx

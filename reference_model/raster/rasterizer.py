@@ -153,7 +153,8 @@ def rasterize(
     width, height : int
         Image size in pixels.
     near, far : float, keyword-only
-        Gaussians whose centre has camera z <= near or >= far are culled (metres).
+        Gaussians whose centre has camera z <= near or >= far are culled (metres), and those
+        beyond float32's largest depth, 3.4e38 m (:data:`~.common.MAX_DEPTH`), at any ``far``.
     background : Tensor [C], optional
         Composited behind the Gaussians with weight ``1 - alpha``; zeros when ``None``. Finite,
         within +-1e15.

@@ -29,6 +29,7 @@ from wcbench.reference_model.raster.common import (
     CULL_OFFSCREEN,
     CULL_TRANSPARENT,
     EPS2D,
+    MAX_DEPTH,
     MAX_EXTENT,
     QUAT_EPS2,
     SIGMA_EXTENT,
@@ -169,7 +170,7 @@ def _cull(
     safe = _sanitize(means, quats, scales, opacities, colors, finite)
     m2, cov, det, z = _project(safe[0].double(), safe[1].double(), safe[2].double(), viewmat.double(),
                                K.double(), width, height)
-    near_far = ~((z > near) & (z < far))
+    near_far = ~((z > near) & (z < far) & (z <= MAX_DEPTH))
     reason[(reason == 0) & near_far] = CULL_NEAR_FAR
     good = torch.isfinite(cov).all(-1) & torch.isfinite(m2).all(-1) & (det > 0) & torch.isfinite(det)
     reason[(reason == 0) & ~good] = CULL_DEGENERATE

@@ -277,6 +277,31 @@ def test_culled_gaussians_get_zero_gradient_and_are_counted() -> None:
 
 
 @pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_centres_beyond_float32_depth_are_culled_at_any_far(backend: str) -> None:
+    """A finite view that scales z by 3.4e38 puts Gaussians at z = 2 and 4 m at depth 6.8e38 and
+    1.4e39: finite in the float64 projection, Inf in the float32 depth image. With ``far = inf``
+    they were drawn, with NaN depth (numba) and NaN gradients (both); the hostile-number suite's
+    camera cases found it. They are culled as beyond far; a centre at exactly 3.4e38 is drawn."""
+    f32_max = float(np.finfo(np.float32).max)
+    means = torch.tensor([[0.0, 0.0, 2.0], [0.5, -0.2, 4.0], [0.0, 0.0, 1.0]], requires_grad=True)
+    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 3, requires_grad=True)
+    scales = torch.tensor([[0.3, 0.3, 0.3], [1e-3, 0.5, 2.0], [0.3, 0.3, 0.3]], requires_grad=True)
+    opacities = torch.tensor([0.8, 0.5, 0.8], requires_grad=True)
+    colors = torch.tensor([[0.2, 0.5, 0.9], [1.0, 0.0, 0.3], [0.5, 0.5, 0.5]], requires_grad=True)
+    params = [means, quats, scales, opacities, colors]
+    view = torch.zeros(4, 4)
+    view[2, 2] = f32_max
+    intrinsics = torch.tensor([[1e-45, 0.0, 0.0], [0.0, 1e-45, 0.0], [0.0, 0.0, 1.0]])
+    out = rasterize(*params, view, intrinsics, 2, 2, near=0.5, far=math.inf, backend=backend)
+    # the third Gaussian lands at exactly 3.4e38 m, the float32 maximum: drawn, not culled
+    assert out.meta["culled_near_far"] == 2 and out.meta["n_visible"] == 1
+    assert out.depth is not None and float(out.depth.detach().max()) == f32_max
+    loss = out.color.sum() + out.alpha.sum() + out.depth.sum()
+    for g in torch.autograd.grad(loss, params):
+        assert bool(torch.isfinite(g).all())
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
 def test_bad_inputs_raise_value_errors_naming_the_argument(backend: str) -> None:
     p = args(random_scene(5, seed=0))
     with pytest.raises(ValueError, match="quats"):
