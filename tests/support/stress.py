@@ -36,9 +36,10 @@ class StressCounts:
 
     A family counts a case with ``counts.cases[family] += 1`` before it computes anything, then
     passes each output that must be finite to :meth:`finite` (or a yes/no check to :meth:`record`)
-    and asserts on the answer: the count is kept whatever the test does next. A failing case is
-    counted again for every example Hypothesis replays while it shrinks it, so after a failure
-    the counts describe the examples tried, not distinct failures.
+    and asserts on the answer: the count is kept whatever the test does next. Every example a test
+    body runs is a case, including those Hypothesis discards (a draw inside the test that overran)
+    and, after a failure, those it tries while shrinking: the counts describe the examples tried,
+    not distinct failures.
     """
 
     def __init__(self) -> None:
@@ -127,9 +128,10 @@ def stress_report(counts: StressCounts, *, full: bool, command: str, exit_status
         f"{n_cases:,d} cases in all, {n_nonfinite:,d} non-finite of {n_checked:,d} outputs checked for NaN and Inf",
         f"wall time {seconds / 60:.1f} min; 1-minute load average {load[0]:.2f} at the start, {load[1]:.2f} at the "
         "end (a shared machine: times move with it, counts do not)",
-        "value: cases tried (Hypothesis examples, replays included); error: outputs or gradients with a NaN or "
-        "Inf (null: the family checks exit codes and files, not numbers); cases_checked: cases that computed "
-        "outputs instead of raising a clean error",
+        "value: cases tried (every example a test ran: a few more than Hypothesis' max_examples where a draw "
+        "inside the test overran); error: outputs or gradients with a NaN or Inf (null: the family checks exit "
+        "codes and files, not numbers); cases_checked: cases that computed outputs instead of raising a clean "
+        "error",
     ])
     for family in sorted(counts.cases):
         checked = counts.checked[family]
