@@ -5,7 +5,8 @@ Every case either raises a clean ``ValueError`` (or ``WcbenchError``) where the 
 a meaning, or returns outputs (and, for the rasterizer, gradients) with no NaN or Inf. Where the rule
 is known in advance the cases also check that an error comes exactly when it should. Hypothesis runs
 derandomized with no example database, so every run tries the same cases; a quick pass runs with the
-other tests, the full counts under ``WCBENCH_STRESS=full`` (tests/support/stress.py). Every case is
+other tests, the full counts under ``WCBENCH_STRESS=full`` (tests/support/stress.py): over 100,000
+cases of the rasterizer, the particles and the fog, and a few thousand per metric. Every case is
 counted in ``case_counter`` under its family, and every output that must be finite goes through
 ``finite(family, x)``, which counts it (and whether it held a NaN or Inf) before the test asserts on
 it: the counts are printed at the end of the run and written to ``$WCBENCH_STRESS_JSON`` when set.
@@ -259,18 +260,34 @@ def test_needle_gaussians_drawn_alike_by_both_backends(case_counter: Counter[str
     assert float((fast.color - ref.color).detach().abs().max()) <= NEEDLE_ATOL
 
 
+_VIEW_VALUE = st.one_of(st.sampled_from(F32_EXTREMES), _f32(-2, 2))
+_FOCAL = st.one_of(st.sampled_from([F32_DENORMAL, 1e-30, 1e-3, 6.0, 1e4, 1e30, F32_MAX]), _f32(0.5, 100))
+_CENTER = st.one_of(st.sampled_from([0.0, -1e6, 1e30, -F32_MAX]), _f32(-20, 40))
+_NEAR_FAR = st.one_of(st.sampled_from([(F64_DENORMAL, 1e-300), (1e-6, 10.0), (0.01, 1e10), (0.5, INF),
+                                       (1.0, 1.0 + 1e-15), (10.0, 1.7e308)]),
+                      st.tuples(st.floats(1e-3, 1.0), st.floats(2.0, 1e3)))
+#: (view 4x4, (fx, fy, cx, cy), width, height, near, far, backend): half the cases extreme but valid
+#: throughout (so that a render is checked), half with each group valid or hostile.
+GLOBAL_INPUTS = clean_or_hostile(
+    st.tuples(st.tuples(*[_VIEW_VALUE] * 16), st.tuples(_FOCAL, _FOCAL, _CENTER, _CENTER), st.integers(1, 40),
+              st.integers(1, 40), _NEAR_FAR, st.sampled_from(["auto", "numba", "torch"])),
+    st.tuples(either(st.tuples(*[_VIEW_VALUE] * 16), st.tuples(*[hostile32()] * 16)),
+              either(st.tuples(_FOCAL, _FOCAL, _CENTER, _CENTER), st.tuples(*[hostile32()] * 4)),
+              st.one_of(st.integers(-2, 40), st.sampled_from([2.5, NAN])), st.one_of(st.integers(-2, 40), st.just(3.5)),
+              either(_NEAR_FAR, st.tuples(hostile64(), hostile64())),
+              st.sampled_from(["auto", "numba", "torch", "cuda"])))
+
+
 @pytest.mark.model
 @_settings(quick=150, full=6_000)
-@given(st.tuples(*[hostile32()] * 16), st.tuples(*[hostile32()] * 4),
-       st.one_of(st.integers(-2, 40), st.sampled_from([2.5, NAN])), st.one_of(st.integers(-2, 40), st.just(3.5)),
-       hostile64(), hostile64(), st.sampled_from(["auto", "numba", "torch", "cuda"]))
-def test_rasterizer_global_inputs(case_counter: Counter[str], view: tuple, intr: tuple, width: Any, height: Any,
-                                  near: float, far: float, backend: str) -> None:
+@given(GLOBAL_INPUTS)
+def test_rasterizer_global_inputs(case_counter: Counter[str], case: tuple) -> None:
     torch = pytest.importorskip("torch")
     from wcbench.reference_model import rasterize
 
     family = "hostile numbers: rasterizer camera, size, near/far, backend"
     case_counter[family] += 1
+    view, intr, width, height, (near, far), backend = case
     V = torch.tensor(view, dtype=torch.float32).reshape(4, 4)
     fx, fy, cx, cy = intr
     K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float32)
@@ -478,7 +495,7 @@ def _particles(spec: dict, count: tuple | None, wind: tuple, up: tuple, seed: in
     return field, g
 
 
-@_settings(quick=400, full=15_000)
+@_settings(quick=400, full=20_000)
 @given(PARTICLE_CASE)
 def test_particles_fast_path_and_reference(case_counter: Counter[str], case: tuple) -> None:
     family = "hostile numbers: particles, numba and numpy paths"
@@ -512,7 +529,7 @@ BETA = either(st.sampled_from([0.0, 1e-4, 0.05, 3.0]), hostile64())
 OFFSET = either(st.sampled_from([0.0, 10.0]), hostile64())
 
 
-@_settings(quick=400, full=15_000)
+@_settings(quick=400, full=20_000)
 @given(st.lists(st.tuples(hostile32(), hostile32(), hostile32(), hostile32(), hostile32(), hostile32()), min_size=0,
                 max_size=6), st.tuples(*[either(_f32(-10, 10), hostile32())] * 3), BETA, OFFSET)
 def test_fog_transmittance_channels(case_counter: Counter[str], rows: list, center: tuple, beta: float,
