@@ -19,6 +19,12 @@ from stress import COUNTS, FULL, JSON_ENV, STRESS, stress_report
 
 #: When this conftest was loaded (the stress tests' collection) and the load then.
 _START = (time.perf_counter(), os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan"))
+#: The code the run measures, as it starts (only when the counts are written: it reads every file).
+_CODE: dict | None = None
+if os.environ.get(JSON_ENV):
+    from wcbench.bench.code_version import measured_code
+
+    _CODE = measured_code("stress")
 #: Where the JSON went (printed in the summary).
 _WRITTEN: list[Path] = []
 
@@ -91,7 +97,7 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     load_end = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     obj = stress_report(STRESS, full=FULL, command=command, exit_status=int(exitstatus),
                         seconds=time.perf_counter() - _START[0], load=(_START[1], load_end),
-                        commit=_commit(session.config.rootpath))
+                        commit=_commit(session.config.rootpath), code=_CODE)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, obj)
     _WRITTEN.append(path)

@@ -15,6 +15,7 @@ import pytest
 from paths import REPO, TESTS
 from stress import JSON_ENV, NONFINITE_UNIT, StressCounts, case_name, stress_report
 
+from wcbench.bench.code_version import code_changes, measured_code
 from wcbench.bench.schema import validate_benchmark
 
 
@@ -38,7 +39,7 @@ def test_counts_cases_outputs_and_nonfinite_per_family() -> None:
     assert counts.total() == (7, 2)
 
     obj = stress_report(counts, full=False, command="pytest tests/stress", exit_status=1, seconds=3.0,
-                        load=(0.5, 1.0), commit="abc")
+                        load=(0.5, 1.0), commit="abc", code=None)
     validate_benchmark(obj)
     json.dumps(obj, allow_nan=False)
     cases = {c["name"]: c for c in obj["cases"]}
@@ -58,7 +59,8 @@ def test_families_whose_names_collide_are_refused() -> None:
     counts.cases["numbers: a b"] += 1
     assert case_name("hostile numbers: a-b") == case_name("numbers: a b") == "numbers_a_b"
     with pytest.raises(ValueError, match="duplicate case names"):
-        stress_report(counts, full=True, command="", exit_status=0, seconds=1.0, load=(0.0, 0.0), commit=None)
+        stress_report(counts, full=True, command="", exit_status=0, seconds=1.0, load=(0.0, 0.0), commit=None,
+                      code=None)
 
 
 def test_a_tiny_run_writes_its_counts_where_it_was_started(tmp_path: Path) -> None:
@@ -76,6 +78,7 @@ def test_a_tiny_run_writes_its_counts_where_it_was_started(tmp_path: Path) -> No
     assert case["value"] >= 200 and case["error"] == 0 and 0 < case["cases_checked"] <= case["value"]
     assert case["outputs_checked"] >= case["cases_checked"]
     assert obj["exit_status"] == 0 and obj["totals"]["cases"] == case["value"]
+    assert obj["code"] == measured_code("stress") and code_changes(obj) == []  # fresh: the docs test's check
     assert obj["command"].startswith(f"{JSON_ENV}=out/stress.json pytest ") and "test_fog_density" in obj["command"]
     assert "quick pass" in obj["notes"][0] and "counts written to" in proc.stdout
 

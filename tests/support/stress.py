@@ -84,7 +84,7 @@ def case_name(family: str) -> str:
 
 
 def stress_report(counts: StressCounts, *, full: bool, command: str, exit_status: int, seconds: float,
-                  load: tuple[float, float], commit: str | None) -> dict[str, Any]:
+                  load: tuple[float, float], commit: str | None, code: dict[str, Any] | None) -> dict[str, Any]:
     """The run's counts as a benchmark JSON object (suite ``stress``).
 
     Parameters
@@ -103,14 +103,18 @@ def stress_report(counts: StressCounts, *, full: bool, command: str, exit_status
         1-minute load average at the start and the end of the run (the machine may be shared).
     commit : str or None
         The repository's commit (``+dirty`` with uncommitted changes to tracked files), if known.
+    code : dict or None
+        The digests of the code measured, taken as the run started
+        (``wcbench.bench.code_version.measured_code("stress")``).
 
     Returns
     -------
     dict
-        The schema of ``wcbench/bench/schema.py`` plus ``command``, ``exit_status``, ``commit``
-        and ``totals``. One case per family: ``value`` its cases, ``error`` its non-finite outputs
-        (``null`` for families that check no numbers: files, faults), ``outputs_checked`` and
-        ``cases_checked`` (cases that computed outputs rather than raising a clean error).
+        The schema of ``wcbench/bench/schema.py`` (with ``code`` and ``command``) plus
+        ``exit_status``, ``commit`` and ``totals``. One case per family: ``value`` its cases,
+        ``error`` its non-finite outputs (``null`` for families that check no numbers: files,
+        faults), ``outputs_checked`` and ``cases_checked`` (cases that computed outputs rather
+        than raising a clean error).
 
     Raises
     ------
@@ -139,8 +143,9 @@ def stress_report(counts: StressCounts, *, full: bool, command: str, exit_status
             name=case_name(family), knob="cases", value=counts.cases[family], time_ms=None,
             error=counts.nonfinite[family] if checked else None, error_unit=NONFINITE_UNIT if checked else "n/a",
             extra={"family": family, "outputs_checked": checked, "cases_checked": counts.cases_checked[family]}))
+    report.code, report.command = code, command
     obj = report.to_json()  # raises on duplicate case names
     obj["versions"] = package_versions(("hypothesis", "pytest"))
-    obj.update(command=command, exit_status=exit_status, commit=commit,
+    obj.update(exit_status=exit_status, commit=commit,
                totals={"cases": n_cases, "outputs_checked": n_checked, "nonfinite_outputs": n_nonfinite})
     return obj

@@ -41,4 +41,7 @@ MEASURES: dict[str, tuple[str, ...]] = {
     "streets": ("wcbench.bench.streets", "wcbench.reference_model", "wcbench.methods.physical_editor",
                 "wcbench.methods.weathercity", "wcbench.methods.scene_training", "wcbench.methods.weather_spec",
                 "wcbench.metrics.temporal", "wcbench.scenes"),
+    # not a `wcbench bench` suite: the stress suites' counts (tests/stress, written under
+    # WCBENCH_STRESS_JSON); its number, the non-finite outputs, comes from the hostile-number subjects
+    "stress": ("wcbench.reference_model.raster", "wcbench.reference_model.weather", "wcbench.metrics"),
 }
