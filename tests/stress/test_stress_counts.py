@@ -48,7 +48,9 @@ def test_counts_cases_outputs_and_nonfinite_per_family() -> None:
         "name": "numbers_fog_x", "knob": "cases", "value": 3, "time_ms": 0, "error": 2, "error_unit": NONFINITE_UNIT,
         "family": fog, "outputs_checked": 4, "cases_checked": 2}
     assert cases["files_y"]["value"] == 4 and cases["files_y"]["error"] is None  # checks no numbers
-    assert obj["totals"] == {"cases": 7, "outputs_checked": 4, "nonfinite_outputs": 2}
+    assert obj["totals"] == {"cases": 7, "outputs_checked": 4, "nonfinite_outputs": 2, "parts": {
+        "numbers": {"cases": 3, "cases_checked": 2, "outputs_checked": 4, "nonfinite_outputs": 2},
+        "files": {"cases": 4, "cases_checked": 0, "outputs_checked": 0, "nonfinite_outputs": 0}}}
     assert obj["suite"] == "stress" and obj["exit_status"] == 1 and obj["commit"] == "abc"
     assert "hypothesis" in obj["versions"] and any("FAILED" in n for n in obj["notes"])
 
@@ -97,4 +99,6 @@ def test_a_counted_nonfinite_output_fails_the_run_even_unasserted(tmp_path: Path
                           cwd=tmp_path, capture_output=True, text=True, env=_env(**{JSON_ENV: "s.json"}), timeout=300)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     obj = json.loads((tmp_path / "s.json").read_text())
-    assert obj["exit_status"] == 1 and obj["totals"] == {"cases": 1, "outputs_checked": 1, "nonfinite_outputs": 1}
+    assert obj["exit_status"] == 1 and obj["totals"]["nonfinite_outputs"] == 1
+    assert obj["totals"]["parts"] == {"numbers": {"cases": 1, "cases_checked": 1, "outputs_checked": 1,
+                                                  "nonfinite_outputs": 1}}

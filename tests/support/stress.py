@@ -111,7 +111,8 @@ def stress_report(counts: StressCounts, *, full: bool, command: str, exit_status
     -------
     dict
         The schema of ``wcbench/bench/schema.py`` (with ``code`` and ``command``) plus
-        ``exit_status``, ``commit`` and ``totals``. One case per family: ``value`` its cases,
+        ``exit_status``, ``commit`` and ``totals`` (in all, and per suite under ``parts``:
+        ``numbers``, ``files``, ``faults``). One case per family: ``value`` its cases,
         ``error`` its non-finite outputs (``null`` for families that check no numbers: files,
         faults), ``outputs_checked`` and ``cases_checked`` (cases that computed outputs rather
         than raising a clean error).
@@ -146,6 +147,15 @@ def stress_report(counts: StressCounts, *, full: bool, command: str, exit_status
     report.code, report.command = code, command
     obj = report.to_json()  # raises on duplicate case names
     obj["versions"] = package_versions(("hypothesis", "pytest"))
+    parts: dict[str, dict[str, int]] = {}
+    for case in obj["cases"]:  # per suite: numbers, files, faults (the case names' first word)
+        part = parts.setdefault(case["name"].split("_")[0], dict.fromkeys(
+            ("cases", "cases_checked", "outputs_checked", "nonfinite_outputs"), 0))
+        part["cases"] += case["value"]
+        part["cases_checked"] += case["cases_checked"]
+        part["outputs_checked"] += case["outputs_checked"]
+        part["nonfinite_outputs"] += case["error"] or 0
     obj.update(exit_status=exit_status, commit=commit,
-               totals={"cases": n_cases, "outputs_checked": n_checked, "nonfinite_outputs": n_nonfinite})
+               totals={"cases": n_cases, "outputs_checked": n_checked, "nonfinite_outputs": n_nonfinite,
+                       "parts": parts})
     return obj
