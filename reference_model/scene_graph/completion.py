@@ -142,8 +142,6 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
     return out, kind, source
 
 
-
-
 def closing_among(values: np.ndarray, mask: np.ndarray, half: int) -> np.ndarray:
     """[H, W] the grey-scale closing of ``values`` over a ``2 half + 1`` square window among the
     pixels of ``mask`` only (the others neither give nor take, and are returned unchanged): a dip
