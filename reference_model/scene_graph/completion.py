@@ -92,8 +92,9 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
     Returns
     -------
     distance : ndarray [H, W] float64
-        Completed; ``inf`` on the sky, and on an unknown pixel above the horizon with nothing
-        known below it in its column.
+        Completed; ``inf`` on the sky, and on an unknown pixel with nothing at a finite distance
+        below it in its column (a ray below the horizon that misses the ground, as a street rising
+        ahead makes it, is a wall too).
     kind : ndarray [H, W] int8
         :data:`FILL_KNOWN`, :data:`FILL_GROUND`, :data:`FILL_WALL` or :data:`FILL_SKY`.
     source : ndarray [H, W] int64
@@ -115,12 +116,16 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
                 hit = c + r * np.where(t > 0, t, 0.0)[:, None]
                 t = (np.asarray(ground_at(hit), np.float64) - c @ up) / ray_up[ground]
         out[ground] = np.where(t > 0, t, np.inf)
+        # a ray just below the horizon can miss a ground that rises ahead (a street uphill):
+        # no ground there, a wall as above the horizon, never a pixel with nothing to rise from
+        ground &= np.isfinite(out)
         kind[ground] = FILL_GROUND
     source = np.full((h, w), -1, np.int64)
     wall = todo & ~ground
     if np.any(wall):
-        # the nearest known (or ground) pixel below each pixel in its column: the surface it rises from
-        drawn = (known & ~sky) | ground
+        # the nearest known (or ground) pixel below each pixel in its column at a finite distance:
+        # the surface it rises from
+        drawn = ((known & ~sky) | ground) & np.isfinite(out)
         rows = np.where(drawn, np.arange(h)[:, None], h)
         below_row = np.minimum.accumulate(rows[::-1], axis=0)[::-1]
         rr, cc = np.nonzero(wall)

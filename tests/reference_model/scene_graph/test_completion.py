@@ -135,3 +135,22 @@ def test_ground_height_below_a_camera():
                                                                                                       abs=0.01)
     # nothing near: a car's camera height below the camera
     assert ground_height_below(points + 100.0, np.array([0.0, 0, 1.7]), np.array([0.0, 0, 1])) == pytest.approx(0.1)
+
+
+def test_a_ray_that_misses_a_rising_ground_is_a_wall_not_a_pixel_with_nothing_below():
+    # A street rising 2 % ahead: the row just below the horizon (descending 1.7 %) never meets it.
+    # Above it, where only ground lies below, the wall rises from the first row that does meet the
+    # ground (old behaviour: from the missing row, infinitely far, shown as sky).
+    rays, z_per_m = _level_camera()
+    h, w = z_per_m.shape
+    up, center = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.6])
+    sky = np.zeros((h, w), bool)
+    sky[:3] = True
+    known = np.zeros((h, w), bool)
+    out, kind, source = complete_distance(np.zeros((h, w)), known, sky, rays, center, up, 0.0, forward=FORWARD,
+                                          ground_at=lambda p: 0.02 * p[:, 0], thin_fraction=0.0)
+    assert np.all(kind[20] == FILL_WALL) and np.all(source[20] == 21)
+    assert np.all(np.isfinite(out[21:])) and np.all(kind[21:] == FILL_GROUND)
+    assert not np.any((kind == FILL_SKY) & ~sky)
+    # the wall keeps the camera depth of the ground pixel it rises from (thin_fraction=0: its own column)
+    np.testing.assert_allclose((out * z_per_m)[3:21], np.broadcast_to((out * z_per_m)[21], (18, w)), rtol=1e-9)
