@@ -30,7 +30,7 @@ from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
 from wcbench.reference_model.model.sky import SkyModel
 from wcbench.reference_model.raster.rasterizer import rasterize
 
-__all__ = ["FrameGaussians", "Placement", "WeatherCityModel", "WeatherRender"]
+__all__ = ["FrameGaussians", "FrameRows", "Placement", "WeatherCityModel", "WeatherRender"]
 
 #: Key of the background node; objects are ``rigid:<track id>`` and ``nonrigid:<track id>``.
 BACKGROUND = "background"
@@ -301,3 +301,123 @@ class WeatherCityModel(nn.Module):
                 if w in column else images[..., 3 * i:3 * i + 3] for i, w in enumerate(weathers)], -1)
         return WeatherRender(images=images, alpha=out.alpha, depth=out.depth, raster=out, gaussians=g,
                              weathers=tuple(weathers))
+
+
+class FrameRows:
+    """Every placed node's Gaussians in rows fixed for a whole sequence: rendering a trained model.
+
+    :meth:`WeatherCityModel.frame_gaussians` concatenates the nodes present at a frame, so each
+    frame builds and copies every Gaussian (125k rows) although only the moving nodes' rows change.
+    Here the background and every instance (the placement's objects and copies, in
+    :meth:`~WeatherCityModel.frame_gaussians`' order) hold fixed rows of float32 arrays, built
+    once; :meth:`place` rewrites only the moving nodes' centres and rotations (the same torch
+    products as :meth:`RigidObject.world`, without BLAS, so equal within float32 rounding), and
+    gives an instance absent at the frame opacity 0, which the rasterizer culls before sorting. The
+    Gaussians a frame rasterizes are then those of ``frame_gaussians`` in the same relative order
+    (depth ties break by index), so the image is the same up to that rounding; ``frame_gaussians``
+    is the twin the tests compare it with.
+
+    Parameters
+    ----------
+    model : WeatherCityModel
+    colors : dict of str to Tensor [n, C]
+        Each node's decoded colours (one weather's decoders, decoded once).
+    placement : Placement, optional
+    activated : dict of str to (Tensor [n, 3], Tensor [n]), optional
+        :meth:`WeatherCityModel.activated` (computed here when omitted).
+
+    Attributes
+    ----------
+    arrays : dict of str to ndarray
+        ``means`` [N, 3] (m), ``quats`` [N, 4], ``scales`` [N, 3] (m), ``opacities`` [N],
+        ``colors`` [N, C], float32, written in place by :meth:`place`.
+    """
+
+    def __init__(self, model: WeatherCityModel, colors: Mapping[str, torch.Tensor], *,
+                 placement: Placement | None = None,
+                 activated: dict[str, tuple[torch.Tensor, torch.Tensor]] | None = None):
+        place = placement or Placement()
+        objects = model.objects()
+        nodes = model.nodes()
+        if activated is None:
+            activated = model.activated()
+        instances: list[tuple[str, torch.Tensor | None]] = []
+        if BACKGROUND not in place.hidden:
+            instances.append((BACKGROUND, None))
+        offsets = [(key, place.offsets.get(key)) for key in objects if key not in place.hidden]
+        for key, shift in [*offsets, *((key, np.asarray(off)) for key, off in place.copies)]:
+            if key not in objects:
+                raise KeyError(f"no node {key!r}; nodes: {sorted(objects)}")
+            instances.append((key, None if shift is None else torch.as_tensor(np.asarray(shift, np.float32))))
+        missing = sorted({key for key, _ in instances} - set(colors))
+        if missing:
+            raise ValueError(f"colors must hold every placed node; missing {missing}")
+        width = int(next(iter(colors.values())).shape[1]) if colors else 3
+        n = sum(len(nodes[key]) for key, _ in instances)
+        self.arrays: dict[str, np.ndarray] = {
+            "means": np.zeros((n, 3), np.float32), "quats": np.zeros((n, 4), np.float32),
+            "scales": np.zeros((n, 3), np.float32), "opacities": np.zeros(n, np.float32),
+            "colors": np.zeros((n, width), np.float32)}
+        #: (object, its offset, first row, end row, opacities when present) of each moving instance
+        self._moving: list[tuple[RigidObject, torch.Tensor | None, int, int, np.ndarray]] = []
+        self._present: list[bool | None] = []
+        start = 0
+        with torch.no_grad():
+            for key, offset in instances:
+                params = nodes[key]
+                stop = start + len(params)
+                scales, opacities = activated[key] if key in activated else (params.scales(), params.opacities())
+                self.arrays["scales"][start:stop] = scales.detach().numpy()
+                self.arrays["colors"][start:stop] = colors[key].detach().numpy()
+                if key == BACKGROUND:
+                    self.arrays["means"][start:stop] = params.means.detach().numpy()
+                    self.arrays["quats"][start:stop] = params.quats.detach().numpy()
+                    self.arrays["opacities"][start:stop] = opacities.detach().numpy()
+                else:
+                    self._moving.append((objects[key], offset, start, stop,
+                                         np.array(opacities.detach().numpy(), np.float32)))
+                    self._present.append(None)
+                start = stop
+
+    def __len__(self) -> int:
+        return int(self.arrays["means"].shape[0])
+
+    def place(self, frame: int) -> list[slice]:
+        """Write the moving instances' rows for ``frame``; returns the row ranges written.
+
+        An instance present at ``frame`` gets its world centres and rotations (and its opacities
+        back if it was absent); an absent one keeps its last rows at opacity 0.
+        """
+        written = []
+        with torch.no_grad():
+            for k, (obj, offset, start, stop, opacities) in enumerate(self._moving):
+                present = obj.at(frame)
+                if present:
+                    p = obj.position[frame] if offset is None else obj.position[frame] + offset
+                    _affine_rows(obj.local_means(frame).detach().numpy(), obj.rotation[frame].numpy(), p.numpy(),
+                                 out=self.arrays["means"][start:stop])
+                    _affine_rows(obj.gaussians.quats.detach().numpy(), obj.quat_left[frame].numpy(), None,
+                                 out=self.arrays["quats"][start:stop])
+                if present != self._present[k]:
+                    self.arrays["opacities"][start:stop] = opacities if present else 0.0
+                    self._present[k] = present
+                elif not present:
+                    continue
+                written.append(slice(start, stop))
+        return written
+
+
+def _affine_rows(x: np.ndarray, m: np.ndarray, b: np.ndarray | None, *, out: np.ndarray) -> None:
+    """``out = x m^T + b`` for x [n, k], m [d, k], b [d] (float32), written into out [n, d].
+
+    Column by column in numpy: no BLAS call, whose threads wake for every one of a frame's few dozen
+    small products and, on a machine whose cores are all busy, wait for a core each time (a frame's
+    25 ``torch.addmm`` took 0.7 ms alone and up to 1.4 s on a loaded 2-core machine; these 1.6 ms).
+    The sums run in another order than a GEMM's: equal to :meth:`RigidObject.world` within float32
+    rounding.
+    """
+    np.multiply(x[:, 0:1], m[:, 0], out=out)
+    for k in range(1, x.shape[1]):
+        out += x[:, k:k + 1] * m[:, k]
+    if b is not None:
+        out += b

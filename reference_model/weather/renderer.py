@@ -320,6 +320,26 @@ class WeatherRenderer:
         )
         return g, {"particles_in_view": len(g)}
 
+    def refresh_scene(self, rows: list[slice]) -> None:
+        """Say that the renderer's own scene arrays changed in place at ``rows`` (row ranges).
+
+        The arrays given at construction are not copied (float32 numpy arrays or tensors), so a
+        caller may move Gaussians between frames by writing into them (e.g.
+        :class:`~wcbench.reference_model.model.scene_model.FrameRows`); a rain or snow renderer
+        keeps a copy of them in front of its particles, and this copies the changed rows there.
+        """
+        n = int(self.scene["means"].shape[0])
+        for r in rows:
+            if not (0 <= (r.start or 0) <= (n if r.stop is None else r.stop) <= n) or r.step not in (None, 1):
+                raise ValueError(f"rows must be contiguous ranges within the scene's {n} rows, got {r}")
+        buffers = self._buffers
+        if buffers is None or not buffers.holds_own_scene:
+            return  # the next frame copies the whole scene anyway
+        for name in _GAUSSIAN_ARRAYS:
+            src, dst = self.scene[name].numpy(), buffers.arrays[name]
+            for r in rows:
+                dst[r] = src[r]
+
     def _combined_buffers(self, scene: dict[str, Any], *, own_scene: bool) -> _CombinedBuffers:
         """Buffers holding the scene Gaussians followed by room for this weather's particles.
 

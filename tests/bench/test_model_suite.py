@@ -19,7 +19,7 @@ def test_bench_model_quick_runs_and_reports_every_case() -> None:
     cases = {c["name"]: c for c in obj["cases"]}
     assert {"plain", "weathercity", "weathercity_half", "one_pass_vs_per_weather", "skip_frustum_cull",
             "skip_static_tracks", "skip_unsupervised_weather", "content_interval_2", "content_interval_8",
-            "profile_step"} <= set(cases)
+            "profile_step", "render_rain"} <= set(cases)
     profile = cases["profile_step"]
     assert profile["threads"] == [1, 2] and profile["non_raster_speedup"] > 0
     assert set(profile["phases"]) == {"data", "scene_graph", "decoders", "sky", "raster_fwd", "losses", "raster_bwd",
@@ -34,6 +34,9 @@ def test_bench_model_quick_runs_and_reports_every_case() -> None:
     half_rows = [c for c in cases.values() if c["name"] == "weathercity_half" or "psnr_vs_default" in c]
     assert any(c["pareto"] for c in half_rows) and all(isinstance(c["pareto"], bool) for c in half_rows)
     assert cases["one_pass_vs_per_weather"]["error"] < 1e-4  # the same images either way
+    render = cases["render_rain"]  # the fixed rows against the concatenating twin: the same frames
+    assert render["error"] <= 1 and render["fps_ratio"] > 0 and render["lidar_init_fps"] > 0
+    assert render["new_raster_fwd_blend_ms"] > 0 and render["old_write_png_ms"] > 0
     assert cases["skip_unsupervised_weather"]["gaussians"] == cases["skip_unsupervised_weather"]["gaussians_without"]
     assert any("demo street" in n for n in obj["notes"])
     temporal = [c for c in obj["cases"] if c["name"].startswith("temporal_")]

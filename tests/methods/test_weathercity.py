@@ -191,3 +191,49 @@ def test_two_processes_training_one_model_train_once_and_the_second_loads_it(tmp
     assert len(waits) == 1 and f"training demo (pid {trained['pid']}, since " in waits[0]
     assert not [m for m in trained["said"] if "waiting" in m]
     assert trained["lock_wait_seconds"] == 0 and loaded["lock_wait_seconds"] > 0
+
+
+@pytest.mark.model
+def test_render_frame_from_fixed_rows_equals_its_concatenating_twin(demo_scene):
+    # the fast path (FrameRows, only the objects' rows written per frame) against render_frame_concat:
+    # the same Gaussians in the same relative order, the objects' centres equal within float32 rounding:
+    # uint8 frames within 1 (a pixel whose alpha threshold an ulp flips) on under 0.1 % of the pixels
+    torch = pytest.importorskip("torch")
+    import weather_models as wm
+
+    from wcbench.methods.weathercity import WeatherCityMethod
+    from wcbench.reference_model.model.decoders import WeatherDecoders
+    from wcbench.reference_model.model.objects import RigidObject
+    from wcbench.reference_model.model.scene_model import WeatherCityModel
+    from wcbench.reference_model.model.sky import SkyModel
+
+    def ahead(k: int, metres: float) -> np.ndarray:
+        shift = np.eye(4)
+        shift[2, 3] = metres
+        return demo_scene.frames[k].camera.camera_to_world @ shift
+
+    # a hand-made model in the demo street's frame: the wall 10 m ahead of the first camera, a car 6 m
+    # ahead of each camera in every other frame (absent in the others)
+    wall = wm.wall()
+    first = torch.from_numpy(ahead(0, 0.0).astype(np.float32))
+    with torch.no_grad():
+        wall.means.copy_(wall.means @ first[:3, :3].T + first[:3, 3])
+    frames = np.arange(0, len(demo_scene), 2)
+    car = RigidObject(wm.car(200), track_id="9", class_name="Car", frames=frames,
+                      object_to_world=np.stack([ahead(k, 6.0) for k in frames]), box_size=np.full(3, 1.6),
+                      n_frames=len(demo_scene))
+    weathers = ("clear", "rain", "snow", "fog")
+    model = WeatherCityModel(wall, [car], [], WeatherDecoders(weathers, feature_dim=8, hidden=16),
+                             SkyModel(weathers, up=demo_scene.up, heading=ahead(0, 1.0)[:3, 2], rows=8, cols=16))
+    for weather in ("rain", "clear"):
+        fast, slow = WeatherCityMethod(size=(96, 54)), WeatherCityMethod(size=(96, 54))
+        for method in (fast, slow):
+            method.use_model(demo_scene, model, {})
+            method.prepare(demo_scene, weather, seed=3)
+        for k in [*range(6), 0]:  # the car present, absent, present... and back to the first frame
+            got, info = fast.render_frame(demo_scene, weather, k, seed=3)
+            ref, _ = slow.render_frame_concat(demo_scene, weather, k, seed=3)
+            diff = np.abs(got.astype(np.int16) - ref)
+            assert diff.max() <= 1 and (diff > 0).mean() < 1e-3, (weather, k)  # see FrameRows: float32 rounding
+            # the car's rows are culled for their zero opacity where it is absent
+            assert info["raster_meta"]["culled_transparent"] >= (200 if k % 2 else 0)

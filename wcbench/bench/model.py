@@ -42,16 +42,26 @@ profile_step          the per-phase profile of a training step of the default pr
                       amortised), and ``non_raster`` (everything but the rasterizer); per phase the
                       speed-up from the first count to the second, its Amdahl serial fraction and a
                       *projected* 16-thread speed-up (docs/design.md §8)
+render_rain           whole frames of the trained default model under the default rain preset at the
+                      training size, the fast path (``render_frame``: every node in fixed rows, only
+                      the moving nodes' rows written per frame) against its twin
+                      (``render_frame_concat``: the frame's nodes concatenated afresh), interleaved frame
+                      by frame in one run, and ``lidar-init``'s frame of the same weather beside them:
+                      per path the FPS and the median ms of each stage (scene graph, particles,
+                      rasterizer, fog, the whole ``render_frame``, and writing the PNG), and
+                      ``fps_ratio`` (old frame time / new); ``error``: the largest difference of the
+                      two paths' uint8 frames (0: the same frames)
 skip_<what>           what a skip of the scene graph saves: the median time of a training step of a
                       model built with the skip (``time_ms``) and without it (``without_ms``):
                       dropping Gaussians outside every training frustum, keeping tracks that do not
                       move in the background, and not training a weather without supervision
 
 ``error`` is the held-out PSNR (dB, higher is better): this suite reports quality, not a deviation.
-Set ``WCBENCH_BENCH_MODEL_GROUPS`` to run some of the groups ``headline,temporal,knobs,skips,profile``
-(default all; the headline and the temporal group each train the default profile, the knobs take
-about 4 minutes each), and ``WCBENCH_BENCH_MODEL_KNOBS`` to a comma-separated list of knob case
-names to run only those.
+Set ``WCBENCH_BENCH_MODEL_GROUPS`` to run some of the groups
+``headline,temporal,knobs,skips,profile,render`` (default all; the headline and the temporal group
+each train the default profile, the render group renders the headline's model or, without the
+headline, trains one the same way; the knobs take about 4 minutes each), and
+``WCBENCH_BENCH_MODEL_KNOBS`` to a comma-separated list of knob case names to run only those.
 """
 
 from __future__ import annotations
@@ -59,6 +69,7 @@ from __future__ import annotations
 import copy
 import os
 import statistics
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -77,6 +88,7 @@ from wcbench.methods.weathercity import WeatherCityMethod
 from wcbench.metrics.temporal.flicker import flow_warping_error
 from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.sky import view_directions
+from wcbench.reference_model.raster.threads import get_threads
 from wcbench.reference_model.raster.threads import threads as thread_count
 from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, estimate_sky_color, init_scene_from_lidar
 from wcbench.reference_model.training.build import build_model
@@ -93,6 +105,8 @@ from wcbench.scenes.scene import Scene
 __all__ = ["run"]
 
 _SCENE_ID = "pandaset_002"
+#: The case groups of ``WCBENCH_BENCH_MODEL_GROUPS`` (default all).
+GROUPS = ("headline", "temporal", "knobs", "skips", "profile", "render")
 _HOLDOUT = (5, 15, 25)
 #: (case name, knob, value, settings changed from the default profile)
 _KNOBS: list[tuple[str, str, Any, dict[str, Any]]] = [
@@ -156,6 +170,83 @@ def _fps_rain_fog(scene: Scene, model: Any, config: TrainConfig, facts: dict[str
     keys = sorted({k for s in stages for k in s})
     return {"fps_rain_fog": round(1e3 / ms, 2), "frame_ms": round(ms, 1),
             **{f"stage_{k}_ms": round(statistics.median(s.get(k, 0.0) for s in stages), 1) for k in keys}}
+
+
+#: Stages of a whole frame (``render_frame``'s ``timings_ms``, and the PNG the runner writes).
+RENDER_STAGES = ("scene_graph", "particles", "raster", "fog", "total", "write_png")
+
+
+def _recording(rasterizer: Callable[..., Any], phases: dict[str, dict[str, float]], name: str) -> Callable[..., Any]:
+    """``rasterizer`` that keeps the ``phase_ms`` of its last call in ``phases[name]``."""
+
+    def call(*args: Any, **kwargs: Any) -> Any:
+        out = rasterizer(*args, **kwargs)
+        phases[name] = dict(out.meta.get("phase_ms", {}))
+        return out
+
+    return call
+
+
+def _render_case(scene: Scene, model: Any, config: TrainConfig, facts: dict[str, Any], *, frames: int,
+                 folder: Path) -> BenchCase:
+    """Whole frames of default rain at the training size: ``render_frame`` (the fixed rows of
+    :class:`~wcbench.reference_model.model.scene_model.FrameRows`) against its twin
+    ``render_frame_concat`` (the frame's nodes concatenated afresh), interleaved frame by frame in
+    one process, and lidar-init's frame of the same weather and size beside them; ``error``: the
+    largest difference of the two paths' uint8 frames."""
+    from wcbench.core.image_io import write_png
+    from wcbench.methods.lidar_init import LidarInitMethod
+
+    width, height = config.size_for(scene.image_size)
+    rain = Weather(kind="rain")
+    methods = {}
+    for name in ("new", "old"):  # one method each: the twin's frames would make the new one copy its rows
+        method = WeatherCityMethod(physics={"rain": rain})
+        method.config = config
+        method.use_model(scene, model, facts)
+        method.prepare(scene, "rain", seed=0)
+        methods[name] = method
+    lidar = LidarInitMethod(physics={"rain": rain}, size=(width, height))
+    lidar.prepare(scene, "rain", seed=0)
+    paths = {"new": methods["new"].render_frame, "old": methods["old"].render_frame_concat,
+             "lidar_init": lidar.render_frame}
+    # the rasterizer's own phases (projection, sort, binning, blending) of each path's last frame
+    phases: dict[str, dict[str, float]] = {}
+    for name, renderer in (("new", methods["new"]._renderer), ("old", methods["old"]._renderer),
+                           ("lidar_init", lidar._renderer)):
+        assert renderer is not None
+        renderer.rasterizer = _recording(renderer.rasterizer, phases, name)
+    picked = list(range(0, len(scene), max(1, len(scene) // frames)))[:frames]
+    for render in paths.values():  # warm-up (kernels compiled, caches filled)
+        render(scene, "rain", picked[0], seed=0)
+    stages: dict[str, list[dict[str, float]]] = {name: [] for name in paths}
+    worst = 0
+    for k in picked:
+        images = {}
+        for name, render in paths.items():
+            t = time.perf_counter()
+            img, info = render(scene, "rain", k, seed=0)
+            frame_ms = 1e3 * (time.perf_counter() - t)
+            t = time.perf_counter()
+            write_png(folder / f"{name}.png", img)
+            stages[name].append({**info["timings_ms"], "frame": frame_ms,
+                                 "write_png": 1e3 * (time.perf_counter() - t),
+                                 **{f"raster_{k}": v for k, v in phases.get(name, {}).items()}})
+            images[name] = img
+        worst = max(worst, int(np.abs(images["new"].astype(np.int16) - images["old"]).max()))
+
+    def median(name: str, key: str) -> float:
+        return statistics.median(s.get(key, 0.0) for s in stages[name])
+
+    extra: dict[str, Any] = {"frames": len(picked), "size": f"{width}x{height}", "default": True}
+    for name in paths:
+        extra[f"{name}_fps"] = round(1e3 / median(name, "frame"), 2)
+        keys = [*RENDER_STAGES, *sorted({k for st in stages[name] for k in st if k.startswith("raster_")})]
+        extra.update({f"{name}_{key}_ms": round(median(name, key), 2) for key in keys})
+    extra["fps_ratio"] = round(median("old", "frame") / median("new", "frame"), 3)
+    extra["threads"] = get_threads()["numba"]
+    return BenchCase(name="render_rain", knob="scene_rows", value="fixed", time_ms=median("new", "frame"),
+                     error=float(worst), error_unit="abs_uint8", extra=extra)
 
 
 def _one_pass_case(model: Any, views: list[TrainingView], repeats: int) -> BenchCase:
@@ -435,11 +526,11 @@ def run(*, data_root: Path | None, quick: bool = False, threads: str | list[int]
     BenchReport
         Suite ``"model"`` (see the module docstring).
     """
-    groups = set(os.environ.get("WCBENCH_BENCH_MODEL_GROUPS", "headline,temporal,knobs,skips,profile").split(","))
-    bad_groups = groups - {"headline", "temporal", "knobs", "skips", "profile"}
+    groups = set(os.environ.get("WCBENCH_BENCH_MODEL_GROUPS", ",".join(GROUPS)).split(","))
+    bad_groups = groups - set(GROUPS)
     if bad_groups:
         raise InputError(f"WCBENCH_BENCH_MODEL_GROUPS: unknown groups {sorted(bad_groups)}; "
-                         "known: headline, temporal, knobs, skips, profile")
+                         f"known: {', '.join(GROUPS)}")
     counts = parse_threads(threads)
     chosen = os.environ.get("WCBENCH_BENCH_MODEL_KNOBS")
     knobs = _KNOBS[:2] if quick else _KNOBS
@@ -497,13 +588,19 @@ def run(*, data_root: Path | None, quick: bool = False, threads: str | list[int]
                "dynamic_psnr": round(evals[config.iterations]["mean_dynamic_psnr"], 3),
                "content_distance": _held_out_content(model, held, content),
                **_fps_rain_fog(scene, model, config, {**facts, "gaussians": model.counts()})}
-        if config is base:
+        if config is base and "render" in groups:
+            with tempfile.TemporaryDirectory() as tmp:
+                report.cases.append(_render_case(scene, model, config, {**facts, "gaussians": model.counts()},
+                                                 frames=5 if quick else 10, folder=Path(tmp)))
+        if config is base and "headline" in groups:
             report.cases.append(_one_pass_case(model, train_views, repeats=2 if quick else 3))
             skipped = facts["skipped"]
             report.notes.append("skipped by the scene graph: " + ", ".join(
                 f"{k}={v}" for k, v in skipped.items() if v not in (None, 0)))
         return evals, spent, row
 
+    if "render" in groups and "headline" not in groups:  # a model of its own, trained as the headline's
+        train(base)
     if "headline" in groups:
         evals, spent, row = train(base)
         psnr = evals[base.iterations]["mean_psnr"]

@@ -56,7 +56,7 @@ from wcbench.methods.weather_spec import (
 )
 from wcbench.reference_model.appearance.editor import AppearanceParams, masked_ego
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
-from wcbench.reference_model.model.scene_model import Placement, WeatherCityModel
+from wcbench.reference_model.model.scene_model import FrameRows, Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
 from wcbench.reference_model.training.config import ABLATIONS, PROFILES, make_config, settings_options
@@ -218,6 +218,7 @@ class WeatherCityMethod(FrameRenderer):
         self._ego: tuple[tuple[Any, ...], np.ndarray] | None = None
         self._appearance = AppearanceParams.load()
         self._placement = Placement()
+        self._rows: FrameRows | None = None
 
     def required_models(self) -> tuple[str, ...]:
         """``vgg16`` for the content loss, unless it is off or a loss was passed in."""
@@ -302,17 +303,15 @@ class WeatherCityMethod(FrameRenderer):
         assert model is not None
         decoded = weather if weather in model.weathers else "clear"
         self._decoded = decoded
-        with torch.no_grad():
-            g = model.frame_gaussians(0, self._placement)
-        # geometry placeholder; every frame passes its own Gaussians
-        first = scene.frames[0].camera
-        self._renderer = WeatherRenderer(
-            GaussianArrays(g.means, g.quats, g.scales, g.opacities, torch.zeros(len(g), 3)),
-            self.weather_for(weather, seed, scene), up=scene.up, heading=first.camera_to_world[:3, 2],
-            anchor=first.center,
-        )
         self._node_colors = self._decode_nodes(model, decoded)
         self._activated = model.activated()
+        # every placed node in fixed rows: a frame rewrites only the moving nodes' (render_frame)
+        self._rows = FrameRows(model, self._node_colors, placement=self._placement, activated=self._activated)
+        first = scene.frames[0].camera
+        self._renderer = WeatherRenderer(
+            GaussianArrays(**self._rows.arrays), self.weather_for(weather, seed, scene), up=scene.up,
+            heading=first.camera_to_world[:3, 2], anchor=first.center,
+        )
 
     def use_model(self, scene: Scene, model: WeatherCityModel, facts: dict[str, Any]) -> None:
         """Render ``scene`` with an already trained ``model`` (``facts``: its training record).
@@ -378,25 +377,51 @@ class WeatherCityMethod(FrameRenderer):
         return self._rays[key]
 
     def render_frame(self, scene: Scene, weather: str, index: int, *, seed: int) -> tuple[np.ndarray, dict[str, Any]]:
-        """Frame ``index`` under ``weather``: decoded colors, sky, particles and fog."""
-        model, renderer = self._model, self._renderer
-        assert model is not None and renderer is not None, "prepare() runs before render_frame()"
+        """Frame ``index`` under ``weather``: decoded colors, sky, particles and fog.
+
+        The scene's Gaussians stay in the renderer's fixed rows (:class:`FrameRows`): a frame moves
+        the objects' rows only. :meth:`render_frame_concat` is its twin.
+        """
+        renderer, rows = self._renderer, self._rows
+        assert renderer is not None and rows is not None, "prepare() runs before render_frame()"
         start = time.perf_counter()
-        width, height = self.output_size(scene)
-        cam = scale_camera(scene.frames[index].camera, width, height)
+        renderer.refresh_scene(rows.place(index))
+        return self._finish_frame(scene, index, None, start)
+
+    def render_frame_concat(self, scene: Scene, weather: str, index: int, *,
+                            seed: int) -> tuple[np.ndarray, dict[str, Any]]:
+        """:meth:`render_frame` the slow, plain way: the frame's nodes concatenated afresh
+        (:meth:`WeatherCityModel.frame_gaussians`) and copied in front of the particles. The tests
+        and ``bench model``'s ``render`` group compare the two (the next ``render_frame`` after a
+        call copies its whole scene in front of the particles once more)."""
+        model = self._model
+        assert model is not None, "prepare() runs before render_frame()"
+        start = time.perf_counter()
         with torch.no_grad():
             g = model.frame_gaussians(index, self._placement, activated=self._activated)
             colors = torch.cat([self._node_colors[key] for key, _, _ in g.segments]) if g.segments else \
                 torch.zeros(len(g), 3)
-            sky = None
-            if renderer.background_visible:  # under fog or haze the sky is never seen: not looked up
+        return self._finish_frame(scene, index, GaussianArrays(g.means, g.quats, g.scales, g.opacities, colors),
+                                  start)
+
+    def _finish_frame(self, scene: Scene, index: int, gaussians: GaussianArrays | None,
+                      start: float) -> tuple[np.ndarray, dict[str, Any]]:
+        """Sky, particles, fog and the ego mask of frame ``index`` with the scene Gaussians placed
+        (``gaussians``, or the renderer's own rows when ``None``)."""
+        model, renderer = self._model, self._renderer
+        assert model is not None and renderer is not None
+        width, height = self.output_size(scene)
+        cam = scale_camera(scene.frames[index].camera, width, height)
+        sky = None
+        if renderer.background_visible:  # under fog or haze the sky is never seen: not looked up
+            with torch.no_grad():
                 grid = model.sky.grid_from_rays(self._rays_for(cam.K, width, height), cam.camera_to_world)
                 sky = model.sky(grid, [self._decoded]).numpy()
         t_graph = time.perf_counter()
         frame = renderer.render(
             cam, float(self._times[index] - self._times[0]),
             camera_velocity=camera_velocity(self._centers, self._times, index),
-            gaussians=GaussianArrays(g.means, g.quats, g.scales, g.opacities, colors), background_image=sky,
+            gaussians=gaussians, background_image=sky,
         )
         image = frame.image
         ego = self._ego_mask(scene, (width, height))

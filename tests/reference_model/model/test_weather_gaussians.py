@@ -242,3 +242,48 @@ def test_left_multiplication_matrices_equal_the_hamilton_product_and_follow_a_lo
     _, quats = model.rigid[0].world(1)
     torch.testing.assert_close(quats, quat_multiply_torch(model.rigid[0].quat[1].expand_as(quats),
                                                           model.rigid[0].gaussians.quats))
+
+
+#: Largest difference of a pixel (RGB in [0, 1], alpha) between the fixed rows' render and the
+#: twin's: their centres differ by float32 rounding only.
+IMAGE_TOL = 1e-5
+
+
+@pytest.mark.parametrize("placement", [None, Placement(hidden={"background"}),
+                                       Placement(offsets={"rigid:5": np.array([0.5, 0.0, 0.0])},
+                                                 copies=[("rigid:5", np.array([0.0, 2.0, 0.0]))])])
+def test_fixed_rows_hold_each_frames_gaussians_and_render_the_same_image(placement):
+    # FrameRows is the render fast path; frame_gaussians (concatenated afresh) is its twin
+    from wcbench.reference_model.model.scene_model import FrameRows
+    from wcbench.reference_model.raster.rasterizer import rasterize
+
+    model = wm.make_model()
+    model.rigid[0].present[2] = False
+    with torch.no_grad():
+        model.background.opacity_logits += torch.linspace(-1, 1, len(model.background))
+        colors = {key: model.decoders(p.features, ["rain"]) for key, p in model.nodes().items()}
+    rows = FrameRows(model, colors, placement=placement)
+    for frame in (0, 2, 1, 1):  # the car leaves and comes back
+        written = rows.place(frame)
+        with torch.no_grad():
+            g = model.frame_gaussians(frame, placement)
+            ref = {"means": g.means, "quats": g.quats, "scales": g.scales, "opacities": g.opacities,
+                   "colors": torch.cat([colors[key] for key, _, _ in g.segments]) if g.segments else
+                   torch.zeros(len(g), 3)}  # nothing placed (the background hidden, the car absent)
+        shown = rows.arrays["opacities"] > 0
+        assert shown.sum() == len(g)
+        for name, value in ref.items():
+            # centres and rotations: the same products summed in another order (float32 rounding,
+            # 1e-6 relative); the rest copied (tolerance 0)
+            tol = 1e-6 if name in ("means", "quats") else 0.0
+            np.testing.assert_allclose(rows.arrays[name][shown], value.numpy(), rtol=tol, atol=tol, err_msg=name)
+        assert all(s.stop - s.start == len(model.rigid[0].gaussians) for s in written)
+        fast = rasterize(*(torch.from_numpy(rows.arrays[k]) for k in ref), torch.from_numpy(wm.WORLD_TO_CAMERA),
+                         torch.from_numpy(wm.K), wm.WIDTH, wm.HEIGHT, render_depth=False, absgrad=False)
+        slow = rasterize(*ref.values(), torch.from_numpy(wm.WORLD_TO_CAMERA), torch.from_numpy(wm.K), wm.WIDTH,
+                         wm.HEIGHT, render_depth=False, absgrad=False)
+        # an ulp of a centre moves a pixel's alpha by ~1e-7 (a threshold it flips, by up to 1/255)
+        torch.testing.assert_close(fast.color, slow.color, rtol=0, atol=IMAGE_TOL)
+        torch.testing.assert_close(fast.alpha, slow.alpha, rtol=0, atol=IMAGE_TOL)
+    with pytest.raises(ValueError, match="missing"):
+        FrameRows(model, {"background": colors["background"]}, placement=placement)

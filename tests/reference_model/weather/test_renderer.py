@@ -247,3 +247,27 @@ def test_camera_helpers() -> None:
         scale_camera(cam, 0, 10)
 
 
+
+
+@pytest.mark.parametrize("weather", [Weather(kind="rain", preset="paper"), Weather()])
+def test_rows_changed_in_place_and_refreshed_render_as_the_same_scene_passed_per_frame(weather: Weather) -> None:
+    # refresh_scene is the fast path of a moving scene; passing the frame's Gaussians is its twin
+    g = wall(4.0, half=2.0, spacing=0.1)
+    arrays = {name: np.array(getattr(g, name), np.float32) for name in ("means", "quats", "scales", "opacities",
+                                                                        "colors")}
+    own = WeatherRenderer(GaussianCloud(**arrays), weather, up=UP, anchor=np.zeros(3))
+    twin = WeatherRenderer(GaussianCloud(**arrays), weather, up=UP, anchor=np.zeros(3))
+    cam = camera()
+    own.render(cam, 0.0)  # fills the buffers in front of the particles
+    moved = slice(100, 900)
+    for t in (0.1, 0.2):
+        arrays["means"][moved] += np.float32(0.3)
+        arrays["opacities"][moved] = np.float32(t)
+        own.scene["means"].numpy()[moved] = arrays["means"][moved]
+        own.scene["opacities"].numpy()[moved] = arrays["opacities"][moved]
+        own.refresh_scene([moved])
+        got = own.render(cam, t).image
+        ref = twin.render(cam, t, gaussians=GaussianCloud(**{k: v.copy() for k, v in arrays.items()})).image
+        assert np.array_equal(got, ref)  # the same Gaussians in the same order: the same bits
+    with pytest.raises(ValueError, match="contiguous ranges"):
+        own.refresh_scene([slice(0, len(g) + 1)])
