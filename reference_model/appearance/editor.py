@@ -13,7 +13,7 @@ sun), the surface maps of the scene's static lidar (:mod:`.maps`) and the models
 2. **rain**: a water film on the albedo of open surfaces (full on horizontal ones, damp on
    vertical ones, less in the wheel paths), puddles where the world-anchored puddle field exceeds
    the rate's threshold, and a Fresnel-weighted reflection of the scene and sky mirrored about the
-   ground plane (a blurred one on wet asphalt, a sharp one in puddles), in the colours the camera
+   ground plane (on wet asphalt blurred into vertical streaks, sharp in puddles), in the colours the camera
    sees where the reflected ray meets the scene (never the lidar's);
 3. **snow**: cover on surfaces facing up and open to the sky, its amount from the rate, the wheel
    paths mostly cleared, damp bare surfaces and a cooler white balance;
@@ -42,6 +42,7 @@ from wcbench.core.errors import InputError
 from wcbench.core.options import Option, Range, validate_options
 from wcbench.reference_model.appearance.maps import (
     SurfaceMaps,
+    glossy_blur,
     mirror_render,
     refine,
     screen_reflection,
@@ -81,7 +82,7 @@ APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
     "rain.fresnel_f0": (Range(0, 1), "water's Fresnel reflectance at normal incidence"),
     "rain.sheen_road": (Range(0, 1), "share of the Fresnel reflection that is a mirror on wet asphalt"),
     "rain.sheen_puddle": (Range(0, 1), "share of the Fresnel reflection that is a mirror in puddles"),
-    "rain.rough_blur_px": (Range(0), "blur of the rough reflection (px at 270 rows)"),
+    "rain.rough_blur_px": (Range(0), "blur of the rough reflection across (px at 270 rows)"),
     "rain.puddle_max": (Range(0, 1), "largest fraction of the open ground under puddles"),
     "rain.puddle_rate_mm_h": (Range(0, low_open=True), "rain rate scale of the puddle fraction (mm/h)"),
     "rain.track_wetness": (Range(0, 1), "water film in the wheel paths, as a fraction of the rest"),
@@ -361,7 +362,7 @@ class WeatherEditor:
             seen = m.sky_alpha[..., None] * sky + (1.0 - m.sky_alpha[..., None]) * seen
             refl, _ = screen_reflection(seen, camera, m, refl_dist, up=up)
             blur = float(table["rough_blur_px"]) * h / 270.0
-            rough = cv2.GaussianBlur(refl, (0, 0), blur) if blur > 0 else refl
+            rough = glossy_blur(refl, ground, m.rays, up=up, sigma_px=blur)
             cos = np.abs(np.sum(m.rays * m.normal, axis=-1))
             fresnel = fresnel_schlick(cos, float(table["fresnel_f0"]))
             road = ground * (1.0 - puddle) * float(table["sheen_road"]) * wet

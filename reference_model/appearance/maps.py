@@ -34,7 +34,7 @@ from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 
-__all__ = ["SurfaceMaps", "mirror_render", "refine", "screen_reflection", "surface_maps"]
+__all__ = ["SurfaceMaps", "glossy_blur", "mirror_render", "refine", "screen_reflection", "surface_maps"]
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
@@ -392,6 +392,62 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
         # no seen reflection within reach: what the frame shows where the ray points
         image = filled
     return image.astype(np.float32), seen
+
+
+#: Longest vertical stretch of a glossy reflection over its width (a view 7 degrees below the horizon).
+_MAX_STRETCH = 8.0
+
+
+def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: np.ndarray,
+                sigma_px: float) -> np.ndarray:
+    """A rough film's reflection: blurred across by ``sigma_px`` and along the image's vertical by
+    ``sigma_px / sin(e)``, e the angle of the pixel's ray below the horizon (at most 8 times longer).
+
+    A facet tilted by d in the plane of incidence turns the reflected ray by 2 d, one tilted across
+    it by 2 d sin(e): seen at a grazing angle, the reflections on wet asphalt are streaks drawn
+    downward from what they mirror, not blobs of its shape (the glitter geometry of Cox & Munk
+    1954). The blur is a normalised convolution over ``weight`` (the ground), so nothing of a car's
+    body beside the road's pixels runs into their reflection.
+
+    Parameters
+    ----------
+    image : ndarray [H, W, 3] float32
+        The sharp reflection.
+    weight : ndarray [H, W] float32
+        Where it is a reflection (the ground), in [0, 1].
+    rays : ndarray [H, W, 3] float32
+        Unit world rays.
+    up : ndarray [3]
+    sigma_px : float
+        Blur across the plane of incidence (px); 0 returns ``image``.
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+    """
+    if sigma_px <= 0:
+        return np.asarray(image, np.float32)
+    wgt = np.clip(np.asarray(weight, np.float32), 0.0, 1.0)
+    num = np.asarray(image, np.float32) * wgt[..., None]
+    sin_e = np.clip(-(rays @ np.asarray(up, np.float32)), 1.0 / _MAX_STRETCH, 1.0)
+    stretch = np.clip(1.0 / sin_e, 1.0, _MAX_STRETCH)
+    across_num = cv2.GaussianBlur(num, (0, 0), sigmaX=sigma_px, sigmaY=1e-3)
+    across_den = cv2.GaussianBlur(wgt, (0, 0), sigmaX=sigma_px, sigmaY=1e-3)
+    out = np.zeros_like(num)
+    den_out = np.zeros_like(wgt)
+    # stretches 1, 2, 4, 8 and a linear blend in log2 of the stretch between them
+    level = np.log2(stretch)
+    for i in range(4):
+        share = np.clip(1.0 - np.abs(level - i), 0.0, 1.0)
+        if not share.any():
+            continue
+        s = sigma_px * 2.0 ** i
+        n = cv2.GaussianBlur(across_num, (0, 0), sigmaX=1e-3, sigmaY=s)
+        d = cv2.GaussianBlur(across_den, (0, 0), sigmaX=1e-3, sigmaY=s)
+        out += n * share[..., None]
+        den_out += d * share
+    blurred = out / np.maximum(den_out, 1e-6)[..., None]
+    return np.where(den_out[..., None] > 1e-4, blurred, image).astype(np.float32)
 
 
 def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-3) -> np.ndarray:
