@@ -441,9 +441,17 @@ def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: 
         share = np.clip(1.0 - np.abs(level - i), 0.0, 1.0)
         if not share.any():
             continue
-        s = sigma_px * 2.0 ** i
-        n = cv2.GaussianBlur(across_num, (0, 0), sigmaX=1e-3, sigmaY=s)
-        d = cv2.GaussianBlur(across_den, (0, 0), sigmaX=1e-3, sigmaY=s)
+        # the longer blurs on rows averaged 2^i at a time (the same sigma in rows of the coarse
+        # image): a few ms a frame, not a kernel of 150 rows
+        f = 2 ** i
+        rows = max(1, round(num.shape[0] / f))
+        small = (num.shape[1], rows)
+        n = cv2.GaussianBlur(cv2.resize(across_num, small, interpolation=cv2.INTER_AREA), (0, 0), sigmaX=1e-3,
+                             sigmaY=sigma_px)
+        d = cv2.GaussianBlur(cv2.resize(across_den, small, interpolation=cv2.INTER_AREA), (0, 0), sigmaX=1e-3,
+                             sigmaY=sigma_px)
+        n = cv2.resize(n, (num.shape[1], num.shape[0]), interpolation=cv2.INTER_LINEAR)
+        d = cv2.resize(d, (num.shape[1], num.shape[0]), interpolation=cv2.INTER_LINEAR)
         out += n * share[..., None]
         den_out += d * share
     blurred = out / np.maximum(den_out, 1e-6)[..., None]
