@@ -13,7 +13,8 @@ sun), the surface maps of the scene's static lidar (:mod:`.maps`) and the models
 2. **rain**: a water film on the albedo of open surfaces (full on horizontal ones, damp on
    vertical ones, less in the wheel paths), puddles where the world-anchored puddle field exceeds
    the rate's threshold, and a Fresnel-weighted reflection of the scene and sky mirrored about the
-   ground plane (a blurred one on wet asphalt, a sharp one in puddles);
+   ground plane (on wet asphalt blurred into vertical streaks, sharp in puddles), in the colours the camera
+   sees where the reflected ray meets the scene (never the lidar's);
 3. **snow**: cover on surfaces facing up and open to the sky, its amount from the rate, the wheel
    paths mostly cleared, damp bare surfaces and a cooler white balance;
 4. **haze**: Koschmieder's law with the weather's own haze (fog visibility, or the rain or snow
@@ -39,7 +40,14 @@ import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.options import Option, Range, validate_options
-from wcbench.reference_model.appearance.maps import SurfaceMaps, mirror_render, refine, surface_maps
+from wcbench.reference_model.appearance.maps import (
+    SurfaceMaps,
+    glossy_blur,
+    mirror_render,
+    refine,
+    screen_reflection,
+    surface_maps,
+)
 from wcbench.reference_model.appearance.shading import (
     LightModel,
     apply_haze,
@@ -74,7 +82,7 @@ APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
     "rain.fresnel_f0": (Range(0, 1), "water's Fresnel reflectance at normal incidence"),
     "rain.sheen_road": (Range(0, 1), "share of the Fresnel reflection that is a mirror on wet asphalt"),
     "rain.sheen_puddle": (Range(0, 1), "share of the Fresnel reflection that is a mirror in puddles"),
-    "rain.rough_blur_px": (Range(0), "blur of the rough reflection (px at 270 rows)"),
+    "rain.rough_blur_px": (Range(0), "blur of the rough reflection across (px at 270 rows)"),
     "rain.puddle_max": (Range(0, 1), "largest fraction of the open ground under puddles"),
     "rain.puddle_rate_mm_h": (Range(0, low_open=True), "rain rate scale of the puddle fraction (mm/h)"),
     "rain.track_wetness": (Range(0, 1), "water film in the wheel paths, as a fraction of the rest"),
@@ -325,6 +333,8 @@ class WeatherEditor:
         light = exposure * overcast_irradiance(n_up, model=p.light)[..., None]
         beta, haze_color, offset = weather.haze()
         sky_seen = haze_color if beta > 0 else p.sky_color
+        # the sky: at infinity, the haze's airlight; without haze, the overcast sky
+        sky = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else self.overcast_sky(m.rays)
         info: dict[str, Any] = {}
         if kind == "rain":
             rate = weather.precipitation_rate()
@@ -342,17 +352,17 @@ class WeatherEditor:
             wet = wet * openness * (1.0 - (1.0 - float(table["track_wetness"])) * m.track)
             wet = np.maximum(wet, puddle) * ~m.sky
             base = wet_albedo(albedo, wet) * light
-            # the reflection in the wet ground: the scene mirrored about the ground plane, under the
-            # overcast light, seen through the haze of the reflected path beyond the ground point
-            # (the pixel's own haze, camera to ground, is added with everything else below)
-            refl, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height, exposure, sky_seen)
-            with np.errstate(invalid="ignore"):
-                beyond = np.where(np.isfinite(m.distance), np.maximum(refl_dist - offset, 0.0)
-                                  - np.maximum(m.distance - offset, 0.0), 0.0)
-            refl = apply_haze(refl, np.maximum(np.nan_to_num(beyond, nan=np.inf), 0.0), beta=beta,
-                              color=haze_color)
+            # the reflection in the wet ground: where the mirrored ray meets the scene (the lidar's
+            # surfaces mirrored about the ground plane), in the colours the camera sees there under
+            # the weather (the edit without reflection, its haze over the camera's path to the
+            # reflected point, close to the reflected path's beyond the ground point; the pixel's own
+            # haze, camera to ground, is added with everything else below)
+            _, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height, exposure, sky_seen)
+            seen = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
+            seen = m.sky_alpha[..., None] * sky + (1.0 - m.sky_alpha[..., None]) * seen
+            refl, _ = screen_reflection(seen, camera, m, refl_dist, up=up)
             blur = float(table["rough_blur_px"]) * h / 270.0
-            rough = cv2.GaussianBlur(refl, (0, 0), blur) if blur > 0 else refl
+            rough = glossy_blur(refl, ground, m.rays, up=up, sigma_px=blur)
             cos = np.abs(np.sum(m.rays * m.normal, axis=-1))
             fresnel = fresnel_schlick(cos, float(table["fresnel_f0"]))
             road = ground * (1.0 - puddle) * float(table["sheen_road"]) * wet
@@ -380,8 +390,6 @@ class WeatherEditor:
         else:
             base = wet_albedo(albedo, float(table["damp"]) * ~m.sky) * light
         surface = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
-        # the sky: at infinity, the haze's airlight; without haze, the overcast sky
-        sky = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else self.overcast_sky(m.rays)
         a = m.sky_alpha[..., None]
         out = a * sky + (1.0 - a) * surface
         ego = self.analysis.ego_mask((raw.shape[1], raw.shape[0]))

@@ -12,8 +12,10 @@ reach (docs/design.md §7):
   **vertical wall** rising from the surface below, facing the camera horizontally: structure above
   the lidar's reach keeps its appearance, nothing settles on it.
 
-:func:`mirror_render` renders the non-ground surfaces mirrored about that ground plane: what a wet
-road reflects at each pixel.
+:func:`mirror_render` renders the non-ground surfaces mirrored about that ground plane: where the
+reflected ray of each pixel meets the scene; :func:`screen_reflection` takes the colour of what is
+met there from the frame itself (what the camera sees above the road), never from the lidar's
+colours.
 """
 
 from __future__ import annotations
@@ -32,10 +34,13 @@ from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 
-__all__ = ["SurfaceMaps", "mirror_render", "refine", "surface_maps"]
+__all__ = ["SurfaceMaps", "glossy_blur", "mirror_render", "refine", "screen_reflection", "surface_maps"]
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
+#: The reflected point counts as what the camera sees at its pixel unless the camera's surface there
+#: lies nearer than its distance by more than this fraction of it plus ``_SEEN_SLACK_M`` (occluded).
+_SEEN_FRACTION, _SEEN_SLACK_M = 0.1, 0.5
 #: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
 _BOX_SLACK_M = 0.3
 
@@ -298,6 +303,159 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
     image = cv2.resize(np.clip(image, 0.0, 1.0).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     distance = cv2.resize(distance, (w, h), interpolation=cv2.INTER_LINEAR)
     return image, np.where(distance >= 1e6, np.inf, distance).astype(np.float32)
+
+
+def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray, *,
+                      up: np.ndarray, fill_sigma_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """What the ground plane mirrors at each pixel, in the frame's own colours (screen-space reflection).
+
+    A wet road reflects what stands above it, and what stands above it the camera mostly sees: the
+    reflected ray of a pixel leaves the plane at the ray's intersection G along the mirrored
+    direction r' = r - 2 (r . up) up and meets the scene at X = G + r' (L - |G - C|), where L is the
+    length of the unfolded path to the first mirrored surface (:func:`mirror_render`), or at
+    infinity where it meets none. X projected into the camera gives the pixel whose colour in
+    ``source`` is the reflection, when the camera sees X there (its surface at that pixel is not
+    nearer than X; an X at infinity is seen wherever it projects). The lidar's own colours (a
+    mover's from another frame, a return's from a sweep the camera saw differently) are never
+    used. Where X is hidden or out of the frame, the reflection is the normalised convolution
+    (Knutsson & Westin 1993) of the seen reflections around it (a rough film blurs its reflection
+    anyway), at ``fill_sigma_px`` and at four times that.
+
+    Parameters
+    ----------
+    source : ndarray [H, W, 3] float32
+        What the camera sees (the edited frame before any reflection), display RGB.
+    camera : Camera
+        The view, at the size of ``source``.
+    maps : SurfaceMaps
+        The view's completed maps (rays, distances, ground plane height).
+    mirror_distance : ndarray [H, W] float32
+        :func:`mirror_render`'s path lengths (m; ``inf`` where the reflected ray meets no surface).
+    up : ndarray [3]
+        The world's up.
+    fill_sigma_px : float, optional
+        Default 6 px at 270 rows.
+
+    Returns
+    -------
+    image : ndarray [H, W, 3] float32
+        Display RGB of the reflection (``source`` itself where a pixel's ray does not meet the plane).
+    seen : ndarray [H, W] bool
+        Where the reflection was seen directly (not filled).
+    """
+    src = np.asarray(source, np.float32)
+    h, w = src.shape[:2]
+    if maps.rays.shape[:2] != (h, w) or np.shape(mirror_distance) != (h, w):
+        raise ValueError(f"source is {w}x{h}; the maps' rays are {maps.rays.shape[1]}x{maps.rays.shape[0]} "
+                         f"and mirror_distance {np.shape(mirror_distance)}")
+    up = np.asarray(up, np.float64)
+    center = np.asarray(camera.center, np.float64)
+    rays = maps.rays.astype(np.float64)
+    down = rays @ up
+    height = center @ up - maps.ground_height
+    hits = (down < -1e-3) & (height > 0)
+    rr, cc = np.nonzero(hits)
+    r = rays[rr, cc]
+    t_plane = height / -down[rr, cc]
+    ground = center + r * t_plane[:, None]
+    mirrored = r - 2.0 * np.outer(r @ up, up)
+    rest = np.asarray(mirror_distance, np.float64)[rr, cc] - t_plane
+    finite = np.isfinite(rest) & (rest > 0)
+    # at infinity: far enough that the camera's offset from the plane does not move it in the image
+    points = ground + mirrored * np.where(finite, rest, 1e5)[:, None]
+    uv, z = camera.project(points)
+    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5  # pixel centres at +0.5
+    inside = (z > 0) & (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+    far = np.linalg.norm(points - center, axis=1)
+    xi, yi = np.clip(np.round(x), 0, w - 1).astype(int), np.clip(np.round(y), 0, h - 1).astype(int)
+    there = np.asarray(maps.distance, np.float64)[yi, xi]
+    seen_at = inside & (~finite | (there >= far * (1.0 - _SEEN_FRACTION) - _SEEN_SLACK_M))
+    map_x = np.tile(np.arange(w, dtype=np.float32), (h, 1))
+    map_y = np.tile(np.arange(h, dtype=np.float32)[:, None], (1, w))
+    map_x[rr, cc] = np.clip(x, 0, w - 1)
+    map_y[rr, cc] = np.clip(y, 0, h - 1)
+    image = cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    seen = np.zeros((h, w), bool)
+    seen[rr[seen_at], cc[seen_at]] = True
+    missing = hits & ~seen
+    if missing.any():
+        sigma = fill_sigma_px if fill_sigma_px is not None else 6.0 * h / 270.0
+        weight = seen.astype(np.float32)
+        filled = image.copy()
+        todo = missing.copy()
+        for s in (sigma, 4.0 * sigma):
+            den = cv2.GaussianBlur(weight, (0, 0), s)
+            num = cv2.GaussianBlur(image * weight[..., None], (0, 0), s)
+            ok = todo & (den > 1e-3)
+            filled[ok] = num[ok] / den[ok, None]
+            todo &= ~ok
+        # no seen reflection within reach: what the frame shows where the ray points
+        image = filled
+    return image.astype(np.float32), seen
+
+
+#: Longest vertical stretch of a glossy reflection over its width (a view 7 degrees below the horizon).
+_MAX_STRETCH = 8.0
+
+
+def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: np.ndarray,
+                sigma_px: float) -> np.ndarray:
+    """A rough film's reflection: blurred across by ``sigma_px`` and along the image's vertical by
+    ``sigma_px / sin(e)``, e the angle of the pixel's ray below the horizon (at most 8 times longer).
+
+    A facet tilted by d in the plane of incidence turns the reflected ray by 2 d, one tilted across
+    it by 2 d sin(e): seen at a grazing angle, the reflections on wet asphalt are streaks drawn
+    downward from what they mirror, not blobs of its shape (the glitter geometry of Cox & Munk
+    1954). The blur is a normalised convolution over ``weight`` (the ground), so nothing of a car's
+    body beside the road's pixels runs into their reflection.
+
+    Parameters
+    ----------
+    image : ndarray [H, W, 3] float32
+        The sharp reflection.
+    weight : ndarray [H, W] float32
+        Where it is a reflection (the ground), in [0, 1].
+    rays : ndarray [H, W, 3] float32
+        Unit world rays.
+    up : ndarray [3]
+    sigma_px : float
+        Blur across the plane of incidence (px); 0 returns ``image``.
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+    """
+    if sigma_px <= 0:
+        return np.asarray(image, np.float32)
+    wgt = np.clip(np.asarray(weight, np.float32), 0.0, 1.0)
+    num = np.asarray(image, np.float32) * wgt[..., None]
+    sin_e = np.clip(-(rays @ np.asarray(up, np.float32)), 1.0 / _MAX_STRETCH, 1.0)
+    stretch = np.clip(1.0 / sin_e, 1.0, _MAX_STRETCH)
+    across_num = cv2.GaussianBlur(num, (0, 0), sigmaX=sigma_px, sigmaY=1e-3)
+    across_den = cv2.GaussianBlur(wgt, (0, 0), sigmaX=sigma_px, sigmaY=1e-3)
+    out = np.zeros_like(num)
+    den_out = np.zeros_like(wgt)
+    # stretches 1, 2, 4, 8 and a linear blend in log2 of the stretch between them
+    level = np.log2(stretch)
+    for i in range(4):
+        share = np.clip(1.0 - np.abs(level - i), 0.0, 1.0)
+        if not share.any():
+            continue
+        # the longer blurs on rows averaged 2^i at a time (the same sigma in rows of the coarse
+        # image): a few ms a frame, not a kernel of 150 rows
+        f = 2 ** i
+        rows = max(1, round(num.shape[0] / f))
+        small = (num.shape[1], rows)
+        n = cv2.GaussianBlur(cv2.resize(across_num, small, interpolation=cv2.INTER_AREA), (0, 0), sigmaX=1e-3,
+                             sigmaY=sigma_px)
+        d = cv2.GaussianBlur(cv2.resize(across_den, small, interpolation=cv2.INTER_AREA), (0, 0), sigmaX=1e-3,
+                             sigmaY=sigma_px)
+        n = cv2.resize(n, (num.shape[1], num.shape[0]), interpolation=cv2.INTER_LINEAR)
+        d = cv2.resize(d, (num.shape[1], num.shape[0]), interpolation=cv2.INTER_LINEAR)
+        out += n * share[..., None]
+        den_out += d * share
+    blurred = out / np.maximum(den_out, 1e-6)[..., None]
+    return np.where(den_out[..., None] > 1e-4, blurred, image).astype(np.float32)
 
 
 def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-3) -> np.ndarray:

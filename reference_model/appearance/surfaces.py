@@ -19,7 +19,8 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 Only the static scene becomes surfaces: returns of things that move without a box, people and
 noise (:mod:`wcbench.reference_model.scene_analysis.motion`) are left out of the static cloud, and
 a frame's own dynamic returns are drawn at that frame only (no normal facing the sky, nothing
-settles on them), so nothing is painted where a pedestrian or an untracked car once was.
+settles on them; those on the road's surface or alone are noise, not drawn), so nothing is
+painted where a pedestrian or an untracked car once was.
 Only what a real scene has is read: lidar, poses, tracks (docs/design.md §7).
 """
 
@@ -56,6 +57,15 @@ _HALF_TRACK_M, _WHEEL_PATH_SIGMA_M = 0.8, float(np.hypot(0.11, 0.25))
 _LANE_EXTENSION_M = 120.0
 #: Voxel (m) of a frame's own dynamic returns.
 _DYNAMIC_VOXEL_M = 0.1
+#: A frame's dynamic return is drawn only if it stands this far above the ground (m; lower it is
+#: the road's own surface, misread as moving) and has other dynamic returns within
+#: ``_DYNAMIC_NEIGHBOUR_M``: a tenth of what a patch that wide facing the sensor gives at its
+#: distance d, on a grid of 0.2 x 0.6 degrees (a spinning lidar's column step and its coarsest beam
+#: spacing; PandaSet's Pandar64 and Waymo's top lidar are finer), 6,800 / d^2, at least 3 and at
+#: most 20: a person or a car is sampled by many beams, a few returns floating in the air are spray
+#: or noise.
+_DYNAMIC_ABOVE_GROUND_M, _DYNAMIC_NEIGHBOUR_M = 0.2, 0.5
+_DYNAMIC_PATCH_RETURNS_M2, _DYNAMIC_SHARE, _DYNAMIC_NEIGHBOURS = 6800.0, 0.1, (3, 20)
 #: A ground cell (2 m) gives the height within this distance of its centre (m); beyond, the plane.
 _CELL_REACH_M = 4.0
 
@@ -287,6 +297,15 @@ class SurfaceScene:
         if a is None:
             return None
         pts = a.returns.frame_dynamic(index, tracked=False)
+        if len(pts) < 3:
+            return None
+        # a mover stands on the ground and is sampled by several beams: what lies on the road's own
+        # surface or alone would be drawn as a blob on the road, not wetted, mirrored or snowed on
+        above = pts @ self.up - self.ground_height(pts) > _DYNAMIC_ABOVE_GROUND_M
+        counts = np.asarray([len(n) for n in cKDTree(pts).query_ball_point(pts, _DYNAMIC_NEIGHBOUR_M)]) - 1
+        d2 = np.maximum(np.sum((pts - a.views.center(index)) ** 2, axis=1), 1.0)
+        needed = np.clip(_DYNAMIC_SHARE * _DYNAMIC_PATCH_RETURNS_M2 / d2, *_DYNAMIC_NEIGHBOURS)
+        pts = pts[above & (counts >= needed)]
         if len(pts) < 3:
             return None
         views = a.views

@@ -1,5 +1,6 @@
 """The physical editor's claims, each a test that fails when the physics breaks (docs/design.md §7,
-"Weather appearance"): rain darkens and mirrors open ground, snow settles only on open upward
+"Weather appearance"): rain darkens and mirrors open ground with what the camera sees above it,
+a mover's stray returns are no surface, snow settles only on open upward
 surfaces and not in the wheel paths, puddles stay put, a lidar return is never sky, the clear
 frames' cast shadows are gone under the overcast sky, and the water film darkens the albedo."""
 
@@ -13,7 +14,7 @@ pytest.importorskip("torch")
 
 from wcbench.methods.weather_spec import resolve_physics
 from wcbench.reference_model.appearance.editor import AppearanceParams, WeatherEditor
-from wcbench.reference_model.appearance.maps import mirror_render
+from wcbench.reference_model.appearance.maps import mirror_render, screen_reflection
 from wcbench.reference_model.appearance.shading import (
     clear_irradiance,
     linear_to_srgb,
@@ -57,13 +58,74 @@ def test_rain_darkens_and_mirrors_open_ground(synth_hard):
     # puddles of still water mirror the scene: at a grazing view their colour follows the reflection
     mirror = WeatherEditor(synth_hard, analysis=analysis, params=AppearanceParams.load({"rain": {"puddle_max": 0.6}}))
     out = mirror.edit(raw, k, cam, weather)[0]
-    refl, _ = mirror_render(mirror.surfaces, k, cam, m.ground_height, 0.5, np.asarray(weather.haze()[1]))
+    _, refl_dist = mirror_render(mirror.surfaces, k, cam, m.ground_height, 0.5, np.asarray(weather.haze()[1]))
+    refl, _ = screen_reflection(a, cam, m, refl_dist, up=mirror.surfaces.up)
     puddles = (m.puddle > np.quantile(mirror._puddle_values, 0.5)) & (m.ground > 0.9) & (m.distance > 15) \
         & (m.distance < 60)
     assert puddles.sum() > 100
     corr_refl = np.corrcoef(_luma(out)[puddles], _luma(refl)[puddles])[0, 1]
     corr_dry = np.corrcoef(_luma(out)[puddles], _luma(a)[puddles])[0, 1]
     assert corr_refl > 0.5 and corr_refl > corr_dry
+
+
+def test_the_wet_road_mirrors_what_the_camera_sees_above_it(synth_hard):
+    # paint a facade white in the clear frame: the road below it must mirror the white (the
+    # reflection is the frame's own colour where the mirrored ray meets the scene), not the lidar's
+    # colours of the facade; road far from the patch and not below it keeps its reflection
+    analysis = analyse_scene(synth_hard)
+    k = 10
+    cam, raw = synth_hard.frames[k].camera, _frame(synth_hard, k)
+    weather = resolve_physics(synth_hard, "auto")["rain"]
+    editor = WeatherEditor(synth_hard, analysis=analysis, params=AppearanceParams.load({"rain": {"puddle_max": 0.6}}))
+    m = editor.maps(k, cam, raw)
+    n_up = m.normal @ editor.surfaces.up.astype(np.float32)
+    h, w = m.sky.shape
+    rows = np.arange(h)[:, None].repeat(w, 1)
+    facade = (np.abs(n_up) < 0.3) & ~m.sky & (m.sky_alpha == 0) & (m.distance < 40) & (rows < 0.55 * h)
+    assert facade.sum() > 2000
+    painted = raw.copy()
+    painted[facade] = 1.0
+    before, after = editor.edit(raw, k, cam, weather)[0], editor.edit(painted, k, cam, weather)[0]
+    away = cv2.dilate(facade.astype(np.uint8), np.ones((21, 21), np.uint8)) == 0
+    road = (m.ground > 0.9) & away & (m.distance < 40)
+    gain = _luma(after) - _luma(before)
+    assert road.sum() > 2000
+    assert (gain[road] > 0.01).sum() > 200  # the white facade shows in the wet road below it
+    assert np.median(np.abs(gain[road])) < 0.01  # the rest of the road is untouched
+
+
+def test_stray_dynamic_returns_are_no_surface(synth_hard, monkeypatch):
+    # a few returns floating in the air and returns on the road's own surface, classified dynamic in
+    # frame k, are spray or noise: not drawn (a blob on the road, neither wetted nor snowed on)
+    analysis = analyse_scene(synth_hard)
+    k = 10
+    cam, raw = synth_hard.frames[k].camera, _frame(synth_hard, k)
+    editor = WeatherEditor(synth_hard, analysis=analysis)
+    up = editor.surfaces.up
+    forward = np.asarray(cam.camera_to_world, np.float64)[:3, 2]
+    forward = forward - (forward @ up) * up
+    forward /= np.linalg.norm(forward)
+    base = cam.center + 8.0 * forward
+    base = base - (base @ up - editor.surfaces.ground_height(base[None])[0]) * up
+    rng = np.random.default_rng(0)
+    floating = base + 1.2 * up + 0.05 * rng.standard_normal((3, 3))
+    side = np.cross(up, forward)
+    spread = np.c_[0.3 * rng.standard_normal((40, 2)), np.zeros(40)] @ np.stack([forward, side, up])
+    on_road = base + 1.5 * side + 0.05 * up + spread
+    real = analysis.returns.frame_dynamic(k, tracked=False)
+    monkeypatch.setattr(analysis.returns, "frame_dynamic",
+                        lambda j, tracked=True: np.concatenate([real, floating, on_road]) if j == k else real)
+    editor.surfaces._frame_memo = None
+    drawn = editor.surfaces._frame_dynamic(k)
+    kept = np.zeros((0, 3)) if drawn is None else np.asarray(drawn[0].means, np.float64)
+    for stray in (floating, on_road):
+        if len(kept):
+            assert np.min(np.linalg.norm(kept[:, None] - stray[None], axis=-1)) > 0.3
+    m = editor.maps(k, cam, raw)
+    uv, z = cam.project(np.concatenate([floating, on_road]))
+    ij = np.floor(uv).astype(int)
+    assert (z > 0).all() and (ij[:, 0] >= 0).all() and (ij[:, 0] < m.ground.shape[1]).all()
+    assert np.median(m.ground[ij[:, 1], ij[:, 0]]) > 0.9  # the road stays open ground there
 
 
 def test_snow_settles_on_open_upward_surfaces_only_and_not_in_the_wheel_paths(synth_hard):
