@@ -82,7 +82,7 @@ class TimeLeft:
     """
 
     def __init__(self, kinds: Sequence[Hashable] | None = None, *, total: int, min_steady: int | None = None,
-                 weights: Mapping[Hashable, float] | None = None):
+                 weights: Mapping[Any, float] | None = None):
         if total < 0:
             raise ValueError(f"total must be >= 0, got {total}")
         if kinds is not None and len(kinds) != total:
@@ -151,7 +151,7 @@ class Progress(Generic[T]):
 
     def __init__(self, items: Iterable[T], *, desc: str, total: int | None, unit: str, bar: bool,
                  kinds: Sequence[Hashable] | None = None, starting: str | None = None,
-                 min_steady: int | None = None, weights: Mapping[Hashable, float] | None = None):
+                 min_steady: int | None = None, weights: Mapping[Any, float] | None = None):
         self.items, self.desc, self.unit = items, desc, unit
         if total is None and isinstance(items, Sized):
             total = len(items)
@@ -250,7 +250,7 @@ def phase(desc: str, *, enabled: bool = True) -> Iterator[None]:
 def progress(items: Iterable[T], *, desc: str, total: int | None = None, enabled: bool = True,
              unit: str = "frame", kinds: Sequence[Hashable] | None = None,
              starting: str | None = None, min_steady: int | None = None,
-             weights: Mapping[Hashable, float] | None = None) -> Iterable[T]:
+             weights: Mapping[Any, float] | None = None) -> Iterable[T]:
     """``items`` with progress feedback counting ``unit`` (see the module docstring).
 
     Parameters
