@@ -4,7 +4,7 @@ gsplat (an optional extra, ``pip install "wcbench[cuda]"``) draws the same EWA-p
 as our CPU rasterizer (docs/design.md §7: 0.3 px^2 dilation, front-to-back compositing, pixel
 centres at +0.5) on a CUDA device. Its guards differ in small ways (boxes of 3.33 instead of 3
 sigma, alpha clamped to 0.999 instead of 0.99), so images agree within a tolerance, not bit for bit
-(``tests/reference_model/test_gsplat_agreement.py``; docs/workstation.md).
+(``tests/reference_model/raster/test_gsplat_agreement.py``; docs/workstation.md).
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ pytestmark = pytest.mark.model
 
 W, H = 48, 32
 #: The projection in float64: the same EWA formula, so rounding only.
-PROJ_ATOL_PX, CONIC_RTOL = 1e-6, 1e-6
+PROJ_ATOL_PX, CONIC_RTOL = 1e-9, 1e-9
 #: Image: ours cuts each Gaussian at its 3-sigma box (gsplat at 3.33 sigma, the dense reference
 #: nowhere): the tails beyond change a pixel by at most ~0.005 x opacity, rarely.
 IMAGE_MEAN_ABS = 1e-3

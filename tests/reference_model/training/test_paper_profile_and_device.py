@@ -14,7 +14,7 @@ from wcbench.reference_model.raster.rasterizer import rasterize  # noqa: E402
 from wcbench.reference_model.training.build import build_model  # noqa: E402
 from wcbench.reference_model.training.config import PROFILE_PHYSICS, TrainConfig, make_config  # noqa: E402
 from wcbench.reference_model.training.trainer import Trainer  # noqa: E402
-from wcbench.reference_model.training.views import build_views, scaled_view  # noqa: E402
+from wcbench.reference_model.training.views import TrainingView, build_views, scaled_view  # noqa: E402
 
 pytestmark = pytest.mark.model
 
@@ -50,20 +50,30 @@ def test_progressive_settings_off_leave_the_cache_key_as_before():
     assert p["resolution_levels"] == 2 and TrainConfig.from_json(p) == make_config("paper")
 
 
-def test_a_scaled_view_halves_the_size_and_scales_the_intrinsics(demo_views):
-    v = demo_views[0]
+def test_a_scaled_view_halves_the_size_and_scales_the_intrinsics():
+    rng = np.random.default_rng(0)
+    K = np.array([[80.0, 0.0, 48.0], [0.0, 80.0, 27.0], [0.0, 0.0, 1.0]])
+    sky = np.zeros((54, 96), bool)
+    sky[:10] = True
+    v = TrainingView(frame=0, time=0.0, camera_to_world=np.eye(4), K=K, width=96, height=54,
+                     images={"clear": rng.random((54, 96, 3), dtype=np.float32)},
+                     depth=np.full((54, 96), 7.0, np.float32), sky=sky, dynamic=np.zeros((54, 96), bool))
     small = scaled_view(v, 2)
     assert (small.width, small.height) == (48, 27)
     np.testing.assert_allclose(small.K[0], v.K[0] * 0.5)
     np.testing.assert_allclose(small.K[1], v.K[1] * 27 / 54)
     assert small.images["clear"].shape == (27, 48, 3)
-    # area averaging: the mean colour is kept
-    np.testing.assert_allclose(small.images["clear"].mean(), v.images["clear"].mean(), atol=2e-3)
+    # area averaging: each pixel the mean of the 2 x 2 it covers
+    np.testing.assert_allclose(small.images["clear"][0, 0], v.images["clear"][:2, :2].mean((0, 1)), atol=1e-6)
+    assert small.depth is not None and small.depth.shape == (27, 48) and (small.depth == 7.0).all()
+    assert small.sky is not None and small.sky[:5].all() and not small.sky[5:].any()
+    assert small.ignore.shape == (0, 0)  # an empty mask stays empty
     assert scaled_view(v, 1) is v
     with pytest.raises(ValueError, match="divisor"):
         scaled_view(v, 0)
 
 
+@pytest.mark.slow  # a scene graph and three steps: 11 s on the shared 2-core machine
 def test_the_paper_profiles_first_steps_run_on_cpu_at_its_progressive_resolution(demo_scene, demo_views):
     # the paper profile with the scene's size (96x54 here), 3 steps: each renders at 1/4 of it
     config = make_config("paper", iterations=3, voxel_m=0.4, far_points=False)
@@ -79,6 +89,11 @@ def test_the_paper_profiles_first_steps_run_on_cpu_at_its_progressive_resolution
     assert next(iter(trainer._scaled.values()))[0].width == 24
 
 
+def test_the_default_rasterizer_of_the_cpu_is_the_numba_one():
+    assert device_problem("cpu") is None
+    assert rasterizer_for("cpu") is rasterize
+
+
 def test_the_time_left_prices_a_later_larger_level_by_its_weight():
     kinds = ["a@1/4"] * 10 + ["a"] * 10
     left = TimeLeft(kinds, total=20, min_steady=3, weights={"a@1/4": 1 / 16, "a": 1.0})
@@ -92,6 +107,7 @@ def test_the_time_left_prices_a_later_larger_level_by_its_weight():
     assert plain.estimate() == pytest.approx(15.0)  # without weights: unchanged, every kind at the mean
 
 
+@pytest.mark.slow  # two scene graphs and two steps each: 8 s on the shared 2-core machine
 def test_cpu_is_the_default_device_and_keeps_the_numba_rasterizer(demo_scene, demo_views):
     assert device_problem("cpu") is None
     assert rasterizer_for("cpu") is rasterize
