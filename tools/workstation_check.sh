@@ -18,6 +18,8 @@ export PYTHONUNBUFFERED=1 WCBENCH_OFFLINE=1 WCBENCH_PROGRESS=0
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
     || { echo "workstation_check: the wheels in .whl/ did not install" >&2; exit 2; }
 export PYTHONPATH=/tmp/site
+# its OpenCV lacks the contrib modules (the 69 MB wheel does not travel): the guided filter's fallback
+python3 -c "import cv2; cv2.ximgproc" 2>/dev/null || cp tools/ximgproc_fallback.py /tmp/site/sitecustomize.py
 run() {  # run NAME SECONDS COMMAND...: one step, its output and exit status appended to $OUT/log.txt
     local name=$1 limit=$2; shift 2
     local t0=$SECONDS

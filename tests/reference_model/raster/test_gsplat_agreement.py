@@ -144,3 +144,32 @@ def test_gsplats_cuda_rasterizer_agrees_with_ours_within_1e3():
         a, b = cpu[name].grad, gpu[name].grad.cpu()
         rel = ((a - b).norm() / a.norm()).item()
         assert rel < GRAD_REL, f"d/d{name}: relative L2 error {rel:.3f}"
+
+
+def test_the_absolute_gradient_gsplat_sets_in_its_backward_reaches_means2d_abs():
+    # gsplat's rasterization sets ``means2d.absgrad`` in its backward (its DefaultStrategy reads it);
+    # the backend's hook copies it into ``means2d_abs.grad``, where the trainer reads the AbsGS
+    # statistic. A stand-in for gsplat's autograd function, on the CPU:
+    from wcbench.reference_model.raster.gsplat_backend import _absgrad_into
+
+    class _Splat(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx, means2d):
+            ctx.save_for_backward(means2d)
+            return means2d.sum(-1) * 2.0
+
+        @staticmethod
+        def backward(ctx, grad):
+            (means2d,) = ctx.saved_tensors
+            per_pixel = grad[..., None].expand(*grad.shape, 2) * 2.0
+            means2d.absgrad = per_pixel.abs() + 1.0  # what gsplat accumulates per pixel, here a known value
+            return per_pixel
+
+    leaf = torch.randn(1, 5, 2, requires_grad=True)
+    means2d = leaf * 1.0  # a non-leaf, as gsplat's projected centres are
+    holder = torch.zeros(5, 2)
+    _absgrad_into(holder, means2d)
+    out = _Splat.apply(means2d)
+    (out * torch.tensor([[1.0, -2.0, 3.0, -4.0, 5.0]])).sum().backward()
+    expected = torch.tensor([1.0, 2.0, 3.0, 4.0, 5.0])[:, None].expand(5, 2) * 2.0 + 1.0
+    torch.testing.assert_close(holder.grad, expected)
