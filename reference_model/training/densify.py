@@ -117,10 +117,13 @@ class DensifyStats:
     count: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
 
     def ensure(self, n: int, *, device: torch.device | str | None = None) -> None:
-        """Reset to ``n`` Gaussians (on ``device``, default where they are) if the size or device changed."""
+        """Reset to ``n`` Gaussians (on ``device``, default where they are) if the size changed; move them
+        to ``device`` if only that changed."""
         dev = self.grad.device if device is None else torch.device(device)
-        if len(self.grad) != n or self.grad.device != dev:
+        if len(self.grad) != n:
             self.grad, self.count = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
+        elif self.grad.device != dev:  # a checkpoint's statistics, loaded on the CPU, resumed on a GPU
+            self.grad, self.count = self.grad.to(dev), self.count.to(dev)
 
     def add(self, grad_norm: torch.Tensor, visible: torch.Tensor) -> None:
         """Accumulate one step's |grad| [N] of the visible Gaussians [N] bool."""
