@@ -59,8 +59,9 @@ class _ChunkedMLP(torch.autograd.Function):
         features, w1, b1, w2, out = ctx.saved_tensors
         rows, acc = ctx.rows, torch.float64
         g_f = torch.empty_like(features) if ctx.needs_input_grad[0] else None
-        g_w1, g_b1 = torch.zeros(w1.shape, dtype=acc), torch.zeros(b1.shape, dtype=acc)
-        g_w2, g_b2 = torch.zeros(w2.shape, dtype=acc), torch.zeros(w2.shape[0], dtype=acc)
+        dev = w1.device
+        g_w1, g_b1 = torch.zeros(w1.shape, dtype=acc, device=dev), torch.zeros(b1.shape, dtype=acc, device=dev)
+        g_w2, g_b2 = torch.zeros(w2.shape, dtype=acc, device=dev), torch.zeros(w2.shape[0], dtype=acc, device=dev)
         for s in range(0, features.shape[0], rows):
             f = features[s:s + rows]
             pre = torch.addmm(b1, f, w1.T)

@@ -193,6 +193,7 @@ class WeatherCityModel(nn.Module):
             trained model needs no exp and sigmoid of every Gaussian per frame.
         """
         place = placement or Placement()
+        means_device = self.background.means.device
         parts: list[tuple[str, torch.Tensor, torch.Tensor, GaussianParams]] = []
         if BACKGROUND not in place.hidden:
             bg = self.background
@@ -208,7 +209,7 @@ class WeatherCityModel(nn.Module):
             obj = objects[key]
             if not obj.at(frame):
                 continue
-            off = None if offset is None else torch.as_tensor(np.asarray(offset, np.float32))
+            off = None if offset is None else torch.as_tensor(np.asarray(offset, np.float32), device=means_device)
             means, quats = obj.world(frame, off)
             parts.append((key, means, quats, obj.gaussians))
         segments, start = [], 0
@@ -281,7 +282,7 @@ class WeatherCityModel(nn.Module):
         hazy = hazy_weathers(weathers, hazes)
         w2c = np.asarray(world_to_camera, np.float64)
         if hazy:
-            center = torch.from_numpy(-w2c[:3, :3].T @ w2c[:3, 3]).to(colors.dtype)
+            center = torch.from_numpy(-w2c[:3, :3].T @ w2c[:3, 3]).to(device=colors.device, dtype=colors.dtype)
             t = haze_transmittance(g.means, center, list(hazy.values()))  # [N, K]
             column = {w: j for j, w in enumerate(hazy)}
             parts = [colors[:, 3 * i:3 * i + 3] * t[:, column[w], None] if w in column else colors[:, 3 * i:3 * i + 3]

@@ -160,7 +160,7 @@ class SkyModel(nn.Module):
     def grid_from_rays(self, rays: torch.Tensor, camera_to_world: np.ndarray) -> torch.Tensor:
         """:meth:`grid` of the world directions of camera rays [H, W, 3] (:func:`camera_rays`) seen
         from ``camera_to_world`` [4, 4]: one 3 x 3 product per pixel instead of building the rays."""
-        rotation = torch.from_numpy(np.asarray(camera_to_world, np.float64)[:3, :3].astype(np.float32))
+        rotation = torch.from_numpy(np.asarray(camera_to_world, np.float64)[:3, :3].astype(np.float32)).to(rays.device)
         return self.grid(rays @ rotation.T)
 
     def forward(self, grid: torch.Tensor, weathers: Sequence[str]) -> torch.Tensor:
@@ -173,7 +173,7 @@ class SkyModel(nn.Module):
         maps = picked.reshape(1, 3 * len(idx), *self.logits.shape[2:])
         kernels = load_numba_kernels("model.sky_kernels")
         if kernels is not None and maps.dtype == grid.dtype == torch.float32 and not grid.requires_grad \
-                and grid.shape[0] == 1:
+                and grid.shape[0] == 1 and maps.device.type == "cpu":  # elsewhere its torch twin, grid_sample
             out = _SkyLookup.apply(maps, grid, kernels)
         else:
             out = F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)

@@ -95,7 +95,7 @@ class NodeOptimizer:
         keep = index >= 0
         for key in ("exp_avg", "exp_avg_sq"):
             m = state[key]
-            out = torch.zeros((len(index), *m.shape[1:]), dtype=m.dtype)
+            out = torch.zeros((len(index), *m.shape[1:]), dtype=m.dtype, device=m.device)
             out[keep] = m[index[keep]]
             state[key] = out
         self.adam.state[new] = state
@@ -116,10 +116,14 @@ class DensifyStats:
     grad: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
     count: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
 
-    def ensure(self, n: int) -> None:
-        """Reset to ``n`` Gaussians if the size changed."""
+    def ensure(self, n: int, *, device: torch.device | str | None = None) -> None:
+        """Reset to ``n`` Gaussians (on ``device``, default where they are) if the size changed; move them
+        to ``device`` if only that changed."""
+        dev = self.grad.device if device is None else torch.device(device)
         if len(self.grad) != n:
-            self.grad, self.count = torch.zeros(n), torch.zeros(n)
+            self.grad, self.count = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
+        elif self.grad.device != dev:  # a checkpoint's statistics, loaded on the CPU, resumed on a GPU
+            self.grad, self.count = self.grad.to(dev), self.count.to(dev)
 
     def add(self, grad_norm: torch.Tensor, visible: torch.Tensor) -> None:
         """Accumulate one step's |grad| [N] of the visible Gaussians [N] bool."""
@@ -138,11 +142,12 @@ def _split_samples(params: GaussianParams, idx: torch.Tensor, generator: torch.G
     scales = params.scales()[idx].detach()
     q = params.quats[idx].detach()
     q = q / q.norm(dim=1, keepdim=True).clamp_min(1e-12)
-    samples = torch.randn((2, len(idx), 3), generator=generator) * scales
+    # drawn on the CPU generator whatever the device: the same draws on every device
+    samples = torch.randn((2, len(idx), 3), generator=generator).to(scales.device) * scales
     # rotate the local samples: v' = q v q*
-    zero = torch.zeros((2, len(idx), 1))
+    zero = torch.zeros((2, len(idx), 1), device=scales.device)
     v = torch.cat([zero, samples], -1)
-    conj = q * torch.tensor([1.0, -1.0, -1.0, -1.0])
+    conj = q * torch.tensor([1.0, -1.0, -1.0, -1.0], device=q.device)
     rotated = quat_multiply_torch(quat_multiply_torch(q.expand(2, -1, -1), v), conj.expand(2, -1, -1))[..., 1:]
     means = (params.means[idx].detach() + rotated).reshape(-1, 3)
     return {
@@ -193,7 +198,7 @@ def densify_and_prune(
     n = len(params)
     if n == 0:
         return {"cloned": 0, "split": 0, "pruned": 0}
-    stats.ensure(n)
+    stats.ensure(n, device=params.means.device)
     score = stats.mean()
     big = params.scales().detach().max(dim=1).values > split_scale_m
     candidates = torch.nonzero(score > grad_threshold).flatten()
@@ -203,14 +208,15 @@ def densify_and_prune(
     clone_idx = candidates[~big[candidates]]
     old = {k: v.detach() for k, v in params.tensors().items()}
     children = _split_samples(params, split_idx, generator) if len(split_idx) else None
-    keep = torch.ones(n, dtype=torch.bool)
+    keep = torch.ones(n, dtype=torch.bool, device=params.means.device)
     keep[split_idx] = False  # split parents are replaced by their children
     opac = torch.sigmoid(old["opacity_logits"])
     scale_max = torch.exp(old["log_scales"]).max(dim=1).values
     prune = (opac < prune_opacity) | (scale_max > max_scale_m)
     keep &= ~prune
     kept = torch.nonzero(keep).flatten()
-    index = torch.cat([kept, clone_idx, torch.full((2 * len(split_idx),), -1, dtype=torch.long)])
+    index = torch.cat([kept, clone_idx, torch.full((2 * len(split_idx),), -1, dtype=torch.long,
+                                                      device=kept.device)])
     new_values = {}
     for key in PARAMETER_NAMES:
         parts = [old[key][kept], old[key][clone_idx]]
@@ -220,5 +226,5 @@ def densify_and_prune(
     params.replace(**new_values)
     for key in PARAMETER_NAMES:
         optimizer.replace(f"{name}.{key}", getattr(params, key), index)
-    stats.ensure(len(params))
+    stats.ensure(len(params), device=params.means.device)
     return {"cloned": len(clone_idx), "split": len(split_idx), "pruned": int(prune.sum())}

@@ -86,7 +86,8 @@ def training_ssim(a: torch.Tensor, b: torch.Tensor, *, backend: str = "auto") ->
     if a.shape != b.shape or a.dim() != 3:
         raise ValueError(f"training_ssim takes two [H, W, C] images of one shape, got {tuple(a.shape)} and "
                          f"{tuple(b.shape)}")
-    fits = a.dtype == torch.float32 and b.dtype == torch.float32 and not b.requires_grad
+    # the fused kernels run on CPU tensors; on a GPU the twin (docs/workstation.md)
+    fits = a.dtype == torch.float32 and b.dtype == torch.float32 and not b.requires_grad and a.device.type == "cpu"
     if backend == "torch" or (backend == "auto" and not fits):
         return training_ssim_torch(a, b)
     if not fits:

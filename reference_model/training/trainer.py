@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from wcbench.reference_model.devices import check_device, rasterizer_for
 from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import BACKGROUND, WeatherCityModel
 from wcbench.reference_model.model.sky import view_directions
@@ -42,7 +43,7 @@ from wcbench.reference_model.training.losses import (
     rgb_loss,
     weighted_sum,
 )
-from wcbench.reference_model.training.views import TrainingView
+from wcbench.reference_model.training.views import TrainingView, scaled_view
 
 __all__ = ["StepLog", "Trainer", "evaluate_renders", "evaluate_views", "scene_extent"]
 
@@ -105,6 +106,15 @@ class Trainer:
         Threads of numba, torch and BLAS together while :meth:`train` runs
         (:func:`~wcbench.reference_model.raster.threads.set_threads`, restored after it); ``None``
         leaves the pools as they are.
+    device : {"cpu", "cuda"}
+        Where the model and the training step live (:mod:`~wcbench.reference_model.devices`): on
+        ``"cuda"`` the model moves there, the default rasterizer becomes gsplat and the numba kernels
+        give way to their torch twins; ``"cpu"`` changes nothing.
+
+    Raises
+    ------
+    ValueError
+        No training view is left after the holdout; ``device`` cannot be used (no CUDA, no gsplat).
     """
 
     model: WeatherCityModel
@@ -114,6 +124,7 @@ class Trainer:
     hazes: Mapping[str, Haze] | None = None
     rasterizer: Callable[..., Any] = rasterize
     threads: int | None = None
+    device: str = "cpu"
     step_index: int = 0
     history: list[StepLog] = field(default_factory=list)
     densify_log: list[dict[str, Any]] = field(default_factory=list)
@@ -121,12 +132,20 @@ class Trainer:
 
     def __post_init__(self) -> None:
         cfg = self.config
+        if self.device != "cpu":
+            check_device(self.device)
+            self.model.to(self.device)
+            if self.content is not None:
+                self.content.to(self.device)
+            if self.rasterizer is rasterize:
+                self.rasterizer = rasterizer_for(self.device)
         self.train_views = [v for v in self.views if v.frame not in cfg.holdout]
         if not self.train_views:
             raise ValueError("no training view left after the holdout")
         self.weathers = self.model.weathers
         self.extent = scene_extent(self.train_views)
         self._tensors = {v.frame: self._view_tensors(v) for v in self.train_views}
+        self._scaled: dict[tuple[int, int], tuple[TrainingView, _ViewTensors]] = {}  # progressive resolution
         self.optimizer = self._make_optimizer()
         self._means_lr = {g["name"]: g["lr"] for g in self.optimizer.adam.param_groups if g["name"].endswith(".means")}
         self.stats = {name: DensifyStats() for name in self._densified_nodes()}
@@ -137,23 +156,40 @@ class Trainer:
     # -- set-up -------------------------------------------------------------------------------
 
     def _view_tensors(self, v: TrainingView) -> _ViewTensors:
-        grid = self.model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+        dev = torch.device(self.device)
+
+        def put(a: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(a).to(dev)
+
+        grid = self.model.sky.grid(put(view_directions(v.camera_to_world, v.K, v.width, v.height)))
         missing = [w for w in self.weathers if w not in v.images]
         if missing:
             raise ValueError(f"view of frame {v.frame} lacks supervision for {missing}")
-        sky = None if v.sky is None else torch.from_numpy(v.sky)
-        ignore = torch.from_numpy(v.ignore) if v.ignore.shape == (v.height, v.width) and v.ignore.any() else None
+        sky = None if v.sky is None else put(v.sky)
+        ignore = put(v.ignore) if v.ignore.shape == (v.height, v.width) and v.ignore.any() else None
         non_sky = None if sky is None else ~sky
         if ignore is not None:
             non_sky = ~ignore if non_sky is None else non_sky & ~ignore
         return _ViewTensors(
-            targets={w: torch.from_numpy(v.images[w]) for w in self.weathers},
-            depth=None if v.depth is None else torch.from_numpy(v.depth),
+            targets={w: put(v.images[w]) for w in self.weathers},
+            depth=None if v.depth is None else put(v.depth),
             sky=sky,
             non_sky=non_sky,
             grid=grid,
             ignore=ignore,
         )
+
+    def _view_at(self, v: TrainingView, divisor: int) -> tuple[TrainingView, _ViewTensors]:
+        """``v`` and its tensors at 1/``divisor`` of the training resolution (made once per level; the
+        previous level's are dropped)."""
+        if divisor == 1:
+            return v, self._tensors[v.frame]
+        key = (v.frame, divisor)
+        if key not in self._scaled:
+            self._scaled = {k: s for k, s in self._scaled.items() if k[1] == divisor}
+            small = scaled_view(v, divisor)
+            self._scaled[key] = (small, self._view_tensors(small))
+        return self._scaled[key]
 
     def _densified_nodes(self) -> list[str]:
         return [BACKGROUND] + [f"rigid:{o.track_id}" for o in self.model.rigid_objects()]
@@ -221,25 +257,33 @@ class Trainer:
         Returns
         -------
         list of str
-            One kind per step.
+            One kind per step; under progressive resolution a kind names its level (``"clear@1/4"``).
         """
         interval = self.config.checkpoint_interval
         kinds = []
         for it in range(start, stop):
             parts = ["weather" if self._weather_step(it) else "clear"]
+            divisor = self.config.resolution_divisor(it)
+            parts[0] += f"@1/{divisor}" if divisor > 1 else ""
             parts += ["content"] * self._content_step(it)
             parts += ["densify"] * self._densify_after(it + 1)
             parts += ["checkpoint"] * (it > start and it % interval == 0)
             kinds.append("+".join(parts))
         return kinds
 
+    def kind_weights(self, start: int, stop: int) -> dict[str, float]:
+        """The relative cost of each kind of :meth:`step_kinds` (``start..stop-1``): its share of the full
+        resolution's pixels, so that the time left prices the later, larger levels of a progressive
+        training before they are measured (:class:`wcbench.core.progress.TimeLeft`'s ``weights``)."""
+        kinds = self.step_kinds(start, stop)
+        return {kind: 1.0 / self.config.resolution_divisor(it) ** 2 for kind, it in zip(kinds, range(start, stop))}
+
     def step(self) -> StepLog:
         """One optimisation step (with densification and a checkpoint when they are due)."""
         cfg = self.config
         start = time.perf_counter()
         it = self.step_index
-        v = self._next_view()
-        tv = self._tensors[v.frame]
+        v, tv = self._view_at(self._next_view(), cfg.resolution_divisor(it))
         all_weathers = self._weather_step(it)
         weathers = self.weathers if all_weathers else ("clear",)
         want_depth = cfg.depth_weight > 0 and tv.depth is not None
@@ -313,7 +357,7 @@ class Trainer:
         for key, start, stop in render.gaussians.segments:
             if key in self.stats:
                 st = self.stats[key]
-                st.ensure(len(nodes[key]))
+                st.ensure(len(nodes[key]), device=norm.device)
                 st.add(norm[start:stop], visible[start:stop])
 
     def densify(self) -> dict[str, Any]:
@@ -365,7 +409,7 @@ def evaluate_renders(render: Callable[[TrainingView], torch.Tensor],
     per_view, dynamic = {}, {}
     with torch.no_grad():
         for v in views:
-            img = render(v).clamp(0, 1)
+            img = render(v).clamp(0, 1).cpu()  # a no-op on the CPU
             target = torch.from_numpy(v.images["clear"])
             per_view[v.frame] = psnr(img, target)
             if v.dynamic.any():
@@ -378,10 +422,12 @@ def evaluate_renders(render: Callable[[TrainingView], torch.Tensor],
 
 def evaluate_views(model: WeatherCityModel, views: Sequence[TrainingView], *,
                    rasterizer: Callable[..., Any] = rasterize) -> dict[str, Any]:
-    """:func:`evaluate_renders` of the model's clear renders."""
+    """:func:`evaluate_renders` of the model's clear renders (on the model's device: pass the matching
+    ``rasterizer``, :func:`~wcbench.reference_model.devices.rasterizer_for`)."""
+    dev = model.sky.basis.device
 
     def render(v: TrainingView) -> torch.Tensor:
-        grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+        grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)).to(dev))
         return model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, ("clear",), sky_grid=grid,
                             depth=False, rasterizer=rasterizer).images
 

@@ -29,6 +29,7 @@ __all__ = [
     "box_mask",
     "build_views",
     "resize_float",
+    "scaled_view",
 ]
 
 
@@ -83,6 +84,45 @@ class TrainingView:
     def center(self) -> np.ndarray:
         """[3] camera position (m)."""
         return np.asarray(self.camera_to_world[:3, 3], np.float64)
+
+
+def scaled_view(view: TrainingView, divisor: int) -> TrainingView:
+    """``view`` at 1/``divisor`` of its width and height (progressive resolution): images averaged over
+    the pixels each covers, the lidar depth and the masks sampled (nearest), the intrinsics scaled.
+
+    Parameters
+    ----------
+    view : TrainingView
+    divisor : int
+        >= 1; 1 returns ``view`` itself.
+
+    Raises
+    ------
+    ValueError
+        ``divisor`` below 1.
+    """
+    if divisor < 1:
+        raise ValueError(f"divisor must be >= 1, got {divisor}")
+    if divisor == 1:
+        return view
+    w, h = max(1, view.width // divisor), max(1, view.height // divisor)
+    K = np.array(view.K, np.float64, copy=True)
+    K[0] *= w / view.width  # pixel edges scale with the image: centres stay at +0.5
+    K[1] *= h / view.height
+
+    def nearest(a: np.ndarray) -> np.ndarray:
+        return cv2.resize(a, (w, h), interpolation=cv2.INTER_NEAREST)
+
+    def mask(a: np.ndarray) -> np.ndarray:
+        return nearest(a.astype(np.uint8)).astype(bool) if a.shape == (view.height, view.width) else a
+
+    return TrainingView(
+        frame=view.frame, time=view.time, camera_to_world=view.camera_to_world, K=K, width=w, height=h,
+        images={k: resize_float(img, (w, h)) for k, img in view.images.items()},
+        depth=None if view.depth is None else nearest(view.depth),
+        sky=None if view.sky is None else mask(view.sky),
+        dynamic=mask(view.dynamic), ignore=mask(view.ignore),
+    )
 
 
 def _read_mask(path: Any) -> np.ndarray:

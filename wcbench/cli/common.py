@@ -290,13 +290,13 @@ def split_list(values: list[str] | None) -> list[str] | None:
 #: The method options every command that builds a method (run, render, train) takes as flags of their
 #: own; each is the same as ``--method-option KEY=VALUE`` (shorthand -> key).
 METHOD_OPTION_FLAGS = {"profile": "profile", "supervision": "supervision", "jitter": "jitter",
-                       "ablation": "ablation", "holdout": "holdout", "edit": "edits"}
+                       "ablation": "ablation", "holdout": "holdout", "edit": "edits", "device": "device"}
 
 
 def add_method_options(parser: argparse.ArgumentParser, *, edit: bool = True) -> argparse._ArgumentGroup:
     """Options handed to the method: ``--method-option KEY=VALUE`` and its shorthands ``--profile``,
-    ``--supervision``, ``--jitter``, ``--ablation``, ``--holdout`` (and ``--edit`` unless ``edit`` is
-    false), spelled and read alike on run, render and train (:func:`method_options_from`).
+    ``--supervision``, ``--jitter``, ``--ablation``, ``--holdout``, ``--device`` (and ``--edit`` unless
+    ``edit`` is false), spelled and read alike on run, render and train (:func:`method_options_from`).
 
     A method that does not take one of them refuses it by name (``wcbench methods list -v``
     shows what each takes). Returns the group, for a command's own deprecated spellings.
@@ -310,7 +310,7 @@ def add_method_options(parser: argparse.ArgumentParser, *, edit: bool = True) ->
                        help="any option of the method, repeatable; VALUE is read as JSON when it parses, and "
                             "KEY.SUB=VALUE sets one entry of a dict option, e.g. settings.iterations=500, "
                             "physics.rain.preset=heavy (weathercity)")
-    group.add_argument("--profile", default=None, help="training profile of a trained method: default, quick")
+    group.add_argument("--profile", default=None, help="training profile of a trained method: default, quick, paper")
     group.add_argument("--supervision", default=None,
                        help="edited frames a trained method learns from: physical-editor (built in, the "
                             "default), filter2d (built in), sim-editor[:SEVERITY] (needs ground-truth scenes, "
@@ -320,6 +320,9 @@ def add_method_options(parser: argparse.ArgumentParser, *, edit: bool = True) ->
     group.add_argument("--ablation", default=None, help="named ablation of a trained method: no-wgs, no-content-loss")
     group.add_argument("--holdout", nargs="+", default=None, metavar="FRAME",
                        help="frames a trained method leaves out of training and scores, e.g. 5,15,25")
+    group.add_argument("--device", default=None, choices=("cpu", "cuda"),
+                       help="where a trained method trains and rasterizes: cpu (the default) or cuda (needs "
+                            "the [cuda] extra, gsplat, and a CUDA device; docs/workstation.md)")
     if edit:
         group.add_argument("--edit", action="append", default=None, metavar="EDIT",
                            help="object edit, repeatable: 'remove class=Car except ids=3,7', "

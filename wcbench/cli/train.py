@@ -42,7 +42,7 @@ from wcbench.core.errors import InputError
 HELP = "train the weathercity model of each scene (cached for `run`)"
 
 #: The method options of weathercity that concern training (the others, edits and size, only rendering).
-TRAINING_OPTIONS = ("ablation", "holdout", "jitter", "physics", "profile", "settings", "supervision")
+TRAINING_OPTIONS = ("ablation", "device", "holdout", "jitter", "physics", "profile", "settings", "supervision")
 
 
 def training_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -87,16 +87,23 @@ def run(args: argparse.Namespace) -> int:
     from wcbench.core.storage import atomic_write_json, check_writable_folder
     from wcbench.methods.scene_training import check_supervision, train_scene
     from wcbench.methods.weather_spec import OPTION, parse_physics, resolve_physics
+    from wcbench.methods.weathercity import profile_physics
+    from wcbench.reference_model.devices import device_problem
     from wcbench.reference_model.training.config import make_config
     from wcbench.scenes.sets import resolve_scenes
 
     options = training_options(args)  # every value checked against weathercity's declared options
+    device = str(options.get("device", "cpu"))
+    problem = device_problem(device)  # before any scene is read
+    if problem is not None:
+        raise InputError(f"--device {device}: {problem}")
     config = make_config(options.get("profile", "default"), ablation=options.get("ablation", ""),
                          holdout=options.get("holdout", ()), **(options.get("settings") or {}))
     jitter = float(options.get("jitter", 0.0))
     supervision = str(options.get("supervision", "physical-editor"))
     check_supervision(supervision, jitter)  # a jitter the supervision would ignore
-    physics = parse_physics(options.get(OPTION), who="train")
+    # as weathercity reads it: a profile's own physics presets unless the option names others
+    physics = parse_physics(profile_physics(options.get("profile", "default"), options.get(OPTION)), who="train")
     if args.out is not None:
         check_writable_folder(args.out)
     refs = resolve_scenes(args.scenes, data_root=args.data_root)
@@ -113,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         # draw, as WeatherCityMethod.training_physics), so that it finds this model
         _, _, facts = train_scene(scene, config, supervision=supervision, jitter=jitter,
                                   physics=resolve_physics(scene, physics, seed=0, draws=False),
-                                  folder=args.checkpoint,
+                                  folder=args.checkpoint, device=device,
                                   show_progress=not args.no_progress)
         path = args.out / scene.id / "training.json"
         atomic_write_json(path, {**facts, "models": {name: o.record() for name, o in models.items()}})

@@ -20,7 +20,7 @@ import statistics
 import sys
 import time
 from collections import Counter
-from collections.abc import Hashable, Iterable, Iterator, Sequence, Sized
+from collections.abc import Hashable, Iterable, Iterator, Mapping, Sequence, Sized
 from contextlib import contextmanager
 from typing import Any, Generic, TypeVar
 
@@ -70,6 +70,10 @@ class TimeLeft:
         The number of items (``len(kinds)`` when given).
     min_steady : int, optional
         Steady items measured before there is an estimate (default: 3, and 2 % of ``total``).
+    weights : mapping of hashable to float, optional
+        Relative cost of each kind (e.g. its pixels): a kind with no steady item yet counts at the
+        mean of every steady item's time per weight, times its weight, rather than at their mean
+        (a progressive-resolution training's later, larger steps). ``None``: every kind weighs 1.
 
     Raises
     ------
@@ -77,7 +81,8 @@ class TimeLeft:
         ``kinds`` of another length than ``total``, or a negative ``total``.
     """
 
-    def __init__(self, kinds: Sequence[Hashable] | None = None, *, total: int, min_steady: int | None = None):
+    def __init__(self, kinds: Sequence[Hashable] | None = None, *, total: int, min_steady: int | None = None,
+                 weights: Mapping[Any, float] | None = None):
         if total < 0:
             raise ValueError(f"total must be >= 0, got {total}")
         if kinds is not None and len(kinds) != total:
@@ -85,6 +90,9 @@ class TimeLeft:
         self.total = total
         self.kinds: list[Hashable] = list(kinds) if kinds is not None else [None] * total
         self.min_steady = max(3, math.ceil(0.02 * total)) if min_steady is None else max(1, int(min_steady))
+        self.weights = dict(weights) if weights is not None else None
+        if self.weights is not None and not all(w > 0 for w in self.weights.values()):
+            raise ValueError(f"weights must be positive, got {self.weights}")
         self._times: dict[Hashable, list[float]] = {}  # every time of each kind, in order
         self._done = 0
         self._last_shown: float | None = None
@@ -113,9 +121,14 @@ class TimeLeft:
         pooled = [t for v in steady.values() for t in v]
         if len(pooled) < self.min_steady:
             return None
-        overall = statistics.fmean(pooled)
         to_come = Counter(self.kinds[self._done:])
-        return sum(n * (statistics.fmean(steady[k]) if steady.get(k) else overall) for k, n in to_come.items())
+        if self.weights is None:
+            overall = statistics.fmean(pooled)
+            return sum(n * (statistics.fmean(steady[k]) if steady.get(k) else overall) for k, n in to_come.items())
+        weight = self.weights
+        per_weight = statistics.fmean([t / weight.get(k, 1.0) for k, v in steady.items() for t in v])
+        return sum(n * (statistics.fmean(steady[k]) if steady.get(k) else per_weight * weight.get(k, 1.0))
+                   for k, n in to_come.items())
 
     def shown(self) -> float | None:
         """:meth:`estimate` held within :data:`MAX_JUMP` x the last value this returned (remembered)."""
@@ -137,7 +150,8 @@ class Progress(Generic[T]):
     """
 
     def __init__(self, items: Iterable[T], *, desc: str, total: int | None, unit: str, bar: bool,
-                 kinds: Sequence[Hashable] | None = None, starting: str | None = None):
+                 kinds: Sequence[Hashable] | None = None, starting: str | None = None,
+                 min_steady: int | None = None, weights: Mapping[Any, float] | None = None):
         self.items, self.desc, self.unit = items, desc, unit
         if total is None and isinstance(items, Sized):
             total = len(items)
@@ -145,7 +159,7 @@ class Progress(Generic[T]):
             total = len(kinds)
         self.total = total
         self.count, self.postfix = 0, ""
-        self._left = TimeLeft(kinds, total=total) if total else None
+        self._left = TimeLeft(kinds, total=total, min_steady=min_steady, weights=weights) if total else None
         self._start = self._last = self._previous = time.perf_counter()
         self._closed = False
         self._interval = _interval()
@@ -235,7 +249,8 @@ def phase(desc: str, *, enabled: bool = True) -> Iterator[None]:
 
 def progress(items: Iterable[T], *, desc: str, total: int | None = None, enabled: bool = True,
              unit: str = "frame", kinds: Sequence[Hashable] | None = None,
-             starting: str | None = None) -> Iterable[T]:
+             starting: str | None = None, min_steady: int | None = None,
+             weights: Mapping[Any, float] | None = None) -> Iterable[T]:
     """``items`` with progress feedback counting ``unit`` (see the module docstring).
 
     Parameters
@@ -253,6 +268,8 @@ def progress(items: Iterable[T], *, desc: str, total: int | None = None, enabled
         The kind of each item, for the time left (:class:`TimeLeft`).
     starting : str, optional
         A line said at once when the feedback is log lines (what the first item prepares).
+    min_steady, weights : optional
+        As :class:`TimeLeft`.
 
     Returns
     -------
@@ -263,4 +280,5 @@ def progress(items: Iterable[T], *, desc: str, total: int | None = None, enabled
     if not enabled or env == "0":
         return items
     bar = env == "1" or sys.stderr.isatty()
-    return Progress(items, desc=desc, total=total, unit=unit, bar=bar, kinds=kinds, starting=starting)
+    return Progress(items, desc=desc, total=total, unit=unit, bar=bar, kinds=kinds, starting=starting,
+                    min_steady=min_steady, weights=weights)

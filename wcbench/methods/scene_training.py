@@ -46,6 +46,7 @@ from wcbench.methods.weather_spec import (
     truth_physics,
 )
 from wcbench.predictions import INFO_FILE
+from wcbench.reference_model.devices import device_problem
 from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import WeatherCityModel
 from wcbench.reference_model.training.build import build_model
@@ -287,6 +288,7 @@ def train_scene(
     show_progress: bool = True,
     log: Any = None,
     lock_timeout_s: float | None = LOCK_TIMEOUT_S,
+    device: str = "cpu",
 ) -> tuple[WeatherCityModel, list[TrainingView], dict[str, Any]]:
     """Train (or load the cached) WeatherCity model of ``scene``.
 
@@ -320,6 +322,10 @@ def train_scene(
     lock_timeout_s : float or None
         Seconds to wait while another process trains the same model (same checkpoint folder)
         before giving up; ``None``: no limit. The waiting process then loads that model.
+    device : {"cpu", "cuda"}
+        Where the training step runs (:mod:`wcbench.reference_model.devices`); checked before any
+        work. A model trained elsewhere than the CPU is keyed apart (gsplat's float rounding differs)
+        and returned on the CPU, where the renderer's particles and fog are.
 
     Returns
     -------
@@ -333,7 +339,12 @@ def train_scene(
     ------
     LockTimeoutError
         When another process still trains the same model after ``lock_timeout_s``.
+    InputError
+        ``device`` cannot be used here (no CUDA device, gsplat missing).
     """
+    problem = device_problem(device)
+    if problem is not None:
+        raise InputError(f"--device {device}: {problem}")
     start = time.perf_counter()
     if log is None:
         log = functools.partial(print, flush=True)
@@ -358,14 +369,16 @@ def train_scene(
                        "hazes": {w: h.to_json() for w, h in inputs.hazes.items()},
                        # by content, as the images: one scene reached by two spellings of its path trains once
                        "lidar": [sha256_file(f.lidar_path) if f.lidar_path is not None else None
-                                 for f in scene.frames]})
+                                 for f in scene.frames],
+                       # only off the CPU, so that every CPU key stays what it was
+                       **({"device": device} if device != "cpu" else {})})
     folder = folder or cache_dir() / "weathercity" / f"{data}-{key[:16]}"
     log(f"weathercity {scene.id}: building the scene graph")
     train_views = [v for v in views if v.frame not in config.holdout]
     model, graph_facts = build_model(scene, train_views, config, weathers=trained)
 
     def make_trainer(m: WeatherCityModel) -> Trainer:
-        return Trainer(m, views, config, content=content_loss, hazes=inputs.hazes)
+        return Trainer(m, views, config, content=content_loss, hazes=inputs.hazes, device=device)
 
     # One training per checkpoint: a second process asking for the same model waits here, then loads
     # what the first saved (docs/guide.md "WeatherCity"; a killed holder's lock is taken over at once)
@@ -388,6 +401,10 @@ def train_scene(
             bar = progress(range(trainer.step_index, config.iterations), desc=f"training {scene.id}",
                            total=config.iterations - trainer.step_index, enabled=show_progress, unit="step",
                            kinds=trainer.step_kinds(trainer.step_index, config.iterations),
+                           weights=trainer.kind_weights(trainer.step_index, config.iterations),
+                           # a long training (the paper's 30,000 steps: 2 % would be 600 steps) shows its time
+                           # left after a handful of steps; the shorter profiles keep their 2 %
+                           min_steady=5 if config.iterations - trainer.step_index > 10_000 else None,
                            starting=f"{config.iterations - trainer.step_index} steps; the first sets up and "
                                     "compiles the kernels (the time left comes once a few steps are measured)")
             steps = iter(bar)
@@ -402,6 +419,8 @@ def train_scene(
             if hasattr(bar, "close"):
                 bar.close()
     held = [v for v in views if v.frame in config.holdout]
+    if device != "cpu":
+        model.to("cpu")  # the renderer's particles and fog are numpy; it rasterizes on the device itself
     facts: dict[str, Any] = {
         "version": VERSION,
         "config": config.to_json(),
@@ -422,6 +441,8 @@ def train_scene(
         "lock_wait_seconds": round(lock.waited_s, 3),  # while another process trained this model
         "densify": trainer.densify_log[-1] if trainer.densify_log else None,
     }
+    if device != "cpu":
+        facts["device"] = device
     if held:
         facts["holdout"] = evaluate_views(model, held)
     return model, views, facts

@@ -55,11 +55,18 @@ from wcbench.methods.weather_spec import (
     truth_physics,
 )
 from wcbench.reference_model.appearance.editor import AppearanceParams, masked_ego
+from wcbench.reference_model.devices import DEVICES, device_problem, on_device
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.model.scene_model import FrameRows, Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
-from wcbench.reference_model.training.config import ABLATIONS, PROFILES, make_config, settings_options
+from wcbench.reference_model.training.config import (
+    ABLATIONS,
+    PROFILE_PHYSICS,
+    PROFILES,
+    make_config,
+    settings_options,
+)
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import GaussianArrays, WeatherRenderer, camera_velocity, scale_camera
 from wcbench.scenes.scene import Scene
@@ -69,6 +76,15 @@ __all__ = ["WeatherCityMethod", "check_supervision_spec"]
 #: What ``supervision`` allows, in words.
 SUPERVISION_FORMS = (f"{PHYSICAL_EDITOR!r}, 'filter2d', 'sim-editor[:SEVERITY]' or READER:DIR "
                      "(a reader of `wcbench methods list` and a folder, e.g. qwen-image:edits/)")
+
+
+def profile_physics(profile: str, physics: Any, weathers: Any = None) -> Any:
+    """``physics`` as given, or, when neither it nor its old name ``weathers`` is, the physics presets
+    the training ``profile`` names (:data:`~wcbench.reference_model.training.config.PROFILE_PHYSICS`:
+    the ``paper`` profile's 40k rain and 16k snow particles)."""
+    if physics is not None or weathers is not None or profile not in PROFILE_PHYSICS:
+        return physics
+    return {kind: {"preset": preset} for kind, preset in PROFILE_PHYSICS[profile].items()}
 
 
 def check_supervision_spec(spec: Any) -> str:
@@ -148,6 +164,9 @@ class WeatherCityMethod(FrameRenderer):
         See :func:`~wcbench.methods.scene_training.train_scene`.
     weathers : optional
         Deprecated name of ``physics`` (one release; a :class:`DeprecationWarning`).
+    device : {"cpu", "cuda"}
+        Where the model trains and the render rasterizes (:mod:`wcbench.reference_model.devices`):
+        ``"cuda"`` needs gsplat and a CUDA device, refused here otherwise (an :class:`InputError`).
     """
 
     version = VERSION
@@ -169,6 +188,8 @@ class WeatherCityMethod(FrameRenderer):
                         check=_check_edits, allowed="an edit such as 'remove class=Car', or a list of them"),
         "content": Option("content", "custom", "the content loss: 'auto' (VGG16) or null (off)", default="auto",
                           nullable=True, check=_check_content, allowed="'auto' or null"),
+        "device": Option("device", "str", "where it trains and rasterizes: 'cpu' or 'cuda' (gsplat; "
+                         "docs/workstation.md)", default="cpu", choices=DEVICES),
         "weathers": old_physics_option(who="weathercity"),
     }
 
@@ -186,6 +207,7 @@ class WeatherCityMethod(FrameRenderer):
         edits: str | list[Any] | None = None,
         content: Any = "auto",
         weathers: Any = None,
+        device: str = "cpu",
     ):
         try:
             self.config = make_config(profile, ablation=ablation, holdout=tuple(int(h) for h in holdout),
@@ -196,8 +218,13 @@ class WeatherCityMethod(FrameRenderer):
         if not 0.0 <= float(jitter) <= 1.0:
             raise InputError(f"weathercity: jitter must be in [0, 1], got {jitter}")
         check_supervision(supervision, float(jitter))  # a bad sim-editor severity fails before training
+        problem = device_problem(device)  # no CUDA or no gsplat: one line before any work
+        if problem is not None:
+            raise InputError(f"weathercity: --device {device}: {problem}")
+        self.device = device
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
-        self.physics_spec: PhysicsSpec = physics_argument(physics, weathers, who="weathercity")
+        self.physics_spec: PhysicsSpec = physics_argument(profile_physics(profile, physics, weathers), weathers,
+                                                          who="weathercity")
         self._physics: dict[str, dict[str, Weather]] = {}
         self.size = None if size is None else (int(size[0]), int(size[1]))
         self.info = MethodInfo(
@@ -292,7 +319,7 @@ class WeatherCityMethod(FrameRenderer):
         if self._scene_key != (scene.id, str(scene.root)):
             trained, _, facts = train_scene(
                 scene, self.config, supervision=self.supervision, jitter=self.jitter, content=self.content,
-                physics=self.training_physics(scene), show_progress=show_progress,
+                physics=self.training_physics(scene), show_progress=show_progress, device=self.device,
             )
             self.use_model(scene, trained, facts)
 
@@ -310,7 +337,7 @@ class WeatherCityMethod(FrameRenderer):
         first = scene.frames[0].camera
         self._renderer = WeatherRenderer(
             GaussianArrays(**self._rows.arrays), self.weather_for(weather, seed, scene), up=scene.up,
-            heading=first.camera_to_world[:3, 2], anchor=first.center,
+            heading=first.camera_to_world[:3, 2], anchor=first.center, rasterizer=on_device(self.device),
         )
 
     def use_model(self, scene: Scene, model: WeatherCityModel, facts: dict[str, Any]) -> None:

@@ -1,0 +1,70 @@
+"""tools/: the workstation check's shell scripts parse, and its guided-filter fallback is the exact
+guided filter (and OpenCV's where OpenCV's is) (docs/workstation.md)."""
+
+from __future__ import annotations
+
+import importlib.util
+import shutil
+import subprocess
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
+
+
+def _fallback():
+    spec = importlib.util.spec_from_file_location("ximgproc_fallback", TOOLS / "ximgproc_fallback.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _exact(guide: np.ndarray, src: np.ndarray, r: int, eps: float) -> np.ndarray:
+    """He et al.'s guided filter in float64, colour guide, written out."""
+    I, p = guide.astype(np.float64), src.astype(np.float64)  # noqa: E741
+
+    def mean(a):
+        return cv2.boxFilter(a, cv2.CV_64F, (2 * r + 1, 2 * r + 1), normalize=True, borderType=cv2.BORDER_REFLECT)
+
+    mI = [mean(I[..., k]) for k in range(3)]
+    mp = mean(p)
+    cov = np.stack([mean(I[..., k] * p) - mI[k] * mp for k in range(3)], -1)
+    S = np.stack([np.stack([mean(I[..., i] * I[..., j]) - mI[i] * mI[j] for j in range(3)], -1) for i in range(3)], -2)
+    a = np.linalg.solve(S + eps * np.eye(3), cov[..., None])[..., 0]
+    b = mp - sum(a[..., k] * mI[k] for k in range(3))
+    return sum(mean(a[..., k]) * I[..., k] for k in range(3)) + mean(b)
+
+
+@pytest.fixture(scope="module")
+def case():
+    rng = np.random.default_rng(0)
+    image = cv2.GaussianBlur(rng.random((45, 80, 3)).astype(np.float32), (0, 0), 2)
+    return image, (image.mean(-1) > 0.5).astype(np.float32)
+
+
+@pytest.mark.parametrize("r, eps", [(2, 1e-4), (4, 1e-3), (8, 1e-2)])
+def test_the_fallback_is_the_exact_guided_filter(case, r, eps):
+    image, mask = case
+    np.testing.assert_allclose(_fallback().guided_filter(image, mask, r, eps), _exact(image, mask, r, eps), atol=1e-4)
+
+
+@pytest.mark.skipif(not hasattr(cv2, "ximgproc"), reason="OpenCV without the contrib modules")
+def test_the_fallback_equals_opencvs_for_a_gray_guide_and_a_colour_guide_at_eps_1e2(case):
+    image, mask = case
+    f = _fallback()
+    gray = np.ascontiguousarray(image[..., 0])
+    np.testing.assert_allclose(f.guided_filter(gray, mask, 4, 1e-3), cv2.ximgproc.guidedFilter(gray, mask, 4, 1e-3),
+                               atol=1e-4)  # the borders: float32 rounding of the box sums
+    np.testing.assert_allclose(f.guided_filter(image, mask, 8, 1e-2), cv2.ximgproc.guidedFilter(image, mask, 8, 1e-2),
+                               atol=1e-4)  # the borders: float32 rounding of the box sums
+    assert f.install() is False  # ximgproc is there: nothing replaced
+
+
+@pytest.mark.skipif(shutil.which("bash") is None, reason="no bash")
+@pytest.mark.parametrize("script", ["workstation_check.sh", "prepare_workstation_wheels.sh"])
+def test_the_workstation_scripts_parse(script):
+    subprocess.run(["bash", "-n", str(TOOLS / script)], check=True)
