@@ -42,6 +42,9 @@ _BOX_SLACK_M = 0.3
 #: Share of a box's height below which the body fills it (a car's belt line, ~0.9 m of a 1.45 m
 #: sedan: above it the glasshouse narrows and the box holds air over the bonnet and beside the roof).
 _BELT_SHARE = 0.6
+#: The glasshouse above it: shares of the box's length and width (centred), and the share of the
+#: box's height along its top that is air (the roof's curve and the annotation's margin).
+_CABIN_SHARE, _ROOF_AIR_SHARE = np.array([0.6, 0.9, 1.0]), 0.1
 
 
 @dataclass
@@ -99,12 +102,23 @@ def _rasterize(cloud: GaussianCloud, channels: np.ndarray, camera: Any) -> tuple
     return out.color.numpy() / np.maximum(alpha, 1e-6)[..., None], alpha, out.depth.numpy()
 
 
+def _slab_hits(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """[N] bool: whether each ray ``origin + t dirs[i]`` (t > 0) meets the axis-aligned box [lo, hi]
+    (the slab method; ``origin`` [3], ``dirs`` [N, 3], all in the box's frame)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - origin) / dirs, (hi - origin) / dirs
+    t_in = np.nanmax(np.minimum(t1, t2), axis=1)
+    t_out = np.nanmin(np.maximum(t1, t2), axis=1)
+    return (t_out >= np.maximum(t_in, 0.0)) & (t_out > 0.0)
+
+
 def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
                 distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray) -> np.ndarray:
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
-    behind the object's box and its ray passes through the body (below the belt line, 0.6 of the
-    box's height, somewhere inside the box: the lidar sampled the object sparsely and what lies
-    behind or under it shows through), the box's face the ray enters stands for the object: its
+    behind the object's box and its ray passes through the body (the box below the belt line, 0.6
+    of its height, or the glasshouse above it, the middle 0.6 of the length and 0.9 of the width up
+    to 0.1 of the height short of the top: the lidar sampled the object sparsely or saw through
+    its glass, and what lies behind or under it shows through), the box's face the ray enters stands for the object: its
     distance and face normal, open to the sky, not ground; where it sees a lidar surface on the
     object (within 0.3 m of its box), the lidar's own normal stays (a box face chosen per pixel
     flips between roof and side from frame to frame) (``distance``, ``normal`` and ``fields`` are
@@ -159,12 +173,17 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         far = np.nanmin(np.maximum(t1, t2), axis=1)
         enters = (far >= near) & (near > 0.0)
         seen = distance[rr, cc]
-        # the lidar's surfaces show through the object where the ray passes through its body: below
-        # the belt line somewhere inside the box (a ray through the box's top corners, over the
-        # bonnet or beside the glasshouse, passes through air, and what it sees stays)
+        # the lidar's surfaces show through the object (it sampled it sparsely, or its glass) where
+        # the ray passes through its body: the box below the belt line, or the glasshouse above it
+        # (the middle of the length, most of the width, short of the box's top); a ray through the
+        # box's air, over the bonnet or the boot or along the top of the roof, sees what it sees
         vertical = int(np.argmax(np.abs(R.T @ up)))
-        z_in = np.minimum(o[vertical] + d[:, vertical] * near, o[vertical] + d[:, vertical] * far)
-        through_body = z_in <= -half[vertical] + 2.0 * _BELT_SHARE * half[vertical]
+        belt = -half[vertical] + 2.0 * _BELT_SHARE * half[vertical]
+        lower, upper = -half.copy(), half.copy()
+        upper[vertical] = belt
+        cabin_lo, cabin_hi = -half * _CABIN_SHARE, half * _CABIN_SHARE
+        cabin_lo[vertical], cabin_hi[vertical] = belt, half[vertical] - 2.0 * _ROOF_AIR_SHARE * half[vertical]
+        through_body = _slab_hits(o, d, lower, upper) | _slab_hits(o, d, cabin_lo, cabin_hi)
         behind = enters & (near + _BOX_SLACK_M < seen) & through_body
         on = np.zeros_like(enters)  # the lidar's surface lies on the object
         finite = enters & np.isfinite(seen)
