@@ -101,6 +101,11 @@ APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
 }
 
 
+#: Guided filter regularisation of the snow cover: edges of the frame weaker than sqrt(eps) = 0.1
+#: (display RGB) are smoothed over.
+_SNOW_EDGE_EPS = 1e-2
+
+
 def appearance_options() -> dict[str, Option]:
     """The ``appearance`` option of the physical editor: a table per ``[appearance]`` table of the
     presets, a key per preset value (its kind from the value: a number, or a list of as many), bounded
@@ -377,10 +382,16 @@ class WeatherEditor:
             rate = weather.precipitation_rate()
             amount = p.snow_amount(rate)
             openness = refine(m.open, raw, radius=radius)
-            cover = snow_cover(n_up, openness, amount=amount, facing_from=float(table["facing_from"]),
+            # the ground faces up by its fitted cells, not by each return's noisy normal (a kerb's
+            # face is no ground): open ground takes one even cover
+            facing = np.maximum(n_up, m.ground)
+            cover = snow_cover(facing, openness, amount=amount, facing_from=float(table["facing_from"]),
                                facing_full=float(table["facing_full"]))
             cover = cover * (1.0 - (1.0 - float(table["track_cover"])) * m.track) * ~m.sky
-            cover = refine(cover, raw, radius=radius)
+            # snapped to the frame's strong edges only (a car against the road), not to the texture
+            # of the asphalt or a paving stone, which would print the clear frame's patches into
+            # the snow and move with them from frame to frame
+            cover = refine(cover, raw, radius=radius, eps=_SNOW_EDGE_EPS)
             bare = wet_albedo(albedo, float(table["damp"]) * openness)
             # snow is lit by the overcast sky: its albedo at the overcast exposure and irradiance
             base = (bare * (1.0 - cover[..., None]) + float(table["snow_albedo"]) * cover[..., None]) * light

@@ -33,6 +33,7 @@ from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
 __all__ = ["SurfaceMaps", "glossy_blur", "mirror_render", "refine", "screen_reflection", "surface_maps"]
 
@@ -43,6 +44,12 @@ _COVERED = 0.5
 _SEEN_FRACTION, _SEEN_SLACK_M = 0.1, 0.5
 #: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
 _BOX_SLACK_M = 0.3
+#: Share of a box's height below which the body fills it (a car's belt line, ~0.9 m of a 1.45 m
+#: sedan: above it the glasshouse narrows and the box holds air over the bonnet and beside the roof).
+_BELT_SHARE = 0.6
+#: The glasshouse above it: shares of the box's length and width (centred), and the share of the
+#: box's height along its top that is air (the roof's curve and the annotation's margin).
+_CABIN_SHARE, _ROOF_AIR_SHARE = np.array([0.6, 0.9, 1.0]), 0.1
 
 
 @dataclass
@@ -100,21 +107,36 @@ def _rasterize(cloud: GaussianCloud, channels: np.ndarray, camera: Any) -> tuple
     return out.color.numpy() / np.maximum(alpha, 1e-6)[..., None], alpha, out.depth.numpy()
 
 
+def _slab_hits(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """[N] bool: whether each ray ``origin + t dirs[i]`` (t > 0) meets the axis-aligned box [lo, hi]
+    (the slab method; ``origin`` [3], ``dirs`` [N, 3], all in the box's frame)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - origin) / dirs, (hi - origin) / dirs
+    t_in = np.nanmax(np.minimum(t1, t2), axis=1)
+    t_out = np.nanmin(np.maximum(t1, t2), axis=1)
+    return (t_out >= np.maximum(t_in, 0.0)) & (t_out > 0.0)
+
+
 def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
                 distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray) -> np.ndarray:
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
-    behind the object's box (the lidar sampled the object sparsely and what lies behind or under it
-    shows through), the box's face stands for the object: its distance and face normal, open to
-    the sky, not ground; where it sees a lidar surface on the object (within 0.3 m of its box), the
-    box's face gives the normal (a car's panels are smooth; a stray return's normal is not)
-    (``distance``, ``normal`` and ``fields`` are updated in place). A car's roof takes snow, its
-    doors do not, and the road under it stays hidden. Returns the pixels changed.
+    behind the object's box and its ray passes through the body (the box below the belt line, 0.6
+    of its height, or the glasshouse above it, the middle 0.6 of the length and 0.9 of the width up
+    to 0.1 of the height short of the top: the lidar sampled the object sparsely or saw through
+    its glass, and what lies behind or under it shows through), the box's face the ray enters stands for the object: its
+    distance and face normal, open to the sky, not ground; where it sees a lidar surface on the
+    object (within 0.3 m of its box), the lidar's own normal stays (a box face chosen per pixel
+    flips between roof and side from frame to frame) (``distance``, ``normal`` and ``fields`` are
+    updated in place). A car's roof takes snow, its doors and side windows do not, the air over its
+    bonnet and beside its glasshouse keeps what lies behind it, and the road under it stays hidden.
+    Returns the pixels changed.
 
     The silhouette is the convex hull of the projections of the surface Gaussians inside the box
     (grown by 0.1 m), so the air around a car inside its box keeps what lies behind it; the ray's
     entry into the box is found by the slab method in the box frame.
     """
     changed = np.zeros(distance.shape, bool)
+    up = np.asarray(surfaces.up, np.float64)
     boxes = surfaces.boxes_at(index)
     cloud, _ = surfaces.at_frame(index)
     if not boxes or len(cloud) == 0:
@@ -156,20 +178,37 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         far = np.nanmin(np.maximum(t1, t2), axis=1)
         enters = (far >= near) & (near > 0.0)
         seen = distance[rr, cc]
-        behind = enters & (near + _BOX_SLACK_M < seen)  # the lidar's surfaces show through the object
-        on = np.zeros_like(enters)  # the lidar's surface lies on the object: the box's face is its shape
+        # the lidar's surfaces show through the object (it sampled it sparsely, or its glass) where
+        # the ray passes through its body: the box below the belt line, or the glasshouse above it
+        # (the middle of the length, most of the width, short of the box's top); a ray through the
+        # box's air, over the bonnet or the boot or along the top of the roof, sees what it sees
+        vertical = int(np.argmax(np.abs(R.T @ up)))
+        belt = -half[vertical] + 2.0 * _BELT_SHARE * half[vertical]
+        lower, upper = -half.copy(), half.copy()
+        upper[vertical] = belt
+        cabin_lo, cabin_hi = -half * _CABIN_SHARE, half * _CABIN_SHARE
+        cabin_lo[vertical], cabin_hi[vertical] = belt, half[vertical] - 2.0 * _ROOF_AIR_SHARE * half[vertical]
+        through_body = _slab_hits(o, d, lower, upper) | _slab_hits(o, d, cabin_lo, cabin_hi)
+        behind = enters & (near + _BOX_SLACK_M < seen) & through_body
+        on = np.zeros_like(enters)  # the lidar's surface lies on the object
         finite = enters & np.isfinite(seen)
         on[finite] = np.all(np.abs(o + d[finite] * seen[finite, None]) <= half + _BOX_SLACK_M, axis=1)
+        on &= ~behind
         hit = behind | on
         if not hit.any():
             continue
-        rr, cc, near, d, behind = rr[hit], cc[hit], near[hit], d[hit], behind[hit]
-        entry = o + d * near[:, None]
-        axis = np.argmax(np.abs(entry) / half, axis=1)  # the face the ray enters through
-        face = np.zeros((rr.size, 3))
-        face[np.arange(rr.size), axis] = np.sign(entry[np.arange(rr.size), axis])
-        normal[rr, cc] = face @ R.T
-        distance[rr[behind], cc[behind]] = near[behind]
+        # through the body, the face the ray enters stands for the surface; on the object, the
+        # lidar's own (smoothed) normal stays: a box face chosen per pixel flips between the roof
+        # and a side from frame to frame, and the roof the camera looks down through is not the
+        # side window the lidar sampled
+        br, bc, bnear, bd = rr[behind], cc[behind], near[behind], d[behind]
+        entry = o + bd * bnear[:, None]
+        axis = np.argmax(np.abs(entry) / half, axis=1)
+        face = np.zeros((br.size, 3))
+        face[np.arange(br.size), axis] = np.sign(entry[np.arange(br.size), axis])
+        normal[br, bc] = face @ R.T
+        distance[br, bc] = bnear
+        rr, cc = rr[hit], cc[hit]
         fields["ground"][rr, cc] = 0.0
         fields["open"][rr, cc] = 1.0
         fields["puddle"][rr, cc] = 0.0
@@ -255,7 +294,7 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
     """What the ground plane mirrors at each pixel: the non-ground lidar surfaces reflected about it.
 
     Rendering the surfaces mirrored about the plane from the real camera gives, at a pixel on the
-    plane, what the reflected ray meets (for isotropic Gaussians, mirroring their centres is exact).
+    plane, what the reflected ray meets (mirroring the centres and the surfels' normals is exact).
     It is rendered at half the camera's size and resized up (a wet surface blurs its reflection).
 
     Parameters
@@ -284,7 +323,10 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
     h = means @ up - ground_height
     keep_above = h > 0.05
     mirrored = means[keep_above] - 2.0 * np.outer(h[keep_above], up)
-    sub = GaussianCloud(means=mirrored, quats=cloud.quats[keep][keep_above], scales=cloud.scales[keep][keep_above],
+    # a surfel's normal is mirrored with it (the isotropic ones do not turn)
+    normals = attrs[keep][keep_above, :3].astype(np.float64)
+    quats = quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32)
+    sub = GaussianCloud(means=mirrored, quats=quats, scales=cloud.scales[keep][keep_above],
                         opacities=cloud.opacities[keep][keep_above], colors=cloud.colors[keep][keep_above])
     if len(sub) == 0:
         hh, ww = int(camera.height), int(camera.width)

@@ -8,13 +8,14 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 * a **normal** (the smallest principal axis of its 16 nearest neighbours, turned toward the
   cameras' path; a node's in its box frame, turned outward);
 * **ground** (1 where the normal points up and the Gaussian lies on the local ground height);
-* **open** (1 where no other return lies above it within half a metre sideways: open to the sky,
-  so snow settles and rain falls; 0 under a tree, a car or a roof), averaged with the normals over
-  the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
+* **open** (1 where no return that overhangs it, facing up or down, lies half a metre higher within
+  half a metre sideways, nor any return within 0.15 m: open to the sky, so snow settles and rain
+  falls; 0 under a tree, a car or a roof, while a wall shelters none of the ground beside it),
+  averaged with the normals over the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
 * **puddle**: a smooth noise field over the ground plane (two octaves of value noise, 4 m and
   1.5 m), thresholded by the editor at the rain's puddle fraction;
 * **track**: closeness to the wheel paths of the traffic (the ego vehicle's path and every moving
-  track's, extended along the lane), where snow is compacted and water splashed away.
+  vehicle's, extended along the lane; people and cyclists leave none), where snow is compacted and water splashed away.
 
 Only the static scene becomes surfaces: returns of things that move without a box, people and
 noise (:mod:`wcbench.reference_model.scene_analysis.motion`) are left out of the static cloud, and
@@ -42,8 +43,9 @@ from wcbench.reference_model.scene_graph.lidar_init import (
     voxel_downsample,
 )
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
+from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "pca_normals", "value_noise"]
+__all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "open_to_sky", "pca_normals", "value_noise"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -55,6 +57,18 @@ _HALF_TRACK_M, _WHEEL_PATH_SIGMA_M = 0.8, float(np.hypot(0.11, 0.25))
 #: How far a lane's wheel paths are extended beyond the observed path, each way (m): earlier traffic
 #: drove the same lane.
 _LANE_EXTENSION_M = 120.0
+#: Classes (:data:`wcbench.core.classes.CLASSES`) whose tracks leave wheel paths of a car's track.
+_WHEELED = ("vehicle",)
+#: Shelter from falling snow and rain (m): a return higher by ``_SHELTER_RISE_M`` within
+#: ``_SHELTER_REACH_M`` sideways shelters a point when it faces up or down (a roof, a canopy, a car's
+#: body over the road), within ``_SHELTER_WALL_M`` (about a voxel and a half) whatever it faces: a
+#: vertical wall does not overhang the ground beside it.
+_SHELTER_RISE_M, _SHELTER_REACH_M, _SHELTER_WALL_M = 0.5, 0.5, 0.15
+#: Up-component of a return's normal from which it overhangs what lies below it.
+_OVERHANG_UP = 0.3
+#: A static surfel's thickness (standard deviation along its normal) over its width: a few cm at
+#: the 0.1 m voxel, the noise of a lidar return's range.
+_SURFEL_THICKNESS = 0.25
 #: Voxel (m) of a frame's own dynamic returns.
 _DYNAMIC_VOXEL_M = 0.1
 #: A frame's dynamic return is drawn only if it stands this far above the ground (m; lower it is
@@ -92,6 +106,41 @@ def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
     _, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
     return v[:, :, 0]
+
+
+def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> np.ndarray:
+    """Which points the falling snow and rain reach: no return 0.5 m higher that overhangs the point
+    (its normal's up-component above 0.3 in magnitude: a roof, a canopy, a car's body) within 0.5 m
+    sideways, nor any return within 0.15 m. The fall is taken as vertical, so a wall shelters none
+    of the ground beside it, while the ground under a car or a tree stays dry.
+
+    Parameters
+    ----------
+    points : ndarray [N, 3]
+        World positions (m).
+    normals : ndarray [N, 3]
+        Unit normals (unoriented).
+    up : ndarray [3]
+        Unit up vector.
+
+    Returns
+    -------
+    ndarray [N] bool
+    """
+    points = np.asarray(points, np.float64)
+    up = np.asarray(up, np.float64)
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, bool)
+    xy = points @ _plane_axes(up).T
+    height = points @ up
+    dist, idx = cKDTree(xy).query(xy, k=min(32, n), distance_upper_bound=_SHELTER_REACH_M, workers=-1)
+    idx = np.asarray(idx).reshape(n, -1)
+    dist = np.asarray(dist).reshape(n, -1)
+    other = np.minimum(idx, n - 1)
+    overhang = (np.abs(np.asarray(normals, np.float64)[other] @ up) > _OVERHANG_UP) | (dist <= _SHELTER_WALL_M)
+    above = (idx < n) & (height[other] - height[:, None] > _SHELTER_RISE_M) & overhang
+    return ~np.any(above, axis=1)
 
 
 def _plane_axes(up: np.ndarray) -> np.ndarray:
@@ -137,11 +186,13 @@ def lane_paths(scene: Any, *, up: np.ndarray, step_m: float = 0.1) -> np.ndarray
 
     The ego vehicle's path is the cameras' (its wheels half a track to each side, at the ground
     below the camera: the height is not used, distances are taken in the ground plane); each
-    moving track's is its box centres' path. Each path is extended straight by
-    ``_LANE_EXTENSION_M`` at both ends along its end headings.
+    moving vehicle track's is its box centres' path (people and cyclists leave no wheel path).
+    Each path is extended straight by ``_LANE_EXTENSION_M`` at both ends along its end headings.
     """
     paths = [np.stack([f.camera.center for f in scene.frames])]
     for track in scene.tracks:
+        if track.class_name not in _WHEELED:
+            continue  # people and cyclists walk and ride where cars do not (a sidewalk keeps its snow)
         centers = np.asarray(track.object_to_world, np.float64)[:, :3, 3]
         if len(centers) > 1 and np.linalg.norm(centers[-1] - centers[0]) > 2.0:
             paths.append(centers)
@@ -404,13 +455,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                                 np.asarray(t.box_size, np.float64)) for t in scene.tracks])
     ground = (normals @ up > 0.8) & (height - surf.ground_height(means) < 0.3)
 
-    # open to the sky: no return higher by 0.5 m within 0.5 m sideways
-    tree = cKDTree(xy)
-    _, idx = tree.query(xy, k=min(32, len(xy)), distance_upper_bound=0.5, workers=-1)
-    idx = np.asarray(idx).reshape(len(xy), -1)
-    valid = idx < len(xy)
-    above = np.where(valid, height[np.minimum(idx, len(xy) - 1)] - height[:, None] > 0.5, False)
-    open_ = ~np.any(above, axis=1)
+    open_ = open_to_sky(means, normals, up=up)
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
     # Gaussians (about half a metre), so that what is drawn from them is not speckled; a neighbour
     # counts by how much its normal agrees (cos^4), so a car's roof and side, or a kerb's top and
@@ -420,6 +465,16 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     agree = np.clip(np.einsum("nkj,nj->nk", normals[near], normals), 0.0, 1.0) ** 4
     smooth = np.einsum("nk,nkj->nj", agree, normals[near])
     normals = smooth / np.maximum(np.linalg.norm(smooth, axis=1, keepdims=True), 1e-9)
+
+    # surfels: each static Gaussian flattened onto its surface (local z along the normal), so that a
+    # surface seen edge-on covers the thin band it fills in the image (a car's roof seen from just
+    # above its height does not spread its normal and openness over the side below it and the air
+    # above it; Pfister et al. 2000, "Surfels"; Huang et al. 2024, "2D Gaussian splatting")
+    st = gaussians.static
+    scales = np.asarray(st.scales, np.float32).copy()
+    scales[:, 2] = _SURFEL_THICKNESS * scales[:, 0]
+    gaussians.static = GaussianCloud(means=st.means, quats=quat_from_axis_to(normals).astype(np.float32),
+                                     scales=scales, opacities=st.opacities, colors=st.colors)
 
     static = np.zeros((len(means), len(ATTRIBUTES)), np.float32)
     static[:, :3] = normals

@@ -22,6 +22,7 @@ from wcbench.reference_model.appearance.shading import (
     srgb_to_linear,
     wet_albedo,
 )
+from wcbench.reference_model.appearance.surfaces import value_noise
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
 from wcbench.reference_model.weather.conditions import Weather
 
@@ -232,3 +233,31 @@ def test_the_overcast_sky_is_the_cie_gradation_of_the_editors_own_horizon(hard_e
     horizon = srgb_to_linear(hard_editor.params.sky_color)
     np.testing.assert_allclose(srgb_to_linear(sky[0]), horizon, atol=1e-3)
     np.testing.assert_allclose(srgb_to_linear(sky[1]), np.clip(horizon * (1 + 2 * np.sin(0.5)), 0, 1), atol=2e-3)
+
+
+@pytest.mark.slow
+def test_snow_covers_open_ground_evenly(demo_scene):
+    # a full cover (1 mm of water hides asphalt; here 0.01 mm does): open ground away from the wheel
+    # paths is one white, however noisy the lidar's normals on it (real returns on asphalt, paving
+    # and kerbs lean by tens of degrees: the PandaSet sidewalks took patches with bare holes)
+    k = 6
+    cam, raw = demo_scene.frames[k].camera, _frame(demo_scene, k)
+    editor = WeatherEditor(demo_scene, params=AppearanceParams.load({"snow": {"full_cover_mm": 0.01}}))
+    attrs = editor.surfaces.static_attributes
+    ground_rows = attrs[:, 3] > 0.5
+    # lean over patches of a metre (a pixel blends many Gaussians: independent noise averages out)
+    xy = editor.surfaces.gaussians.static.means[ground_rows].astype(np.float64) @ editor.surfaces.plane_axes.T
+    lean = np.stack([value_noise(xy, cell_m=1.0, seed=s) - 0.5 for s in (1, 2)], 1) * 2.4
+    leaned = attrs[ground_rows, :3] + (lean @ editor.surfaces.plane_axes).astype(np.float32)
+    attrs[ground_rows, :3] = leaned / np.linalg.norm(leaned, axis=1, keepdims=True)
+    weather = Weather(kind="snow", rate_mm_h=2.5, seed=0)
+    out = editor.edit(raw, k, cam, weather)[0]
+    m = editor.maps(k, cam, raw)
+    ground = cv2.erode(((m.ground > 0.9) & (m.open > 0.9) & (m.track < 0.05) & (m.distance < 25)).astype(np.uint8),
+                       np.ones((5, 5), np.uint8)).astype(bool)
+    assert ground.sum() > 300
+    luma = _luma(out)[ground]
+    # the snow is shaded by the leaning normals, a few per cent, but nowhere bare: no hole darker
+    # than 0.85 of the median (the cover itself leaned with the normals: 0.5-0.75 of it)
+    holes = float(np.mean(luma < 0.85 * np.median(luma)))
+    assert holes < 0.005, holes

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -10,9 +12,11 @@ pytest.importorskip("torch")
 from wcbench.reference_model.appearance.surfaces import (
     build_surfaces,
     lane_paths,
+    open_to_sky,
     pca_normals,
     value_noise,
 )
+from wcbench.scenes.scene import ObjectTrack
 
 
 def test_pca_normals_of_a_tilted_plane(rng):
@@ -73,3 +77,39 @@ def test_lane_paths_run_half_a_track_beside_the_path(demo_scene):
     np.testing.assert_allclose(d.min(axis=1), 0.8, atol=0.06)
     # and the lines reach beyond the observed path (earlier and later traffic of the lane)
     assert np.linalg.norm(pts - flat[0], axis=1).max() > 100.0
+
+
+def test_snow_reaches_the_ground_beside_a_wall_not_under_a_canopy():
+    # a 6 x 4 m ground at 0.1 m, a 5 m wall rising at x = 6 (facing -x) and a 1.5 m deep canopy
+    # 3 m up over x < 1.5: vertical snowfall reaches all the ground but what the canopy covers
+    g = np.stack(np.meshgrid(np.arange(0.0, 6.0, 0.1), np.arange(0.0, 4.0, 0.1)), -1).reshape(-1, 2)
+    ground = np.column_stack([g, np.zeros(len(g))])
+    w = np.stack(np.meshgrid(np.arange(0.0, 4.0, 0.1), np.arange(0.0, 5.0, 0.1)), -1).reshape(-1, 2)
+    wall = np.column_stack([np.full(len(w), 6.0), w])
+    c = np.stack(np.meshgrid(np.arange(0.0, 1.5, 0.1), np.arange(0.0, 4.0, 0.1)), -1).reshape(-1, 2)
+    canopy = np.column_stack([c, np.full(len(c), 3.0)])
+    points = np.concatenate([ground, wall, canopy])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(ground), 1)), np.tile([-1.0, 0.0, 0.0], (len(wall), 1)),
+                              np.tile([0.0, 0.0, -1.0], (len(canopy), 1))])
+    is_open = open_to_sky(points, normals, up=np.array([0.0, 0.0, 1.0]))[:len(ground)]
+    x = ground[:, 0]
+    assert is_open[(x > 2.0) & (x < 5.8)].all()  # up to 0.2 m from the wall's foot
+    assert not is_open[x < 1.45].any()  # under the canopy
+
+
+def test_people_leave_no_wheel_path(demo_scene):
+    up = np.asarray(demo_scene.up, np.float64) / np.linalg.norm(demo_scene.up)
+    before = lane_paths(demo_scene, up=up)
+    # a pedestrian walking 6 m along a sidewalk 5 m beside the first camera
+    n = len(demo_scene.frames)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    start = np.asarray(demo_scene.frames[0].camera.center, np.float64)
+    side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    poses[:, :3, 3] = start + 5.0 * side + np.linspace(0.0, 6.0, n)[:, None] * np.cross(side, up)
+    walker = ObjectTrack(id="p", class_name="pedestrian", frames=np.arange(n), object_to_world=poses,
+                         box_size=np.tile([0.6, 0.6, 1.7], (n, 1)))
+    after = lane_paths(dataclasses.replace(demo_scene, tracks=[*demo_scene.tracks, walker]), up=up)
+    np.testing.assert_array_equal(after, before)
+    # a car driving there would leave one
+    car = dataclasses.replace(walker, class_name="vehicle")
+    assert len(lane_paths(dataclasses.replace(demo_scene, tracks=[*demo_scene.tracks, car]), up=up)) > len(before)

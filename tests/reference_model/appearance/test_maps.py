@@ -1,0 +1,92 @@
+"""The per-view surface maps' stand-in for a tracked object the lidar samples sparsely: its box
+(docs/design.md §7, "Weather appearance")."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+from wcbench.reference_model.appearance.maps import _box_shells, _rays
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.scenes.scene import Camera
+
+UP = np.array([0.0, 0.0, 1.0])
+#: A parked car's box: 4.5 x 1.8 x 1.5 m, its near face 7.75 m ahead of the camera, on the ground.
+SIZE = np.array([4.5, 1.8, 1.5])
+BOX = np.eye(4)
+BOX[:3, 3] = [10.0, 0.0, 0.75]
+
+
+def _camera(height_m):
+    """A camera ``height_m`` above the ground looking along +x (OpenCV axes), 320 x 180, f = 300 px."""
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    c2w[:3, 3] = [0.0, 0.0, height_m]
+    return Camera(K=np.array([[300.0, 0, 160.0], [0, 300.0, 90.0], [0, 0, 1]]), width=320, height=180,
+                  camera_to_world=c2w)
+
+
+def _surfaces():
+    """The lidar's few returns of the car: points over its box's surface (the hull covers it)."""
+    g = np.stack(np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-1, 1, 5), np.linspace(-1, 1, 5)), -1).reshape(-1, 3)
+    shell = g[np.max(np.abs(g), axis=1) == 1.0] * SIZE / 2 + BOX[:3, 3]
+    n = len(shell)
+    cloud = GaussianCloud(means=shell.astype(np.float32), quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+                          scales=np.full((n, 3), 0.1, np.float32), opacities=np.ones(n, np.float32),
+                          colors=np.zeros((n, 3), np.float32))
+    return SimpleNamespace(up=UP, boxes_at=lambda k: [(BOX, SIZE)], at_frame=lambda k: (cloud, None),
+                           near=lambda k, c, r: np.flatnonzero(np.linalg.norm(shell - c, axis=1) <= r))
+
+
+def _pixel(camera, point):
+    uv, _ = camera.project(np.asarray(point, np.float64)[None])
+    return int(np.floor(uv[0, 1])), int(np.floor(uv[0, 0]))
+
+
+def _maps(camera, distance_m=30.0):
+    """The lidar's maps where it sees a wall ``distance_m`` away through the sparse car."""
+    h, w = camera.height, camera.width
+    normal = np.zeros((h, w, 3), np.float32)
+    normal[..., 0] = -1.0
+    fields = {k: np.zeros((h, w), np.float32) for k in ("ground", "open", "puddle", "track")}
+    return np.full((h, w), distance_m, np.float64), normal, fields
+
+
+def test_a_box_stands_for_a_sparse_car_only_where_the_ray_passes_through_its_body():
+    camera = _camera(1.6)
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    changed = _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
+                          np.zeros(distance.shape, bool))
+    # through the lower body: the box's near face, 7.75 m away, vertical (it takes no snow)
+    body = _pixel(camera, [7.75, 0.0, 0.4])
+    assert changed[body] and distance[body] == pytest.approx(7.75 / rays[body][0], rel=1e-6)
+    np.testing.assert_allclose(normal[body], [-1.0, 0.0, 0.0], atol=1e-6)
+    # just under the box's top and above the glasshouse all the way through (the air the box holds
+    # over the roof's curve): the wall behind stays, and no roof is invented there
+    air = _pixel(camera, [7.75, 0.0, 1.47])
+    assert not changed[air] and distance[air] == 30.0
+    # no pixel of the box takes a face that faces up unless its ray passes through the body
+    assert np.all(normal[changed] @ UP.astype(np.float32) < 0.3)
+
+
+def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_enters():
+    camera = _camera(1.8)
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    # the ray enters the box through its top (the camera is above the car) and meets a side
+    # window the lidar sampled, 0.2 m inside the box: a surface facing sideways
+    pixel = _pixel(camera, [10.0, 0.0, 1.5])
+    ray = rays[pixel]
+    entry = (1.5 - 1.8) / ray[2]
+    distance[pixel] = entry + 0.2
+    normal[pixel] = [0.0, -0.94, 0.34]
+    changed = _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
+                          np.zeros(distance.shape, bool))
+    assert changed[pixel] and fields["open"][pixel] == 1.0 and fields["ground"][pixel] == 0.0
+    np.testing.assert_allclose(normal[pixel], [0.0, -0.94, 0.34], atol=1e-6)
+    assert distance[pixel] == pytest.approx(entry + 0.2)
