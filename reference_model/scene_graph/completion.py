@@ -120,12 +120,12 @@ class Facades:
         ray meets, at more than ``grazing`` (cosine) from its plane, within its extent and either
         farther than ``reach_m`` less ``slack`` (metres, share of the distance) but nearer than
         ``reach_m / near_share`` (a surface nearer still is a thing of its own before the facade,
-        a street tree whose canopy the closing continues; a sign or an awning hangs close to it); or, up to
-        ``reach_beyond_m`` past its extent (its returns there may stay under the fit's height),
-        one the surface lies on (within ``on_m``) or lies behind, met at most ``slack`` (share of
-        the facade's distance) above its highest return there (past its ends, the end's): a return
-        seen through a facade below its top came through a window, or from another sweep; one
-        seen over its top is what stands behind it."""
+        a street tree whose canopy the closing continues; a sign or an awning hangs close to it),
+        or nearer than ``reach_m`` and met at most ``slack`` (share of the facade's distance)
+        above its highest return there (a return seen through a facade below its top came
+        through a window, or from another sweep; one seen over its top is what stands behind
+        it); or, up to ``reach_beyond_m`` past its extent (its returns there may stay under the
+        fit's height), one the surface lies on (within ``on_m``)."""
         c = np.asarray(center, np.float64)
         r = np.asarray(rays, np.float64)
         reach = np.asarray(reach_m, np.float64)[:, None]
@@ -142,11 +142,13 @@ class Facades:
         behind = (t > reach - tol) & (reach >= near_share * t)
         height = c @ self.up + t * ((r @ self.up) / flat)[:, None]
         b = np.clip(np.nan_to_num((along - self.extent[:, 0]) / self.bin_m), 0, self.top.shape[1] - 1)
-        top = self.top[np.arange(len(self))[None, :], b.astype(np.int64)]  # past its ends: the end's
+        top = self.top[np.arange(len(self))[None, :], b.astype(np.int64)]  # in the margins: the end's
         on = np.abs(t - reach) <= on_m[0] + on_m[1] * np.where(np.isfinite(reach), reach, 0.0)
         over = height > top + slack[0] + slack[1] * t  # the ray passes over the facade (an angular slack)
         through = ~over & (reach > t)  # the surface lies behind the facade, below its top
-        ok = facing & ((inside & behind) | (near & (on | through)))
+        # past its extent a facade is not looked through: rays past a short facade's end toward the
+        # far end of a street would take it
+        ok = facing & ((inside & (behind | through)) | (near & on))
         t = np.where(ok, t, np.inf)
         best = np.argmin(t, axis=1)
         return np.where(np.isfinite(t[np.arange(len(r)), best]), best, -1)
@@ -306,8 +308,9 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         Half the side of the closing's window, as a share of the image width (1/40: 12 px at 480
         wide, a pole, a wire or a sign up to 24 px thick); 0 continues each column's own pixel.
     facades : Facades, optional
-        The scene's facade planes (:func:`fit_facades`): a wall pixel meets the one the pixel it
-        rises from stands on (:meth:`Facades.first_behind`); the closing's depth where none is.
+        The scene's facade planes (:func:`fit_facades`): a wall pixel rising from a lidar return
+        meets the facade that return stands on (:meth:`Facades.first_behind`); the closing's
+        depth where none is, and above the completed ground.
     facade_slack : (float, float)
         (metres, share of the distance): how much nearer than the pixel it rises from a facade may
         lie, or how far below that pixel's ray its top, and still be the one it stands on (the
@@ -366,8 +369,11 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
             camera_depth = closing_among(camera_depth, drawn & np.isfinite(camera_depth), half)
         depth_src = camera_depth[src_c, cc]
         value = np.where(has & np.isfinite(depth_src), depth_src / np.maximum(cos_dst, 1e-6), np.inf)
-        if facades is not None and len(facades) and np.any(has):
-            value = _on_facades(value, facades, np.asarray(center, np.float64), unit, out, rr, cc, src, has,
+        # only a lidar return stands on a facade: the completed ground (and the far wall below the
+        # horizon) is a guess whose distance, far down the street, would pick any facade before it
+        measured = has & known[src_c, cc] & ~sky[src_c, cc]
+        if facades is not None and len(facades) and np.any(measured):
+            value = _on_facades(value, facades, np.asarray(center, np.float64), unit, out, rr, cc, src, measured,
                                 facade_slack)
         out[rr, cc] = value
         kind[rr, cc] = np.where(np.isfinite(value), FILL_WALL, FILL_SKY)
