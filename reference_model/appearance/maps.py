@@ -9,7 +9,8 @@ reach (docs/design.md §7):
 * the rest by :func:`~wcbench.reference_model.scene_graph.completion.complete_distance`: below the
   horizon the **fitted ground** (the 2 m cells' heights, continued by their plane), its
   attributes evaluated at the ray's intersection (so they stay anchored in the world); above it a
-  **vertical wall** rising from the surface below, facing the camera horizontally: structure above
+  **vertical wall** rising from the surface below (the scene's facade plane behind it where one
+  is fitted, else the closing's depth), facing the camera horizontally: structure above
   the lidar's reach keeps its appearance, nothing settles on it.
 
 :func:`mirror_render` renders the non-ground surfaces mirrored about that ground plane: where the
@@ -255,8 +256,8 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     covered |= boxed
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
-                                               forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2],
-                                               ground_at=surfaces.ground_height)
+                                          forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2],
+                                          ground_at=surfaces.ground_height, facades=surfaces.facades)
     fill_ground = kind == FILL_GROUND
     if np.any(fill_ground):  # attributes evaluated where the ray meets the ground: anchored in the world
         hit = center + rays[fill_ground] * np.where(np.isfinite(distance[fill_ground]), distance[fill_ground],

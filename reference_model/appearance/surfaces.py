@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis
+from wcbench.reference_model.scene_graph.completion import Facades, fit_facades
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import (
     LidarInitOptions,
@@ -253,6 +254,10 @@ class SurfaceScene:
     boxes : list of (ndarray [K] int, ndarray [K, 4, 4], ndarray [K, 3])
         Every track's annotated frames, object-to-world poses and box sizes [l, w, h] (parked and
         moving alike): the solid shell of an object the lidar samples sparsely (:meth:`boxes_at`).
+    facades : Facades, optional
+        Vertical planes fitted to the static returns above a car's height
+        (:func:`~wcbench.reference_model.scene_graph.completion.fit_facades`): what a wall above
+        the lidar's reach continues.
     """
 
     gaussians: SceneGaussians
@@ -267,6 +272,7 @@ class SurfaceScene:
     ground_plane: np.ndarray = field(default_factory=lambda: np.zeros(3))
     analysis: SceneAnalysis | None = None
     boxes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+    facades: Facades | None = None
 
     def boxes_at(self, index: int) -> list[tuple[np.ndarray, np.ndarray]]:
         """The (object-to-world [4, 4], size [3]) of every box annotated at frame ``index``."""
@@ -494,9 +500,11 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
         a[:, 4] = 1.0  # a moving object is open to the sky (its roof takes snow)
         node_attrs.append(a)
     surf.static_attributes, surf.node_attributes = static, node_attrs
+    surf.facades = fit_facades(means, normals, height - surf.ground_height(means), up)
     surf.facts = {"voxel_m": float(voxel_m), "gaussians": len(gaussians), "static": len(means),
                   "nodes": len(gaussians.nodes),
                   "ground_fraction": round(float(ground.mean()), 4), "open_fraction": round(float(open_.mean()), 4),
                   "wheel_path_points": len(lanes_pts),
-                  "ground_slope": round(float(np.hypot(plane[1], plane[2])), 4)}
+                  "ground_slope": round(float(np.hypot(plane[1], plane[2])), 4),
+                  "facades": len(surf.facades)}
     return surf

@@ -4,7 +4,9 @@ A street camera sees more than its lidar: the road just in front of the car (bel
 lowest beam) and the upper floors of the facades (above its highest). :func:`complete_distance`
 fills those pixels with the two surfaces a street is made of (docs/design.md §7):
 
-* below the horizon, the **ground plane** under the camera (the ray's intersection with it);
+* below the horizon, the **ground plane** under the camera (the ray's intersection with it; a
+  ray whose meeting with a street rising ahead is not found is a wall as far as the level plane
+  under the camera, not an infinitely far one);
 * above the horizon, a **vertical wall** continuing the nearest known pixel below in the same
   column (a vertical facade keeps its camera depth along a column when the camera is level). A
   pole, a wire, a mast or a sign in front of a facade is nearer than the facade and thin: the
@@ -12,6 +14,15 @@ fills those pixels with the two surfaces a street is made of (docs/design.md §7
   running minimum, over a square window, among the known pixels only) of the known pixels', so a
   near thing thinner than the window lends the facade behind it its depth, not its own. The known
   pixels keep their own distance.
+* where a **facade plane** is known (:func:`fit_facades`: vertical planes fitted to the scene's
+  static returns above a car's height by sequential RANSAC, Fischler & Bolles 1981, each refined
+  by least squares), a wall pixel is the ray's intersection with the first facade behind the
+  surface it rises from (docs/design.md §7). An oblique facade's upper floors then recede with
+  it pixel by pixel, and a sign, a wire or a pole wider than the closing's window lends them
+  nothing; where no facade lies behind, the closing's depth stays (the fallback). Completing
+  what a range sensor misses with the planar, mostly vertical structure of a built scene is the
+  Manhattan-world prior (Coughlan & Yuille 1999) as used for depth completion of urban scans
+  (e.g. Furukawa et al. 2009, "Manhattan-world stereo").
 
 The sky stays infinitely far. The WeatherCity build places Gaussians on the completed surfaces
 (:func:`~wcbench.reference_model.training.build.completion_cloud`) and the weather editor shades
@@ -21,12 +32,13 @@ them (:mod:`wcbench.reference_model.appearance.maps`).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-__all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "closing_among", "complete_distance",
-           "ground_height_below"]
+__all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "Facades", "closing_among", "complete_distance",
+           "fit_facades", "ground_height_below"]
 
 #: What each pixel of a completed map is.
 FILL_KNOWN, FILL_GROUND, FILL_WALL, FILL_SKY = 0, 1, 2, 3
@@ -57,10 +69,217 @@ def ground_height_below(points: np.ndarray, center: np.ndarray, up: np.ndarray, 
     return float(np.percentile(h[below], 5))
 
 
+@dataclass(frozen=True)
+class Facades:
+    """Vertical facade planes of a scene (world, m): the points x with ``normal . x = offset``
+    whose position along ``tangent`` lies in ``extent`` (grown by ``margin_m`` each way), at any
+    height.
+
+    Attributes
+    ----------
+    normal : ndarray [P, 3]
+        Unit horizontal normals.
+    offset : ndarray [P]
+    tangent : ndarray [P, 3]
+        Unit horizontal directions along each facade.
+    extent : ndarray [P, 2]
+        (first, last) position of its returns along ``tangent`` (m).
+    top : ndarray [P, B]
+        Height (along ``up``, m) of its highest return in each ``bin_m`` bin along it from
+        ``extent[:, 0]`` (``-inf`` in a bin without any; past its end, its last bin's).
+    up : ndarray [3]
+        The scene's unit up vector.
+    bin_m : float
+    margin_m : float
+        A facade reaches this far beyond its outermost returns (its corners are sampled sparsely).
+    """
+
+    normal: np.ndarray
+    offset: np.ndarray
+    tangent: np.ndarray
+    extent: np.ndarray
+    top: np.ndarray
+    up: np.ndarray
+    bin_m: float = 1.0
+    margin_m: float = 1.0
+
+    @classmethod
+    def none(cls, up: np.ndarray) -> Facades:
+        """No facade (the closing is the fallback everywhere)."""
+        return cls(normal=np.zeros((0, 3)), offset=np.zeros(0), tangent=np.zeros((0, 3)), extent=np.zeros((0, 2)),
+                   top=np.zeros((0, 1)), up=np.asarray(up, np.float64))
+
+    def __len__(self) -> int:
+        return len(self.offset)
+
+    def first_behind(self, center: np.ndarray, rays: np.ndarray, reach_m: np.ndarray, *,
+                     slack: tuple[float, float] = (0.5, 0.05), on_m: tuple[float, float] = (0.3, 0.01),
+                     reach_beyond_m: float = 8.0, near_share: float = 0.7, grazing: float = 0.1) -> np.ndarray:
+        """[N] index of the facade a surface seen along unit ``rays`` [N, 3] from ``center`` at
+        horizontal distance ``reach_m`` [N] (m) stands on, -1 where none: the nearest facade the
+        ray meets, at more than ``grazing`` (cosine) from its plane, within its extent and either
+        farther than ``reach_m`` less ``slack`` (metres, share of the distance) but nearer than
+        ``reach_m / near_share`` (a surface nearer still is a thing of its own before the facade,
+        a street tree whose canopy the closing continues; a sign or an awning hangs close to it),
+        or nearer than ``reach_m`` and met at most ``slack`` (share of the facade's distance)
+        above its highest return there (a return seen through a facade below its top came
+        through a window, or from another sweep; one seen over its top is what stands behind
+        it); or, up to ``reach_beyond_m`` past its extent (its returns there may stay under the
+        fit's height), one the surface lies on (within ``on_m``)."""
+        c = np.asarray(center, np.float64)
+        r = np.asarray(rays, np.float64)
+        reach = np.asarray(reach_m, np.float64)[:, None]
+        d = r - np.outer(r @ self.up, self.up)
+        flat = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+        cos = (d @ self.normal.T) / flat[:, None]  # [N, P] of the horizontal direction
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (self.offset - self.normal @ c)[None, :] / cos  # horizontal distance
+        along = (self.tangent @ c)[None, :] + t * ((d @ self.tangent.T) / flat[:, None])
+        facing = (np.abs(cos) > grazing) & (t > 0)
+        inside = (along >= self.extent[:, 0] - self.margin_m) & (along <= self.extent[:, 1] + self.margin_m)
+        near = (along >= self.extent[:, 0] - reach_beyond_m) & (along <= self.extent[:, 1] + reach_beyond_m)
+        tol = slack[0] + slack[1] * np.where(np.isfinite(reach), reach, 0.0)
+        behind = (t > reach - tol) & (reach >= near_share * t)
+        height = c @ self.up + t * ((r @ self.up) / flat)[:, None]
+        b = np.clip(np.nan_to_num((along - self.extent[:, 0]) / self.bin_m), 0, self.top.shape[1] - 1)
+        top = self.top[np.arange(len(self))[None, :], b.astype(np.int64)]  # in the margins: the end's
+        on = np.abs(t - reach) <= on_m[0] + on_m[1] * np.where(np.isfinite(reach), reach, 0.0)
+        over = height > top + slack[0] + slack[1] * t  # the ray passes over the facade (an angular slack)
+        through = ~over & (reach > t)  # the surface lies behind the facade, below its top
+        # past its extent a facade is not looked through: rays past a short facade's end toward the
+        # far end of a street would take it
+        ok = facing & ((inside & (behind | through)) | (near & on))
+        t = np.where(ok, t, np.inf)
+        best = np.argmin(t, axis=1)
+        return np.where(np.isfinite(t[np.arange(len(r)), best]), best, -1)
+
+    def distance(self, index: np.ndarray, center: np.ndarray, rays: np.ndarray) -> np.ndarray:
+        """[N] distance (m) along unit ``rays`` [N, 3] from ``center`` to facade ``index`` [N]
+        (``inf`` where the ray runs parallel to it or away from it)."""
+        n = self.normal[index]
+        cos = np.einsum("ij,ij->i", np.asarray(rays, np.float64), n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (self.offset[index] - n @ np.asarray(center, np.float64)) / cos
+        return np.where(np.isfinite(t) & (t > 0), t, np.inf)
+
+
+def fit_facades(points: np.ndarray, normals: np.ndarray, heights: np.ndarray, up: np.ndarray, *,
+                min_height_m: float = 2.5, max_tilt: float = 0.35, cell_m: float = 0.2,
+                tolerance_m: float = 0.3, min_points: int = 300, min_length_m: float = 3.0,
+                max_gap_m: float = 4.0, max_planes: int = 40, hypotheses: int = 256, bin_m: float = 1.0,
+                seed: int = 0) -> Facades:
+    """Vertical facade planes through a scene's static returns by sequential RANSAC (Fischler &
+    Bolles 1981) on their footprint.
+
+    The returns higher than ``min_height_m`` above the ground whose normal is within ``max_tilt``
+    (|normal . up|) of horizontal are binned into ``cell_m`` cells of the ground plane (a cell
+    weighs its returns: a wall stacks many). Each round draws ``hypotheses`` lines through two
+    cells, keeps the one with the most returns within ``tolerance_m``, refines it twice by weighted
+    least squares (the footprint's principal axis), splits its inliers where they leave a gap over
+    ``max_gap_m`` and keeps each run of ``min_points`` returns over ``min_length_m``; its inliers
+    leave the pool. Stops after ``max_planes`` rounds or when fewer than ``min_points`` returns
+    remain in the best line. Each facade keeps its highest return per ``bin_m`` along it (the
+    largest of a bin and its two neighbours).
+
+    Parameters
+    ----------
+    points : ndarray [N, 3]
+        Static returns (world, m).
+    normals : ndarray [N, 3]
+        Their unit normals.
+    heights : ndarray [N]
+        Their height above the ground below them (m).
+    up : ndarray [3]
+        Unit up vector.
+
+    Returns
+    -------
+    Facades
+
+    Raises
+    ------
+    ValueError
+        On arrays whose shapes disagree.
+    """
+    p = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    hgt = np.asarray(heights, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or nrm.shape != p.shape or hgt.shape != (len(p),):
+        raise ValueError(f"points [N, 3], normals [N, 3] and heights [N] were expected, got {p.shape}, "
+                         f"{nrm.shape} and {hgt.shape}")
+    u = np.asarray(up, np.float64) / np.linalg.norm(up)
+    e1 = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    axes = np.stack([e1, e2])
+    keep = (hgt > min_height_m) & (np.abs(nrm @ u) < max_tilt)
+    xy = p[keep] @ axes.T
+    out: list[tuple[np.ndarray, float, np.ndarray, float, float, np.ndarray]] = []
+    if len(xy) >= 2:
+        keys, inverse, weight = np.unique(np.floor(xy / cell_m).astype(np.int64), axis=0, return_inverse=True,
+                                          return_counts=True)
+        inverse = inverse.reshape(-1)
+        cells = np.zeros((len(keys), 2))
+        np.add.at(cells, inverse, xy)
+        cells /= weight[:, None]  # each cell at the mean of its returns
+        cell_top = np.full(len(keys), -np.inf)
+        np.maximum.at(cell_top, inverse, p[keep] @ u)
+        w = weight.astype(np.float64)
+        alive = np.ones(len(cells), bool)
+        rng = np.random.default_rng(seed)
+        for _ in range(max_planes):
+            idx = np.flatnonzero(alive)
+            if len(idx) < 2 or w[idx].sum() < min_points:
+                break
+            pts, ww = cells[idx], w[idx]
+            a = rng.choice(len(idx), size=hypotheses, p=ww / ww.sum())
+            b = rng.choice(len(idx), size=hypotheses, p=ww / ww.sum())
+            step = pts[b] - pts[a]
+            length = np.linalg.norm(step, axis=1)
+            normal2 = np.stack([-step[:, 1], step[:, 0]], 1) / np.maximum(length, 1e-9)[:, None]
+            offset2 = np.einsum("ij,ij->i", normal2, pts[a])
+            score = ww @ (np.abs(pts @ normal2.T - offset2) < tolerance_m)
+            score[length < 2 * cell_m] = 0.0
+            best = int(np.argmax(score))
+            n2, o2 = normal2[best], float(offset2[best])
+            inl = np.abs(pts @ n2 - o2) < tolerance_m
+            for _ in range(2):  # weighted least squares: the principal axis of the inliers' footprint
+                mu = np.average(pts[inl], axis=0, weights=ww[inl])
+                q = pts[inl] - mu
+                n2 = np.linalg.eigh((q * ww[inl, None]).T @ q)[1][:, 0]
+                o2 = float(n2 @ mu)
+                inl = np.abs(pts @ n2 - o2) < tolerance_m
+            if ww[inl].sum() < min_points:
+                break
+            t2 = np.array([-n2[1], n2[0]])
+            s = pts[inl] @ t2
+            order = np.argsort(s)
+            s, sw, st = s[order], ww[inl][order], cell_top[idx[inl]][order]
+            cuts = np.flatnonzero(np.diff(s) > max_gap_m) + 1
+            for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(s)]):
+                if sw[lo:hi].sum() >= min_points and s[hi - 1] - s[lo] >= min_length_m:
+                    bins = np.full(int((s[hi - 1] - s[lo]) // bin_m) + 1, -np.inf)
+                    np.maximum.at(bins, ((s[lo:hi] - s[lo]) // bin_m).astype(np.int64), st[lo:hi])
+                    bins = np.max(np.stack([bins, np.r_[-np.inf, bins[:-1]], np.r_[bins[1:], -np.inf]]), axis=0)
+                    out.append((n2 @ axes, o2, t2 @ axes, float(s[lo]), float(s[hi - 1]), bins))
+            alive[idx[inl]] = False
+    if not out:
+        return Facades.none(u)
+    top = np.full((len(out), max(len(o[5]) for o in out)), -np.inf)
+    for i, o in enumerate(out):
+        top[i, :len(o[5])] = o[5]
+        top[i, len(o[5]):] = o[5][-1]
+    return Facades(normal=np.stack([o[0] for o in out]), offset=np.array([o[1] for o in out]),
+                   tangent=np.stack([o[2] for o in out]), extent=np.array([[o[3], o[4]] for o in out]), top=top,
+                   up=u, bin_m=bin_m)
+
+
 def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, rays: np.ndarray,
                       center: np.ndarray, up: np.ndarray, ground_height: float, *, forward: np.ndarray,
                       ground_at: Callable[[np.ndarray], np.ndarray] | None = None,
-                      thin_fraction: float = 1.0 / 40.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      thin_fraction: float = 1.0 / 40.0, facades: Facades | None = None,
+                      facade_slack: tuple[float, float] = (0.5, 0.05),
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the unknown pixels of a distance map (see the module docstring).
 
     Parameters
@@ -88,6 +307,14 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
     thin_fraction : float
         Half the side of the closing's window, as a share of the image width (1/40: 12 px at 480
         wide, a pole, a wire or a sign up to 24 px thick); 0 continues each column's own pixel.
+    facades : Facades, optional
+        The scene's facade planes (:func:`fit_facades`): a wall pixel rising from a lidar return
+        meets the facade that return stands on (:meth:`Facades.first_behind`); the closing's
+        depth where none is, and above the completed ground.
+    facade_slack : (float, float)
+        (metres, share of the distance): how much nearer than the pixel it rises from a facade may
+        lie, or how far below that pixel's ray its top, and still be the one it stands on (the
+        returns' noise, the plane's fit and the projection's error).
 
     Returns
     -------
@@ -98,7 +325,8 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
     kind : ndarray [H, W] int8
         :data:`FILL_KNOWN`, :data:`FILL_GROUND`, :data:`FILL_WALL` or :data:`FILL_SKY`.
     source : ndarray [H, W] int64
-        For a wall pixel, the row it continues in its column; -1 elsewhere.
+        For a wall pixel, the row it continues in its column; -1 elsewhere (and on a wall pixel
+        below the horizon, which continues nothing).
     """
     h, w = known.shape
     out = np.where(known & ~sky, np.asarray(distance, np.float64), np.inf)
@@ -115,11 +343,13 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
             for _ in range(3):
                 hit = c + r * np.where(t > 0, t, 0.0)[:, None]
                 t = (np.asarray(ground_at(hit), np.float64) - c @ up) / ray_up[ground]
-        out[ground] = np.where(t > 0, t, np.inf)
-        # a ray just below the horizon can miss a ground that rises ahead (a street uphill):
-        # no ground there, a wall as above the horizon, never a pixel with nothing to rise from
-        ground &= np.isfinite(out)
-        kind[ground] = FILL_GROUND
+        # a ray just below the horizon whose meeting with a rising ground the steps do not find
+        # meets what stands far down the street: a wall as far as the level plane under the camera
+        # (walls above rise from it), not an infinitely far sky nor a thing nearer below it
+        met = np.isfinite(t) & (t > 0)
+        level = (ground_height - c @ up) / ray_up[ground]
+        out[ground] = np.where(met, t, np.where(level > 0, level, np.inf))
+        kind[ground] = np.where(met, FILL_GROUND, FILL_WALL)
     source = np.full((h, w), -1, np.int64)
     wall = todo & ~ground
     if np.any(wall):
@@ -141,10 +371,38 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
             camera_depth = closing_among(camera_depth, drawn & np.isfinite(camera_depth), half)
         depth_src = camera_depth[src_c, cc]
         value = np.where(has & np.isfinite(depth_src), depth_src / np.maximum(cos_dst, 1e-6), np.inf)
+        # only a lidar return stands on a facade: the completed ground (and the far wall below the
+        # horizon) is a guess whose distance, far down the street, would pick any facade before it
+        measured = has & known[src_c, cc] & ~sky[src_c, cc]
+        if facades is not None and len(facades) and np.any(measured):
+            value = _on_facades(value, facades, np.asarray(center, np.float64), unit, out, rr, cc, src, measured,
+                                facade_slack)
         out[rr, cc] = value
         kind[rr, cc] = np.where(np.isfinite(value), FILL_WALL, FILL_SKY)
         source[rr, cc] = np.where(np.isfinite(value), src, -1)
     return out, kind, source
+
+
+def _on_facades(value: np.ndarray, facades: Facades, center: np.ndarray, unit: np.ndarray, out: np.ndarray,
+                rr: np.ndarray, cc: np.ndarray, src: np.ndarray, has: np.ndarray,
+                slack: tuple[float, float]) -> np.ndarray:
+    """``value`` [N] (the wall pixels' distances by the closing) where the wall pixel (``rr``,
+    ``cc``) meets a facade behind its source pixel (row ``src`` of its column): the ray's distance
+    to it. The facade is chosen once per source pixel (its ray's horizontal direction)."""
+    width = unit.shape[1]
+    keys, back = np.unique(src[has] * width + cc[has], return_inverse=True)
+    back = back.reshape(-1)
+    pairs = np.stack([keys // width, keys % width], 1)
+    src_ray = unit[pairs[:, 0], pairs[:, 1]]
+    horizontal = np.linalg.norm(src_ray - np.outer(src_ray @ facades.up, facades.up), axis=1)
+    with np.errstate(invalid="ignore"):
+        reach = out[pairs[:, 0], pairs[:, 1]] * horizontal  # the source's horizontal distance
+    chosen = facades.first_behind(center, src_ray, reach, slack=slack)[back]
+    on = np.flatnonzero(has)[chosen >= 0]
+    result = value.copy()
+    hit = facades.distance(chosen[chosen >= 0], center, unit[rr[on], cc[on]])
+    result[on] = np.where(np.isfinite(hit), hit, value[on])
+    return result
 
 
 def closing_among(values: np.ndarray, mask: np.ndarray, half: int) -> np.ndarray:

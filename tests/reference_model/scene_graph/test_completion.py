@@ -10,8 +10,10 @@ from wcbench.reference_model.scene_graph.completion import (
     FILL_KNOWN,
     FILL_SKY,
     FILL_WALL,
+    Facades,
     closing_among,
     complete_distance,
+    fit_facades,
     ground_height_below,
 )
 
@@ -137,20 +139,127 @@ def test_ground_height_below_a_camera():
     assert ground_height_below(points + 100.0, np.array([0.0, 0, 1.7]), np.array([0.0, 0, 1])) == pytest.approx(0.1)
 
 
-def test_a_ray_that_misses_a_rising_ground_is_a_wall_not_a_pixel_with_nothing_below():
-    # A street rising 2 % ahead: the row just below the horizon (descending 1.7 %) never meets it.
-    # Above it, where only ground lies below, the wall rises from the first row that does meet the
-    # ground (old behaviour: from the missing row, infinitely far, shown as sky).
+def _wall_points(rng: np.random.Generator, normal: np.ndarray, offset: float, along: tuple[float, float],
+                 top_m: float, n: int, noise_m: float = 0.02) -> np.ndarray:
+    """``n`` returns on the vertical plane ``normal . x = offset`` (z up), between ``along`` (m
+    along its horizontal tangent) and heights 0-``top_m``, with Gaussian noise across it."""
+    tangent = np.array([-normal[1], normal[0], 0.0])
+    s = rng.uniform(*along, n)
+    z = rng.uniform(0.0, top_m, n)
+    return offset * normal + s[:, None] * tangent + z[:, None] * [0, 0, 1.0] + rng.normal(0, noise_m, (n, 1)) * normal
+
+
+def test_fitted_facades_are_the_walls_above_a_cars_height_and_not_the_clutter(rng):
+    up = np.array([0.0, 0, 1])
+    n1, n2 = np.array([1.0, 0, 0]), np.array([0.0, 1, 0])
+    walls = np.concatenate([_wall_points(rng, n1, 20.0, (-10.0, 5.0), 9.0, 4000),
+                            _wall_points(rng, n2, -12.0, (0.0, 15.0), 9.0, 4000)])
+    cars = _wall_points(rng, n2, 6.0, (-5.0, 15.0), 2.0, 3000)  # parked cars' sides: below 2.5 m
+    clutter = rng.uniform([-5, -10, 0], [15, 10, 9], (1500, 3))  # a tree's leaves: no plane
+    leaf_normals = rng.normal(size=(1500, 3))
+    leaf_normals /= np.linalg.norm(leaf_normals, axis=1, keepdims=True)
+    points = np.concatenate([walls, cars, clutter])
+    normals = np.concatenate([np.repeat([n1], 4000, 0), np.repeat([n2], 7000, 0), leaf_normals])
+    facades = fit_facades(points, normals, points[:, 2], up)
+    assert len(facades) == 2
+    # each wall within 5 cm and 1 degree, its extent within the cell size of its returns' span
+    for normal, offset, span in ((n1, 20.0, (-10.0, 5.0)), (n2, -12.0, (0.0, 15.0))):
+        i = int(np.argmax(np.abs(facades.normal @ normal)))
+        sign = np.sign(facades.normal[i] @ normal)
+        assert sign * facades.normal[i] @ normal > np.cos(np.radians(1.0))
+        assert sign * facades.offset[i] == pytest.approx(offset, abs=0.05)
+        lo, hi = sorted(facades.extent[i] * (facades.tangent[i] @ [-normal[1], normal[0], 0]))
+        assert lo == pytest.approx(span[0], abs=0.3) and hi == pytest.approx(span[1], abs=0.3)
+        top = facades.top[i][np.isfinite(facades.top[i])]  # its highest return per metre: 9 m up
+        assert len(top) >= 15 and np.all((top > 8.5) & (top < 9.1))
+    with pytest.raises(ValueError, match="heights"):
+        fit_facades(points, normals, points[:10, 2], up)
+
+
+def _pitched_camera(h: int, w: int, f: float, pitch_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit world rays of the level camera of :func:`_level_camera` pitched up by ``pitch_deg``,
+    and its optical axis."""
+    rays, _ = _level_camera(h, w, f)
+    a = np.radians(pitch_deg)
+    R = np.array([[np.cos(a), 0.0, -np.sin(a)], [0.0, 1.0, 0.0], [np.sin(a), 0.0, np.cos(a)]])
+    return rays @ R.T, R @ FORWARD
+
+
+def test_an_oblique_facade_above_the_lidar_is_completed_on_its_plane_behind_a_wide_sign(rng):
+    h, w = 60, 90
+    rays, forward = _pitched_camera(h, w, 45.0, 6.0)
+    center, up = np.array([0.0, 0.0, 1.6]), np.array([0.0, 0.0, 1.0])
+    # a wall at 35 degrees to the view, 20 m ahead on the axis; the lidar reaches 4 m up it
+    normal = np.array([np.cos(np.radians(35.0)), np.sin(np.radians(35.0)), 0.0])
+    offset = 20.0 * normal[0]
+    with np.errstate(divide="ignore"):
+        t_wall = (offset - normal @ center) / (rays @ normal)
+    height = center[2] + t_wall * rays[..., 2]
+    on_wall = (t_wall > 0) & (height > 0.0)
+    known = on_wall & (height < 4.0)
+    distance = np.where(known, t_wall, np.inf)
+    # a sign before the wall, 30 px wide (wider than the closing's window), at the top of the lidar's reach
+    top = np.argmax(known, axis=0)  # each column's highest return
+    sign = np.zeros((h, w), bool)
+    for x in range(30, 60):
+        sign[top[x]:top[x] + 6, x] = True
+    distance[sign] = 0.85 * t_wall[sign]  # hung 15 % before the wall
+    above = on_wall & ~known
+    assert above[:10].all() and sign[:, 30:60].any(axis=0).all()
+    returns = _wall_points(rng, normal, offset, (-150.0, 150.0), 4.0, 20000)  # farther than the view reaches
+    facades = fit_facades(returns, np.repeat([normal], len(returns), 0), returns[:, 2], up)
+    assert len(facades) == 1
+    args = (known, np.zeros((h, w), bool), rays, center, up, 0.0)
+    out, kind, _ = complete_distance(distance, *args, forward=forward, facades=facades)
+    assert np.all(kind[above] == FILL_WALL)
+    # the analytic ray-plane distance, within 1 % (the plane fitted to 2 cm noisy returns)
+    np.testing.assert_allclose(out[above], t_wall[above], rtol=0.01)
+    np.testing.assert_allclose(out[known], distance[known], rtol=1e-12)  # what the lidar saw is kept
+    # the closing alone carries the sign's distance up its columns (and, pitched, is off the plane)
+    closed, _, _ = complete_distance(distance, *args, forward=forward)
+    assert np.all(np.abs(closed[:10, 40:50] / t_wall[:10, 40:50] - 1.0) > 0.1)
+    # a tree's canopy at 40 % of the wall's distance is a thing of its own: its top keeps the closing
+    tree = distance.copy()
+    tree[sign] = 0.4 * t_wall[sign]
+    by_plane = complete_distance(tree, *args, forward=forward, facades=facades)[0]
+    alone = complete_distance(tree, *args, forward=forward)[0]
+    assert np.array_equal(by_plane[:10, 40:50], alone[:10, 40:50])
+    np.testing.assert_allclose(by_plane[:10, :20], t_wall[:10, :20], rtol=0.01)
+    # no facade: the closing is the fallback, to the bit
+    assert np.array_equal(complete_distance(distance, *args, forward=forward, facades=Facades.none(up))[0], closed)
+    # a low facade nearer than what the pixel rises from, its top (0.5 m) under the rays: the
+    # surface is seen over it and does not stand on it (the closing); a tall one (8 m) hides it:
+    # what the lidar saw through it came through a window, and the wall above is that facade's
+    def low_wall(top_m: float) -> Facades:
+        return Facades(normal=np.array([[1.0, 0, 0]]), offset=np.array([5.0]), tangent=np.array([[0.0, 1, 0]]),
+                       extent=np.array([[-50.0, 50.0]]), top=np.full((1, 101), top_m), up=up)
+
+    assert np.array_equal(complete_distance(distance, *args, forward=forward, facades=low_wall(0.5))[0], closed)
+    tall = complete_distance(distance, *args, forward=forward, facades=low_wall(8.0))[0]
+    np.testing.assert_allclose(tall[above], 5.0 / (rays[above] @ [1.0, 0, 0]), rtol=1e-9)
+
+
+def test_a_ray_that_does_not_meet_a_rising_street_is_a_wall_as_far_as_the_level_plane_not_sky():
     rays, z_per_m = _level_camera()
     h, w = z_per_m.shape
-    up, center = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.6])
-    sky = np.zeros((h, w), bool)
-    sky[:3] = True
+    center, up = np.array([0.0, 0.0, 1.6]), np.array([0.0, 0.0, 1.0])
+
+    def rising(points: np.ndarray) -> np.ndarray:  # level to 45 m ahead, then a terrace 3 m up
+        return np.where(points[:, 0] > 45.0, 3.0, 0.0)
+
     known = np.zeros((h, w), bool)
-    out, kind, source = complete_distance(np.zeros((h, w)), known, sky, rays, center, up, 0.0, forward=FORWARD,
-                                          ground_at=lambda p: 0.02 * p[:, 0], thin_fraction=0.0)
-    assert np.all(kind[20] == FILL_WALL) and np.all(source[20] == 21)
-    assert np.all(np.isfinite(out[21:])) and np.all(kind[21:] == FILL_GROUND)
-    assert not np.any((kind == FILL_SKY) & ~sky)
-    # the wall keeps the camera depth of the ground pixel it rises from (thin_fraction=0: its own column)
-    np.testing.assert_allclose((out * z_per_m)[3:21], np.broadcast_to((out * z_per_m)[21], (18, w)), rtol=1e-9)
+    distance = np.full((h, w), np.inf)
+    known[30:, 28:32] = True  # a car 6 m ahead below (a wall must not rise from it)
+    distance[30:, 28:32] = 6.0 / z_per_m[30:, 28:32]
+    out, kind, source = complete_distance(distance, known, np.zeros((h, w), bool), rays, center, up, 0.0,
+                                          forward=FORWARD, ground_at=rising, thin_fraction=0.0)
+    # row 20 looks 1/60 below the horizon: 0.85 m up at 45 m, under the terrace beyond (the steps
+    # from the level plane's 96 m land on the terrace and back): a wall at the level plane's 96 m
+    assert np.all(kind[20] == FILL_WALL) and np.all(source[20] == -1)
+    np.testing.assert_allclose((out * z_per_m)[20], 96.0, rtol=1e-9)
+    # rows 0-19 above the horizon rise from it, at its camera depth
+    assert np.all(kind[:20] == FILL_WALL) and np.all(source[:20] == 20)
+    np.testing.assert_allclose((out * z_per_m)[:20], 96.0, rtol=1e-9)
+    assert np.all(kind[21] == FILL_GROUND)  # 1/20 below: meets the street at 32 m
+    np.testing.assert_allclose(out[21], 1.6 / -rays[21, :, 2], rtol=1e-9)
+    assert np.all(np.isfinite(out))
