@@ -28,9 +28,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from wcbench.core.image_io import to_uint8
+from wcbench.core.image_io import to_uint8, write_png
 from wcbench.core.storage import dumps_json
-from wcbench.scenes.synth.content import Content, Mover, cloud_at
+from wcbench.scenes.synth.content import Content, Mover
 from wcbench.scenes.synth.layout import HEIGHT, TRUTH_WEATHERS, WIDTH
 from wcbench.scenes.synth.truth import TruthRenderer
 
@@ -155,10 +155,12 @@ def _object_range(content: Content, k: int, mover: int) -> tuple[int, int]:
     raise ValueError(f"edit truth: object {mover} is not a moving object of frame {k}")
 
 
-def _png(path: Path, image: np.ndarray) -> None:
-    from wcbench.scenes.synth.writer import _png as write
-
-    write(path, image)
+def _write_mask(path: Path, mask: np.ndarray) -> None:
+    """A bool mask [H, W] as an 8-bit PNG, 255 where set (OpenCV's encoder is deterministic)."""
+    ok, buf = cv2.imencode(".png", np.where(mask, 255, 0).astype(np.uint8))
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    path.write_bytes(buf.tobytes())
 
 
 def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: np.ndarray, shift: np.ndarray,
@@ -197,7 +199,7 @@ def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: 
         for k in range(n_frames):
             frame = renderer.frame(k)
             for w, f in frame.frames.items():
-                _png(folder / plan.name / w / f"{k:03d}_0.png", to_uint8(np.asarray(f.image, np.float64)))
+                write_png(folder / plan.name / w / f"{k:03d}_0.png", to_uint8(np.asarray(f.image, np.float64)))
             region = plain.silhouette(k, content, _object_range(content, k, plan.mover), weight=SILHOUETTE_WEIGHT)
             if plan.op == "translate":
                 region |= renderer.silhouette(k, edited, _object_range(edited, k, plan.mover),
@@ -205,7 +207,7 @@ def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: 
             if frame.masks:  # a sun: the object's cast shadow is edited too (the plain one is on disk)
                 shadow = cv2.imread(str(folder.parent / "masks" / "shadow" / f"{k:03d}_0.png"), cv2.IMREAD_UNCHANGED)
                 region |= shadow != frame.masks["shadow"]
-            _png(folder / plan.name / "mask" / f"{k:03d}_0.png", np.where(region, 255, 0).astype(np.uint8))
+            _write_mask(folder / plan.name / "mask" / f"{k:03d}_0.png", region)
             pixels.append(int(region.sum()))
         m = content.movers[plan.mover]
         records.append({
