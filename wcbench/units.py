@@ -191,7 +191,8 @@ class WorkUnit:
         return self.scene.reference_paths(self.weather)
 
     def inputs(self) -> dict[str, Any]:
-        """sha256 of every input frame (``predictions``, ``source``, ``reference`` or ``None``) and
+        """sha256 of every input frame (``predictions``, ``source``, ``reference`` or ``None``, and
+        with an editing truth its masks, ``edit_masks``) and
         where the predictions were found (``location``, ``layout``, scored ``frames``, ``ignored``, and
         when there are any, frames beyond the scene and lower steps left out: see
         :meth:`PredictionSequence.left_out`)."""
@@ -203,8 +204,8 @@ class WorkUnit:
         else:
             ref_hashes = [sha256_file(p) for p in refs]
         p = self._opened()
-        return {"predictions": p.sha256s(), "source": self.source_hashes, "reference": ref_hashes,
-                "edit_masks": None if truth is None else [sha256_file(m) for m in truth.masks],
+        masks = {} if truth is None else {"edit_masks": [sha256_file(m) for m in truth.masks]}
+        return {"predictions": p.sha256s(), "source": self.source_hashes, "reference": ref_hashes, **masks,
                 "info": None if p.info is None else sha256_json(p.info),
                 "location": str(p.location) if p.location else None, "layout": p.layout,
                 "frames": p.frame_indices, "ignored": p.ignored, **p.left_out()}
@@ -227,7 +228,8 @@ class WorkUnit:
             "schema_version": SCHEMA_VERSION, "scoring": SCORING_RULE, "scene": self.scene.id, "weather": self.weather,
             "info": p.info, "fps": fps, "working_size": list(self.scored_size(resolution, score_size)),
             "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
-            "edits": [self.edits, inputs["edit_masks"]],
+            # an edited run's region scores (the keys of unedited runs stay as they were)
+            **({"edits": [self.edits, inputs.get("edit_masks")]} if self.edits else {}),
             "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
             "size": list(p.size),
             "frames": p.frame_indices, "missing": p.missing, "partial_reason": p.partial_reason,
