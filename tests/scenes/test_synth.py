@@ -368,3 +368,15 @@ def test_a_cached_scene_without_editing_truth_is_extended(synth_env, tmp_path, m
     for name in added - {"truth/edits/edits.json"}:
         assert after[name] == _hashes(src)[name]  # the same bytes as generated with the scene
     assert not [p for p in (root / "truth").iterdir() if p.name.startswith(".")]
+
+
+def test_a_cached_scene_without_editing_truth_still_loads_without_torch(synth_env, tmp_path):
+    root = tmp_path / "scenes" / f"synth-v{synth.VERSION}" / "synth_000"
+    shutil.copytree(synth_env / "scenes" / f"synth-v{synth.VERSION}" / "synth_000", root)
+    shutil.rmtree(root / "truth" / "edits")
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from wcbench.scenes.sets import resolve_scenes\n"
+            "print('edit truths:', len(resolve_scenes('synth_1')[0].load().edit_truths))\n")
+    env = {**os.environ, "WCBENCH_CACHE": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
+    assert "edit truths: 0" in out and not (root / "truth" / "edits").exists()

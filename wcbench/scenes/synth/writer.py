@@ -105,11 +105,15 @@ def _cameras(content: Content) -> tuple[list[Camera], np.ndarray]:
 def _extend_with_edit_truth(root: Path, spec: SynthSpec) -> None:
     """Write the editing truth (``truth/edits/``) into a complete cached scene that lacks it or has
     another version of it, leaving every other file as it is; written in a temporary folder and
-    renamed into place, so a killed run leaves no half edit truth."""
+    renamed into place, so a killed run leaves no half edit truth. Without torch the scene is left
+    as it is (it loads without editing truth)."""
     folder = root / "truth" / "edits"
     if read_edit_record(folder) is not None:
         return
-    reference_model()
+    try:
+        reference_model()
+    except InputError:
+        return  # a cached scene loads without torch (docs/design.md §3); its edits have no truth until then
     announce(f"adding the editing truth to the synthetic scene {root} (first use only)")
     n_frames = int(json.loads((root / MARKER).read_text(encoding="utf-8"))["frames"])
     content = build_content(spec)
