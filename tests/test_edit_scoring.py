@@ -84,3 +84,19 @@ def test_edits_match_in_text_and_json_forms_only_when_equal():
     assert edits_key([move]) == edits_key([{"op": "translate", "ids": "3", "by": [10.0, 0.0, 1e-9]}])
     assert edits_key([move]) != edits_key([{**move, "by": [9, 0, 0]}])
     assert edits_key([REMOVE_3]) != edits_key([REMOVE_3, REMOVE_3]) and edits_key([]) is None
+
+
+@pytest.mark.parametrize(("rows", "cols", "expected"), [
+    ((20, 70), (40, 120), ((12, 78), (32, 128))),  # the box grown by 8 px
+    ((20, 40), (40, 80), ((0, 64), (28, 92))),  # then to 64 px about its centre, inside the image
+    ((0, 2), (0, 2), ((0, 64), (0, 64))),  # small, at a corner: 64 px a side, inside the image
+    ((95, 96), (150, 151), ((36, 100), (96, 160))),  # small, at the far corner
+])
+def test_region_box_grows_small_regions_inside_the_image(rows, cols, expected):
+    from wcbench.metrics.base import region_box
+
+    mask = np.zeros((100, 160), bool)
+    mask[rows[0]:rows[1], cols[0]:cols[1]] = True
+    box = region_box(mask)
+    assert box is not None and tuple((s.start, s.stop) for s in box) == expected
+    assert region_box(np.zeros((100, 160), bool)) is None
