@@ -28,7 +28,7 @@ pytest.importorskip("torch", reason="the synth scenes are rendered by the refere
 
 @pytest.fixture(scope="module")
 def synth_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A private cache holding synth_1's scene, generated once for the module (~7 s)."""
+    """A private cache holding synth_1's scene, generated once for the module (with its editing truth)."""
     cache = tmp_path_factory.mktemp("synth_cache")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("WCBENCH_CACHE", str(cache))
