@@ -15,7 +15,8 @@ Everything but the object is rendered exactly as in the plain truth (same Gaussi
 particles and fog), so an edited frame differs from the plain one only where the object was or now
 is seen, and through its shadow on profiles with a sun. The mask is the union of the object's
 silhouette before and after the edit: pixels where its Gaussians' composited weight is at least
-:data:`SILHOUETTE_WEIGHT`, plus (with a sun) pixels whose cast-shadow truth mask changes.
+:data:`SILHOUETTE_WEIGHT`, plus (with a sun) pixels whose composited sun visibility changes by at
+least as much (its cast shadow, penumbra included; the truth weathers are overcast, shadowless).
 """
 
 from __future__ import annotations
@@ -177,8 +178,7 @@ def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: 
     content, cameras, times, shift
         As :class:`~.truth.TruthRenderer` takes them.
     plain : TruthRenderer
-        The scene's plain truth renderer (it draws the silhouettes before the edit; the plain
-        cast-shadow masks are read from ``folder``'s parent, ``truth/masks/shadow/``).
+        The scene's plain truth renderer (it draws the silhouettes and sun visibility before the edit).
     n_frames : int
         Frames to write (the first ones).
 
@@ -204,9 +204,8 @@ def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: 
             if plan.op == "translate":
                 region |= renderer.silhouette(k, edited, _object_range(edited, k, plan.mover),
                                               weight=SILHOUETTE_WEIGHT)
-            if frame.masks:  # a sun: the object's cast shadow is edited too (the plain one is on disk)
-                shadow = cv2.imread(str(folder.parent / "masks" / "shadow" / f"{k:03d}_0.png"), cv2.IMREAD_UNCHANGED)
-                region |= shadow != frame.masks["shadow"]
+            if content.spec.profile.sun is not None:  # the object's cast shadow (penumbra included) is edited too
+                region |= np.abs(plain.sun_visibility(k) - renderer.sun_visibility(k)) >= SILHOUETTE_WEIGHT
             _write_mask(folder / plan.name / "mask" / f"{k:03d}_0.png", region)
             pixels.append(int(region.sum()))
         m = content.movers[plan.mover]
@@ -224,7 +223,8 @@ def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: 
         "frame": "by= in metres in the loaded scene's world frame (first camera at the origin, z up), as --edit's",
         "layout": "<name>/{clear,rain,snow,fog}/{t:03d}_0.png: the edited truth; <name>/mask/{t:03d}_0.png: 255 in "
                   "the edited region (union of the object's silhouette before and after: composited weight "
-                  f">= {SILHOUETTE_WEIGHT:.6f}; with a sun, also where the cast-shadow mask changes)",
+                  f">= {SILHOUETTE_WEIGHT:.6f}; with a sun, also where the composited sun visibility changes "
+                  "by as much: the cast shadow)",
         "frames": n_frames,
         "edits": records,
     }
