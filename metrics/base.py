@@ -226,6 +226,30 @@ def frame_values_skipping_identical(values: Callable[[np.ndarray, np.ndarray], A
     return out
 
 
+#: Margin (px) of the crop around an edited region, and its smallest side (LPIPS's backbones and
+#: SSIM's window need some context around a small object).
+REGION_PAD_PX, REGION_MIN_SIDE_PX = 8, 64
+
+
+def region_box(mask: np.ndarray) -> tuple[slice, slice] | None:
+    """Rows and columns of the crop around a region ``mask`` [H, W] (bool): its bounding box grown
+    by :data:`REGION_PAD_PX`, then to :data:`REGION_MIN_SIDE_PX` a side where the image allows,
+    within the image; ``None`` for an empty mask."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not rows.size:
+        return None
+
+    def span(first: int, last: int, size: int) -> slice:
+        lo, hi = max(first - REGION_PAD_PX, 0), min(last + 1 + REGION_PAD_PX, size)
+        need = min(REGION_MIN_SIDE_PX, size)
+        if hi - lo < need:  # grown about its centre, shifted back inside the image
+            lo = min(max(lo - (need - (hi - lo)) // 2, 0), size - need)
+            hi = lo + need
+        return slice(lo, hi)
+
+    return span(int(rows[0]), int(rows[-1]), mask.shape[0]), span(int(cols[0]), int(cols[-1]), mask.shape[1])
+
+
 class Metric(ABC):
     """Base class of every wcbench metric.
 
@@ -329,6 +353,37 @@ class Metric(ABC):
     @abstractmethod
     def compute(self) -> dict[str, MetricValue]:
         """The metric's outputs over everything seen since :meth:`reset`."""
+
+    #: How :meth:`update_region` scores an edited region (appended to the variant of its outputs).
+    region_variant: ClassVar[str] = (
+        f"on the edited region: each frame cropped to its mask's bounding box grown by {REGION_PAD_PX} px "
+        f"(at least {REGION_MIN_SIDE_PX} px a side), the prediction replaced by the truth outside the mask; "
+        "frames with an empty mask left out")
+
+    def update_region(self, pred: np.ndarray, *, source: np.ndarray | None = None, reference: np.ndarray,
+                      mask: np.ndarray) -> None:
+        """Accumulate a batch scored only on an edited region (reference metrics; docs/design.md §3).
+
+        The default crops each frame around its region and shows the metric the prediction there
+        and the truth elsewhere (:data:`region_variant`); a metric with an exact masked form
+        overrides it.
+
+        Parameters
+        ----------
+        pred, reference : ndarray [B, H, W, 3]
+            Float RGB in [0, 1]; ``source`` as :meth:`update`.
+        mask : ndarray [B, H, W] bool
+            The edited region of each frame.
+        """
+        for b in range(len(pred)):
+            box = region_box(mask[b])
+            if box is None:
+                continue
+            ys, xs = box
+            inside = mask[b][ys, xs, None]
+            p = np.where(inside, pred[b][ys, xs], reference[b][ys, xs])
+            self.update(p[None], source=None if source is None else source[b][ys, xs][None],
+                        reference=np.ascontiguousarray(reference[b][ys, xs][None]))
 
 
 class PerFrameReferenceMetric(Metric):

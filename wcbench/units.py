@@ -22,7 +22,7 @@ import numpy as np
 
 from wcbench.core.byte_cache import ByteBudgetCache
 from wcbench.core.errors import InputError
-from wcbench.core.image_io import read_rgb8, resize_rgb8, to_float
+from wcbench.core.image_io import read_mask, read_rgb8, resize_mask, resize_rgb8, to_float
 from wcbench.core.parallel import ordered_map, prefetch, thread_count
 from wcbench.core.progress import progress
 from wcbench.core.storage import atomic_write_json, json_safe, sha256_file, sha256_json
@@ -31,7 +31,7 @@ from wcbench.methods import Method, is_runnable
 from wcbench.metrics.base import Metric, MetricContext
 from wcbench.predictions import RESIZE_INTERPOLATION, PredictionSequence
 from wcbench.results import SCHEMA_VERSION
-from wcbench.scenes.scene import Scene
+from wcbench.scenes.scene import EditTruth, Scene
 from wcbench.scenes.sets import SceneRef
 from wcbench.unedited import UNEDITED_LEVELS, UNEDITED_THUMB_WIDTH, UneditedCheck
 
@@ -168,24 +168,44 @@ class WorkUnit:
         return self.predictions
 
     @property
+    def edits(self) -> list[Any]:
+        """The object edits the predictions were rendered with (``info.json`` ``parameters.edits``,
+        in ``--edit``'s JSON form), ``[]`` when none."""
+        info = self._opened().info
+        params = info.get("parameters") if isinstance(info, dict) else None
+        edits = params.get("edits") if isinstance(params, dict) else None
+        return edits if isinstance(edits, list) else []
+
+    @property
+    def edit_truth(self) -> EditTruth | None:
+        """The scene's editing truth of exactly the predictions' :attr:`edits`, or ``None``."""
+        return self.scene.edit_truth(self.edits) if self.edits else None
+
+    @property
     def reference_paths(self) -> list[Path] | None:
-        """Ground-truth frames of this weather, or ``None`` when the scene has none."""
+        """Ground-truth frames of this weather (of the predictions' edits when the scene has an
+        editing truth for them), or ``None`` when the scene has none."""
+        truth = self.edit_truth
+        if truth is not None:
+            return truth.references.get(self.weather)
         return self.scene.reference_paths(self.weather)
 
     def inputs(self) -> dict[str, Any]:
-        """sha256 of every input frame (``predictions``, ``source``, ``reference`` or ``None``) and
+        """sha256 of every input frame (``predictions``, ``source``, ``reference`` or ``None``, and
+        with an editing truth its masks, ``edit_masks``) and
         where the predictions were found (``location``, ``layout``, scored ``frames``, ``ignored``, and
         when there are any, frames beyond the scene and lower steps left out: see
         :meth:`PredictionSequence.left_out`)."""
-        refs = self.reference_paths
+        refs, truth = self.reference_paths, self.edit_truth
         if refs is None:
             ref_hashes = None
-        elif self.weather == "clear":
+        elif self.weather == "clear" and truth is None:
             ref_hashes = self.source_hashes  # the raw frames are the truth of clear
         else:
             ref_hashes = [sha256_file(p) for p in refs]
         p = self._opened()
-        return {"predictions": p.sha256s(), "source": self.source_hashes, "reference": ref_hashes,
+        masks = {} if truth is None else {"edit_masks": [sha256_file(m) for m in truth.masks]}
+        return {"predictions": p.sha256s(), "source": self.source_hashes, "reference": ref_hashes, **masks,
                 "info": None if p.info is None else sha256_json(p.info),
                 "location": str(p.location) if p.location else None, "layout": p.layout,
                 "frames": p.frame_indices, "ignored": p.ignored, **p.left_out()}
@@ -208,6 +228,8 @@ class WorkUnit:
             "schema_version": SCHEMA_VERSION, "scoring": SCORING_RULE, "scene": self.scene.id, "weather": self.weather,
             "info": p.info, "fps": fps, "working_size": list(self.scored_size(resolution, score_size)),
             "predictions": inputs["predictions"], "source": inputs["source"], "reference": inputs["reference"],
+            # an edited run's region scores (the keys of unedited runs stay as they were)
+            **({"edits": [self.edits, inputs.get("edit_masks")]} if self.edits else {}),
             "metrics": metric_config, "resize": p.resize, "interpolation": RESIZE_INTERPOLATION if p.resize else None,
             "size": list(p.size),
             "frames": p.frame_indices, "missing": p.missing, "partial_reason": p.partial_reason,
@@ -314,7 +336,10 @@ class WorkUnit:
             JSON-safe (non-finite values as ``None``).
         """
         scene, preds = self.scene, self._opened()
-        refs = self.reference_paths
+        refs, truth = self.reference_paths, self.edit_truth
+        # the raw frames are the truth of clear, unless the frames were edited and the scene has
+        # their editing truth (docs/design.md §3)
+        source_is_truth = self.weather == "clear" and truth is None
         ctx = MetricContext(
             weather=self.weather, n_frames=len(preds), has_reference=refs is not None,
             has_source=True, method_info=preds.info, fps_override=fps,
@@ -334,11 +359,23 @@ class WorkUnit:
         # weights stay shared) fed the source frames in the same pass, so no frame is read twice. Clear has
         # no such row: its truth is the raw frames.
         baseline: dict[str, Metric] = {}
-        if needs_ref and self.weather != "clear":
+        if needs_ref and not source_is_truth:
             for name, m in active.items():
                 if m.needs_reference:
                     baseline[name] = copy.copy(m)
                     baseline[name].reset()
+        # Edited frames are also scored on the edited region alone, against the editing truth;
+        # without one the region scores say why they are missing.
+        region: dict[str, Metric] = {}
+        for name, m in active.items():
+            if not (self.edits and m.needs_reference):
+                continue
+            if truth is None or not needs_ref:
+                skipped.append({"scene": scene.id, "weather": self.weather, "metric": f"{name} (edit region)",
+                                "reason": "no editing truth for this edit"})
+            else:
+                region[name] = copy.copy(m)
+                region[name].reset()
         reads_frames = any(m.reads_frames for m in active.values())
         # Every method of a scene is scored at one size, the scene's working size (the paper scores
         # every method at the dataset's frames; docs/design.md §8, "Scoring"): frames a method
@@ -362,8 +399,13 @@ class WorkUnit:
             # the scene frames of a partial sequence are one contiguous run: consecutive predictions are
             # consecutive scene frames, as temporal metrics assume
             k = preds.frame_indices[j]
-            ref8 = fit(read_rgb8(refs[k])) if refs is not None and needs_ref and self.weather != "clear" else None
+            ref8 = fit(read_rgb8(refs[k])) if refs is not None and needs_ref and not source_is_truth else None
             return source_frame(k), ref8
+
+        def region_mask(j: int) -> np.ndarray:
+            assert truth is not None
+            mask = read_mask(truth.masks[preds.frame_indices[j]])
+            return mask if mask.shape[::-1] == (w, h) else resize_mask(mask, (w, h))
 
         kept: list[np.ndarray | None] = [None] * len(preds)
         if share_frames:  # decoded by validate(): scored from memory, then dropped
@@ -392,7 +434,8 @@ class WorkUnit:
         # frames are converted straight into reused float32 batch buffers (no per-batch stacking)
         streams = ("pred", "source", "reference") if needs_ref else ("pred", "source")
         buffers = {name: np.empty((FRAME_BATCH, h, w, 3), np.float32) for name in streams}
-        filled = 0
+        masks = np.zeros((FRAME_BATCH, h, w), bool)
+        filled, seen = 0, 0
 
         def flush(n: int) -> None:
             if n == 0:
@@ -402,6 +445,10 @@ class WorkUnit:
                 m.update(buffers["pred"][:n], source=buffers["source"][:n], reference=reference)
             for m in baseline.values():
                 m.update(buffers["source"][:n], source=buffers["source"][:n], reference=reference)
+            for m in region.values():
+                assert reference is not None
+                m.update_region(buffers["pred"][:n], source=buffers["source"][:n], reference=reference,
+                                mask=masks[:n])
 
         for pred8, src8, ref8 in frames:
             to_float(pred8, out=buffers["pred"][filled])
@@ -413,7 +460,10 @@ class WorkUnit:
                     buffers["reference"][filled] = buffers["source"][filled]
                 else:
                     to_float(ref8, out=buffers["reference"][filled])
+            if region:
+                masks[filled] = region_mask(seen)
             filled += 1
+            seen += 1
             if filled == FRAME_BATCH:
                 flush(filled)
                 filled = 0
@@ -427,7 +477,17 @@ class WorkUnit:
                     "metric": name, "value": value.value, "variant": variant, "reason": value.reason,
                     "higher_is_better": m.higher_is_better, "per_frame": value.per_frame, "extra": value.extra,
                 }
+        for name, m in region.items():
+            for out_name, value in m.compute().items():
+                outputs[f"{out_name}_edit_region"] = {
+                    "metric": name, "value": value.value, "variant": f"{value.variant}; {m.region_variant}{at}",
+                    "reason": value.reason, "higher_is_better": m.higher_is_better, "per_frame": value.per_frame,
+                    "extra": value.extra,
+                }
         result: dict[str, Any] = {"outputs": outputs, "skipped": skipped, "warnings": []}
+        if truth is not None:
+            result["edit_truth"] = {"scene": scene.id, "weather": self.weather, "name": truth.name,
+                                    "edit": truth.edit}
         if baseline:
             result["raw_frames"] = {
                 out_name: {"metric": name, "value": value.value, "variant": value.variant + at, "reason": value.reason,

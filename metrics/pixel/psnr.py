@@ -67,6 +67,19 @@ class PSNR(PerFrameReferenceMetric):
     nonfinite_reason = "PSNR is infinite for identical images (MSE = 0)"
     identical_value = math.inf
 
+    region_variant = "on the edited region: MSE over the mask's pixels and channels; frames with an empty mask left out"
+
+    def update_region(self, pred: np.ndarray, *, source: np.ndarray | None = None, reference: np.ndarray,
+                      mask: np.ndarray) -> None:
+        """Per-frame PSNR over the pixels of ``mask`` [B, H, W] (bool) only (see
+        :meth:`~wcbench.metrics.base.Metric.update_region`)."""
+        p, r = as_float_image_pair(pred, reference, names=("pred", "reference"))
+        if mask.shape != p.shape[:3]:
+            raise ValueError(f"psnr: mask is {mask.shape}, expected {p.shape[:3]} (the frames' batch, height, width)")
+        for b in np.flatnonzero(mask.reshape(len(mask), -1).any(axis=1)):
+            inside = mask[b]
+            self._values.extend(_frame_psnr(p[b][inside][None, :, None], r[b][inside][None, :, None]).tolist())
+
     def frame_values(self, pred: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """Per-frame PSNR [B] in dB (inf for identical frames), frames in parallel (NumPy releases the
         GIL; one frame's float64 copies stay small)."""

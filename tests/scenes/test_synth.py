@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -27,7 +28,7 @@ pytest.importorskip("torch", reason="the synth scenes are rendered by the refere
 
 @pytest.fixture(scope="module")
 def synth_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A private cache holding synth_1's scene, generated once for the module (~7 s)."""
+    """A private cache holding synth_1's scene, generated once for the module (with its editing truth)."""
     cache = tmp_path_factory.mktemp("synth_cache")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("WCBENCH_CACHE", str(cache))
@@ -276,3 +277,106 @@ def test_weathercity_renders_the_truths_requested_weather_never_its_seed(scene0:
         method.check_scene(demo_scene, "rain")
     with pytest.raises(InputError, match="physics must be"):
         WeatherCityMethod(physics="sunny")
+
+
+# --------------------------------------------------------------------------- the editing truth
+#: sha256 of files of synth_000 as generated before the editing truth existed (the v1 cache's
+#: bytes): the editing truth is written beside them and changes none.
+_V1_BYTES = {
+    "images/000_0.png": "f772ec1329f5b1060dc04e5aeb7b646a788c5d2bdde59ba5c062f6783694e16b",
+    "truth/rain/010_0.png": "bc9f767843e0767e4d19f56b4557039b55b35e70a5c22518deb40b8c65ffc342",
+    "truth/fog/029_0.png": "910ada8c9c0692ca90ddd99cffcdb7c1e11dc3e55fb784f3d5085b2f8f852729",
+    "truth/weather.json": "c7b1be91a2d610ca08086640e2e47145dae6cde7d1dcc8926097d50a5dad0fe5",
+    "synth.json": "a113b16bdf1995caed87b4416e6a4aa7c909505dabb12030c965df0b80b088cb",
+}
+
+
+def _gray(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert img is not None
+    return img.astype(int)
+
+
+def test_old_truth_is_byte_identical_beside_the_editing_truth(synth_env):
+    root = synth_env / "scenes" / f"synth-v{synth.VERSION}" / "synth_000"
+    for name, digest in _V1_BYTES.items():
+        assert hashlib.sha256((root / name).read_bytes()).hexdigest() == digest, name
+
+
+def test_editing_truth_layout_and_ids(scene0: Scene):
+    from wcbench.reference_model.editing.edits import parse_edits
+
+    record = json.loads((scene0.root / "truth" / "edits" / "edits.json").read_text())
+    assert [e["name"] for e in record["edits"]] == ["remove_9", "translate_9"]
+    assert [t.name for t in scene0.edit_truths] == ["remove_9", "translate_9"]
+    track = next(t for t in scene0.tracks if t.id == "9")
+    # the oncoming car: the only moving tracked car, named by its compact instance id
+    assert track.class_name == "vehicle" and track.source_id == "synth_000_car_oncoming"
+    assert np.ptp(track.object_to_world[:, 0, 3]) > 10
+    for e, truth in zip(record["edits"], scene0.edit_truths):
+        (parsed,) = parse_edits(e["edit"])  # the text form is what --edit takes, and means the same
+        assert parsed.to_json() == truth.edit and scene0.edit_truth([parsed.to_json()]) is truth
+        assert sorted(truth.references) == ["clear", "fog", "rain", "snow"]
+        assert all(len(p) == len(scene0) for p in truth.references.values()) and len(truth.masks) == len(scene0)
+        assert sum(n > 0 for n in e["mask_pixels"]) >= 0.9 * len(scene0)
+    assert scene0.edit_truths[1].edit["by"] == [10.0, 0.0, 0.0]
+
+
+def test_removal_changes_pixels_only_inside_the_mask(scene0: Scene):
+    remove = scene0.edit_truths[0]
+    for k in (0, 12, 26):
+        mask = _gray(remove.masks[k]) > 0
+        assert mask.any()
+        for w in ("clear", "rain", "snow", "fog"):
+            plain = scene0.frames[k].image_path if w == "clear" else scene0.references[w][k]
+            d = np.abs(_gray(plain) - _gray(remove.references[w][k])).max(axis=-1)
+            assert d[~mask].max() <= 1, (k, w)  # rounding of a weight below the mask's threshold
+            assert (d[mask] > 8).mean() > 0.3, (k, w)  # the car is gone where it was
+
+
+def test_translation_is_in_the_scene_graphs_world_frame(scene0: Scene):
+    """The moved car's box centre, moved by ``by`` in the loaded world, projects into the mask."""
+    move = scene0.edit_truths[1]
+    track = next(t for t in scene0.tracks if t.id == move.edit["ids"][0])
+    hits = 0
+    for k in range(0, 26, 5):
+        centre = track.object_to_world[k, :3, 3] + np.asarray(move.edit["by"])
+        uv, z = scene0.frames[k].camera.project(centre[None])
+        u, v = np.floor(uv[0]).astype(int)
+        if z[0] > 1 and 0 <= u < 480 and 0 <= v < 270:
+            assert _gray(move.masks[k])[v, u] == 255, k
+            hits += 1
+    assert hits >= 4
+
+
+def test_a_cached_scene_without_editing_truth_is_extended(synth_env, tmp_path, monkeypatch):
+    """A scene cached before the editing truth (or with another version of it) gets it on the next
+    use, rendered into place; its other files are left as they were."""
+    src = synth_env / "scenes" / f"synth-v{synth.VERSION}" / "synth_000"
+    root = tmp_path / "scenes" / f"synth-v{synth.VERSION}" / "synth_000"
+    shutil.copytree(src, root)
+    shutil.rmtree(root / "truth" / "edits")
+    marker = json.loads((root / layout.MARKER).read_text())
+    (root / layout.MARKER).write_text(json.dumps({**marker, "frames": 2}))  # 2 frames: quick
+    before = _hashes(root)
+    monkeypatch.setenv("WCBENCH_CACHE", str(tmp_path))
+    synth.ensure_synth_1()
+    after = _hashes(root)
+    added = {k for k in after if k.startswith("truth/edits/")}
+    assert {k: after[k] for k in after if k not in added} == before
+    assert len(added) == 1 + 2 * 5 * 2  # edits.json, 2 edits x (4 weathers + mask) x 2 frames
+    for name in added - {"truth/edits/edits.json"}:
+        assert after[name] == _hashes(src)[name]  # the same bytes as generated with the scene
+    assert not [p for p in (root / "truth").iterdir() if p.name.startswith(".")]
+
+
+def test_a_cached_scene_without_editing_truth_still_loads_without_torch(synth_env, tmp_path):
+    root = tmp_path / "scenes" / f"synth-v{synth.VERSION}" / "synth_000"
+    shutil.copytree(synth_env / "scenes" / f"synth-v{synth.VERSION}" / "synth_000", root)
+    shutil.rmtree(root / "truth" / "edits")
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from wcbench.scenes.sets import resolve_scenes\n"
+            "print('edit truths:', len(resolve_scenes('synth_1')[0].load().edit_truths))\n")
+    env = {**os.environ, "WCBENCH_CACHE": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
+    assert "edit truths: 0" in out and not (root / "truth" / "edits").exists()

@@ -333,3 +333,19 @@ def test_box_and_sphere_entry() -> None:
     np.testing.assert_allclose(box_entry(o, d, np.array([1.0, 2.0, 2.0])), [4.0, np.inf, np.inf])
     np.testing.assert_allclose(sphere_entry(np.array([5.0, 0.0, 0.0]), d, 1.0), [4.0, 4.0, 4.0])
     np.testing.assert_allclose(sphere_entry(-o, d, 1.0), [4.0, np.inf, np.inf])  # unit sphere at 0: hit, inside, miss
+
+
+def test_editing_truth_takes_the_cars_shadow_with_it(hard: Scene) -> None:
+    """With a sun the removed or moved car's cast shadow is edited too, and inside the mask: outside
+    it every edited frame equals the plain truth within one level (the shadow alone changes the
+    road by tens of levels)."""
+    assert [t.name for t in hard.edit_truths] == ["remove_5", "translate_5"]
+    for truth in hard.edit_truths:
+        for k in (0, 14, 28):
+            mask = cv2.imread(str(truth.masks[k]), cv2.IMREAD_GRAYSCALE) > 0
+            for w in ("clear", "rain"):
+                plain = hard.frames[k].image_path if w == "clear" else hard.references[w][k]
+                a = cv2.imread(str(plain)).astype(int)
+                b = cv2.imread(str(truth.references[w][k])).astype(int)
+                assert np.abs(a - b).max(axis=-1)[~mask].max() <= 1, (truth.name, k, w)
+                assert mask.any()

@@ -10,6 +10,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from wcbench.cli.common import add_data_root_argument
 
@@ -50,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         counts = sorted(classes.items(), key=lambda kv: (order.get(kv[0], len(order)), kv[0]))
         print(f"  tracks       {len(scene.tracks)} " + ", ".join(f"{k}: {v}" for k, v in counts))
         print(f"  sky masks    {sum(f.sky_mask_path is not None for f in scene.frames)} frames")
+        if scene.edit_truths:  # the --edit forms whose runs are scored against an editing truth
+            print("  edit truth   " + "; ".join(_edit_text(t.edit) for t in scene.edit_truths))
         for key, value in sorted(scene.facts.items()):
             print(f"  {key + ' ':12s} {value}")
         if scene.tracks:
@@ -60,3 +63,9 @@ def run(args: argparse.Namespace) -> int:
                 print(f"  {t.id:>3s} {t.class_name:11s} {int(t.frames.min()):3d}-{int(t.frames.max()):<3d}  "
                       f"{t.source_class or '-'} / {t.source_id or '-'}")
     return 0
+
+
+def _edit_text(edit: dict[str, Any]) -> str:
+    """An edit's ``--edit`` text form from its JSON form (``op``, ``ids``, ``by``)."""
+    by = "" if edit.get("by") is None else " by=" + ",".join(f"{float(v):g}" for v in edit["by"])
+    return f"{edit['op']} ids={','.join(edit.get('ids', []))}{by}"

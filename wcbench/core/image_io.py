@@ -226,6 +226,31 @@ def resize_rgb8(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_CUBIC)
 
 
+def read_mask(path: str | Path) -> np.ndarray:
+    """Read an 8-bit single-channel mask image as bool [H, W] (set where the value is 128 or more).
+
+    Raises
+    ------
+    InputError
+        If the file is missing or does not decode.
+    """
+    data = np.fromfile(path, dtype=np.uint8) if Path(path).is_file() else np.zeros(0, np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    if img is None:
+        raise InputError(f"{path}: missing or not an image; expected an 8-bit mask (255 where set)")
+    mask: np.ndarray = img >= 128
+    return mask
+
+
+def resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize a bool mask [H, W] to (width, height): a target pixel is set when any share of the
+    source pixels it covers is set (area filter, then > 0), so a region never shrinks away."""
+    area = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA if
+                      size[0] * size[1] < mask.size else cv2.INTER_NEAREST)
+    out: np.ndarray = area > 0
+    return out
+
+
 def video_frame_count(path: Path) -> int:
     """Number of decodable frames of a video (decodes it: container counts can lie)."""
     return sum(1 for _ in iter_video_rgb8(path))

@@ -35,7 +35,9 @@ camera sits at the origin (see :mod:`wcbench.scenes.scene`).
 Either layout may hold ground truth per weather (the synthetic scenes of :mod:`wcbench.scenes.synth`
 do): ``truth/{weather}/{t:03d}_{cam}.png`` (or ``.jpg``) for ``rain``, ``snow`` or ``fog`` fills
 ``Scene.references[weather]``. A truth folder must hold a frame, of the scene's image size, for
-every selected frame; a partial one is an input error naming the missing files.
+every selected frame; a partial one is an input error naming the missing files. Editing truth
+(frames with tracked objects removed or moved, and the edited region's masks) is listed in
+``truth/edits/edits.json`` and fills ``Scene.edit_truths`` (docs/design.md §3).
 """
 
 from __future__ import annotations
@@ -53,7 +55,15 @@ from wcbench.core.errors import InputError
 from wcbench.core.image_io import image_size
 from wcbench.core.validation import expect_dict, finite_number, read_json
 from wcbench.core.weathers import EDITED_WEATHERS
-from wcbench.scenes.scene import Camera, Frame, LidarSweep, ObjectTrack, Scene, check_finite_matrix
+from wcbench.scenes.scene import (
+    Camera,
+    EditTruth,
+    Frame,
+    LidarSweep,
+    ObjectTrack,
+    Scene,
+    check_finite_matrix,
+)
 from wcbench.scenes.undistort import copy_folder, has_distortion, undistorted_copy
 
 #: Maps OpenCV camera axes (x right, y down, z forward) to Waymo camera axes (x forward, y left,
@@ -368,6 +378,30 @@ def _dynamic_mask(root: Path, t: int, camera: int, fine: bool) -> Path | None:
     return _optional(root / "dynamic_masks" / "all" / name)
 
 
+def _edit_truths(root: Path, indices: list[int], camera: int) -> list[EditTruth]:
+    """The editing truth of ``truth/edits/edits.json`` (:mod:`wcbench.scenes.synth.edit_truth`): per
+    edit ``<name>/{clear,rain,snow,fog}/{t:03d}_{cam}.png`` and ``<name>/mask/{t:03d}_{cam}.png``.
+    An edit missing a selected frame's file is left out (a scene cut beyond the frames it was
+    rendered for has no editing truth there)."""
+    folder = root / "truth" / "edits"
+    path = folder / "edits.json"
+    if not path.is_file():
+        return []
+    record = expect_dict(read_json(path, what="editing truth"), path=path, what="a JSON object with 'edits'")
+    out = []
+    for item in record.get("edits") or []:
+        item = expect_dict(item, path=path, field="edits[]")
+        name = str(item.get("name", ""))
+        names = {w: [folder / name / w / f"{t:03d}_{camera}.png" for t in indices]
+                 for w in ("clear", *EDITED_WEATHERS, "mask")}
+        if not name or not all(p.is_file() for paths in names.values() for p in paths):
+            continue
+        edit = {k: item[k] for k in ("op", "ids", "class", "except", "by") if item.get(k) is not None}
+        masks = names.pop("mask")
+        out.append(EditTruth(name=name, edit=edit, references=names, masks=masks))
+    return out
+
+
 def _references(root: Path, indices: list[int], camera: int, size: tuple[int, int]) -> dict[str, list[Path]]:
     """Ground-truth frames per edited weather from ``truth/<weather>/{t:03d}_{cam}.png``, one per
     selected frame in order; weathers without a folder have none.
@@ -455,6 +489,7 @@ def _build_scene(
     if fine:
         facts["dynamic_masks"] = "fine_dynamic_masks"
     references = _references(root, indices, camera, (width, height))
+    edit_truths = _edit_truths(root, indices, camera)
     undistort = has_distortion(dist)
     folder = copy_folder(root, K, dist, (width, height)) if undistort else root
 
@@ -467,6 +502,10 @@ def _build_scene(
     if undistort:
         facts["undistorted"] = dict(zip(("k1", "k2", "p1", "p2", "k3"), map(float, dist)))
         references = {w: [p for p in (pinhole(q) for q in paths) if p is not None] for w, paths in references.items()}
+        edit_truths = [EditTruth(t.name, t.edit, {w: [p for p in (pinhole(q) for q in paths) if p is not None]
+                                                  for w, paths in t.references.items()},
+                                 [p for p in (pinhole(q, mask=True) for q in t.masks) if p is not None])
+                       for t in edit_truths]
     frames = []
     for k, t in enumerate(indices):
         pose = c2w[k].copy()
@@ -501,6 +540,7 @@ def _build_scene(
         class_names=_class_names(root),
         references=references,
         facts=facts,
+        edit_truths=edit_truths,
     )
 
 

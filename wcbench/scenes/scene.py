@@ -203,6 +203,8 @@ class Scene:
     references : dict[str, list[Path]]
         Ground-truth frames per weather, when the scene has them (synthetic scenes). The raw
         frames are always the reference for ``clear``.
+    edit_truths : list of EditTruth
+        The scene's editing truth (synthetic scenes: ``truth/edits/``, docs/design.md §3).
     facts : dict
         What the source says of the scene, JSON-serialisable, for results to carry: e.g.
         ``source_weather`` (Waymo's ``frame_info.json``), ``source_weather_flag`` (set when the
@@ -221,6 +223,13 @@ class Scene:
     class_names: dict[int, str] = field(default_factory=dict)
     references: dict[str, list[Path]] = field(default_factory=dict)
     facts: dict[str, Any] = field(default_factory=dict)
+    edit_truths: list[EditTruth] = field(default_factory=list)
+
+    def edit_truth(self, edits: Any) -> EditTruth | None:
+        """The editing truth made by exactly ``edits`` (``--edit``'s JSON forms, as a run's
+        ``info.json`` records them), or ``None`` when the scene has none for them."""
+        key = edits_key(edits)
+        return next((t for t in self.edit_truths if key is not None and edits_key([t.edit]) == key), None)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -268,6 +277,52 @@ class Scene:
     def duration(self) -> float:
         """Seconds from the first to the last frame."""
         return float(self.frames[-1].timestamp - self.frames[0].timestamp) if self.frames else 0.0
+
+
+def edits_key(edits: Any) -> tuple[Any, ...] | None:
+    """A comparable form of a list of object edits in ``--edit``'s JSON form (``op``, ``ids``/``id``,
+    ``class``, ``except``, ``by``): ids and classes as sorted sets, ``by`` rounded to the micrometre;
+    ``None`` when ``edits`` is not such a list."""
+    if not isinstance(edits, list) or not edits:
+        return None
+    out = []
+    for e in edits:
+        if not isinstance(e, dict) or "op" not in e:
+            return None
+
+        def names(v: Any) -> tuple[str, ...]:
+            items = v.split(",") if isinstance(v, str) else (v if isinstance(v, list) else [v])
+            return tuple(sorted({str(x).strip().lower() for x in items if str(x).strip()}))
+
+        try:
+            by = None if e.get("by") is None else tuple(round(float(v), 6) for v in e["by"])
+        except (TypeError, ValueError):
+            return None
+        out.append((str(e["op"]), names(e.get("ids", [])) + names(e.get("id", [])), names(e.get("class", [])),
+                    names(e.get("except", [])), by))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class EditTruth:
+    """Frames of a scene with objects edited, and the edited region (docs/design.md §3).
+
+    Attributes
+    ----------
+    name : str
+        Its folder under ``truth/edits/``.
+    edit : dict
+        The edit in ``--edit``'s JSON form (``op``, ``ids``, ``by``).
+    references : dict of str to list of Path
+        Per weather (``clear`` included), the edited truth frames, one per selected frame.
+    masks : list of Path
+        Per selected frame, a uint8 mask: 255 in the edited region.
+    """
+
+    name: str
+    edit: dict[str, Any]
+    references: dict[str, list[Path]]
+    masks: list[Path]
 
 
 def check_finite_matrix(m: np.ndarray, *, what: str, path: Path, shape: tuple[int, ...]) -> np.ndarray:

@@ -32,8 +32,9 @@ the sets), :mod:`.geometry` (poses, the street centreline, surface Gaussians), :
 a scene holds), :mod:`.raycast` (rays against boxes and spheres), :mod:`.lidar` (the sweeps),
 :mod:`.light` (sun, sky and overcast light), :mod:`.shadows` (what the sun reaches),
 :mod:`.materials` (surfaces under each weather, from the shared appearance tables), :mod:`.truth`
-(shading and rendering every weather, the truth masks) and :mod:`.writer` (the dataset layout on
-disk and the cache).
+(shading and rendering every weather, the truth masks), :mod:`.edit_truth` (the same frames with a
+tracked car removed or moved, and the edited region's masks: ``truth/edits/``) and :mod:`.writer`
+(the dataset layout on disk and the cache).
 """
 
 from __future__ import annotations

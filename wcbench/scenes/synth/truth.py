@@ -247,6 +247,38 @@ class TruthRenderer:
         frame = WeatherFrame(image=image, alpha=alpha, depth=None, info={}, timings_ms={})
         return frame, {name: np.where(m, 255, 0).astype(np.uint8) for name, m in masks.items()}
 
+    def _composite(self, k: int, cloud: Any, values: np.ndarray) -> np.ndarray:
+        """[H, W] the per-Gaussian ``values`` [N] of frame ``k``'s ``cloud`` composited like a colour
+        (premultiplied by alpha) in frame ``k``'s camera."""
+        import torch
+
+        cam, r = self.cameras[k], self.renderers["clear"]
+        marks = np.repeat(np.asarray(values, np.float32)[:, None], 3, axis=1)
+        t = [torch.from_numpy(np.ascontiguousarray(a, np.float32))
+             for a in (cloud.means - self.shift, cloud.quats, cloud.scales, cloud.opacities, marks)]
+        with torch.no_grad():
+            out = r.rasterizer(*t, torch.from_numpy(np.asarray(cam.world_to_camera, np.float32)),
+                               torch.from_numpy(np.asarray(cam.K, np.float32)), int(cam.width), int(cam.height),
+                               near=r.near, background=None, render_depth=False)
+        result: np.ndarray = out.color.numpy()[..., 0]
+        return result
+
+    def silhouette(self, k: int, content: Content, span: tuple[int, int], *, weight: float) -> np.ndarray:
+        """[H, W] bool: where the Gaussians ``span`` (start, stop) of ``content``'s frame ``k``
+        (:func:`~.content.cloud_at` order) have a composited weight of at least ``weight`` in frame
+        ``k``'s camera, in front of and behind the rest of the scene as it is drawn."""
+        cloud = cloud_at(content, k)
+        marks = np.zeros(len(cloud))
+        marks[span[0]:span[1]] = 1.0
+        result: np.ndarray = self._composite(k, cloud, marks) >= weight
+        return result
+
+    def sun_visibility(self, k: int) -> np.ndarray:
+        """[H, W] the share of the sun each pixel's Gaussians see in frame ``k``, composited
+        (premultiplied by alpha; profiles with a sun only)."""
+        cloud = cloud_at(self.content, k)
+        return self._composite(k, cloud, self.shadows.visibility(k, cloud))
+
     def record(self) -> dict[str, Any]:
         """What ``truth/weather.json`` holds: per truth weather its preset, seed, rate, visibility,
         the renderer's settings and the materials; for clear the materials and the sky (with a sun:

@@ -22,6 +22,7 @@ from wcbench.core.storage import dumps_json
 from wcbench.scenes.loaders import OPENCV_TO_WAYMO
 from wcbench.scenes.scene import Camera
 from wcbench.scenes.synth.content import Content, build_content
+from wcbench.scenes.synth.edit_truth import read_edit_record, write_edit_truth
 from wcbench.scenes.synth.geometry import rigid_transform
 from wcbench.scenes.synth.layout import (
     FOCAL,
@@ -86,6 +87,53 @@ def _dynamic_masks(content: Content, k: int, camera: Camera, lidar_world: np.nda
     return masks
 
 
+def _cameras(content: Content) -> tuple[list[Camera], np.ndarray]:
+    """Every frame's camera where the loaders put the scene (the first camera at the origin,
+    docs/design.md §2, so a method using the same physics and seed sees the same particles), and
+    the street coordinates of that origin [3]."""
+    K = np.array([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
+    c2w = [e @ content.camera_to_vehicle @ OPENCV_TO_WAYMO for e in content.ego]
+    shift = c2w[0][:3, 3].copy()
+    cameras = []
+    for k in range(N_FRAMES):
+        pose = c2w[k].copy()
+        pose[:3, 3] -= shift
+        cameras.append(Camera(K=K, width=WIDTH, height=HEIGHT, camera_to_world=pose))
+    return cameras, shift
+
+
+def _extend_with_edit_truth(root: Path, spec: SynthSpec) -> None:
+    """Write the editing truth (``truth/edits/``) into a complete cached scene that lacks it or has
+    another version of it, leaving every other file as it is; written in a temporary folder and
+    renamed into place, so a killed run leaves no half edit truth. Without torch the scene is left
+    as it is (it loads without editing truth)."""
+    folder = root / "truth" / "edits"
+    if read_edit_record(folder) is not None:
+        return
+    try:
+        reference_model()
+    except InputError:
+        return  # a cached scene loads without torch (docs/design.md §3); its edits have no truth until then
+    announce(f"adding the editing truth to the synthetic scene {root} (first use only)")
+    n_frames = int(json.loads((root / MARKER).read_text(encoding="utf-8"))["frames"])
+    content = build_content(spec)
+    cameras, shift = _cameras(content)
+    times = np.arange(N_FRAMES) / FPS
+    tmp = Path(tempfile.mkdtemp(prefix=".edits.", dir=root / "truth"))
+    try:
+        write_edit_truth(tmp, content, cameras, times, shift, TruthRenderer(content, cameras, times, shift),
+                         n_frames=n_frames)
+        if folder.exists() and read_edit_record(folder) is None:
+            shutil.rmtree(folder)  # an older version's
+        try:
+            os.replace(tmp, folder)
+        except OSError:
+            if read_edit_record(folder) is None:  # another process won the race only if complete
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def write_synth_scene(root: Path, scene: int | SynthSpec, *, n_frames: int = N_FRAMES) -> dict[str, Any]:
     """Generate a synthetic scene into ``root`` in drivestudio's Waymo layout, with truth frames.
 
@@ -94,7 +142,8 @@ def write_synth_scene(root: Path, scene: int | SynthSpec, *, n_frames: int = N_F
     them), ``dynamic_masks/{all,human,vehicle}/{t:03d}_0.png``, ``instances/instances_info.json``
     and ``frame_instances.json`` (tracked objects only), ``truth/{rain,snow,fog}/{t:03d}_0.png``,
     ``truth/masks/{sky,shadow,movers}/{t:03d}_0.png`` (when the profile has truth masks),
-    ``truth/weather.json`` and, last, ``synth.json`` (docs/design.md §3).
+    ``truth/weather.json``, the editing truth ``truth/edits/`` (:mod:`.edit_truth`) and, last,
+    ``synth.json`` (docs/design.md §3).
 
     Parameters
     ----------
@@ -127,20 +176,12 @@ def write_synth_scene(root: Path, scene: int | SynthSpec, *, n_frames: int = N_F
                 *(f"truth/masks/{m}" for m in masks)):
         (root / sub).mkdir(parents=True, exist_ok=True)
 
-    K = np.array([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
     _savetxt(root / "intrinsics" / "0.txt", np.array([FOCAL, FOCAL, WIDTH / 2, HEIGHT / 2, 0, 0, 0, 0, 0], float))
     _savetxt(root / "extrinsics" / "0.txt", content.camera_to_vehicle)
     global_offset = rigid_transform(np.eye(3), GLOBAL_ORIGIN)
-    c2w = [e @ content.camera_to_vehicle @ OPENCV_TO_WAYMO for e in content.ego]
-    # Rendered where the loaders put the scene: the first camera at the origin (docs/design.md §2),
-    # so a method using the same physics and seed sees the same particles.
-    shift = c2w[0][:3, 3].copy()
-    cameras = []
-    for k in range(N_FRAMES):
-        pose = c2w[k].copy()
-        pose[:3, 3] -= shift
-        cameras.append(Camera(K=K, width=WIDTH, height=HEIGHT, camera_to_world=pose))
-    truth = TruthRenderer(content, cameras, np.arange(N_FRAMES) / FPS, shift)
+    cameras, shift = _cameras(content)
+    times = np.arange(N_FRAMES) / FPS
+    truth = TruthRenderer(content, cameras, times, shift)
 
     counts: dict[str, list[int]] = {"lidar_points": [], "gaussians": []}
     for k, cam in enumerate(cameras[:n_frames]):
@@ -183,6 +224,7 @@ def write_synth_scene(root: Path, scene: int | SynthSpec, *, n_frames: int = N_F
                                                              encoding="utf-8")
 
     (root / "truth" / "weather.json").write_text(dumps_json(truth.record()), encoding="utf-8")
+    write_edit_truth(root / "truth" / "edits", content, cameras, times, shift, truth, n_frames=n_frames)
 
     moving = [m for m in content.movers if m.moving]
     summary: dict[str, Any] = {
@@ -220,6 +262,7 @@ def _ensure(specs: tuple[SynthSpec, ...]) -> Path:
     for spec in specs:
         root = parent / spec.folder
         if (root / MARKER).is_file():
+            _extend_with_edit_truth(root, spec)  # a scene cached before the editing truth existed
             continue
         reference_model()  # fail before any work when torch is missing
         announce(f"generating the synthetic scene {root} (first use only)")  # a folder: sets name the scene
