@@ -274,8 +274,8 @@ def test_a_request_made_again_loads_its_model_without_editing_and_any_change_edi
     shutil.copytree(demo_scene.root, root)
     scene = resolve_scenes(str(root))[0].load()
     config = make_config("quick", **json.loads(TINY))
+    # trained here, or loaded by its model key when another test of the session trained the demo street
     model, _, facts = scene_training.train_scene(scene, config, show_progress=False, log=lambda m: None)
-    assert facts["resumed_at"] == 0
 
     def refuse(*args, **kwargs):
         raise _Prepared
