@@ -30,7 +30,8 @@ from wcbench.reference_model.training.densify import DensifyStats
 from wcbench.reference_model.training.trainer import StepLog, Trainer
 from wcbench.reference_model.training.views import TrainingView
 
-__all__ = ["CHECKPOINT_JSON", "CHECKPOINT_TENSORS", "load_checkpoint", "read_checkpoint_info", "save_checkpoint"]
+__all__ = ["CHECKPOINT_JSON", "CHECKPOINT_TENSORS", "load_checkpoint", "load_model", "read_checkpoint_info",
+           "save_checkpoint"]
 
 CHECKPOINT_TENSORS = "checkpoint.safetensors"
 CHECKPOINT_JSON = "checkpoint.json"
@@ -108,6 +109,48 @@ def read_checkpoint_info(folder: str | Path) -> dict[str, Any] | None:
     return info
 
 
+def load_model(folder: str | Path, *, model: WeatherCityModel) -> dict[str, Any]:
+    """Restore the parameters saved by :func:`save_checkpoint` onto a freshly built ``model``, without
+    the training's state (optimizer, statistics, views): a finished model to render.
+
+    Parameters
+    ----------
+    folder : path-like
+    model : WeatherCityModel
+        Built the same way as the saved one (same scene, settings and weathers); the images it was
+        built from need not carry the supervision, whose only use in the build (the sky maps' warm
+        start) the saved parameters replace. Its nodes are resized to the saved counts.
+
+    Returns
+    -------
+    dict
+        The checkpoint's JSON (:func:`read_checkpoint_info`).
+
+    Raises
+    ------
+    InputError
+        If the checkpoint is missing, torn, or of another model structure.
+    """
+    return _load_model(Path(folder), model)[0]
+
+
+def _load_model(folder: Path, model: WeatherCityModel) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
+    """The checkpoint's JSON and tensors, its parameters loaded into ``model``."""
+    info = read_checkpoint_info(folder)
+    if info is None:
+        raise InputError(f"{folder}: no complete checkpoint ({CHECKPOINT_JSON} + {CHECKPOINT_TENSORS})")
+    nodes = model.nodes()
+    if set(info["nodes"]) != set(nodes) or list(info["weathers"]) != list(model.weathers):
+        raise InputError(f"{folder}: checkpoint of another model structure (nodes or weathers differ)")
+    tensors = load_file(str(folder / CHECKPOINT_TENSORS))
+    for name, params in nodes.items():
+        n = int(info["nodes"][name])
+        params.replace(**{k: torch.zeros((n, *getattr(params, k).shape[1:])) for k in PARAMETER_NAMES})
+    state = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
+    model.load_state_dict(state, strict=True)
+    return info, tensors
+
+
 def load_checkpoint(folder: str | Path, *, model: WeatherCityModel, views: Sequence[TrainingView],
                     make_trainer: Callable[[WeatherCityModel], Trainer]) -> Trainer:
     """Restore a training saved by :func:`save_checkpoint` onto a freshly built ``model``.
@@ -129,18 +172,7 @@ def load_checkpoint(folder: str | Path, *, model: WeatherCityModel, views: Seque
         If the checkpoint is missing, torn, or of another model structure.
     """
     folder = Path(folder)
-    info = read_checkpoint_info(folder)
-    if info is None:
-        raise InputError(f"{folder}: no complete checkpoint ({CHECKPOINT_JSON} + {CHECKPOINT_TENSORS})")
-    nodes = model.nodes()
-    if set(info["nodes"]) != set(nodes) or list(info["weathers"]) != list(model.weathers):
-        raise InputError(f"{folder}: checkpoint of another model structure (nodes or weathers differ)")
-    tensors = load_file(str(folder / CHECKPOINT_TENSORS))
-    for name, params in nodes.items():
-        n = int(info["nodes"][name])
-        params.replace(**{k: torch.zeros((n, *getattr(params, k).shape[1:])) for k in PARAMETER_NAMES})
-    state = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
-    model.load_state_dict(state, strict=True)
+    info, tensors = _load_model(folder, model)
     trainer = make_trainer(model)
     if TrainConfig.from_json(info["config"]) != trainer.config:
         raise InputError(f"{folder}: checkpoint of other training settings")

@@ -31,7 +31,7 @@ from wcbench.core.models.store import ModelStore
 from wcbench.core.models.vgg16 import load_vgg16_features
 from wcbench.core.paths import cache_dir
 from wcbench.core.progress import progress
-from wcbench.core.storage import sha256_file, sha256_json
+from wcbench.core.storage import atomic_write_json, sha256_file, sha256_json
 from wcbench.methods import get_method
 from wcbench.methods.filter2d import Filter2DMethod
 from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
@@ -50,7 +50,12 @@ from wcbench.reference_model.devices import device_problem
 from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import WeatherCityModel
 from wcbench.reference_model.training.build import build_model
-from wcbench.reference_model.training.checkpoint import load_checkpoint, read_checkpoint_info, save_checkpoint
+from wcbench.reference_model.training.checkpoint import (
+    load_checkpoint,
+    load_model,
+    read_checkpoint_info,
+    save_checkpoint,
+)
 from wcbench.reference_model.training.config import TrainConfig
 from wcbench.reference_model.training.losses import ContentLoss
 from wcbench.reference_model.training.trainer import Trainer, evaluate_views
@@ -203,16 +208,23 @@ def _check_folder_weather(info_path: Path, kind: str, physics: Weather | None) -
 
 def content_loss_for(config: TrainConfig, store: ModelStore | None) -> tuple[ContentLoss | None, str]:
     """The content loss on the real VGG16 weights, or ``None`` and why it is skipped."""
+    store = store if store is not None else ModelStore()
+    note = _content_note(config, store)
+    if config.content_weight == 0 or not store.available("vgg16"):
+        return None, note
+    features = load_vgg16_features(store=store, layers=CONTENT_LAYERS)
+    return ContentLoss(features, size=config.content_size), note
+
+
+def _content_note(config: TrainConfig, store: ModelStore | None) -> str:
+    """What :func:`content_loss_for` would use, without loading the weights (a key's part)."""
     if config.content_weight == 0:
-        return None, "off (no-content-loss ablation)"
+        return "off (no-content-loss ablation)"
     store = store if store is not None else ModelStore()
     if not store.available("vgg16"):
-        return None, f"skipped: {store.missing_message('vgg16')}"
-    features = load_vgg16_features(store=store, layers=CONTENT_LAYERS)
-    return ContentLoss(features, size=config.content_size), (
-        f"VGG16 {','.join(CONTENT_LAYERS)} at {config.content_size[0]}x{config.content_size[1]}, "
-        f"every {config.content_interval * config.weather_interval} steps (sha256 {store.sha256('vgg16')})"
-    )
+        return f"skipped: {store.missing_message('vgg16')}"
+    return (f"VGG16 {','.join(CONTENT_LAYERS)} at {config.content_size[0]}x{config.content_size[1]}, "
+            f"every {config.content_interval * config.weather_interval} steps (sha256 {store.sha256('vgg16')})")
 
 
 def training_hazes(config: TrainConfig, physics: Mapping[str, Weather], weathers: tuple[str, ...]) -> dict[str, Haze]:
@@ -320,8 +332,9 @@ def train_scene(
         Where one-line phase messages go (default: printed to stdout at once, flushed, since a pipe
         or a file would otherwise hold them back until the training ends).
     lock_timeout_s : float or None
-        Seconds to wait while another process trains the same model (same checkpoint folder)
-        before giving up; ``None``: no limit. The waiting process then loads that model.
+        Seconds to wait while another process trains the same model (the same request, then the
+        same checkpoint folder: each wait apart) before giving up; ``None``: no limit. The waiting
+        process then loads that model.
     device : {"cpu", "cuda"}
         Where the training step runs (:mod:`wcbench.reference_model.devices`); checked before any
         work. A model trained elsewhere than the CPU is keyed apart (gsplat's float rounding differs)
@@ -331,7 +344,8 @@ def train_scene(
     -------
     model : WeatherCityModel
     views : list of TrainingView
-        Every frame's view (held-out frames included).
+        Every frame's view (held-out frames included). When the model was loaded by its request
+        (see below), the views carry the raw frames only, not the supervision's.
     facts : dict
         What was built, skipped and measured (``info.json``).
 
@@ -341,6 +355,19 @@ def train_scene(
         When another process still trains the same model after ``lock_timeout_s``.
     InputError
         ``device`` cannot be used here (no CUDA device, gsplat missing).
+
+    Notes
+    -----
+    Two keys (docs/design.md §9, "One training per model"). The *model key* is over everything that
+    makes the model, the supervision's record included, so it is known only once the supervision is
+    made (a minute of editing on the quick profile). The *request key* is over what the caller asks
+    for, known at once: every file of the scene's folder, the settings, the supervision's spec, the
+    physics, the content loss and the code's source. The request is locked first, so a second
+    process asking for the same model waits before any work; a finished training leaves a record of
+    its request (model key, checkpoint, facts), and a request made again, by the waiting process or
+    a later run, loads that checkpoint without editing again. Only supervision the code makes from
+    the scene is taken from a record; a folder of frames (``READER:DIR``) can change under the
+    same spec, so its frames are read and the model key computed each time.
     """
     problem = device_problem(device)
     if problem is not None:
@@ -350,16 +377,111 @@ def train_scene(
         log = functools.partial(print, flush=True)
     size = config.size_for(scene.image_size)
     log(f"weathercity {scene.id}: {size[0]}x{size[1]} views, supervision from {supervision}")
-    inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers,
-                             physics=physics)
-    views, trained = inputs.views, inputs.trained
-    content_loss: ContentLoss | None
+    physics = dict(physics) if physics is not None else resolve_physics(scene, "presets")
     if isinstance(content, str):
         if content != "auto":
             raise ValueError(f"content must be a ContentLoss, None or 'auto', got {content!r}")
-        content_loss, content_note = content_loss_for(config, store)
+        content_note = _content_note(config, store)
     else:
-        content_loss, content_note = content, "injected" if content is not None else "off"
+        content_note = "injected" if content is not None else "off"
+    data = Path(scene.root).resolve().name
+    request = sha256_json({"version": VERSION, "scene": data, "files": _folder_digest(Path(scene.root)),
+                           "config": config.to_json(), "supervision": supervision, "jitter": jitter,
+                           "weathers": list(weathers), "physics": {w: p.to_json() for w, p in physics.items()},
+                           "content": content_note, "code": _source_digest(),
+                           "folder": None if folder is None else str(Path(folder).resolve()),
+                           **({"device": device} if device != "cpu" else {})})
+    requests = cache_dir() / "weathercity" / "requests"
+    record_path = requests / f"{data}-{request[:16]}.json"
+    say = functools.partial(_prefixed, log, f"weathercity {scene.id}: ")
+    with EntryLock(requests / f"{data}-{request[:16]}.lock", what=f"training {scene.id}",
+                   timeout_s=lock_timeout_s, log=say) as asked:
+        loaded = _load_requested(scene, config, record_path) if _made_by_code(supervision) else None
+        if loaded is not None:
+            model, views, facts = loaded
+            log(f"weathercity {scene.id}: loaded the model trained for this request ({facts['checkpoint']})")
+            prep_s = time.perf_counter() - start - asked.waited_s
+            facts.update(resumed_at=facts["iterations"], prepare_seconds=round(prep_s, 3),
+                         lock_wait_seconds=round(asked.waited_s, 3))
+            return model, views, facts
+        if isinstance(content, str):
+            content_loss, content_note = content_loss_for(config, store)
+        else:
+            content_loss = content
+        model, views, facts = _train(scene, config, supervision=supervision, jitter=jitter, weathers=weathers,
+                                     physics=physics, folder=folder, content=(content_loss, content_note),
+                                     show_progress=show_progress, log=log, say=say, lock_timeout_s=lock_timeout_s,
+                                     start=start, waited_s=asked.waited_s, device=device)
+        facts["request"] = request
+        if _made_by_code(supervision) and facts["iterations"] >= config.iterations:
+            atomic_write_json(record_path, {"request": request, "key": facts["key"], "facts": facts})
+    return model, views, facts
+
+
+def _prefixed(log: Any, prefix: str, message: str) -> None:
+    log(prefix + message)
+
+
+def _made_by_code(spec: str) -> bool:
+    """Whether the supervision ``spec`` names frames this code makes from the scene (its request
+    determines them), not a folder of another tool's frames (``READER:DIR``)."""
+    return spec in (PHYSICAL_EDITOR, "filter2d") or supervision_severity(spec) is not None
+
+
+def _folder_digest(root: Path) -> list[list[str]]:
+    """[relative path, sha256] of every file under ``root``, sorted: the scene's data by content."""
+    return sorted([p.relative_to(root).as_posix(), sha256_file(p)] for p in root.rglob("*") if p.is_file())
+
+
+@functools.cache
+def _source_digest() -> str:
+    """sha256 over the source files of the harness and the reference model: a request made again by
+    other code may edit otherwise, so its record is not reused."""
+    import wcbench
+    import wcbench.reference_model
+
+    roots = [Path(p) for pkg in (wcbench, wcbench.reference_model) for p in pkg.__path__]
+    return sha256_json(sorted([r.name, p.relative_to(r).as_posix(), sha256_file(p)]
+                              for r in roots for p in r.rglob("*.py")))
+
+
+def _load_requested(scene: Scene, config: TrainConfig, record_path: Path
+                    ) -> tuple[WeatherCityModel, list[TrainingView], dict[str, Any]] | None:
+    """The model a finished training left for this request (:func:`train_scene`'s Notes), or
+    ``None`` when there is no record, or its checkpoint is gone, unfinished or of another key."""
+    try:
+        record = json.loads(record_path.read_text(encoding="utf-8"))
+        facts = dict(record["facts"])
+        folder = Path(facts["checkpoint"])
+        info = read_checkpoint_info(folder)
+    except (OSError, ValueError, KeyError, TypeError, InputError):  # no record, or one not to trust: train
+        return None
+    if info is None or info.get("key") != record["key"] or int(info["step"]) < config.iterations:
+        return None
+    # the views' raw frames, lidar and shipped sky masks build the model's structure; what the
+    # supervision and a derived sky add to the build (the sky maps' warm start) the checkpoint replaces
+    size = config.size_for(scene.image_size)
+    views, _ = build_views(scene, size=size, derive_sky=False)
+    train_views = [v for v in views if v.frame not in config.holdout]
+    model, _ = build_model(scene, train_views, config, weathers=tuple(facts["trained_weathers"]))
+    try:
+        load_model(folder, model=model)
+    except InputError:
+        return None
+    return model, views, facts
+
+
+def _train(scene: Scene, config: TrainConfig, *, supervision: str, jitter: float, weathers: tuple[str, ...],
+           physics: Mapping[str, Weather], folder: Path | None, content: tuple[ContentLoss | None, str],
+           show_progress: bool, log: Any, say: Any, lock_timeout_s: float | None, start: float, waited_s: float,
+           device: str) -> tuple[WeatherCityModel, list[TrainingView], dict[str, Any]]:
+    """The supervision, views and scene graph of ``scene``, its model trained (or resumed, or loaded
+    from the checkpoint of its model key): :func:`train_scene` without the request's record.
+    ``start``: when the call began (``time.perf_counter``); ``waited_s``: seconds it waited before."""
+    inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers,
+                             physics=physics)
+    views, trained = inputs.views, inputs.trained
+    content_loss, content_note = content
     made = {k: v for k, v in inputs.supervision.items() if k != "timings"}  # what makes the frames, not how fast
     # keyed by the scene's data (its folder's name, its files' content), not by the name a run gives it:
     # synth_1's scene is synth_3's first, one street trained once (docs/design.md §3, "Scene names")
@@ -380,11 +502,12 @@ def train_scene(
     def make_trainer(m: WeatherCityModel) -> Trainer:
         return Trainer(m, views, config, content=content_loss, hazes=inputs.hazes, device=device)
 
-    # One training per checkpoint: a second process asking for the same model waits here, then loads
-    # what the first saved (docs/guide.md "WeatherCity"; a killed holder's lock is taken over at once)
+    # One training per checkpoint, also between two requests that make the same model (the request's
+    # lock is taken first, always in that order): a second process waits here, then loads what the
+    # first saved (docs/guide.md "WeatherCity"; a killed holder's lock is taken over at once)
     entry = folder.resolve()
     lock = EntryLock(entry.with_name(f"{entry.name}.lock"), what=f"training {scene.id}", timeout_s=lock_timeout_s,
-                     log=lambda m: log(f"weathercity {scene.id}: {m}"))
+                     log=say)
     with lock:
         info = read_checkpoint_info(folder)
         if info is not None and info.get("key") == key:
@@ -392,7 +515,7 @@ def train_scene(
             resumed = trainer.step_index
         else:
             trainer, resumed = make_trainer(model), 0
-        prep_s = time.perf_counter() - start - lock.waited_s
+        prep_s = time.perf_counter() - start - waited_s - lock.waited_s
         if trainer.step_index < config.iterations:
             if resumed:
                 log(f"weathercity {scene.id}: resuming at step {resumed} of {config.iterations}")
@@ -438,7 +561,7 @@ def train_scene(
         "resumed_at": resumed,
         "train_seconds": round(trainer.train_seconds, 3),
         "prepare_seconds": round(prep_s, 3),
-        "lock_wait_seconds": round(lock.waited_s, 3),  # while another process trained this model
+        "lock_wait_seconds": round(waited_s + lock.waited_s, 3),  # while another process trained this model
         "densify": trainer.densify_log[-1] if trainer.densify_log else None,
     }
     if device != "cpu":

@@ -10,12 +10,15 @@ visibility, a folder that records another is refused), (2) builds the weather Ga
 graph from the lidar and trains it on the raw frames and the edits, each edit's render composed
 through the haze its physics weather adds, caching the trained model under a key over every input
 that changes it (steps 1 and 2 are :func:`wcbench.methods.scene_training.train_scene`, which
-``wcbench train`` runs too), (3) renders any frame under any weather at its training resolution: the decoded
+``wcbench train`` runs too), (3) renders any frame under any weather at the scene's size: the decoded
 colors of that weather, the weather's sky, rain or snow particles rasterized with the scene, and
 exact Beer-Lambert fog (:mod:`wcbench.reference_model.weather`), optionally with object edits.
 
-Its frames, rendered at the training resolution, are scored at the scene's working size like every
-other method's, resized to it as they are read (:meth:`wcbench.units.WorkUnit.score`).
+The model trains at its profile's resolution (240 px wide on ``quick``) but renders at the scene's
+size, capped at the default working resolution the frames are scored at
+(:data:`~wcbench.core.working_size.METRIC_RESOLUTION`: no pixel is rendered that the scores would
+average away), so the report's frames stand beside the truth at its sharpness; ``size`` (or
+``--scale``, ``--width``/``--height``) asks for another.
 ``info.json`` records the training time, the Gaussian counts per node, what the scene graph
 skipped, the supervision, and the whole-frame render FPS.
 """
@@ -27,6 +30,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any, ClassVar
 
+import cv2
 import numpy as np
 import torch
 
@@ -34,6 +38,7 @@ from wcbench.core.errors import InputError
 from wcbench.core.image_io import to_uint8
 from wcbench.core.options import Option, Range
 from wcbench.core.weathers import WEATHERS
+from wcbench.core.working_size import METRIC_RESOLUTION, working_size
 from wcbench.methods import METHODS, MethodUnavailableError, get_method
 from wcbench.methods.physical_editor import NAME as PHYSICAL_EDITOR
 from wcbench.methods.physical_editor import check_lidar, raw_frame
@@ -157,7 +162,8 @@ class WeatherCityMethod(FrameRenderer):
         The particle seed is always the run's (``--seed``), never the truth's: a run seed equal to
         it is refused on that scene, and only a dict that names a ``seed`` renders another.
     size : (int, int), optional
-        Render size; default the training size (scored at the scene's working size, as every method).
+        Render size; default the scene's, capped at the default working resolution (see the module
+        docstring; scored at the scene's working size, as every method).
     edits : str or list, optional
         Object edits (``"remove class=Car except ids=3,7"``, a JSON list...).
     content : ContentLoss, None or "auto"
@@ -183,7 +189,8 @@ class WeatherCityMethod(FrameRenderer):
         "holdout": Option("holdout", "ints", "frames left out of training and scored", default=[],
                           range=Range(0)),
         "physics": physics_option(who="weathercity"),
-        "size": size_option("render (width, height) in pixels; default the training size"),
+        "size": size_option("render (width, height) in pixels; default the scene's size (the longer side at most "
+                            f"{METRIC_RESOLUTION} px)"),
         "edits": Option("edits", "custom", "object edits, e.g. 'remove class=Car except ids=3,7'", nullable=True,
                         check=_check_edits, allowed="an edit such as 'remove class=Car', or a list of them"),
         "content": Option("content", "custom", "the content loss: 'auto' (VGG16) or null (off)", default="auto",
@@ -233,7 +240,7 @@ class WeatherCityMethod(FrameRenderer):
             kind="runnable",
             weathers=WEATHERS,
             requires=("torch",),
-            layout="writes <out>/weathercity/<scene>/<weather>/{frame:03d}.png + info.json (training resolution)",
+            layout="writes <out>/weathercity/<scene>/<weather>/{frame:03d}.png + info.json (the scene's size)",
         )
         self._model: WeatherCityModel | None = None
         self._scene_key: tuple[str, str] | None = None
@@ -311,8 +318,9 @@ class WeatherCityMethod(FrameRenderer):
                 raise InputError(f"weathercity: {exc}") from None
 
     def native_size(self, scene: Scene) -> tuple[int, int]:
-        """``size`` if given, else the training resolution."""
-        return self.size or self.config.size_for(scene.image_size)
+        """``size`` if given, else the scene's size with its longer side at most
+        :data:`~wcbench.core.working_size.METRIC_RESOLUTION` (the training size is the profile's)."""
+        return self.size or working_size(scene.image_size, METRIC_RESOLUTION)
 
     def setup_scene(self, scene: Scene, *, show_progress: bool = True) -> None:
         """Train the scene's model, or load it from its checkpoint in the cache folder (once per process)."""
@@ -441,9 +449,16 @@ class WeatherCityMethod(FrameRenderer):
         cam = scale_camera(scene.frames[index].camera, width, height)
         sky = None
         if renderer.background_visible:  # under fog or haze the sky is never seen: not looked up
+            # looked up at most at the training size: the map's cells between the training views' rays
+            # were never trained, and a finer lookup shows them as a lattice (docs/guide.md "WeatherCity")
+            trained = self.config.size_for(scene.image_size)
+            at = trained if width > trained[0] else (width, height)
+            sky_cam = cam if at == (width, height) else scale_camera(scene.frames[index].camera, *at)
             with torch.no_grad():
-                grid = model.sky.grid_from_rays(self._rays_for(cam.K, width, height), cam.camera_to_world)
+                grid = model.sky.grid_from_rays(self._rays_for(sky_cam.K, *at), sky_cam.camera_to_world)
                 sky = model.sky(grid, [self._decoded]).numpy()
+                if at != (width, height):
+                    sky = cv2.resize(sky, (width, height), interpolation=cv2.INTER_LINEAR)
         t_graph = time.perf_counter()
         frame = renderer.render(
             cam, float(self._times[index] - self._times[0]),
