@@ -252,8 +252,8 @@ def rasterize_image(
 
     The numba path composites the same tile lists in the same order with the same per-pair float32
     math, but keeps the per-tile transmittance and sums in float32 and stores nothing for a
-    backward (``RenderJob.image``). Its images equal :func:`rasterize`'s
-    within float32 rounding of the sums (tests/test_raster_image.py states the tolerance). Training
+    backward (``RenderJob.image``). Its images equal :func:`rasterize`'s within float32 rounding
+    of the sums (tests/reference_model/raster/test_raster_image.py states the tolerance). Training
     keeps :func:`rasterize`. The torch backend (float64 inputs, or numba missing) runs the twin
     without gradients.
 
