@@ -1,6 +1,7 @@
 """Where the model trains and renders: ``"cpu"`` (the default, numba kernels) or ``"cuda"`` (gsplat).
 
-On CPU nothing changes: the numba rasterizer and kernels, bit for bit the results of before. On a
+On CPU training is unchanged: the numba rasterizer and kernels, bit for bit the results of before; a
+render composites with the inference-only kernel (:func:`on_device`, equal within float32 rounding). On a
 CUDA device the model's parameters and the training step live on the GPU, the rasterizer is gsplat
 (:mod:`.raster.gsplat_backend`) and the numba kernels give way to their torch twins (the SSIM of
 :func:`~.training.losses.training_ssim_torch`, the sky's ``grid_sample``), which run on any torch
@@ -62,10 +63,13 @@ def rasterizer_for(device: str) -> Callable[..., Any]:
 def on_device(device: str) -> Callable[..., Any]:
     """A ``rasterize``-compatible function for CPU tensors that rasterizes on ``device``: the inputs
     go there, the outputs come back to the CPU, without gradients (rendering, where the particles
-    and fog stay numpy). ``"cpu"`` returns :func:`~.raster.rasterizer.rasterize` itself."""
+    and fog stay numpy). ``"cpu"`` returns :func:`~.raster.rasterizer.rasterize_image`, the
+    inference-only compositing (a trained model's frames; training keeps ``rasterize``)."""
     inner = rasterizer_for(device)
     if device == "cpu":
-        return inner
+        from wcbench.reference_model.raster.rasterizer import rasterize_image
+
+        return rasterize_image
     import torch
 
     def rasterize_on_device(means: Any, quats: Any, scales: Any, opacities: Any, colors: Any, viewmat: Any,

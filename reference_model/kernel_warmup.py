@@ -18,7 +18,7 @@ import torch
 
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
 from wcbench.reference_model.model.sky import SkyModel
-from wcbench.reference_model.raster.rasterizer import rasterize
+from wcbench.reference_model.raster.rasterizer import rasterize, rasterize_image
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.training.losses import training_ssim
 from wcbench.reference_model.weather.conditions import Weather
@@ -82,7 +82,10 @@ def _weather() -> None:
                     Weather(kind="snow", preset="paper"),
                     Weather(kind="fog", visibility_m=50.0),
                     Weather(kind="fog", visibility_m=50.0, fog_mode="postprocess")):
-        WeatherRenderer(_tiny_wall(), weather, up=up).render(cam, 0.5)
+        # the training rasterizer (lidar-init, the editors) and the inference-only compositing (a
+        # trained model's frames): each its own kernel variants
+        for rasterizer in (rasterize, rasterize_image):
+            WeatherRenderer(_tiny_wall(), weather, up=up, rasterizer=rasterizer).render(cam, 0.5)
 
 
 def _training() -> None:

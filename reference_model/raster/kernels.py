@@ -1178,6 +1178,183 @@ def _make_render_forward(nf: int, render_depth: bool) -> Any:
     return kernel
 
 
+# ---------------------------------------------------------------------------------------------------
+# Inference-only compositing (rendering a trained model: no gradients)
+# ---------------------------------------------------------------------------------------------------
+#
+# The training forward keeps float64 transmittance and sums and writes them per pixel (``acc_img``)
+# for its backward. A render needs neither: ``_make_render_image`` composites the same tile lists
+# in the same front-to-back order with the same per-pair float32 math, but keeps the per-tile state
+# in float32 (twice the lanes per vector, half the bytes) and writes only the image. Its pixels
+# stop at the same T_STOP, decided on the float32 transmittance, so a pixel whose float64
+# transmittance sits within rounding of 1e-4 may take one pair more or fewer: that pair weighs less
+# than 1e-4 (docs/design.md §8).
+
+#: Planes (TS * TS float32 each, pixel p = r * TS + j) of the per-tile buffer of the image kernel:
+#: transmittance, sum w (alpha: ``1 - T`` would lose its relative precision at low alpha, where
+#: the expected depth divides by it), sum w z, then the C color sums (constant offsets, as ``_FT``
+#: ... of the forward).
+_IT, _IW, _ID, _IC = 0, 1, 2, 3
+_T_STOP32 = F32(T_STOP)
+
+_IMAGE_TERMS: dict[int, Any] = {}
+
+
+def _image_color_terms(nf: int) -> Any:
+    """``add`` of :func:`_add_colors32` written out for ``nf`` channels, one float32 statement per
+    channel at a constant offset (made once per count, as :func:`_color_terms`)."""
+    if nf in _IMAGE_TERMS:
+        return _IMAGE_TERMS[nf]
+    if nf == 0:
+        @njit(inline="always", error_model="numpy")
+        def add(buf: np.ndarray, u: np.uint64, w: np.float32, cols: tuple) -> None:
+            pass
+    else:
+        prev_add = _image_color_terms(nf - 1)
+        ch = nf - 1
+        off = np.uint64((_IC + ch) * TS * TS)
+
+        @njit(inline="always", error_model="numpy")
+        def add(buf: np.ndarray, u: np.uint64, w: np.float32, cols: tuple) -> None:
+            prev_add(buf, u, w, cols)
+            buf[off + u] += w * cols[ch]
+    _IMAGE_TERMS[nf] = add
+    return add
+
+
+def _add_colors32(buf: np.ndarray, u: np.uint64, w: np.float32, cols: tuple) -> None:
+    """buf[(_IC + ch) TS^2 + u] += w cols[ch] in float32 for every channel of ``cols`` (image kernel).
+
+    This Python body is the plain reference; jitted code gets the written-out overload below.
+    """
+    for ch, c in enumerate(cols):
+        buf[np.uint64((_IC + ch) * TS * TS) + np.uint64(u)] += w * c
+
+
+@overload(_add_colors32, inline="always")
+def _add_colors32_typed(buf: Any, u: Any, w: Any, cols: Any) -> Any:
+    add = _image_color_terms(len(cols))
+
+    def impl(buf: Any, u: Any, w: Any, cols: Any) -> None:  # same annotations as the typing function
+        add(buf, u, w, cols)
+
+    return impl
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _image_entry(
+    nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, rec: np.ndarray, s: int,
+    rowbits: np.ndarray, buf: np.ndarray, colors: np.ndarray, nf: int, with_depth: bool,
+) -> tuple:
+    """:func:`_fwd_entry` for the image kernel: Gaussian ``s`` composited into rows gy0..gy1, lanes
+    j0..j0+nl of a tile, with float32 state in ``buf`` (planes ``_IT`` ...) and the ``nf`` color
+    sums fused (``nf`` >= 1). Returns (pixels that stopped, pairs evaluated)."""
+    ax, hx, hy = np.int64(rec[s, _AX]), rec[s, _HX], rec[s, _HY]
+    ay = np.int64(rec[s, _AY])
+    ca, cb, cc, o = rec[s, _CA], rec[s, _CB], rec[s, _CC], rec[s, _OP]
+    z = rec[s, _Z]
+    cols = _entry_colors(rec, colors, s, nf)
+    n_done = 0
+    pairs = 0
+    for r in range(gy0, gy1 + 1):
+        db = rowbits[r]
+        live = colmask & ~db
+        if live == 0:
+            continue  # every pixel of the box in this row has stopped
+        u0 = np.uint64(r * TS + j0)
+        dy = F32(oy + r - ay) + hy
+        stopbits = np.int32(0)
+        for jj in range(nl):
+            u = u0 + np.uint64(jj)
+            j = j0 + jj
+            _, sigma = _pixel_sigma(ox + j - ax, hx, dy, ca, cb, cc)
+            alpha = min(_ALPHA_MAX, o * _fexp(-sigma))
+            use = (((live >> j) & 1) != 0) & (sigma >= _ZERO) & (alpha >= _ALPHA_MIN)
+            tj = buf[u]
+            test = tj * (_ONE - alpha)
+            stop = use & (test < _T_STOP32)
+            use = use & (test >= _T_STOP32)
+            w = alpha * tj if use else _ZERO
+            buf[u] = test if use else tj
+            buf[np.uint64(_IW * TS * TS) + u] += w
+            if with_depth:
+                buf[np.uint64(_ID * TS * TS) + u] += w * z
+            _add_colors32(buf, u, w, cols)
+            stopbits |= np.int32(stop) << np.int32(j)
+        rowbits[r] = db | stopbits
+        n_done += _popcount16(stopbits)
+        pairs += _popcount16(live)
+    return n_done, pairs
+
+
+def _make_render_image(nf: int, render_depth: bool) -> Any:
+    """Compile-on-demand image kernel (no backward state) for ``nf`` = C fused channels (1 to
+    ``_MAX_FUSED``) and ``render_depth``; the flags are closure constants, as in
+    :func:`_make_render_forward`."""
+
+    @njit(parallel=True, cache=True, error_model="numpy")
+    def kernel(
+        tile_start: np.ndarray,  # [n_tiles + 1] i64
+        tile_ids: np.ndarray,  # [E] i32 Gaussian index per entry (depth order within a tile)
+        tile_order: np.ndarray,  # [n_tiles] i64, the order tiles are handed out in
+        rec: np.ndarray,  # [N, 16] f32 records (index order)
+        colors: np.ndarray,  # [N, C] f32 (read for C > 3; the records hold up to three)
+        width: int,
+        height: int,
+        tiles_x: int,
+        color: np.ndarray,  # out [H, W, C] f32: sum w c
+        alpha: np.ndarray,  # out [H, W] f32: sum w
+        dnum: np.ndarray,  # out [H, W] f32: sum w z (untouched if not render_depth)
+        tile_pairs: np.ndarray,  # out [n_tiles] i64: pairs evaluated
+    ) -> None:
+        n_ch = colors.shape[1]
+        npx = TS * TS
+        for it in prange(tile_order.shape[0]):
+            t = tile_order[it]
+            ox = (t % tiles_x) * TS
+            oy = (t // tiles_x) * TS
+            buf = np.zeros((_IC + n_ch) * npx, np.float32)
+            buf[:npx] = _ONE  # transmittance
+            rowbits = np.zeros(TS, np.int32)  # bit j set: pixel (r, j) is done
+            n_done = 0
+            # Pixels beyond the image border start "done" so that early termination still fires.
+            for r in range(TS):
+                for j in range(TS):
+                    if oy + r >= height or ox + j >= width:
+                        rowbits[r] |= np.int32(1 << j)
+                        n_done += 1
+            pairs = 0
+            end = tile_start[t + 1]
+            for k in range(tile_start[t], end):
+                if n_done == npx:
+                    break  # every pixel of the tile has stopped
+                if k + _PREFETCH < end:
+                    _prefetch(rec, tile_ids[k + _PREFETCH])
+                    if nf > 3:
+                        _prefetch(colors, tile_ids[k + _PREFETCH])
+                s = tile_ids[k]
+                gy0, gy1, colmask, j0, nl = _entry_box(rec, s, ox, oy)
+                if nl == TS:
+                    nd, pc = _image_entry(TS, 0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, buf, colors, nf,
+                                          render_depth)
+                else:
+                    nd, pc = _image_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, buf, colors,
+                                          nf, render_depth)
+                n_done += nd
+                pairs += pc
+            tile_pairs[t] = pairs
+            for r in range(min(TS, height - oy)):
+                for j in range(min(TS, width - ox)):
+                    y, x, p = oy + r, ox + j, r * TS + j
+                    for ch in range(n_ch):
+                        color[y, x, ch] = buf[(_IC + ch) * npx + p]
+                    alpha[y, x] = buf[_IW * npx + p]
+                    if render_depth:
+                        dnum[y, x] = buf[_ID * npx + p]
+
+    return kernel
+
+
 _NQ = 9  # per-entry gradient slots before the colors: mx, my, |mx|, |my|, conic a, b, c, opacity, z
 #: Planes (TS * TS float64 each, pixel p = r * TS + j) of the per-tile buffer of the backward:
 #: transmittance, running sum of w f, forward total F, dL/dA, dL/dD, a scratch plane (f without
@@ -1585,17 +1762,18 @@ def _tile_chunk(n_tiles: int) -> int:
 
 
 def _kernel(which: str, n_channels: int, render_depth: bool) -> Any:
-    """The compositing kernel ``which`` ("forward" or "backward") for these flags (made once).
+    """The compositing kernel ``which`` ("forward", "backward" or "image") for these flags (made once).
 
     Up to ``_MAX_FUSED`` channels, one variant per channel count with the color terms fused into
     the lane loops (C = 3 RGB, 4 with the exact-fog transmittance, 15 for four weathers and three
-    hazes); more channels share one variant with separate per-channel loops.
+    hazes); more channels share one variant with separate per-channel loops ("forward" and
+    "backward"; :meth:`RenderJob.image` takes the forward there).
     """
     nf = n_channels if 0 < n_channels <= _MAX_FUSED else 0
     key = (which, nf, bool(render_depth))
     if key not in _KERNELS:
-        _KERNELS[key] = (_make_render_forward(nf, bool(render_depth)) if which == "forward"
-                         else _make_render_backward(nf, bool(render_depth)))
+        makers = {"forward": _make_render_forward, "backward": _make_render_backward, "image": _make_render_image}
+        _KERNELS[key] = makers[which](nf, bool(render_depth))
     return _KERNELS[key]
 
 
@@ -1780,6 +1958,29 @@ class RenderJob:
             _kernel("forward", self.n_channels, self.render_depth)(
                 self.tile_start, self.tile_ids, self.tile_order, self._rec, self.colors, w, h, self.tiles_x,
                 self.acc_img, color, alpha, dnum, self.tile_end, tile_pairs)
+        self.meta["n_pairs"] = int(tile_pairs.sum())
+        self.phase_ms["fwd_blend"] = 1e3 * (time.perf_counter() - t0)
+        return color, alpha, dnum
+
+    def image(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Composite for a render without gradients: the outputs of :meth:`forward` (color before
+        background [H, W, C], alpha [H, W], sum(w z) [H, W], float32) from the image kernel, which
+        keeps float32 state and nothing for a backward (``_make_render_image``). A job that ran
+        this has no :meth:`backward`. More than ``_MAX_FUSED`` channels take :meth:`forward`."""
+        if not 0 < self.n_channels <= _MAX_FUSED:
+            return self.forward()
+        self._bin()
+        t0 = time.perf_counter()
+        h, w, c = self.height, self.width, self.n_channels
+        color = np.empty((h, w, c), np.float32)
+        alpha = np.empty((h, w), np.float32)
+        dnum = np.zeros((h, w) if self.render_depth else (1, 1), np.float32)
+        n_tiles = len(self.tile_order)
+        tile_pairs = np.zeros(n_tiles, np.int64)
+        with numba.parallel_chunksize(_tile_chunk(n_tiles)):
+            _kernel("image", c, self.render_depth)(
+                self.tile_start, self.tile_ids, self.tile_order, self._rec, self.colors, w, h, self.tiles_x,
+                color, alpha, dnum, tile_pairs)
         self.meta["n_pairs"] = int(tile_pairs.sum())
         self.phase_ms["fwd_blend"] = 1e3 * (time.perf_counter() - t0)
         return color, alpha, dnum

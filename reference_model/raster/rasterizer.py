@@ -10,6 +10,9 @@ Two backends compute the same function (docs/design.md §7 guards, constants in 
 
 ``backend="auto"`` takes numba for float32 inputs and the twin for float64 ones (``gradcheck``).
 If numba cannot be imported the twin is used and one warning says so.
+
+:func:`rasterize_image` is the same function for renders without gradients (a trained model's
+frames): its numba path composites with float32 state and keeps nothing for a backward.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from wcbench.reference_model._numba_backend import load_numba_kernels, numba_err
 from wcbench.reference_model.raster.common import RenderOutput, check_inputs, expected_depth
 from wcbench.reference_model.raster.torch_twin import rasterize_torch
 
-__all__ = ["RenderOutput", "numba_available", "rasterize"]
+__all__ = ["RenderOutput", "numba_available", "rasterize", "rasterize_image"]
 
 _BACKENDS = ("auto", "numba", "torch")
 _warned = False
@@ -225,3 +228,82 @@ def rasterize(
     depth = expected_depth(dnum, alpha) if render_depth else None
     return RenderOutput(color=color, alpha=alpha, depth=depth, means2d=means2d, means2d_abs=means2d_abs,
                         radii=radii, depths=depths, meta=job.meta)
+
+
+def rasterize_image(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmat: Any,
+    K: Any,
+    width: int,
+    height: int,
+    *,
+    near: float = 0.01,
+    far: float = 1e10,
+    background: torch.Tensor | None = None,
+    render_depth: bool = True,
+    absgrad: bool = False,
+    backend: str = "auto",
+) -> RenderOutput:
+    """:func:`rasterize` for a render without gradients (inference): same arguments, same outputs.
+
+    The numba path composites the same tile lists in the same order with the same per-pair float32
+    math, but keeps the per-tile transmittance and sums in float32 and stores nothing for a
+    backward (``RenderJob.image``). Its images equal :func:`rasterize`'s within float32 rounding
+    of the sums (tests/reference_model/raster/test_raster_image.py states the tolerance). Training
+    keeps :func:`rasterize`. The torch backend (float64 inputs, or numba missing) runs the twin
+    without gradients.
+
+    Parameters
+    ----------
+    means, quats, scales, opacities, colors, viewmat, K, width, height, near, far, background, render_depth, backend
+        As :func:`rasterize` ([N, 3], [N, 4], [N, 3], [N], [N, C]; metres, pixels).
+    absgrad : bool
+        Accepted for ``rasterize``-compatibility and must be ``False``: no gradient is computed.
+
+    Returns
+    -------
+    RenderOutput
+        As :func:`rasterize`, detached: ``means2d_abs`` is ``None`` and nothing requires grad.
+
+    Raises
+    ------
+    ValueError
+        As :func:`rasterize`; also when ``absgrad`` is ``True`` or gradients are enabled for an
+        input that requires them (use :func:`rasterize` there).
+    """
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")
+    if absgrad:
+        raise ValueError("rasterize_image computes no gradients: absgrad must be False (use rasterize)")
+    params = (means, quats, scales, opacities, colors, background)
+    if torch.is_grad_enabled() and any(isinstance(t, torch.Tensor) and t.requires_grad for t in params):
+        raise ValueError("rasterize_image computes no gradients, but an input requires grad: use rasterize, "
+                         "or call it under torch.no_grad()")
+    viewmat_t, K_t, bg = check_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height,
+                                      near, far, background)
+    use_torch = backend == "torch" or (backend == "auto" and means.dtype != torch.float32)
+    if backend == "numba" and means.dtype != torch.float32:
+        raise ValueError(f"the numba backend takes float32 inputs, got {means.dtype}; use backend='torch'")
+    mod = None if use_torch else _load_numba()
+    if mod is None:
+        if backend == "numba":
+            raise ValueError(f"backend='numba' requested but numba is unavailable ({numba_error('raster.kernels')})")
+        with torch.no_grad():
+            return rasterize_torch(means, quats, scales, opacities, colors, viewmat_t, K_t, width, height,
+                                   near=near, far=far, background=bg, render_depth=render_depth, absgrad=False)
+
+    _announce_compile(mod)
+    job = mod.RenderJob(means, quats, scales, opacities, colors, viewmat_t, K_t, int(width), int(height),
+                        near=float(near), far=float(far), render_depth=render_depth)
+    color_np, alpha_np, dnum_np = job.image()
+    color, alpha = torch.from_numpy(color_np), torch.from_numpy(alpha_np)
+    if bg is not None:
+        color = color + (1.0 - alpha)[..., None] * bg
+    depth = expected_depth(torch.from_numpy(dnum_np), alpha) if render_depth else None
+    return RenderOutput(color=color, alpha=alpha, depth=depth, means2d=torch.from_numpy(job.means2d_f32),
+                        means2d_abs=None, radii=torch.from_numpy(job.radii), depths=torch.from_numpy(job.depths),
+                        meta=job.meta)

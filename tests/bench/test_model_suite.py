@@ -37,6 +37,9 @@ def test_bench_model_quick_runs_and_reports_every_case() -> None:
     render = cases["render_rain"]  # the fixed rows against the concatenating twin: the same frames
     assert render["error"] <= 1 and render["fps_ratio"] > 0 and render["lidar_init_fps"] > 0
     assert render["new_raster_fwd_blend_ms"] > 0 and render["old_write_png_ms"] > 0
+    # the inference-only compositing: its own row, within one uint8 level of the training kernel's frames
+    assert render["image_fps_ratio"] > 0 and render["image_raster_fwd_blend_ms"] > 0
+    assert render["error_image_new_uint8"] <= 1 and render["error_new_old_uint8"] <= 1
     assert cases["skip_unsupervised_weather"]["gaussians"] == cases["skip_unsupervised_weather"]["gaussians_without"]
     assert any("demo street" in n for n in obj["notes"])
     temporal = [c for c in obj["cases"] if c["name"].startswith("temporal_")]

@@ -232,6 +232,49 @@ def test_rasterizer_twin_forward_backward_and_same_culling(case_counter: Counter
             assert ref.meta[key] == fast.meta[key], key
 
 
+@pytest.mark.model
+@_settings(quick=300, full=20_000)
+@given(st.lists(GAUSSIAN, min_size=1, max_size=5), CAMERA, BACKGROUND, st.booleans())
+def test_rasterizer_image_kernel_finite_and_as_the_forward(case_counter: Counter[str], gs: list, cam: tuple,
+                                                           bg: tuple | None, render_depth: bool) -> None:
+    """The inference-only compositing (``rasterize_image``, float32 state): finite outputs, alpha in
+    [0, 1], the same culling and pairs as the training forward, and its images within float32
+    rounding of the sums (relative to the largest color) or one flipped stop (~1/255)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("numba")
+    import torch
+
+    from wcbench.reference_model import rasterize
+    from wcbench.reference_model.raster.common import CULL_KEYS
+    from wcbench.reference_model.raster.rasterizer import rasterize_image
+
+    family = "hostile numbers: rasterizer image kernel, forward"
+    case_counter[family] += 1
+    params = [p.detach() for p in _gaussians(gs)]
+    V, K, w, h, near, far = _camera(cam)
+    background = None if bg is None else torch.tensor(bg, dtype=torch.float32)
+    refuse = _bad_colors_or_background(params, bg)
+    try:
+        img = rasterize_image(*params, V, K, w, h, near=near, far=far, background=background,
+                              render_depth=render_depth)
+    except ValueError as exc:
+        assert refuse, f"refused a valid call: {exc}"
+        return
+    assert not refuse, f"accepted an out-of-range color or background {bg}"
+    for name in ("color", "alpha", "depth"):
+        t = getattr(img, name)
+        assert t is None or finite(family, t), f"non-finite {name}"
+    assert bool((img.alpha >= 0).all()) and bool((img.alpha <= 1 + 1e-6).all()), "alpha outside [0, 1]"
+    with torch.no_grad():
+        fwd = rasterize(*params, V, K, w, h, near=near, far=far, background=background,
+                        render_depth=render_depth, backend="numba")
+    for key in ("n_visible", "n_tile_entries", *CULL_KEYS.values()):
+        assert img.meta[key] == fwd.meta[key], key
+    scale = max(1.0, float(fwd.color.abs().max()))
+    assert float((img.alpha - fwd.alpha).abs().max()) <= NEEDLE_ATOL
+    assert float((img.color - fwd.color).abs().max()) <= NEEDLE_ATOL * scale
+
+
 NEEDLE_SCALE = st.sampled_from([1e-30, 1e-6, 1e-3, 0.05, 1.0, 1e6, 1e19, 1e30, F32_MAX])
 NEEDLE = st.tuples(st.tuples(_f32(-1, 1), _f32(-1, 1), _f32(0.5, 10)),
                    st.tuples(_f32(-1, 1), _f32(-1, 1), _f32(-1, 1), _f32(-1, 1)),

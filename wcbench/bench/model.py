@@ -43,14 +43,18 @@ profile_step          the per-phase profile of a training step of the default pr
                       speed-up from the first count to the second, its Amdahl serial fraction and a
                       *projected* 16-thread speed-up (docs/design.md §8)
 render_rain           whole frames of the trained default model under the default rain preset at the
-                      training size, the fast path (``render_frame``: every node in fixed rows, only
-                      the moving nodes' rows written per frame) against its twin
-                      (``render_frame_concat``: the frame's nodes concatenated afresh), interleaved frame
-                      by frame in one run, and ``lidar-init``'s frame of the same weather beside them:
-                      per path the FPS and the median ms of each stage (scene graph, particles,
-                      rasterizer, fog, the whole ``render_frame``, and writing the PNG), and
-                      ``fps_ratio`` (old frame time / new); ``error``: the largest difference of the
-                      two paths' uint8 frames (0: the same frames)
+                      training size, interleaved frame by frame in one run: ``image``, the render as
+                      it runs (``render_frame``: every node in fixed rows, only the moving nodes' rows
+                      written per frame, composited by the inference-only ``rasterize_image``);
+                      ``new``, the same rows through the training rasterizer; ``old``, the baseline
+                      (``render_frame_concat``: the frame's nodes concatenated afresh, training
+                      rasterizer); and ``lidar-init``'s frame of the same weather beside them: per
+                      path the FPS and the median ms of each stage (scene graph, particles,
+                      rasterizer, fog, the whole ``render_frame``, and writing the PNG),
+                      ``fps_ratio`` (old frame time / new), ``image_fps_ratio`` (new / image) and
+                      ``image_vs_old_fps_ratio`` (old / image); ``time_ms`` is the image path's;
+                      ``error``: the largest difference of the uint8 frames of new against old and
+                      of image against new (``error_new_old_uint8``, ``error_image_new_uint8``)
 skip_<what>           what a skip of the scene graph saves: the median time of a training step of a
                       model built with the skip (``time_ms``) and without it (``without_ms``):
                       dropping Gaussians outside every training frustum, keeping tracks that do not
@@ -189,38 +193,46 @@ def _recording(rasterizer: Callable[..., Any], phases: dict[str, dict[str, float
 
 def _render_case(scene: Scene, model: Any, config: TrainConfig, facts: dict[str, Any], *, frames: int,
                  folder: Path) -> BenchCase:
-    """Whole frames of default rain at the training size: ``render_frame`` (the fixed rows of
-    :class:`~wcbench.reference_model.model.scene_model.FrameRows`) against its twin
-    ``render_frame_concat`` (the frame's nodes concatenated afresh), interleaved frame by frame in
-    one process, and lidar-init's frame of the same weather and size beside them; ``error``: the
-    largest difference of the two paths' uint8 frames."""
+    """Whole frames of default rain at the training size, three ways interleaved frame by frame in
+    one process: ``image``, what a render runs (``render_frame``: the fixed rows of
+    :class:`~wcbench.reference_model.model.scene_model.FrameRows`, composited by the inference-only
+    :func:`~wcbench.reference_model.raster.rasterizer.rasterize_image`); ``new``, the same rows
+    through the training rasterizer ``rasterize`` (the render before the inference kernel);
+    ``old``, the baseline, ``render_frame_concat`` (the frame's nodes concatenated afresh) through
+    ``rasterize``; and lidar-init's frame of the same weather and size beside them. ``error``: the
+    largest difference of the uint8 frames of ``new`` against ``old`` and of ``image`` against
+    ``new``."""
     from wcbench.core.image_io import write_png
     from wcbench.methods.lidar_init import LidarInitMethod
+    from wcbench.reference_model.raster.rasterizer import rasterize
 
     width, height = config.size_for(scene.image_size)
     rain = Weather(kind="rain")
     methods = {}
-    for name in ("new", "old"):  # one method each: the twin's frames would make the new one copy its rows
-        method = WeatherCityMethod(physics={"rain": rain})
+    for name in ("image", "new", "old"):  # one method each: the twin's frames would make the new one copy its rows
+        method = WeatherCityMethod(physics={"rain": rain}, size=(width, height))
         method.config = config
         method.use_model(scene, model, facts)
         method.prepare(scene, "rain", seed=0)
         methods[name] = method
+    for name in ("new", "old"):  # the training rasterizer, as every render used before the image kernel
+        renderer = methods[name]._renderer
+        assert renderer is not None
+        renderer.rasterizer = rasterize
     lidar = LidarInitMethod(physics={"rain": rain}, size=(width, height))
     lidar.prepare(scene, "rain", seed=0)
-    paths = {"new": methods["new"].render_frame, "old": methods["old"].render_frame_concat,
-             "lidar_init": lidar.render_frame}
+    paths = {"image": methods["image"].render_frame, "new": methods["new"].render_frame,
+             "old": methods["old"].render_frame_concat, "lidar_init": lidar.render_frame}
     # the rasterizer's own phases (projection, sort, binning, blending) of each path's last frame
     phases: dict[str, dict[str, float]] = {}
-    for name, renderer in (("new", methods["new"]._renderer), ("old", methods["old"]._renderer),
-                           ("lidar_init", lidar._renderer)):
+    for name, renderer in (*((n, m._renderer) for n, m in methods.items()), ("lidar_init", lidar._renderer)):
         assert renderer is not None
         renderer.rasterizer = _recording(renderer.rasterizer, phases, name)
     picked = list(range(0, len(scene), max(1, len(scene) // frames)))[:frames]
     for render in paths.values():  # warm-up (kernels compiled, caches filled)
         render(scene, "rain", picked[0], seed=0)
     stages: dict[str, list[dict[str, float]]] = {name: [] for name in paths}
-    worst = 0
+    worst = {"new_old": 0, "image_new": 0}
     for k in picked:
         images = {}
         for name, render in paths.items():
@@ -233,7 +245,8 @@ def _render_case(scene: Scene, model: Any, config: TrainConfig, facts: dict[str,
                                  "write_png": 1e3 * (time.perf_counter() - t),
                                  **{f"raster_{k}": v for k, v in phases.get(name, {}).items()}})
             images[name] = img
-        worst = max(worst, int(np.abs(images["new"].astype(np.int16) - images["old"]).max()))
+        for key, (a, b) in (("new_old", ("new", "old")), ("image_new", ("image", "new"))):
+            worst[key] = max(worst[key], int(np.abs(images[a].astype(np.int16) - images[b]).max()))
 
     def median(name: str, key: str) -> float:
         return statistics.median(s.get(key, 0.0) for s in stages[name])
@@ -244,9 +257,12 @@ def _render_case(scene: Scene, model: Any, config: TrainConfig, facts: dict[str,
         keys = [*RENDER_STAGES, *sorted({k for st in stages[name] for k in st if k.startswith("raster_")})]
         extra.update({f"{name}_{key}_ms": round(median(name, key), 2) for key in keys})
     extra["fps_ratio"] = round(median("old", "frame") / median("new", "frame"), 3)
+    extra["image_fps_ratio"] = round(median("new", "frame") / median("image", "frame"), 3)
+    extra["image_vs_old_fps_ratio"] = round(median("old", "frame") / median("image", "frame"), 3)
+    extra.update({f"error_{key}_uint8": value for key, value in worst.items()})
     extra["threads"] = get_threads()["numba"]
-    return BenchCase(name="render_rain", knob="scene_rows", value="fixed", time_ms=median("new", "frame"),
-                     error=float(worst), error_unit="abs_uint8", extra=extra)
+    return BenchCase(name="render_rain", knob="scene_rows", value="fixed", time_ms=median("image", "frame"),
+                     error=float(max(worst.values())), error_unit="abs_uint8", extra=extra)
 
 
 def _one_pass_case(model: Any, views: list[TrainingView], repeats: int) -> BenchCase:
