@@ -12,6 +12,7 @@ pytest.importorskip("torch")
 from wcbench.reference_model.appearance.surfaces import (
     build_surfaces,
     lane_paths,
+    object_sides,
     open_to_sky,
     pca_normals,
     value_noise,
@@ -113,3 +114,40 @@ def test_people_leave_no_wheel_path(demo_scene):
     # a car driving there would leave one
     car = dataclasses.replace(walker, class_name="vehicle")
     assert len(lane_paths(dataclasses.replace(demo_scene, tracks=[*demo_scene.tracks, car]), up=up)) > len(before)
+
+
+def _parked_car(yaw: float, at: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """A 4.5 x 1.8 x 1.5 m sedan's box (object-to-world, yawed, standing on z = 0 at ``at``) and
+    points (world) of its parts at 5 cm: roof, bonnet, doors and side windows, bumpers, and the road
+    under and beside it."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = [at[0], at[1], 0.75]
+    g = np.arange(-1.0, 1.0, 0.05)
+    grid = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    local = {
+        "roof": np.column_stack([grid[:, 0] * 0.9, grid[:, 1] * 0.65, np.full(len(grid), 0.72)]),
+        "bonnet": np.column_stack([1.7 + grid[:, 0] * 0.5, grid[:, 1] * 0.6, np.full(len(grid), 0.15)]),
+        "doors": np.column_stack([grid[:, 0] * 2.0, np.sign(grid[:, 1]) * 0.88, -0.6 + (grid[:, 1] % 0.5) * 2.1]),
+        "bumpers": np.column_stack([np.sign(grid[:, 0]) * 2.24, grid[:, 1] * 0.8, -0.5 + (grid[:, 0] % 0.5)]),
+        "road": np.column_stack([grid * [4.0, 3.0], np.full(len(grid), -0.75)]),
+    }
+    return T, np.array([4.5, 1.8, 1.5]), {k: v @ T[:3, :3].T + T[:3, 3] for k, v in local.items()}
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7])
+def test_a_boxed_objects_sides_are_found_not_its_top_nor_the_road(yaw):
+    T, size, parts = _parked_car(yaw, np.array([5.0, -2.0]))
+    up = np.array([0.0, 0.0, 1.0])
+    points = np.concatenate(list(parts.values()))
+    side = object_sides(points, [(T, size)], up=up)
+    start = 0
+    for name, pts in parts.items():
+        got = side[start:start + len(pts)]
+        start += len(pts)
+        if name in ("doors", "bumpers"):
+            assert got.all(), name
+        else:
+            assert not got.any(), name
+
