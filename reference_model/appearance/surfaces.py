@@ -6,11 +6,13 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 (so that what is drawn from them does not flicker from frame to frame):
 
 * a **normal** (the smallest principal axis of its 16 nearest neighbours, turned toward the
-  cameras' path; a node's in its box frame, turned outward);
+  cameras' path; a node's in its box frame, turned outward; on a boxed object's side,
+  :func:`object_sides`, never facing up);
 * **ground** (1 where the normal points up and the Gaussian lies on the local ground height);
 * **open** (1 where no return that overhangs it, facing up or down, lies half a metre higher within
   half a metre sideways, nor any return within 0.15 m: open to the sky, so snow settles and rain
-  falls; 0 under a tree, a car or a roof, while a wall shelters none of the ground beside it),
+  falls; 0 under a tree, a car or a roof, while a wall shelters none of the ground beside it, and a
+  parked track's body only the ground inside its box's footprint),
   averaged with the normals over the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
 * **puddle**: a smooth noise field over the ground plane (two octaves of value noise, 4 m and
   1.5 m), thresholded by the editor at the rain's puddle fraction;
@@ -118,11 +120,13 @@ def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     return v[:, :, 0]
 
 
-def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> np.ndarray:
+def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
+                shelters: np.ndarray | None = None) -> np.ndarray:
     """Which points the falling snow and rain reach: no return 0.5 m higher that overhangs the point
     (its normal's up-component above 0.3 in magnitude: a roof, a canopy, a car's body) within 0.5 m
-    sideways, nor any return within 0.15 m. The fall is taken as vertical, so a wall shelters none
-    of the ground beside it, while the ground under a car or a tree stays dry.
+    sideways, nor any return within 0.15 m, among the returns that may shelter (``shelters``). The
+    fall is taken as vertical, so a wall shelters none of the ground beside it, while the ground
+    under a car or a tree stays dry.
 
     Parameters
     ----------
@@ -132,6 +136,8 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> n
         Unit normals (unoriented).
     up : ndarray [3]
         Unit up vector.
+    shelters : ndarray [N] bool, optional
+        The returns that may shelter others (default all).
 
     Returns
     -------
@@ -140,6 +146,8 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> n
     points = np.asarray(points, np.float64)
     up = np.asarray(up, np.float64)
     n = len(points)
+    if shelters is not None and np.shape(shelters) != (n,):
+        raise ValueError(f"shelters has shape {np.shape(shelters)}; ({n},) was expected, one per point")
     if n == 0:
         return np.zeros(0, bool)
     xy = points @ _plane_axes(up).T
@@ -149,6 +157,8 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> n
     dist = np.asarray(dist).reshape(n, -1)
     other = np.minimum(idx, n - 1)
     overhang = (np.abs(np.asarray(normals, np.float64)[other] @ up) > _OVERHANG_UP) | (dist <= _SHELTER_WALL_M)
+    if shelters is not None:
+        overhang &= np.asarray(shelters, bool)[other]
     above = (idx < n) & (height[other] - height[:, None] > _SHELTER_RISE_M) & overhang
     return ~np.any(above, axis=1)
 
@@ -173,10 +183,19 @@ def object_sides(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]],
     -------
     ndarray [N] bool
     """
+    return _box_parts(points, boxes, up=up)[0]
+
+
+def _box_parts(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], *,
+               up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """[N] bool masks of ``points`` [N, 3]: on a box's side (:func:`object_sides`), on its body
+    (inside it grown by 0.1 m sideways, more than 0.1 m above its bottom) and under it (inside its
+    footprint, not grown, up to 0.1 m above its bottom: the road under a car)."""
     points = np.asarray(points, np.float64)
     out = np.zeros(len(points), bool)
+    body, under = out.copy(), out.copy()
     if not len(points) or not boxes:
-        return out
+        return out, body, under
     tree = cKDTree(points)
     up = np.asarray(up, np.float64)
     for T, size in boxes:
@@ -194,7 +213,10 @@ def object_sides(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]],
         low = rise < _SIDE_SHARE * height
         flank = (np.abs(local[:, lateral]) > half[lateral] - _SIDE_BAND_M) & (rise < _SIDE_TOP_SHARE * height)
         out[near[across & (rise > _SIDE_MARGIN_M) & (low | flank)]] = True
-    return out
+        body[near[across & (rise > _SIDE_MARGIN_M) & (rise <= height + _SIDE_MARGIN_M)]] = True
+        footprint = np.all(np.abs(local[:, flat]) <= half[flat], axis=1)
+        under[near[footprint & (rise <= _SIDE_MARGIN_M) & (rise > -_SIDE_MARGIN_M - 0.3)]] = True
+    return out, body, under
 
 
 def _level(normals: np.ndarray, where: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -537,7 +559,15 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                                 np.asarray(t.box_size, np.float64)) for t in scene.tracks])
     ground = (normals @ up > 0.8) & (height - surf.ground_height(means) < 0.3)
 
-    open_ = open_to_sky(means, normals, up=up)
+    # a parked object's returns are static (a moving one's are its node's, below); its body shelters
+    # the ground under it, its box's footprint, not the ground beside it: the downward normals of
+    # its sills and bumpers within 0.5 m sideways left dark holes in the snow along the parked
+    # cars of the PandaSet side cameras
+    moving = {node.track_id for node in gaussians.nodes}
+    parked = [(T, size) for t in scene.tracks if str(t.id) not in moving
+              for T, size in _distinct_poses(t.object_to_world, t.box_size)]
+    side, body, under = _box_parts(means, parked, up=up)
+    open_ = open_to_sky(means, normals, up=up, shelters=~body) & ~under
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
     # Gaussians (about half a metre), so that what is drawn from them is not speckled; a neighbour
     # counts by how much its normal agrees (cos^4), so a car's roof and side, or a kerb's top and
@@ -548,12 +578,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     smooth = np.einsum("nk,nkj->nj", agree, normals[near])
     normals = smooth / np.maximum(np.linalg.norm(smooth, axis=1, keepdims=True), 1e-9)
     # a parked object's side faces no sky, whatever its few returns beside the road give its PCA
-    # normal (tilted up, they took snow in stripes along a car's doors); its returns are static
-    # (a moving one's are its node's, below)
-    moving = {node.track_id for node in gaussians.nodes}
-    parked = [(T, size) for t in scene.tracks if str(t.id) not in moving
-              for T, size in _distinct_poses(t.object_to_world, t.box_size)]
-    side = object_sides(means, parked, up=up)
+    # normal (tilted up, they took snow in stripes along a car's doors)
     normals = _level(normals, side, up)
     ground &= ~side
 

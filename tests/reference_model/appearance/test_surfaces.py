@@ -10,6 +10,7 @@ import pytest
 pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.surfaces import (
+    _box_parts,
     build_surfaces,
     lane_paths,
     object_sides,
@@ -151,3 +152,30 @@ def test_a_boxed_objects_sides_are_found_not_its_top_nor_the_road(yaw):
         else:
             assert not got.any(), name
 
+
+
+def test_a_parked_cars_sills_shelter_only_the_ground_under_it():
+    # the road beside a parked car's doors: its sills and bumpers face down within 0.5 m sideways
+    # and shelter it by the any-return rule (dark holes in the snow beside the parked cars of the
+    # side cameras); vertical snowfall reaches it when the car shelters only its own footprint
+    T, size, parts = _parked_car(0.0, np.array([0.0, 0.0]))
+    # an SUV's doors curve under from 0.55 to 0.7 m: there their returns face down
+    sills = parts["doors"][(parts["doors"][:, 2] > 0.55) & (parts["doors"][:, 2] < 0.7)]
+    car = np.concatenate([parts["roof"], sills])
+    car_normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(parts["roof"]), 1)),
+                                  np.tile([0.0, 0.0, -1.0], (len(sills), 1))])
+    g = np.stack(np.meshgrid(np.arange(-2.0, 2.0, 0.1), np.arange(-1.6, 1.6, 0.1)), -1).reshape(-1, 2)
+    road = np.column_stack([g, np.zeros(len(g))])
+    points = np.concatenate([road, car])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(road), 1)), car_normals])
+    up = np.array([0.0, 0.0, 1.0])
+    beside = (np.abs(road[:, 1]) > 1.0) & (np.abs(road[:, 1]) < 1.35) & (np.abs(road[:, 0]) < 1.8)
+    assert not open_to_sky(points, normals, up=up)[:len(road)][beside].all()  # the old rule
+    # build_surfaces' rule: the car's body shelters nothing beside it, its footprint is sheltered
+    _, body, under = _box_parts(points, [(T, size)], up=up)
+    np.testing.assert_array_equal(body, np.arange(len(points)) >= len(road))
+    is_open = (open_to_sky(points, normals, up=up, shelters=~body) & ~under)[:len(road)]
+    assert is_open[beside].all()
+    assert not is_open[(np.abs(road[:, 0]) < 2.2) & (np.abs(road[:, 1]) < 0.85)].any()
+    with pytest.raises(ValueError, match="shelters"):
+        open_to_sky(points, normals, up=up, shelters=body[:-1])
