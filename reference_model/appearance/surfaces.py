@@ -6,11 +6,13 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 (so that what is drawn from them does not flicker from frame to frame):
 
 * a **normal** (the smallest principal axis of its 16 nearest neighbours, turned toward the
-  cameras' path; a node's in its box frame, turned outward);
+  cameras' path; a node's in its box frame, turned outward; on a boxed object's side,
+  :func:`object_sides`, never facing up);
 * **ground** (1 where the normal points up and the Gaussian lies on the local ground height);
 * **open** (1 where no return that overhangs it, facing up or down, lies half a metre higher within
   half a metre sideways, nor any return within 0.15 m: open to the sky, so snow settles and rain
-  falls; 0 under a tree, a car or a roof, while a wall shelters none of the ground beside it),
+  falls; 0 under a tree, a car or a roof, while a wall shelters none of the ground beside it, and a
+  parked track's body only the ground inside its box's footprint),
   averaged with the normals over the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
 * **puddle**: a smooth noise field over the ground plane (two octaves of value noise, 4 m and
   1.5 m), thresholded by the editor at the rain's puddle fraction;
@@ -46,7 +48,8 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "open_to_sky", "pca_normals", "value_noise"]
+__all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "object_sides", "open_to_sky", "pca_normals",
+           "value_noise"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -83,6 +86,14 @@ _DYNAMIC_ABOVE_GROUND_M, _DYNAMIC_NEIGHBOUR_M = 0.2, 0.5
 _DYNAMIC_PATCH_RETURNS_M2, _DYNAMIC_SHARE, _DYNAMIC_NEIGHBOURS = 6800.0, 0.1, (3, 20)
 #: A ground cell (2 m) gives the height within this distance of its centre (m); beyond, the plane.
 _CELL_REACH_M = 4.0
+#: An object's side: inside its box (grown by ``_SIDE_MARGIN_M`` sideways, for the annotation's fit),
+#: from ``_SIDE_MARGIN_M`` above the box's bottom (the road under it, with a lidar return's range
+#: noise) up to ``_SIDE_SHARE`` of its height all round (a car's bonnet and boot lie higher, the
+#: bonnet at ~0.6 of a sedan's 1.45 m: below, its doors, wheels and bumpers), and up to
+#: ``_SIDE_TOP_SHARE`` within ``_SIDE_BAND_M`` of its long faces (a door and a side window, with the
+#: glasshouse's slope inward; the roof keeps its edges). There the surface is vertical or faces down,
+#: whatever the PCA normals of a few returns say (docs/design.md §7).
+_SIDE_SHARE, _SIDE_TOP_SHARE, _SIDE_BAND_M, _SIDE_MARGIN_M = 0.5, 0.85, 0.25, 0.1
 
 
 def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
@@ -109,11 +120,13 @@ def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     return v[:, :, 0]
 
 
-def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> np.ndarray:
+def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
+                shelters: np.ndarray | None = None) -> np.ndarray:
     """Which points the falling snow and rain reach: no return 0.5 m higher that overhangs the point
     (its normal's up-component above 0.3 in magnitude: a roof, a canopy, a car's body) within 0.5 m
-    sideways, nor any return within 0.15 m. The fall is taken as vertical, so a wall shelters none
-    of the ground beside it, while the ground under a car or a tree stays dry.
+    sideways, nor any return within 0.15 m, among the returns that may shelter (``shelters``). The
+    fall is taken as vertical, so a wall shelters none of the ground beside it, while the ground
+    under a car or a tree stays dry.
 
     Parameters
     ----------
@@ -123,6 +136,8 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> n
         Unit normals (unoriented).
     up : ndarray [3]
         Unit up vector.
+    shelters : ndarray [N] bool, optional
+        The returns that may shelter others (default all).
 
     Returns
     -------
@@ -131,6 +146,8 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> n
     points = np.asarray(points, np.float64)
     up = np.asarray(up, np.float64)
     n = len(points)
+    if shelters is not None and np.shape(shelters) != (n,):
+        raise ValueError(f"shelters has shape {np.shape(shelters)}; ({n},) was expected, one per point")
     if n == 0:
         return np.zeros(0, bool)
     xy = points @ _plane_axes(up).T
@@ -140,8 +157,89 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray) -> n
     dist = np.asarray(dist).reshape(n, -1)
     other = np.minimum(idx, n - 1)
     overhang = (np.abs(np.asarray(normals, np.float64)[other] @ up) > _OVERHANG_UP) | (dist <= _SHELTER_WALL_M)
+    if shelters is not None:
+        overhang &= np.asarray(shelters, bool)[other]
     above = (idx < n) & (height[other] - height[:, None] > _SHELTER_RISE_M) & overhang
     return ~np.any(above, axis=1)
+
+
+def object_sides(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], *,
+                 up: np.ndarray) -> np.ndarray:
+    """Which points lie on the side of a boxed object: inside a box (grown by 0.1 m sideways), from
+    0.1 m above its bottom up to half its height all round (a car's doors, wheels and bumpers, below
+    its bonnet and boot), and up to 0.85 of its height within 0.25 m of its long faces (its doors and
+    side windows, below the roof); the constants ``_SIDE_*``.
+
+    Parameters
+    ----------
+    points : ndarray [N, 3]
+        World positions (m).
+    boxes : list of (ndarray [4, 4], ndarray [3])
+        Object-to-world poses (box x along the length) and sizes [l, w, h] (m).
+    up : ndarray [3]
+        Unit up vector.
+
+    Returns
+    -------
+    ndarray [N] bool
+    """
+    return _box_parts(points, boxes, up=up)[0]
+
+
+def _box_parts(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], *,
+               up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """[N] bool masks of ``points`` [N, 3]: on a box's side (:func:`object_sides`), on its body
+    (inside it grown by 0.1 m sideways, more than 0.1 m above its bottom) and under it (inside its
+    footprint, not grown, up to 0.1 m above its bottom: the road under a car)."""
+    points = np.asarray(points, np.float64)
+    out = np.zeros(len(points), bool)
+    body, under = out.copy(), out.copy()
+    if not len(points) or not boxes:
+        return out, body, under
+    tree = cKDTree(points)
+    up = np.asarray(up, np.float64)
+    for T, size in boxes:
+        T, half = np.asarray(T, np.float64), np.asarray(size, np.float64) / 2.0
+        near = np.asarray(tree.query_ball_point(T[:3, 3], float(np.linalg.norm(half + _SIDE_MARGIN_M))), np.int64)
+        if near.size == 0:
+            continue
+        local = (points[near] - T[:3, 3]) @ T[:3, :3]
+        vertical = int(np.argmax(np.abs(T[:3, :3].T @ up)))
+        rise = local[:, vertical] * np.sign((T[:3, :3].T @ up)[vertical]) + half[vertical]  # above the bottom
+        flat = [i for i in range(3) if i != vertical]
+        across = np.all(np.abs(local[:, flat]) <= half[flat] + _SIDE_MARGIN_M, axis=1)
+        lateral = flat[int(np.argmin(half[flat]))]  # across the width: the long faces' axis
+        height = 2.0 * half[vertical]
+        low = rise < _SIDE_SHARE * height
+        flank = (np.abs(local[:, lateral]) > half[lateral] - _SIDE_BAND_M) & (rise < _SIDE_TOP_SHARE * height)
+        out[near[across & (rise > _SIDE_MARGIN_M) & (low | flank)]] = True
+        body[near[across & (rise > _SIDE_MARGIN_M) & (rise <= height + _SIDE_MARGIN_M)]] = True
+        footprint = np.all(np.abs(local[:, flat]) <= half[flat], axis=1)
+        under[near[footprint & (rise <= _SIDE_MARGIN_M) & (rise > -_SIDE_MARGIN_M - 0.3)]] = True
+    return out, body, under
+
+
+def _level(normals: np.ndarray, where: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``normals`` [N, 3] with the upward component of those at ``where`` [N] removed, renormalised
+    (one pointing straight up has no horizontal part to keep and is left as it is)."""
+    out = np.asarray(normals, np.float64).copy()
+    n = out[where]
+    rise = np.maximum(n @ up, 0.0)
+    n = n - np.outer(rise, up)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    out[where] = np.where(norm > 1e-6, n / np.maximum(norm, 1e-9), out[where])
+    return out
+
+
+def _distinct_poses(poses: np.ndarray, sizes: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (pose [4, 4], size [3]) of a track's boxes [M, 4, 4], [M, 3], each kept once unless it
+    moved by 5 cm or more (a parked car's box is annotated at every frame, in the same place)."""
+    out: list[tuple[np.ndarray, np.ndarray]] = []
+    for T, size in zip(np.asarray(poses, np.float64), np.asarray(sizes, np.float64)):
+        if out and np.abs(T[:3, :] - out[-1][0][:3, :]).max() < 0.05 and np.abs(size - out[-1][1]).max() < 0.05:
+            continue
+        out.append((T, size))
+    return out
 
 
 def _plane_axes(up: np.ndarray) -> np.ndarray:
@@ -461,7 +559,15 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                                 np.asarray(t.box_size, np.float64)) for t in scene.tracks])
     ground = (normals @ up > 0.8) & (height - surf.ground_height(means) < 0.3)
 
-    open_ = open_to_sky(means, normals, up=up)
+    # a parked object's returns are static (a moving one's are its node's, below); its body shelters
+    # the ground under it, its box's footprint, not the ground beside it: the downward normals of
+    # its sills and bumpers within 0.5 m sideways left dark holes in the snow along the parked
+    # cars of the PandaSet side cameras
+    moving = {node.track_id for node in gaussians.nodes}
+    parked = [(T, size) for t in scene.tracks if str(t.id) not in moving
+              for T, size in _distinct_poses(t.object_to_world, t.box_size)]
+    side, body, under = _box_parts(means, parked, up=up)
+    open_ = open_to_sky(means, normals, up=up, shelters=~body) & ~under
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
     # Gaussians (about half a metre), so that what is drawn from them is not speckled; a neighbour
     # counts by how much its normal agrees (cos^4), so a car's roof and side, or a kerb's top and
@@ -471,6 +577,10 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     agree = np.clip(np.einsum("nkj,nj->nk", normals[near], normals), 0.0, 1.0) ** 4
     smooth = np.einsum("nk,nkj->nj", agree, normals[near])
     normals = smooth / np.maximum(np.linalg.norm(smooth, axis=1, keepdims=True), 1e-9)
+    # a parked object's side faces no sky, whatever its few returns beside the road give its PCA
+    # normal (tilted up, they took snow in stripes along a car's doors)
+    normals = _level(normals, side, up)
+    ground &= ~side
 
     # surfels: each static Gaussian flattened onto its surface (local z along the normal), so that a
     # surface seen edge-on covers the thin band it fills in the image (a car's roof seen from just
@@ -489,12 +599,18 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     static[:, 5] = surf.puddle_field(means)
     static[:, 6] = np.where(ground, surf.track_field(means), 0.0)
     node_attrs = []
+    tracks = {str(t.id): t for t in scene.tracks}
     for node in gaussians.nodes:
         local = node.cloud.means.astype(np.float64)
         n_local = pca_normals(local)
         if len(local):  # a node with no lidar return inside its box has no Gaussian to orient
             out = np.einsum("ij,ij->i", local - local.mean(axis=0), n_local) < 0
             n_local[out] *= -1.0
+        track = tracks.get(node.track_id)
+        if track is not None and len(local):  # its side faces no sky (as a parked one's, above)
+            box_up = np.array([0.0, 0.0, 1.0])  # the box frame's z
+            box = (np.eye(4), np.median(np.asarray(track.box_size, np.float64), axis=0))
+            n_local = _level(n_local, object_sides(local, [box], up=box_up), box_up)
         a = np.zeros((len(local), len(ATTRIBUTES)), np.float32)
         a[:, :3] = n_local
         a[:, 4] = 1.0  # a moving object is open to the sky (its roof takes snow)

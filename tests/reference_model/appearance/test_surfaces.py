@@ -10,8 +10,10 @@ import pytest
 pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.surfaces import (
+    _box_parts,
     build_surfaces,
     lane_paths,
+    object_sides,
     open_to_sky,
     pca_normals,
     value_noise,
@@ -113,3 +115,67 @@ def test_people_leave_no_wheel_path(demo_scene):
     # a car driving there would leave one
     car = dataclasses.replace(walker, class_name="vehicle")
     assert len(lane_paths(dataclasses.replace(demo_scene, tracks=[*demo_scene.tracks, car]), up=up)) > len(before)
+
+
+def _parked_car(yaw: float, at: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """A 4.5 x 1.8 x 1.5 m sedan's box (object-to-world, yawed, standing on z = 0 at ``at``) and
+    points (world) of its parts at 5 cm: roof, bonnet, doors and side windows, bumpers, and the road
+    under and beside it."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = [at[0], at[1], 0.75]
+    g = np.arange(-1.0, 1.0, 0.05)
+    grid = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    local = {
+        "roof": np.column_stack([grid[:, 0] * 0.9, grid[:, 1] * 0.65, np.full(len(grid), 0.72)]),
+        "bonnet": np.column_stack([1.7 + grid[:, 0] * 0.5, grid[:, 1] * 0.6, np.full(len(grid), 0.15)]),
+        "doors": np.column_stack([grid[:, 0] * 2.0, np.sign(grid[:, 1]) * 0.88, -0.6 + (grid[:, 1] % 0.5) * 2.1]),
+        "bumpers": np.column_stack([np.sign(grid[:, 0]) * 2.24, grid[:, 1] * 0.8, -0.5 + (grid[:, 0] % 0.5)]),
+        "road": np.column_stack([grid * [4.0, 3.0], np.full(len(grid), -0.75)]),
+    }
+    return T, np.array([4.5, 1.8, 1.5]), {k: v @ T[:3, :3].T + T[:3, 3] for k, v in local.items()}
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7])
+def test_a_boxed_objects_sides_are_found_not_its_top_nor_the_road(yaw):
+    T, size, parts = _parked_car(yaw, np.array([5.0, -2.0]))
+    up = np.array([0.0, 0.0, 1.0])
+    points = np.concatenate(list(parts.values()))
+    side = object_sides(points, [(T, size)], up=up)
+    start = 0
+    for name, pts in parts.items():
+        got = side[start:start + len(pts)]
+        start += len(pts)
+        if name in ("doors", "bumpers"):
+            assert got.all(), name
+        else:
+            assert not got.any(), name
+
+
+
+def test_a_parked_cars_sills_shelter_only_the_ground_under_it():
+    # the road beside a parked car's doors: its sills and bumpers face down within 0.5 m sideways
+    # and shelter it by the any-return rule (dark holes in the snow beside the parked cars of the
+    # side cameras); vertical snowfall reaches it when the car shelters only its own footprint
+    T, size, parts = _parked_car(0.0, np.array([0.0, 0.0]))
+    # an SUV's doors curve under from 0.55 to 0.7 m: there their returns face down
+    sills = parts["doors"][(parts["doors"][:, 2] > 0.55) & (parts["doors"][:, 2] < 0.7)]
+    car = np.concatenate([parts["roof"], sills])
+    car_normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(parts["roof"]), 1)),
+                                  np.tile([0.0, 0.0, -1.0], (len(sills), 1))])
+    g = np.stack(np.meshgrid(np.arange(-2.0, 2.0, 0.1), np.arange(-1.6, 1.6, 0.1)), -1).reshape(-1, 2)
+    road = np.column_stack([g, np.zeros(len(g))])
+    points = np.concatenate([road, car])
+    normals = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(road), 1)), car_normals])
+    up = np.array([0.0, 0.0, 1.0])
+    beside = (np.abs(road[:, 1]) > 1.0) & (np.abs(road[:, 1]) < 1.35) & (np.abs(road[:, 0]) < 1.8)
+    assert not open_to_sky(points, normals, up=up)[:len(road)][beside].all()  # the old rule
+    # build_surfaces' rule: the car's body shelters nothing beside it, its footprint is sheltered
+    _, body, under = _box_parts(points, [(T, size)], up=up)
+    np.testing.assert_array_equal(body, np.arange(len(points)) >= len(road))
+    is_open = (open_to_sky(points, normals, up=up, shelters=~body) & ~under)[:len(road)]
+    assert is_open[beside].all()
+    assert not is_open[(np.abs(road[:, 0]) < 2.2) & (np.abs(road[:, 1]) < 0.85)].any()
+    with pytest.raises(ValueError, match="shelters"):
+        open_to_sky(points, normals, up=up, shelters=body[:-1])
