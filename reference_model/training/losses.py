@@ -27,6 +27,7 @@ from torch import nn
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
 
 __all__ = [
+    "LIDAR_OPAQUE",
     "ContentLoss",
     "depth_l1",
     "opacity_loss",
@@ -148,12 +149,16 @@ def depth_l1(depth: torch.Tensor, lidar: torch.Tensor) -> torch.Tensor:
     return (depth[valid] - lidar[valid]).abs().mean()
 
 
+#: Accumulated opacity above which the lidar term of :func:`opacity_loss` no longer pulls a pixel.
+LIDAR_OPAQUE = 0.9
+
+
 def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool = False,
                  lidar: torch.Tensor | None = None, lidar_weight: float = 0.0) -> torch.Tensor:
     """-mean(O log O) - mean(M_sky log(1 - O)) of the accumulated opacity O [H, W] (the paper's),
     with ``solid`` also -mean((1 - M_sky) log O): the Gaussians cover every pixel that is not sky,
     and with ``lidar`` also -``lidar_weight`` mean(M_lidar log O): the pixels a lidar return lands
-    in are pulled harder.
+    in are pulled harder, up to :data:`LIDAR_OPAQUE`.
 
     The paper's two terms leave a non-sky pixel free to be drawn by the sky map; under an edited
     weather's haze the sky is not seen (it lies at infinity), so such a pixel would show the
@@ -188,7 +193,10 @@ def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool =
         if solid:
             out = out - ((1.0 - m) * torch.log(o)).mean()
     if lidar is not None and lidar_weight > 0:
-        out = out - lidar_weight * (lidar.to(o.dtype) * torch.log(o)).mean()
+        # a hinge: a pixel this opaque is solid already (sky would be below 0.5); the broad surfaces
+        # the lidar covers are left to the colour fit
+        held = o.clamp(max=LIDAR_OPAQUE)
+        out = out - lidar_weight * (lidar.to(o.dtype) * torch.log(held)).mean()
     return out
 
 
