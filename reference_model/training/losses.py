@@ -9,7 +9,8 @@
 - Content: L1 between VGG16 features of each weather's render and of the raw frame, sky masked out
   (the paper uses VGG-19, which no registry ships; docs/design.md §6).
 - Depth: L1 between the expected depth and the lidar depth where a return landed.
-- Opacity: -sum O log O - sum M_sky log(1 - O) (paper, supplement), per pixel mean.
+- Opacity: -sum O log O - sum M_sky log(1 - O) (paper, supplement), per pixel mean; here also the
+  non-sky and the lidar-hit pixels pulled toward O = 1 (:func:`opacity_loss`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from torch import nn
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
 
 __all__ = [
+    "LIDAR_OPAQUE",
     "ContentLoss",
     "depth_l1",
     "opacity_loss",
@@ -147,22 +149,54 @@ def depth_l1(depth: torch.Tensor, lidar: torch.Tensor) -> torch.Tensor:
     return (depth[valid] - lidar[valid]).abs().mean()
 
 
-def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool = False) -> torch.Tensor:
-    """-mean(O log O) - mean(M_sky log(1 - O)) of the accumulated opacity O [H, W] (the paper's), and
-    with ``solid`` also -mean((1 - M_sky) log O): the Gaussians cover every pixel that is not sky.
+#: Accumulated opacity above which the lidar term of :func:`opacity_loss` no longer pulls a pixel.
+LIDAR_OPAQUE = 0.9
+
+
+def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool = False,
+                 lidar: torch.Tensor | None = None, lidar_weight: float = 0.0) -> torch.Tensor:
+    """-mean(O log O) - mean(M_sky log(1 - O)) of the accumulated opacity O [H, W] (the paper's),
+    with ``solid`` also -mean((1 - M_sky) log O): the Gaussians cover every pixel that is not sky,
+    and with ``lidar`` also -``lidar_weight`` mean(M_lidar log O): the pixels a lidar return lands
+    in are pulled harder, up to :data:`LIDAR_OPAQUE`.
 
     The paper's two terms leave a non-sky pixel free to be drawn by the sky map; under an edited
     weather's haze the sky is not seen (it lies at infinity), so such a pixel would show the
-    airlight instead of the structure (``TrainConfig.opacity_solid``).
+    airlight instead of the structure (``TrainConfig.opacity_solid``). On a thin structure against
+    the sky (a wire, a mast, a sign's edge: a pixel or two wide) the plain pull loses to the sky
+    term of the pixels on either side and the sky map draws it; a lidar return there says the pixel
+    is solid for certain (``TrainConfig.opacity_lidar``, docs/findings.md).
+
+    Parameters
+    ----------
+    alpha : Tensor [H, W]
+        Accumulated opacity of the Gaussians, in [0, 1].
+    sky : Tensor [H, W] bool or None
+        Sky pixels (None: the entropy term alone).
+    solid : bool
+        Pull every non-sky pixel toward opacity 1.
+    lidar : Tensor [H, W] bool, optional
+        Pixels a lidar return lands in.
+    lidar_weight : float
+        Weight of their pull (relative to the other terms' 1); >= 0.
+
+    Returns
+    -------
+    Tensor []
     """
     o = alpha.clamp(_EPS, 1 - _EPS)
     entropy = -(o * torch.log(o)).mean()
-    if sky is None:
-        return entropy
-    m = sky.to(o.dtype)
-    out = entropy - (m * torch.log(1 - o)).mean()
-    if solid:
-        out = out - ((1.0 - m) * torch.log(o)).mean()
+    out = entropy
+    if sky is not None:
+        m = sky.to(o.dtype)
+        out = out - (m * torch.log(1 - o)).mean()
+        if solid:
+            out = out - ((1.0 - m) * torch.log(o)).mean()
+    if lidar is not None and lidar_weight > 0:
+        # a hinge: a pixel this opaque is solid already (sky would be below 0.5); the broad surfaces
+        # the lidar covers are left to the colour fit
+        held = o.clamp(max=LIDAR_OPAQUE)
+        out = out - lidar_weight * (lidar.to(o.dtype) * torch.log(held)).mean()
     return out
 
 

@@ -8,7 +8,7 @@ minimises
                                    (an edit's I_w composed through its weather's haze: ``through_haze``)
     + lambda_cc  L_cc(I_w, raw)      every ``content_interval``-th weather step, VGG16, sky masked
     + lambda_depth |D - D_lidar|     where the frame's lidar landed
-    + lambda_opacity L_opacity(A, sky)
+    + lambda_opacity L_opacity(A, sky, lidar hits)
     + lambda_deform (|delta|^2 + |delta_t+1 - delta_t|^2)           pedestrians' offsets
 
 with Adam (a learning rate per parameter kind; the centres' may decay exponentially over the
@@ -83,6 +83,7 @@ class _ViewTensors:
     non_sky: torch.Tensor | None
     grid: torch.Tensor
     ignore: torch.Tensor | None = None
+    solid: torch.Tensor | None = None
 
 
 @dataclass
@@ -177,6 +178,7 @@ class Trainer:
             non_sky=non_sky,
             grid=grid,
             ignore=ignore,
+            solid=put(v.solid) if v.solid is not None and v.solid.any() else None,
         )
 
     def _view_at(self, v: TrainingView, divisor: int) -> tuple[TrainingView, _ViewTensors]:
@@ -308,7 +310,8 @@ class Trainer:
             terms.append((cfg.depth_weight, d))
             logged["depth"] = float(d.detach())
         if cfg.opacity_weight > 0:
-            o = opacity_loss(render.alpha, tv.sky, solid=cfg.opacity_solid)
+            o = opacity_loss(render.alpha, tv.sky, solid=cfg.opacity_solid, lidar=tv.solid,
+                             lidar_weight=cfg.opacity_lidar)
             terms.append((cfg.opacity_weight, o))
             logged["opacity"] = float(o.detach())
         if self.model.nonrigid and cfg.deform_weight > 0:

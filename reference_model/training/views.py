@@ -54,6 +54,10 @@ class TrainingView:
         Lidar z-depth of the frame's own sweep (m), 0 where no point lands; None without a sweep.
     sky : ndarray [H, W] bool or None
         Sky pixels, when known or derived.
+    solid : ndarray [H, W] bool or None
+        Pixels a lidar return the scene analysis trusts lands in
+        (:func:`~wcbench.reference_model.scene_analysis.analysis.solid_masks`): never sky, the scene
+        is opaque there (outside the ego vehicle's body); None when the scene was not analysed.
     dynamic : ndarray [H, W] bool
         Pixels inside the projected boxes of moving objects.
     ignore : ndarray [H, W] bool
@@ -69,6 +73,7 @@ class TrainingView:
     images: dict[str, np.ndarray]
     depth: np.ndarray | None = None
     sky: np.ndarray | None = None
+    solid: np.ndarray | None = None
     dynamic: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
     ignore: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
 
@@ -121,6 +126,7 @@ def scaled_view(view: TrainingView, divisor: int) -> TrainingView:
         images={k: resize_float(img, (w, h)) for k, img in view.images.items()},
         depth=None if view.depth is None else nearest(view.depth),
         sky=None if view.sky is None else mask(view.sky),
+        solid=None if view.solid is None else mask(view.solid),
         dynamic=mask(view.dynamic), ignore=mask(view.ignore),
     )
 
@@ -229,9 +235,12 @@ def build_views(
             sky = cv2.resize(_read_mask(f.sky_mask_path), (width, height), interpolation=cv2.INTER_NEAREST) > 0
         elif analysis is not None:
             sky = analysis.sky_mask(k, (width, height)) & ~dynamic
+        solid = None if analysis is None else analysis.solid_mask(k, (width, height)) & ~ignore
+        if solid is not None and sky is not None:
+            solid &= ~sky  # a shipped mask has the last word
         views.append(TrainingView(frame=k, time=float(f.timestamp) - t0, camera_to_world=c2w, K=K, width=width,
-                                  height=height, images=images, depth=depth, sky=sky, dynamic=dynamic,
-                                  ignore=ignore.copy()))
+                                  height=height, images=images, depth=depth, sky=sky, solid=solid,
+                                  dynamic=dynamic, ignore=ignore.copy()))
     facts: dict[str, Any] = {
         "size": [width, height],
         "sky_masks": "shipped" if shipped else ("segmented: from the image, checked by the lidar"

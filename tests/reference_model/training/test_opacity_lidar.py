@@ -1,0 +1,71 @@
+"""The opacity loss's lidar term: a pixel a trusted lidar return lands in is pulled toward opacity 1
+harder than any other non-sky pixel, so that thin structure against the sky (a wire, a mast) is the
+Gaussians', not the sky map's (docs/findings.md, "WeatherCity's lidar hits as sky")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene  # noqa: E402
+from wcbench.reference_model.training.config import make_config  # noqa: E402
+from wcbench.reference_model.training.losses import LIDAR_OPAQUE, opacity_loss  # noqa: E402
+from wcbench.reference_model.training.views import build_views, scaled_view  # noqa: E402
+
+SIZE = (96, 54)
+
+
+def _grad(alpha: np.ndarray, sky: np.ndarray | None, **kwargs) -> np.ndarray:
+    a = torch.tensor(alpha, dtype=torch.float64, requires_grad=True)
+    opacity_loss(a, None if sky is None else torch.from_numpy(sky), **kwargs).backward()
+    assert a.grad is not None
+    return a.grad.numpy()
+
+
+def test_a_lidar_hit_pixel_is_pulled_toward_opacity_one_lidar_weight_times_harder_until_opaque():
+    alpha = np.full((3, 4), 0.3)
+    sky = np.zeros((3, 4), bool)
+    sky[0] = True
+    lidar = np.zeros((3, 4), bool)
+    lidar[2, 1] = True
+    entropy = _grad(alpha, None)  # the entropy term alone: the same at every pixel of the same opacity
+    plain = _grad(alpha, sky, solid=True) - entropy
+    pulled = _grad(alpha, sky, solid=True, lidar=torch.from_numpy(lidar), lidar_weight=10.0) - entropy
+    assert plain[1, 1] < 0 and plain[0, 0] > 0  # non-sky pulled up, sky pushed down
+    np.testing.assert_allclose(pulled[2, 1], 11.0 * plain[2, 1], rtol=1e-9)  # 1 + lidar_weight
+    lidar_free = ~lidar
+    np.testing.assert_allclose(pulled[lidar_free], plain[lidar_free], rtol=1e-9)  # nothing else moves
+    # above LIDAR_OPAQUE the pixel is solid already: no extra pull
+    opaque = np.full((3, 4), 0.5 * (1.0 + LIDAR_OPAQUE))
+    np.testing.assert_allclose(_grad(opaque, sky, solid=True, lidar=torch.from_numpy(lidar), lidar_weight=10.0),
+                               _grad(opaque, sky, solid=True), rtol=1e-12)
+    # a weight of 0 or no mask is the loss as it was
+    base = opacity_loss(torch.from_numpy(alpha), torch.from_numpy(sky), solid=True)
+    assert float(opacity_loss(torch.from_numpy(alpha), torch.from_numpy(sky), solid=True,
+                              lidar=torch.from_numpy(lidar), lidar_weight=0.0)) == pytest.approx(float(base))
+
+
+def test_the_lidar_pull_is_a_bounded_setting_off_by_default():
+    assert make_config("default").opacity_lidar == 0.0  # docs/findings.md: its PSNR cost is not yet measured
+    assert make_config("default", opacity_lidar=10.0).opacity_lidar == 10.0
+    with pytest.raises(ValueError, match="opacity_lidar"):
+        make_config("default", opacity_lidar=-1.0)
+
+
+def test_training_views_mark_the_trusted_lidar_pixels_solid_never_sky_nor_the_ego_body(demo_scene):
+    views, _ = build_views(demo_scene, size=SIZE, supervision={})
+    analysis = analyse_scene(demo_scene)
+    for v in views:
+        assert v.solid is not None and v.solid.shape == (SIZE[1], SIZE[0])
+        expected = analysis.solid_mask(v.frame, SIZE) & ~v.ignore
+        if v.sky is not None:
+            expected &= ~v.sky
+            assert not (v.solid & v.sky).any()
+        np.testing.assert_array_equal(v.solid, expected)
+        assert v.solid.any()
+        half = scaled_view(v, 2)  # progressive resolution keeps the mask at its size
+        assert half.solid is not None and half.solid.shape == (half.height, half.width)
+    unanalysed, _ = build_views(demo_scene, size=SIZE, supervision={}, derive_sky=False)
+    assert all(v.solid is None for v in unanalysed)
