@@ -365,7 +365,10 @@ class WeatherEditor:
             _, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height, exposure, sky_seen)
             seen = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
             seen = m.sky_alpha[..., None] * sky + (1.0 - m.sky_alpha[..., None]) * seen
-            refl, _ = screen_reflection(seen, camera, m, refl_dist, up=up)
+            mirrored = m.rays - 2.0 * (m.rays @ up.astype(np.float32))[..., None] * up.astype(np.float32)
+            sky_mirrored = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else \
+                self.overcast_sky(mirrored)
+            refl, _ = screen_reflection(seen, camera, m, refl_dist, up=up, sky=sky_mirrored)
             blur = float(table["rough_blur_px"]) * h / 270.0
             rough = glossy_blur(refl, ground, m.rays, up=up, sigma_px=blur)
             cos = np.abs(np.sum(m.rays * m.normal, axis=-1))

@@ -349,7 +349,8 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
 
 
 def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray, *,
-                      up: np.ndarray, fill_sigma_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      up: np.ndarray, sky: np.ndarray | None = None,
+                      fill_sigma_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """What the ground plane mirrors at each pixel, in the frame's own colours (screen-space reflection).
 
     A wet road reflects what stands above it, and what stands above it the camera mostly sees: the
@@ -360,9 +361,12 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
     ``source`` is the reflection, when the camera sees X there (its surface at that pixel is not
     nearer than X; an X at infinity is seen wherever it projects). The lidar's own colours (a
     mover's from another frame, a return's from a sweep the camera saw differently) are never
-    used. Where X is hidden or out of the frame, the reflection is the normalised convolution
-    (Knutsson & Westin 1993) of the seen reflections around it (a rough film blurs its reflection
-    anyway), at ``fill_sigma_px`` and at four times that.
+    used. An X at infinity out of the frame (the steep reflected rays of the near road, which
+    look up past the frame's top) is the sky the reflected ray sees, ``sky``, where it is given:
+    the ray meets nothing, so nothing but the sky is there to mirror. Where X is hidden or out of
+    the frame otherwise, the reflection is the normalised convolution (Knutsson & Westin 1993)
+    of the known reflections around it (a rough film blurs its reflection anyway), at
+    ``fill_sigma_px`` and at four times that.
 
     Parameters
     ----------
@@ -376,6 +380,9 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
         :func:`mirror_render`'s path lengths (m; ``inf`` where the reflected ray meets no surface).
     up : ndarray [3]
         The world's up.
+    sky : ndarray [H, W, 3] float32, optional
+        Display RGB of the sky each pixel's reflected ray sees at infinity (the weather's sky in
+        the mirrored direction); without it, such rays out of the frame are filled too.
     fill_sigma_px : float, optional
         Default 6 px at 270 rows.
 
@@ -384,13 +391,15 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
     image : ndarray [H, W, 3] float32
         Display RGB of the reflection (``source`` itself where a pixel's ray does not meet the plane).
     seen : ndarray [H, W] bool
-        Where the reflection was seen directly (not filled).
+        Where the reflection is known (seen directly, or the sky): not filled.
     """
     src = np.asarray(source, np.float32)
     h, w = src.shape[:2]
     if maps.rays.shape[:2] != (h, w) or np.shape(mirror_distance) != (h, w):
         raise ValueError(f"source is {w}x{h}; the maps' rays are {maps.rays.shape[1]}x{maps.rays.shape[0]} "
                          f"and mirror_distance {np.shape(mirror_distance)}")
+    if sky is not None and np.shape(sky) != (h, w, 3):
+        raise ValueError(f"sky is {np.shape(sky)}; expected the source's shape {(h, w, 3)}")
     up = np.asarray(up, np.float64)
     center = np.asarray(camera.center, np.float64)
     rays = maps.rays.astype(np.float64)
@@ -420,6 +429,11 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
     image = cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     seen = np.zeros((h, w), bool)
     seen[rr[seen_at], cc[seen_at]] = True
+    if sky is not None:
+        # a reflected ray that meets no surface sees the sky, in the frame or past its edge
+        open_sky = ~finite & ~seen_at
+        image[rr[open_sky], cc[open_sky]] = np.asarray(sky, np.float32)[rr[open_sky], cc[open_sky]]
+        seen[rr[open_sky], cc[open_sky]] = True
     missing = hits & ~seen
     if missing.any():
         sigma = fill_sigma_px if fill_sigma_px is not None else 6.0 * h / 270.0

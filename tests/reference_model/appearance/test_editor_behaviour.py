@@ -95,6 +95,38 @@ def test_the_wet_road_mirrors_what_the_camera_sees_above_it(synth_hard):
     assert np.median(np.abs(gain[road])) < 0.01  # the rest of the road is untouched
 
 
+def test_the_wet_road_mirrors_the_open_sky_past_the_frame_top(synth_hard):
+    # the near road's reflected rays look up past the frame's top; where they meet no surface the
+    # road mirrors the sky, not the colours of the trees and facades at the frame's top (a fill from
+    # the reflections around it): blackening everything above the road but the sky leaves those
+    # pixels as they were
+    analysis = analyse_scene(synth_hard)
+    k = 15
+    cam, raw = synth_hard.frames[k].camera, _frame(synth_hard, k)
+    weather = resolve_physics(synth_hard, "auto")["rain"]
+    editor = WeatherEditor(synth_hard, analysis=analysis, params=AppearanceParams.load({"rain": {"puddle_max": 0.6}}))
+    m = editor.maps(k, cam, raw)
+    up = editor.surfaces.up
+    _, refl_dist = mirror_render(editor.surfaces, k, cam, m.ground_height, 0.5, np.asarray(weather.haze()[1]))
+    rays = m.rays.astype(np.float64)
+    height = float(np.asarray(cam.center, np.float64) @ up - m.ground_height)
+    down = rays @ up
+    t = np.where(down < -1e-3, height / np.maximum(-down, 1e-3), np.inf)
+    mirrored = rays - 2.0 * down[..., None] * up
+    h, w = m.sky.shape
+    uv, z = cam.project((np.asarray(cam.center) + rays * np.minimum(t, 1e3)[..., None] + 1e5 * mirrored).reshape(-1, 3))
+    uv = uv.reshape(h, w, 2)
+    outside = (z.reshape(h, w) <= 0) | (uv[..., 1] < 0)
+    open_sky = (m.ground > 0.9) & np.isfinite(t) & ~np.isfinite(refl_dist) & outside
+    # away from the rest of the road, whose reflections a rough film blurs into these pixels
+    core = cv2.erode(open_sky.astype(np.uint8), np.ones((31, 31), np.uint8)) > 0
+    assert core.sum() > 200
+    painted = raw.copy()
+    painted[(m.ground < 0.5) & ~m.sky] = 0.0
+    before, after = editor.edit(raw, k, cam, weather)[0], editor.edit(painted, k, cam, weather)[0]
+    assert np.abs(_luma(after) - _luma(before))[core].max() < 1e-3
+
+
 def test_stray_dynamic_returns_are_no_surface(synth_hard, monkeypatch):
     # a few returns floating in the air and returns on the road's own surface, classified dynamic in
     # frame k, are spray or noise: not drawn (a blob on the road, neither wetted nor snowed on)
