@@ -3,9 +3,10 @@
 - Background: Gaussians from the lidar of the training frames (voxel-downsampled, colored by their
   own frame), plus sparse far Gaussians along the rays of pixels no lidar return reaches, so that
   distant structure exists; Gaussians outside every training frustum are dropped.
-- One rigid node per *moving* track (tracks that do not move stay in the background); tracks of
-  deformable classes (pedestrians, cyclists) become non-rigid nodes. A node type with no object is
-  not built, and its code never runs.
+- One rigid node per boxed track, moving or not (``static_nodes``; off, tracks that do not move
+  stay in the background), its lidar returns cut out of the background, so that every object the
+  scene ships a box for can be edited; tracks of deformable classes (pedestrians, cyclists) become
+  non-rigid nodes. A node type with no object is not built, and its code never runs.
 - Decoders for the clear weather and each supervised weather only (a weather without supervision
   is not trained); one sky map per decoded weather, warm-started from the sky pixels.
 
@@ -188,7 +189,7 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
     """
     frames = [v.frame for v in views]
     options = LidarInitOptions(voxel_m=config.voxel_m, node_voxel_m=config.node_voxel_m, opacity=config.init_opacity,
-                               moving_threshold_m=config.moving_threshold_m)
+                               moving_threshold_m=config.moving_threshold_m, static_nodes=config.static_nodes)
     graph = init_scene_from_lidar(scene, options, frames=frames)
     clouds = [graph.static]
     n_far = 0
@@ -244,17 +245,17 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         GaussianParams.from_cloud(background, feature_dim=config.feature_dim, seed=config.seed),
         rigid, nonrigid, decoders, sky,
     )
-    moving = len(graph.nodes)
+    boxed = len(graph.nodes)
     facts = {
         "gaussians": model.counts(),
         "far_gaussians": n_far,
         "completion_gaussians": n_completion,
         "skipped": {
-            "static_tracks_in_background": len(scene.tracks) - moving,
-            "moving_tracks_without_lidar_points": empty_nodes,
+            "tracks_in_background": len(scene.tracks) - boxed,
+            "tracks_without_lidar_points": empty_nodes,
             "gaussians_outside_every_training_frustum": dropped,
-            "nonrigid_nodes": None if nonrigid else "no moving pedestrian or cyclist: node type not built",
-            "rigid_nodes": None if rigid else "no moving rigid object: node type not built",
+            "nonrigid_nodes": None if nonrigid else "no boxed pedestrian or cyclist: node type not built",
+            "rigid_nodes": None if rigid else "no boxed rigid object: node type not built",
         },
         "weathers": list(weathers),
     }
