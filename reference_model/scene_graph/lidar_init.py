@@ -14,7 +14,7 @@ if their sweeps were accumulated in the world. Their points are cut out of the s
 with :func:`init_scene_from_lidar`, kept as rigid nodes in their box frame and moved by the track
 pose (the rigid nodes of docs/design.md §7, :mod:`.nodes`): :meth:`SceneGaussians.at_frame` gives
 the Gaussians of a frame. With ``static_nodes`` every other boxed track (a parked car, a cone)
-becomes a node as well, held at one pose in every frame (:func:`node_tracks`), so that object
+becomes a node as well, held at one pose (:func:`node_tracks`), so that object
 editing reaches every object the scene ships a box for.
 """
 
@@ -241,23 +241,23 @@ def moving_tracks(scene: Any, threshold_m: float = 0.5) -> list[Any]:
 
 @dataclass(frozen=True)
 class _HeldTrack:
-    """A track that does not move, posed at one box in every frame of the scene (:func:`node_tracks`)."""
+    """A track that does not move, posed at one box in each of its annotated frames (:func:`node_tracks`)."""
 
     id: str
     class_name: str
-    frames: np.ndarray  # [n_frames] int
-    object_to_world: np.ndarray  # [n_frames, 4, 4]
-    box_size: np.ndarray  # [n_frames, 3]
+    frames: np.ndarray  # [M] int
+    object_to_world: np.ndarray  # [M, 4, 4]
+    box_size: np.ndarray  # [M, 3]
 
 
-def _held_still(track: Any, n_frames: int) -> _HeldTrack:
-    """``track`` at its median annotation (the box nearest the centres' median) in all ``n_frames``."""
+def _held_still(track: Any) -> _HeldTrack:
+    """``track`` at its median annotation (the box nearest the centres' median) in each annotated frame."""
     T = np.asarray(track.object_to_world, np.float64)
     sizes = np.asarray(track.box_size, np.float64).reshape(-1, 3)
     k = int(np.argmin(np.linalg.norm(T[:, :3, 3] - np.median(T[:, :3, 3], axis=0), axis=1)))
-    return _HeldTrack(id=str(track.id), class_name=str(track.class_name), frames=np.arange(n_frames),
-                      object_to_world=np.repeat(T[k][None], n_frames, axis=0),
-                      box_size=np.repeat(sizes[k][None], n_frames, axis=0))
+    return _HeldTrack(id=str(track.id), class_name=str(track.class_name), frames=np.asarray(track.frames),
+                      object_to_world=np.repeat(T[k][None], len(T), axis=0),
+                      box_size=np.repeat(sizes[k][None], len(T), axis=0))
 
 
 def node_tracks(scene: Any, *, moving_threshold_m: float = 0.5, static_nodes: bool = False) -> list[Any]:
@@ -266,14 +266,14 @@ def node_tracks(scene: Any, *, moving_threshold_m: float = 0.5, static_nodes: bo
     Parameters
     ----------
     scene : wcbench.scenes.scene.Scene
-        Or any object with ``tracks`` and ``frames``.
+        Or any object with ``tracks``.
     moving_threshold_m : float
         A track whose box centre moves more than this (m) is moving (:func:`moving_tracks`): posed
         per annotated frame, one node even if it stands still part of the time.
     static_nodes : bool
-        Every other track too, held at its median box in **every** frame of the scene (an object
-        that does not move is there whether or not it is annotated; annotation jitter does not
-        shake it): its returns of every sweep are cut out of the static cloud.
+        Every other track too, held at its median box in each frame it is annotated in (annotation
+        jitter does not shake it). Not in the others: a still box annotated only late (a pedestrian
+        who stops) says nothing of what stood there before.
 
     Returns
     -------
@@ -284,8 +284,7 @@ def node_tracks(scene: Any, *, moving_threshold_m: float = 0.5, static_nodes: bo
     if not static_nodes:
         return moving
     ids = {id(t) for t in moving}
-    return moving + [_held_still(t, len(scene.frames)) for t in scene.tracks
-                     if id(t) not in ids and len(np.asarray(t.frames))]
+    return moving + [_held_still(t) for t in scene.tracks if id(t) not in ids and len(np.asarray(t.frames))]
 
 
 def _inside_box(

@@ -80,8 +80,8 @@ class TrainConfig:
         Tracks whose box moves more than this (m) are moving: posed per frame by their track (and
         masked as dynamic in the training views).
     static_nodes : bool
-        Tracks that do not move (parked cars, cones) get a node too, held at their box in every
-        frame, their lidar Gaussians cut out of the background: every boxed object is editable
+        Tracks that do not move (parked cars, cones) get a node too, held at their median box,
+        their lidar Gaussians cut out of the background: every boxed object is editable
         (docs/design.md §7). Off: they stay in the background.
     far_points : bool
         Add Gaussians far along the rays of pixels no lidar point reaches (distant structure).
