@@ -48,7 +48,8 @@ def _refresh_after_load(module: nn.Module, _incompatible: object) -> None:
 
 
 class RigidObject(nn.Module):
-    """A moving object's Gaussians in its box frame and its poses per scene frame.
+    """A boxed object's Gaussians in its box frame and its poses per scene frame (constant for one that
+    does not move).
 
     Parameters
     ----------

@@ -13,7 +13,9 @@ Moving objects (tracks whose box moves more than ``moving_threshold_m``) would s
 if their sweeps were accumulated in the world. Their points are cut out of the static cloud and,
 with :func:`init_scene_from_lidar`, kept as rigid nodes in their box frame and moved by the track
 pose (the rigid nodes of docs/design.md §7, :mod:`.nodes`): :meth:`SceneGaussians.at_frame` gives
-the Gaussians of a frame.
+the Gaussians of a frame. With ``static_nodes`` every other boxed track (a parked car, a cone)
+becomes a node as well, held at one pose (:func:`node_tracks`), so that object
+editing reaches every object the scene ships a box for.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ __all__ = [
     "init_from_lidar",
     "init_scene_from_lidar",
     "moving_tracks",
+    "node_tracks",
     "sample_image",
     "voxel_downsample",
 ]
@@ -236,6 +239,54 @@ def moving_tracks(scene: Any, threshold_m: float = 0.5) -> list[Any]:
     return out
 
 
+@dataclass(frozen=True)
+class _HeldTrack:
+    """A track that does not move, posed at one box in each of its annotated frames (:func:`node_tracks`)."""
+
+    id: str
+    class_name: str
+    frames: np.ndarray  # [M] int
+    object_to_world: np.ndarray  # [M, 4, 4]
+    box_size: np.ndarray  # [M, 3]
+
+
+def _held_still(track: Any) -> _HeldTrack:
+    """``track`` at its median annotation (the box nearest the centres' median) in each annotated frame."""
+    T = np.asarray(track.object_to_world, np.float64)
+    sizes = np.asarray(track.box_size, np.float64).reshape(-1, 3)
+    k = int(np.argmin(np.linalg.norm(T[:, :3, 3] - np.median(T[:, :3, 3], axis=0), axis=1)))
+    return _HeldTrack(id=str(track.id), class_name=str(track.class_name), frames=np.asarray(track.frames),
+                      object_to_world=np.repeat(T[k][None], len(T), axis=0),
+                      box_size=np.repeat(sizes[k][None], len(T), axis=0))
+
+
+def node_tracks(scene: Any, *, moving_threshold_m: float = 0.5, static_nodes: bool = False) -> list[Any]:
+    """The tracks that become scene-graph nodes: the moving ones, and with ``static_nodes`` the others.
+
+    Parameters
+    ----------
+    scene : wcbench.scenes.scene.Scene
+        Or any object with ``tracks``.
+    moving_threshold_m : float
+        A track whose box centre moves more than this (m) is moving (:func:`moving_tracks`): posed
+        per annotated frame, one node even if it stands still part of the time.
+    static_nodes : bool
+        Every other track too, held at its median box in each frame it is annotated in (annotation
+        jitter does not shake it). Not in the others: a still box annotated only late (a pedestrian
+        who stops) says nothing of what stood there before.
+
+    Returns
+    -------
+    list
+        The moving tracks as the scene has them, then the held ones, each in scene order.
+    """
+    moving = moving_tracks(scene, moving_threshold_m)
+    if not static_nodes:
+        return moving
+    ids = {id(t) for t in moving}
+    return moving + [_held_still(t) for t in scene.tracks if id(t) not in ids and len(np.asarray(t.frames))]
+
+
 def _inside_box(
     points: np.ndarray, object_to_world: np.ndarray, size: np.ndarray, margin_m: float
 ) -> np.ndarray:
@@ -309,6 +360,11 @@ class LidarInitOptions:
         voxels (isolated returns: noise).
     moving_threshold_m : float
         A track whose box center moves more than this is moving (m).
+    static_nodes : bool
+        :func:`init_scene_from_lidar` makes every boxed track a node, the ones that do not move too
+        (:func:`node_tracks`), and cuts their returns out of the static cloud: what object editing
+        needs (the training's default). Off, they stay in the static cloud, for renderers that draw
+        the static cloud alone.
     box_margin_m : float
         Growth of the boxes when cutting points out (m).
 
@@ -328,6 +384,7 @@ class LidarInitOptions:
     max_angular_scale: float = 0.02
     min_points: int = 2
     moving_threshold_m: float = 0.5
+    static_nodes: bool = False
     box_margin_m: float = 0.2
 
     def __post_init__(self) -> None:
@@ -409,7 +466,7 @@ def init_scene_from_lidar(
     frames: Iterable[int] | None = None,
     keep: Mapping[int, np.ndarray] | None = None,
 ) -> SceneGaussians:
-    """Static Gaussians plus one rigid node per moving track, from the lidar and images.
+    """Static Gaussians plus one rigid node per moving track (per track with ``static_nodes``).
 
     Parameters
     ----------
@@ -425,6 +482,7 @@ def init_scene_from_lidar(
     Returns
     -------
     SceneGaussians
+        Nodes in :func:`node_tracks`' order; a track with no return in its box has none.
 
     Raises
     ------
@@ -436,7 +494,7 @@ def init_scene_from_lidar(
     if len(points) == 0:
         raise InputError(f"scene {scene.id!r} ({scene.root}): no lidar point projects into any camera image")
     ranges = _ranges(scene, points, frame)
-    tracks = moving_tracks(scene, opts.moving_threshold_m)
+    tracks = node_tracks(scene, moving_threshold_m=opts.moving_threshold_m, static_nodes=opts.static_nodes)
     static, members = _split_moving(scene, points, frame, tracks, opts.box_margin_m)
     static_cloud = _cloud(opts, points[static], colors[static], ranges[static])
     nodes = []

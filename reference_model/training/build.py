@@ -3,9 +3,10 @@
 - Background: Gaussians from the lidar of the training frames (voxel-downsampled, colored by their
   own frame), plus sparse far Gaussians along the rays of pixels no lidar return reaches, so that
   distant structure exists; Gaussians outside every training frustum are dropped.
-- One rigid node per *moving* track (tracks that do not move stay in the background); tracks of
-  deformable classes (pedestrians, cyclists) become non-rigid nodes. A node type with no object is
-  not built, and its code never runs.
+- One rigid node per boxed track, moving or not (``static_nodes``; off, tracks that do not move
+  stay in the background), its lidar returns cut out of the background, so that every object the
+  scene ships a box for can be edited; tracks of deformable classes (pedestrians, cyclists) become
+  non-rigid nodes. A node type with no object is not built, and its code never runs.
 - Decoders for the clear weather and each supervised weather only (a weather without supervision
   is not trained); one sky map per decoded weather, warm-started from the sky pixels.
 
@@ -14,7 +15,7 @@ What was built and skipped is returned as a JSON-ready record for ``info.json``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import cv2
@@ -33,9 +34,14 @@ from wcbench.reference_model.scene_graph.completion import (
     ground_height_below,
 )
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
-from wcbench.reference_model.scene_graph.lidar_init import LidarInitOptions, init_scene_from_lidar, sample_image
+from wcbench.reference_model.scene_graph.lidar_init import (
+    LidarInitOptions,
+    init_scene_from_lidar,
+    node_tracks,
+    sample_image,
+)
 from wcbench.reference_model.training.config import TrainConfig
-from wcbench.reference_model.training.views import TrainingView
+from wcbench.reference_model.training.views import TrainingView, box_mask
 
 __all__ = ["NONRIGID_WORDS", "build_model", "completion_cloud", "far_cloud", "in_any_frustum", "is_nonrigid"]
 
@@ -80,11 +86,13 @@ def _isotropic_cloud(means: list[np.ndarray], colors: list[np.ndarray], scales: 
 
 
 def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int = 3,
-              opacity: float = 0.5) -> GaussianCloud:
+              opacity: float = 0.5, objects: Mapping[int, np.ndarray] | None = None) -> GaussianCloud:
     """Gaussians far along the rays of pixels that no lidar return reaches (not sky, not objects).
 
     Each sampled pixel gets one Gaussian at 1.2 times the view's 95th-percentile lidar depth (at
-    least 40 m), as wide as ``stride_px`` pixels there, colored by the pixel.
+    least 40 m), as wide as ``stride_px`` pixels there, colored by the pixel. ``objects`` maps a
+    view's frame to an [H, W] bool mask of pixels no Gaussian is made for besides its moving
+    objects (the scene graph's object boxes, :func:`build_model`).
     """
     means, colors, scales = [], [], []
     for v in list(views)[::every]:
@@ -102,6 +110,8 @@ def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int =
                 yy, xx = np.clip(ys + dy, 0, v.height - 1), np.clip(xs + dx, 0, v.width - 1)
                 covered |= v.depth[yy, xx] > 0
         ok = ~covered & ~v.dynamic[ys, xs]
+        if objects is not None and v.frame in objects:
+            ok &= ~objects[v.frame][ys, xs]
         if v.ignore.shape == (v.height, v.width):
             ok &= ~v.ignore[ys, xs]
         if v.sky is not None:
@@ -119,14 +129,15 @@ def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int =
 
 
 def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px: int = 6, every: int = 2,
-                     opacity: float = 0.5, max_distance_m: float = 200.0) -> GaussianCloud:
+                     opacity: float = 0.5, max_distance_m: float = 200.0,
+                     objects: Mapping[int, np.ndarray] | None = None) -> GaussianCloud:
     """Gaussians on the surfaces a view sees beyond its lidar: the ground plane below the lidar's
     lowest beam and the walls above its highest
     (:func:`~wcbench.reference_model.scene_graph.completion.complete_distance`).
 
     Each sampled pixel (every ``stride_px`` pixels of every ``every``-th view, not sky, not a moving
     object, no lidar return within half a stride) gets one Gaussian at its completed distance, as
-    wide as ``stride_px`` pixels there, colored by the pixel.
+    wide as ``stride_px`` pixels there, colored by the pixel; ``objects`` as in :func:`far_cloud`.
     """
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     means, colors, scales = [], [], []
@@ -154,6 +165,8 @@ def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px
         ok = np.isin(kind[ys_, xs_], (FILL_GROUND, FILL_WALL)) & np.isfinite(d) & (d < max_distance_m)
         if v.dynamic.shape == (h, w):
             ok &= ~v.dynamic[ys_, xs_]
+        if objects is not None and v.frame in objects:
+            ok &= ~objects[v.frame][ys_, xs_]
         if v.ignore.shape == (h, w):
             ok &= ~v.ignore[ys_, xs_]
         ys_, xs_, d = ys_[ok], xs_[ok], d[ok]
@@ -188,17 +201,22 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
     """
     frames = [v.frame for v in views]
     options = LidarInitOptions(voxel_m=config.voxel_m, node_voxel_m=config.node_voxel_m, opacity=config.init_opacity,
-                               moving_threshold_m=config.moving_threshold_m)
+                               moving_threshold_m=config.moving_threshold_m, static_nodes=config.static_nodes)
     graph = init_scene_from_lidar(scene, options, frames=frames)
     clouds = [graph.static]
+    # no far or completion Gaussian where a node's box is: coloured by the object's pixels that the
+    # lidar missed (windows), they would stay in the background when the object is removed
+    boxed = node_tracks(scene, moving_threshold_m=config.moving_threshold_m, static_nodes=config.static_nodes)
+    objects = {v.frame: box_mask(boxed, v.frame, v.world_to_camera, v.K, v.width, v.height) for v in views}
     n_far = 0
     if config.far_points:
-        far = far_cloud(views, opacity=config.init_opacity)
+        far = far_cloud(views, opacity=config.init_opacity, objects=objects)
         n_far = len(far)
         clouds.append(far)
     n_completion = 0
     if config.completion_points:
-        completed = completion_cloud(views, up=np.asarray(scene.up, np.float64), opacity=config.init_opacity)
+        completed = completion_cloud(views, up=np.asarray(scene.up, np.float64), opacity=config.init_opacity,
+                                     objects=objects)
         n_completion = len(completed)
         clouds.append(completed)
     background = GaussianCloud.concatenate(clouds)
@@ -244,17 +262,17 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         GaussianParams.from_cloud(background, feature_dim=config.feature_dim, seed=config.seed),
         rigid, nonrigid, decoders, sky,
     )
-    moving = len(graph.nodes)
+    boxed = len(graph.nodes)
     facts = {
         "gaussians": model.counts(),
         "far_gaussians": n_far,
         "completion_gaussians": n_completion,
         "skipped": {
-            "static_tracks_in_background": len(scene.tracks) - moving,
-            "moving_tracks_without_lidar_points": empty_nodes,
+            "tracks_in_background": len(scene.tracks) - boxed,
+            "tracks_without_lidar_points": empty_nodes,
             "gaussians_outside_every_training_frustum": dropped,
-            "nonrigid_nodes": None if nonrigid else "no moving pedestrian or cyclist: node type not built",
-            "rigid_nodes": None if rigid else "no moving rigid object: node type not built",
+            "nonrigid_nodes": None if nonrigid else "no boxed pedestrian or cyclist: node type not built",
+            "rigid_nodes": None if rigid else "no boxed rigid object: node type not built",
         },
         "weathers": list(weathers),
     }

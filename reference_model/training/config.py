@@ -84,8 +84,12 @@ class TrainConfig:
     cull_frustum : bool
         Drop background Gaussians outside every training frustum (off only to measure the saving).
     moving_threshold_m : float
-        Tracks whose box moves more than this (m) get their own node; the others stay in the
-        background.
+        Tracks whose box moves more than this (m) are moving: posed per frame by their track (and
+        masked as dynamic in the training views).
+    static_nodes : bool
+        Tracks that do not move (parked cars, cones) get a node too, held at their median box,
+        their lidar Gaussians cut out of the background: every boxed object is editable
+        (docs/design.md §7). Off: they stay in the background.
     far_points : bool
         Add Gaussians far along the rays of pixels no lidar point reaches (distant structure).
     completion_points : bool
@@ -149,6 +153,7 @@ class TrainConfig:
     completion_points: bool = True
     cull_frustum: bool = True
     moving_threshold_m: float = 0.5
+    static_nodes: bool = True
     budget: int = 125_000
     densify_from: int = 200
     densify_until: int = 1200

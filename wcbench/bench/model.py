@@ -58,7 +58,8 @@ render_rain           whole frames of the trained default model under the defaul
 skip_<what>           what a skip of the scene graph saves: the median time of a training step of a
                       model built with the skip (``time_ms``) and without it (``without_ms``):
                       dropping Gaussians outside every training frustum, keeping tracks that do not
-                      move in the background, and not training a weather without supervision
+                      move in the background (not the default: it leaves them uneditable), and not
+                      training a weather without supervision
 
 ``error`` is the held-out PSNR (dB, higher is better): this suite reports quality, not a deviation.
 Set ``WCBENCH_BENCH_MODEL_GROUPS`` to run some of the groups
@@ -434,22 +435,25 @@ def _skip_cases(scene: Scene, base: TrainConfig, train_views: list[TrainingView]
     """What each skip saves per training step (see the module docstring)."""
     clear_steps = replace(base, weather_interval=10**9)  # clear-only steps after the first
     every_step = replace(base, weather_interval=1)
+    # (name, knob, value with the skip, whether the default skips, with, without, their weathers)
     pairs = [
-        ("skip_frustum_cull", "cull_frustum", True, clear_steps, replace(clear_steps, cull_frustum=False), trained,
+        ("skip_frustum_cull", "cull_frustum", True, base.cull_frustum, clear_steps,
+         replace(clear_steps, cull_frustum=False), trained, trained),
+        # the default makes every boxed track a node (editable); the skip leaves the still ones in the background
+        ("skip_static_tracks", "static_nodes", False, not base.static_nodes, replace(clear_steps, static_nodes=False),
+         replace(clear_steps, static_nodes=True), trained, trained),
+        ("skip_unsupervised_weather", "weathers", len(trained) - 1, True, every_step, every_step, trained[:-1],
          trained),
-        ("skip_static_tracks", "moving_threshold_m", base.moving_threshold_m, clear_steps,
-         replace(clear_steps, moving_threshold_m=0.0), trained, trained),
-        ("skip_unsupervised_weather", "weathers", len(trained) - 1, every_step, every_step, trained[:-1], trained),
     ]
     out = []
-    for name, knob, value, with_cfg, without_cfg, with_w, without_w in pairs:
+    for name, knob, value, default, with_cfg, without_cfg, with_w, without_w in pairs:
         t_with, n_with = _step_ms(scene, train_views, views, with_cfg, with_w, content, steps=steps, hazes=hazes)
         t_without, n_without = _step_ms(scene, train_views, views, without_cfg, without_w, content, steps=steps,
                                         hazes=hazes)
         out.append(BenchCase(
             name=name, knob=knob, value=value, time_ms=t_with, error=None, error_unit="-",
             extra={"without_ms": round(t_without, 1), "saving_pct": round(100 * (1 - t_with / t_without), 1),
-                   "gaussians": n_with, "gaussians_without": n_without, "default": True},
+                   "gaussians": n_with, "gaussians_without": n_without, "default": default},
         ))
     return out
 

@@ -309,8 +309,8 @@ class WeatherCityMethod(FrameRenderer):
             check_lidar(scene)
         if self.edits:  # an edit that selects no track of the scene fails here, not after the training
             try:
-                # the scene graph's objects are some of the scene's tracks (the moving ones): an edit that
-                # selects no track at all can never select one of them
+                # the scene graph's objects are some of the scene's tracks (those with lidar returns in
+                # their box): an edit that selects no track at all can never select one of them
                 tracks: dict[str, Any] = {str(t.id): SimpleNamespace(track_id=str(t.id), class_name=t.class_name)
                                           for t in scene.tracks}
                 placement_for(self.edits, tracks)

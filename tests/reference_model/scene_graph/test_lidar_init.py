@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -15,6 +16,7 @@ from wcbench.reference_model.scene_graph.lidar_init import (
     estimate_sky_color,
     init_from_lidar,
     init_scene_from_lidar,
+    node_tracks,
     sample_image,
     voxel_downsample,
 )
@@ -29,9 +31,15 @@ def _grid(x0: float, x1: float, y0: float, y1: float, z: float, step: float) -> 
     return np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], 1)
 
 
-def make_scene(tmp_path: Path, *, noise_point: bool = False) -> Scene:
+#: Centre of the parked cube of ``make_scene(parked=True)`` (world, m).
+PARKED = np.array([2.0, 0.0, 6.0])
+
+
+def make_scene(tmp_path: Path, *, noise_point: bool = False, parked: bool = False) -> Scene:
     """Three frames of a camera driving along +z towards a wall (left red, right blue) at z = 8,
-    with a 1 m cube moving 1 m/frame along +x, and optional lone noise point near the camera."""
+    with a 1 m cube moving 1 m/frame along +x, and optional lone noise point near the camera.
+    ``parked``: a second 1 m cube standing at :data:`PARKED` in every sweep, its box (track
+    ``"parked"``, class Car) annotated in every frame, 8 cm off in frame 1 (annotation jitter)."""
     img = np.zeros((H, W, 3), np.uint8)
     img[:, : W // 2] = (0, 0, 255)  # BGR red on the left
     img[:, W // 2 :] = (255, 0, 0)  # blue on the right
@@ -62,6 +70,8 @@ def make_scene(tmp_path: Path, *, noise_point: bool = False) -> Scene:
         pts = [wall, cube]
         if noise_point and frame.index == 0:
             pts.append(np.array([[0.3, 0.2, 2.0]]))
+        if parked:
+            pts.append(_grid(-0.45, 0.45, -0.45, 0.45, -0.45, 0.1) + PARKED)
         return LidarSweep(points=np.concatenate(pts).astype(np.float32))
 
     track = ObjectTrack(
@@ -71,10 +81,17 @@ def make_scene(tmp_path: Path, *, noise_point: bool = False) -> Scene:
         object_to_world=np.stack(poses),
         box_size=np.tile([1.0, 1.0, 1.0], (3, 1)),
     )
+    tracks = [track]
+    if parked:
+        T = np.tile(np.eye(4), (3, 1, 1))
+        T[:, :3, 3] = PARKED
+        T[1, 0, 3] += 0.08
+        tracks.append(ObjectTrack(id="parked", class_name="Car", frames=np.arange(3), object_to_world=T,
+                                  box_size=np.ones((3, 3))))
     return Scene(
         id="synthetic",
         frames=frames,
-        tracks=[track],
+        tracks=tracks,
         up=np.array([0.0, -1.0, 0.0]),
         world_offset=np.zeros(3),
         source_format="test",
@@ -150,6 +167,48 @@ def test_moving_objects_become_rigid_nodes_posed_per_frame(tmp_path: Path) -> No
     assert sg.nodes[0].at_frame(7) is None
 
 
+def _in_parked_box(means: np.ndarray, margin: float) -> np.ndarray:
+    return np.all(np.abs(means - PARKED) <= 0.5 + margin, axis=1)
+
+
+def test_a_parked_track_becomes_a_node_held_still_and_leaves_the_static_cloud(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path, parked=True)
+    old = init_scene_from_lidar(scene, LidarInitOptions(voxel_m=0.1, node_voxel_m=0.1))
+    assert [n.track_id for n in old.nodes] == ["car"]  # off: the parked cube stays in the static cloud
+    assert _in_parked_box(old.static.means, 0.0).sum() > 10
+    sg = init_scene_from_lidar(scene, LidarInitOptions(voxel_m=0.1, node_voxel_m=0.1, static_nodes=True))
+    assert [n.track_id for n in sg.nodes] == ["car", "parked"]
+    assert not _in_parked_box(sg.static.means, 0.2).any()
+    parked = sg.nodes[1]
+    assert parked.class_name == "Car" and len(parked.cloud) > 10
+    face = _grid(-0.45, 0.45, -0.45, 0.45, -0.45, 0.1).mean(0)
+    np.testing.assert_array_equal(parked.object_to_world[:, :3, 3], np.tile(PARKED, (3, 1)))  # the median box
+    for k in range(3):
+        placed = parked.at_frame(k)
+        assert placed is not None
+        np.testing.assert_allclose(placed.means.mean(0), PARKED + face, atol=0.02)
+        assert len(sg.at_frame(k)) == len(sg.static) + len(sg.nodes[0].at_frame(k)) + len(placed)
+
+
+def test_node_tracks_hold_still_tracks_and_keep_a_part_time_mover_whole() -> None:
+    still = np.tile(np.eye(4), (4, 1, 1))
+    still[:, :3, 3] = [5.0, 1.0, 0.0]
+    still[1, :3, 3] += 0.02  # annotation jitter, below the threshold
+    stop_go = np.tile(np.eye(4), (4, 1, 1))
+    stop_go[3, :3, 3] = [3.0, 0.0, 0.0]  # parked for three frames, then drives off
+    tracks = [SimpleNamespace(id="7", class_name="Car", frames=np.array([0, 1, 2]), object_to_world=still[:3],
+                              box_size=np.ones((3, 3))),
+              SimpleNamespace(id="8", class_name="Car", frames=np.arange(4), object_to_world=stop_go,
+                              box_size=np.ones((4, 3)))]
+    scene = SimpleNamespace(tracks=tracks)
+    assert node_tracks(scene) == [tracks[1]]
+    held = node_tracks(scene, static_nodes=True)
+    assert held[0] is tracks[1] and len(held) == 2  # the mover: one node, posed per annotated frame
+    np.testing.assert_array_equal(held[1].frames, [0, 1, 2])
+    np.testing.assert_array_equal(held[1].object_to_world, np.tile(still[0], (3, 1, 1)))  # the median box
+    assert held[1].id == "7" and held[1].box_size.shape == (3, 3)
+
+
 def test_isolated_noise_returns_are_dropped(tmp_path: Path) -> None:
     scene = make_scene(tmp_path, noise_point=True)
     cloud = init_from_lidar(scene, LidarInitOptions(voxel_m=0.1))
@@ -173,3 +232,42 @@ def test_real_scene_initialisation(tmp_path: Path) -> None:
         assert np.all(np.isfinite(getattr(cloud, name)))
     assert cloud.colors.min() >= 0 and cloud.colors.max() <= 1
     assert np.all((cloud.scales > 0) & (cloud.scales <= 0.5))
+
+
+def test_edits_reach_a_parked_node_of_the_trained_model(tmp_path: Path) -> None:
+    pytest.importorskip("torch")
+    from wcbench.reference_model.editing.edits import parse_edits, placement_for
+    from wcbench.reference_model.model.scene_model import BACKGROUND
+    from wcbench.reference_model.training.build import build_model
+    from wcbench.reference_model.training.config import make_config
+    from wcbench.reference_model.training.views import build_views
+
+    scene = make_scene(tmp_path, parked=True)
+    views, _ = build_views(scene, size=(W, H), derive_sky=False)
+    config = make_config("quick", width=W, voxel_m=0.1, node_voxel_m=0.1, far_points=False,
+                         completion_points=False)
+    model, facts = build_model(scene, views, config, weathers=("clear",))
+    assert sorted(model.objects()) == ["rigid:car", "rigid:parked"] and facts["skipped"]["tracks_in_background"] == 0
+    assert not _in_parked_box(model.background.means.detach().numpy(), 0.2).any()
+
+    def rows(frame: int, spec: str | None) -> dict[str, np.ndarray]:
+        place = None if spec is None else placement_for(parse_edits(spec), model.objects())
+        g = model.frame_gaussians(frame, place)
+        means = g.means.detach().numpy()
+        return {key: means[a:b] for key, a, b in g.segments}
+
+    for frame in (1, 2):
+        plain = rows(frame, None)
+        assert _in_parked_box(plain["rigid:parked"], 0.0).all()
+        removed = rows(frame, "remove class=car")
+        assert list(removed) == [BACKGROUND]
+        assert not _in_parked_box(np.concatenate(list(removed.values())), 0.2).any()  # no car left there
+        kept = rows(frame, "keep-only ids=parked")
+        assert list(kept) == [BACKGROUND, "rigid:parked"]
+        moved = rows(frame, "translate id=parked by=0,0,1.5")
+        np.testing.assert_allclose(moved["rigid:parked"], plain["rigid:parked"] + [0.0, 0.0, 1.5], atol=1e-5)
+        place = placement_for(parse_edits("insert id=parked by=-3,0,0"), model.objects())
+        g = model.frame_gaussians(frame, place)
+        copies = [g.means[a:b].detach().numpy() for key, a, b in g.segments if key == "rigid:parked"]
+        assert len(copies) == 2
+        np.testing.assert_allclose(copies[1], copies[0] + [-3.0, 0.0, 0.0], atol=1e-5)
