@@ -262,13 +262,13 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         GaussianParams.from_cloud(background, feature_dim=config.feature_dim, seed=config.seed),
         rigid, nonrigid, decoders, sky,
     )
-    boxed = len(graph.nodes)
+    n_nodes = len(graph.nodes)
     facts = {
         "gaussians": model.counts(),
         "far_gaussians": n_far,
         "completion_gaussians": n_completion,
         "skipped": {
-            "tracks_in_background": len(scene.tracks) - boxed,
+            "tracks_in_background": len(scene.tracks) - n_nodes,
             "tracks_without_lidar_points": empty_nodes,
             "gaussians_outside_every_training_frustum": dropped,
             "nonrigid_nodes": None if nonrigid else "no boxed pedestrian or cyclist: node type not built",
