@@ -89,7 +89,8 @@ class TrainConfig:
     static_nodes : bool
         Tracks that do not move (parked cars, cones) get a node too, held at their median box,
         their lidar Gaussians cut out of the background: every boxed object is editable
-        (docs/design.md §7). Off: they stay in the background.
+        (docs/design.md §7). Off by default (they stay in the background): on pandaset_002's
+        default profile it made training slower by more than issue 39 allows (docs/findings.md).
     far_points : bool
         Add Gaussians far along the rays of pixels no lidar point reaches (distant structure).
     completion_points : bool
@@ -153,7 +154,7 @@ class TrainConfig:
     completion_points: bool = True
     cull_frustum: bool = True
     moving_threshold_m: float = 0.5
-    static_nodes: bool = True
+    static_nodes: bool = False
     budget: int = 125_000
     densify_from: int = 200
     densify_until: int = 1200
