@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+import wcbench
+import wcbench.reference_model
 from wcbench.core.errors import InputError
 from wcbench.core.locking import EntryLock
 from wcbench.core.models.store import ModelStore
@@ -437,9 +439,6 @@ def _folder_digest(root: Path) -> list[list[str]]:
 def _source_digest() -> str:
     """sha256 over the source files of the harness and the reference model: a request made again by
     other code may edit otherwise, so its record is not reused."""
-    import wcbench
-    import wcbench.reference_model
-
     roots = [Path(p) for pkg in (wcbench, wcbench.reference_model) for p in pkg.__path__]
     return sha256_json(sorted([r.name, p.relative_to(r).as_posix(), sha256_file(p)]
                               for r in roots for p in r.rglob("*.py")))
