@@ -66,7 +66,7 @@ from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis, analy
 from wcbench.reference_model.weather.conditions import Weather, load_presets
 
 __all__ = ["APPEARANCE_KEYS", "AppearanceParams", "WeatherEditor", "appearance_options", "decontaminate",
-           "masked_ego"]
+           "masked_ego", "over_sky"]
 
 
 #: Bounds and meaning of every key of the presets' ``[appearance]`` tables (``TABLE.KEY``; sources of
@@ -323,8 +323,9 @@ class WeatherEditor:
         up = self.surfaces.up
         n_up = m.normal @ up.astype(np.float32)
         exposure = float(table["exposure"])
-        # where the sky shows through partly (an edge, a wire, a branch), the surface's own colour
-        lin = srgb_to_linear(decontaminate(raw, m.sky_alpha))
+        # where the sky shows through partly (an edge, a wire, a branch), the surface's own colour: a
+        # pixel sums the radiance of what it sees, so the matting equation holds in linear light
+        lin = decontaminate(srgb_to_linear(raw), m.sky_alpha)
         # the raw pixel stands for the albedo under the clear sky's light on its normal (and the sun's,
         # where the frames show where it shone); weather changes the albedo (a water film, snow), then
         # the overcast sky lights it at the weather's exposure, shadowed and sunlit pixels alike
@@ -364,7 +365,7 @@ class WeatherEditor:
             # haze, camera to ground, is added with everything else below)
             _, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height, exposure, sky_seen)
             seen = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
-            seen = m.sky_alpha[..., None] * sky + (1.0 - m.sky_alpha[..., None]) * seen
+            seen = over_sky(seen, sky, m.sky_alpha)
             mirrored = m.rays - 2.0 * (m.rays @ up.astype(np.float32))[..., None] * up.astype(np.float32)
             sky_mirrored = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else \
                 self.overcast_sky(mirrored)
@@ -404,8 +405,7 @@ class WeatherEditor:
         else:
             base = wet_albedo(albedo, float(table["damp"]) * ~m.sky) * light
         surface = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
-        a = m.sky_alpha[..., None]
-        out = a * sky + (1.0 - a) * surface
+        out = over_sky(surface, sky, m.sky_alpha)
         ego = self.analysis.ego_mask((raw.shape[1], raw.shape[0]))
         if ego.any():
             out[ego] = masked_ego(raw[ego], kind, p)
@@ -434,6 +434,35 @@ def masked_ego(raw: np.ndarray, kind: str, params: AppearanceParams) -> np.ndarr
     if kind == "clear":
         return np.asarray(raw, np.float32)
     return linear_to_srgb(srgb_to_linear(raw) * float(getattr(params, kind)["exposure"]))
+
+
+def over_sky(surface: np.ndarray, sky: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """The edited surface and the new sky composited by the sky's matte in linear light: a pixel
+    sums the radiance of the sky and of the surface in the shares of its area they cover (the
+    compositing equation, Porter & Duff 1984, holds for radiance, not for display values: blended
+    in display values a dark pole's or wire's edge against a bright overcast reads darker and wider
+    than its share of the pixel).
+
+    Parameters
+    ----------
+    surface, sky : ndarray [H, W, 3]
+        Display RGB in [0, 1].
+    alpha : ndarray [H, W]
+        Soft sky matte in [0, 1].
+
+    Returns
+    -------
+    ndarray [H, W, 3] float32
+        Display RGB.
+    """
+    a = np.clip(np.asarray(alpha, np.float32), 0.0, 1.0)
+    sky = np.broadcast_to(np.asarray(sky, np.float32), np.shape(surface))
+    out = np.array(surface, np.float32)
+    out[a >= 1.0] = sky[a >= 1.0]
+    mixed = (a > 0.0) & (a < 1.0)  # only the edge needs the round trip through linear light
+    share = a[mixed][:, None]
+    out[mixed] = linear_to_srgb(share * srgb_to_linear(sky[mixed]) + (1.0 - share) * srgb_to_linear(out[mixed]))
+    return out
 
 
 def decontaminate(image: np.ndarray, alpha: np.ndarray, *, sigma_px: float | None = None) -> np.ndarray:
