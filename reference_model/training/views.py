@@ -176,6 +176,7 @@ def build_views(
     frames: Sequence[int] | None = None,
     derive_sky: bool = True,
     moving_threshold_m: float = 0.5,
+    solid: bool = True,
 ) -> tuple[list[TrainingView], dict[str, Any]]:
     """The training views of a scene.
 
@@ -197,6 +198,10 @@ def build_views(
         the scene's lidar; without any, no sky is derived.
     moving_threshold_m : float
         Tracks moving more than this (m) make the ``dynamic`` masks.
+    solid : bool
+        Mark the pixels a trusted lidar return lands in (``TrainingView.solid``, from the scene
+        analysis); only the opacity loss's lidar term reads them (``TrainConfig.opacity_lidar``), so
+        a training without it leaves them ``None``.
 
     Returns
     -------
@@ -235,11 +240,11 @@ def build_views(
             sky = cv2.resize(_read_mask(f.sky_mask_path), (width, height), interpolation=cv2.INTER_NEAREST) > 0
         elif analysis is not None:
             sky = analysis.sky_mask(k, (width, height)) & ~dynamic
-        solid = None if analysis is None else analysis.solid_mask(k, (width, height)) & ~ignore
-        if solid is not None and sky is not None:
-            solid &= ~sky  # a shipped mask has the last word
+        hits = None if analysis is None or not solid else analysis.solid_mask(k, (width, height)) & ~ignore
+        if hits is not None and sky is not None:
+            hits &= ~sky  # a shipped mask has the last word
         views.append(TrainingView(frame=k, time=float(f.timestamp) - t0, camera_to_world=c2w, K=K, width=width,
-                                  height=height, images=images, depth=depth, sky=sky, solid=solid,
+                                  height=height, images=images, depth=depth, sky=sky, solid=hits,
                                   dynamic=dynamic, ignore=ignore.copy()))
     facts: dict[str, Any] = {
         "size": [width, height],

@@ -282,7 +282,8 @@ def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = PHY
     frames, sup_record = supervision_frames(scene, supervision, weathers, jitter, config.seed, physics=physics,
                                              size=size)
     trained = ("clear", *[w for w in weathers if w in frames])
-    views, view_facts = build_views(scene, size=size, supervision={w: frames[w] for w in trained if w != "clear"})
+    views, view_facts = build_views(scene, size=size, supervision={w: frames[w] for w in trained if w != "clear"},
+                                    solid=config.opacity_lidar > 0)
     return TrainingInputs(views=views, trained=trained, supervision=sup_record, view_facts=view_facts,
                           sources=[sha256_file(f.image_path) for f in scene.frames],
                           hazes=training_hazes(config, physics, trained))

@@ -69,3 +69,18 @@ def test_training_views_mark_the_trusted_lidar_pixels_solid_never_sky_nor_the_eg
         assert half.solid is not None and half.solid.shape == (half.height, half.width)
     unanalysed, _ = build_views(demo_scene, size=SIZE, supervision={}, derive_sky=False)
     assert all(v.solid is None for v in unanalysed)
+    # only the lidar term reads the masks: without it they are not made, and nothing else changes
+    unmarked, _ = build_views(demo_scene, size=SIZE, supervision={}, solid=False)
+    assert all(v.solid is None for v in unmarked)
+    for a, b in zip(views, unmarked):
+        np.testing.assert_array_equal(a.sky, b.sky)
+        np.testing.assert_array_equal(a.images["clear"], b.images["clear"])
+
+
+@pytest.mark.parametrize("weight", [0.0, 10.0])
+def test_a_training_makes_the_solid_masks_only_when_the_lidar_term_is_on(demo_scene, weight):
+    from wcbench.methods.scene_training import training_inputs
+
+    config = make_config("default", width=SIZE[0], opacity_lidar=weight)
+    inputs = training_inputs(demo_scene, config, supervision="filter2d", weathers=("fog",))
+    assert all((v.solid is not None) == (weight > 0) for v in inputs.views)
