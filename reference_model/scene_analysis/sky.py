@@ -437,6 +437,11 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         frame's own): never sky.
     seed : int
         Seeds the sampling of the classifier's training pixels.
+    untrusted : list of ndarray [H, W] bool, optional
+        Per frame, the pixels any sweep's return lands in (``any_sweep_masks`` of the scene's analysis:
+        the copies of a structure that other sweeps' registration puts a few px off). Within reach of
+        a crossed thin occluder they are never sky either: the sky found across a wire or a pole keeps
+        clear of every copy of it.
 
     Returns
     -------
@@ -445,6 +450,8 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         then nothing can be told from the image with confidence; ``facts["fallback"]`` says so).
     """
     n, h, w = len(views), views.height, views.width
+    if untrusted is not None and (len(untrusted) != n or any(u.shape != (h, w) for u in untrusted)):
+        raise ValueError(f"untrusted: {n} masks of {h}x{w} (one per frame) were expected")
     clearance = max(1, round(_SEED_CLEARANCE_PX * w / 480))
     kernel = np.ones((2 * clearance + 1, 2 * clearance + 1), np.uint8)
     feats, above, sky_seeds, not_seeds, links, corridors = [], [], [], [], [], []
