@@ -38,6 +38,16 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    in a wall) is dropped: the sky is one with the open sky. Patches apart by 2 px or less (at 480
    wide: a lamp's arm, a pole's crossbar, a bundle of wires) count as one, so the sky under an arm
    stays sky.
+6. **Thin occluders** (:func:`thin_occluders`): the returns of a structure a few px wide in front of
+   the sky (a wire, a signal's mast arm, a pole's top: the hit set minus its morphological opening
+   by a 5 x 5 px square, with smooth, return-free pixels of the nearby seeds' colour 2-4 px past it
+   on both sides along a row, a column or a diagonal) cut the hazy sky under them off from the open
+   sky and from the seeds, and their mixed pixels teach the classifiers that pale sky beside a
+   structure is not sky. Found after a first pass of seeds, they are crossed on the way to the top
+   (the seeds of a second pass need only clear them by 1 px), join the patches they separate in
+   step 5, and are left out of the non-sky training. They stay non-sky, and so does every pixel
+   within 4 px of them that any sweep's return lands in (``untrusted``: other sweeps register a pole
+   or a wire a few px off, and the sky found across it keeps clear of every copy).
 
 A frame no lidar return lands in gets no seeds of its own (nothing in it is confirmed empty): its
 sky is the scene's classifier's, cut with the frame's contrast, and only where it reaches the top
