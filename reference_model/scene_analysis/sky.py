@@ -91,8 +91,8 @@ _BLUE_B, _BLUE_A = -12.0, (-20.0, 5.0)
 #: sky is smaller).
 _MIN_OPEN_SKY = 0.003
 #: Thin occluders: returns of a structure at most ``2 * _THIN_PX`` px wide (at 480 wide: a wire, a
-#: signal's mast arm, a pole's top), looked past ``_THIN_GAP_PX`` px on either side for the same
-#: smooth background (CIELAB difference under ``_THIN_DE``).
+#: signal's mast arm, a pole's top), looked past ``_THIN_GAP_PX`` px on either side for the sky's
+#: colour nearby (CIELAB difference under ``_THIN_DE``).
 _THIN_PX, _THIN_GAP_PX, _THIN_DE = 2, (2, 3, 4), 10.0
 #: Smoothness weight of the minimum cut, and the clip of the classifier's probability.
 _LAMBDA, _P_CLIP = 4.0, 0.03
@@ -468,8 +468,6 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
     for k in range(n):
         elev = views.elevation(k)
         feat = sky_features(views.images[k], infinity_residual(views, k), elev)
-        # thin occluders (a wire, a mast arm, a pole's top in front of the sky) are crossed on the way to
-        # the top, and their seeds need only clear their mixed pixels; other returns keep the clearance
         # not the continuation of a wall above its topmost return, up to the first edge (a spinning
         # lidar's upper beams are degrees apart: between two of them a wall returns nothing either)
         reach = views.K[k][1, 1] * math.tan(math.radians(_BEAM_GAP_DEG))
