@@ -134,6 +134,26 @@ def solid_masks(views: AnalysisViews, returns: LidarReturns) -> tuple[list[np.nd
     return solid, without
 
 
+def any_sweep_masks(views: AnalysisViews, returns: LidarReturns) -> list[np.ndarray]:
+    """Per frame k, the pixels any static return of any sweep (and frame k's own returns) lands in:
+    :func:`solid_masks` without its trust in time and distance, so with the copies of a structure
+    that the other sweeps' registration puts 1-3 px off (a pole, a wire seen from far away).
+
+    Returns
+    -------
+    list of ndarray [H, W] bool
+    """
+    cols = PointColumns.of(returns.static_points())
+    out = []
+    for k in range(len(views)):
+        hits = views.hit_map(cols, k)
+        own = returns.frame_dynamic(k)
+        if len(own):
+            hits |= views.hit_map(PointColumns.of(own), k)
+        out.append(hits)
+    return out
+
+
 def shipped_sky(scene: Any, size: tuple[int, int]) -> SkySegmentation | None:
     """The scene's own sky masks at ``size`` (nearest-neighbour resize, 255 = sky) when every frame
     ships one, else ``None``.
@@ -201,7 +221,7 @@ def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = announc
     static = returns.static_points()
     solid, without = solid_masks(views, returns)
     t3 = time.perf_counter()
-    sky = shipped_sky(scene, size) or segment_sky(views, solid)
+    sky = shipped_sky(scene, size) or segment_sky(views, solid, untrusted=any_sweep_masks(views, returns))
     t4 = time.perf_counter()
     ego, ego_facts = ego_mask(views, static)
     t5 = time.perf_counter()

@@ -38,6 +38,16 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    in a wall) is dropped: the sky is one with the open sky. Patches apart by 2 px or less (at 480
    wide: a lamp's arm, a pole's crossbar, a bundle of wires) count as one, so the sky under an arm
    stays sky.
+6. **Thin occluders** (:func:`thin_occluders`): the returns of a structure a few px wide in front of
+   the sky (a wire, a signal's mast arm, a pole's top: the hit set minus its morphological opening
+   by a 5 x 5 px square, with smooth, return-free pixels of the nearby seeds' colour 2-4 px past it
+   on both sides along a row, a column or a diagonal) cut the hazy sky under them off from the open
+   sky and from the seeds, and their mixed pixels teach the classifiers that pale sky beside a
+   structure is not sky. Found after a first pass of seeds, they are crossed on the way to the top
+   (the seeds of a second pass need only clear them by 1 px), join the patches they separate in
+   step 5, and are left out of the non-sky training. They stay non-sky, and so does every pixel
+   within 4 px of them that any sweep's return lands in (``untrusted``: other sweeps register a pole
+   or a wire a few px off, and the sky found across it keeps clear of every copy).
 
 A frame no lidar return lands in gets no seeds of its own (nothing in it is confirmed empty): its
 sky is the scene's classifier's, cut with the frame's contrast, and only where it reaches the top
@@ -60,7 +70,8 @@ import numpy as np
 
 from wcbench.reference_model.scene_analysis.views import AnalysisViews
 
-__all__ = ["SkySegmentation", "infinity_residual", "refine_boundary", "segment_sky", "sky_features", "sky_matte"]
+__all__ = ["SkySegmentation", "infinity_residual", "refine_boundary", "segment_sky", "sky_features", "sky_matte",
+           "thin_occluders"]
 
 #: Trees and depth of the per-scene classifier; seeds drawn per class at most.
 _TREES, _DEPTH, _MAX_SEEDS = 20, 12, 15000
@@ -79,6 +90,10 @@ _BLUE_B, _BLUE_A = -12.0, (-20.0, 5.0)
 #: A patch of seeds smaller than this share of the frame is dropped (a window pane mirroring the blue
 #: sky is smaller).
 _MIN_OPEN_SKY = 0.003
+#: Thin occluders: returns of a structure at most ``2 * _THIN_PX`` px wide (at 480 wide: a wire, a
+#: signal's mast arm, a pole's top), looked past ``_THIN_GAP_PX`` px on either side for the sky's
+#: colour nearby (CIELAB difference under ``_THIN_DE``).
+_THIN_PX, _THIN_GAP_PX, _THIN_DE = 2, (2, 3, 4), 10.0
 #: Smoothness weight of the minimum cut, and the clip of the classifier's probability.
 _LAMBDA, _P_CLIP = 4.0, 0.03
 
@@ -154,6 +169,69 @@ def _wall_continuation(image: np.ndarray, solid: np.ndarray, reach_px: float) ->
     inside = edge & (rows <= top[None, :]) & (rows >= lowest[None, :])
     stop = np.where(inside.any(axis=0), np.where(inside, rows, h).min(axis=0), lowest)
     return (rows >= stop[None, :]) & (rows <= top[None, :]) & (top[None, :] < h)
+
+
+def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky: np.ndarray, *,
+                   width_px: int = _THIN_PX, gaps_px: tuple[int, ...] = _THIN_GAP_PX, max_de: float = _THIN_DE,
+                   max_std: float = _SEED_MAX_STD, reach_px: float = 12.0) -> np.ndarray:
+    """[H, W] bool: the returns of thin structures in front of a smooth background (a wire, a
+    signal's mast arm, the top of a pole against the sky), which the sky may be connected across.
+
+    A return is *thin* when it is not in the morphological opening of ``solid`` by a square of side
+    ``2 width_px + 1`` (the hit set minus its opening: what no such square fits in); it is *in front
+    of* a smooth background when, along one of the 4 directions (rows, columns, diagonals) and at one
+    of the distances ``gaps_px`` (past the structure and its mixed pixels), the pixels on both sides
+    are free of returns, above the horizon, smooth (standard deviation of L*/100 over 3 x 3 px under
+    ``max_std``) and both of the colour of the sky nearby (CIELAB difference under ``max_de`` to the
+    mean colour of the ``sky`` pixels within a Gaussian of ``reach_px``): the sky on both sides, not
+    an edge between two surfaces, nor a wall's scan line (a spinning lidar's upper beams cross a
+    facade in lines a few px wide, with the facade's colour on both sides). The returns themselves
+    stay non-sky; this only says what the sky's connectivity and the classifiers' non-sky training
+    may leave out.
+
+    Parameters
+    ----------
+    image : ndarray [H, W, 3] float32
+        Display RGB in [0, 1].
+    solid : ndarray [H, W] bool
+        Pixels a lidar return lands in.
+    above : ndarray [H, W] bool
+        Pixels above the horizon.
+    sky : ndarray [H, W] bool
+        Confident sky (the seeds found without crossing anything).
+    """
+    if solid.shape != image.shape[:2] or above.shape != solid.shape or sky.shape != solid.shape:
+        raise ValueError(f"image {image.shape}, solid {solid.shape}, above {above.shape} and sky {sky.shape}: one "
+                         "[H, W] size was expected")
+    h, w = solid.shape
+    s8 = solid.astype(np.uint8)
+    side = 2 * width_px + 1
+    thin = solid & ~cv2.morphologyEx(s8, cv2.MORPH_OPEN, np.ones((side, side), np.uint8)).astype(bool)
+    if not thin.any() or not sky.any():
+        return np.zeros_like(thin)
+    lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
+    # the sky's colour nearby (normalised convolution of the seeds); none far from every seed
+    den = cv2.GaussianBlur(sky.astype(np.float32), (0, 0), reach_px)
+    ref = cv2.GaussianBlur(lab * sky[..., None].astype(np.float32), (0, 0), reach_px) / np.maximum(den, 1e-6)[..., None]
+    has_ref = den > 1e-2
+    L = lab[..., 0] / 100.0
+    mu = cv2.blur(L, (3, 3))
+    std = np.sqrt(np.maximum(cv2.blur(L * L, (3, 3)) - mu * mu, 0.0))
+    free = ~solid & above & (std < max_std)
+    rr, cc = np.nonzero(thin)
+    ok = np.zeros(rr.size, bool)
+    for dy, dx in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        for g in gaps_px:
+            y0, x0, y1, x1 = rr - g * dy, cc - g * dx, rr + g * dy, cc + g * dx
+            inside = (y0 >= 0) & (y0 < h) & (x0 >= 0) & (x0 < w) & (y1 >= 0) & (y1 < h) & (x1 >= 0) & (x1 < w)
+            y0, x0, y1, x1 = np.clip(y0, 0, h - 1), np.clip(x0, 0, w - 1), np.clip(y1, 0, h - 1), np.clip(x1, 0, w - 1)
+            r = ref[rr, cc]
+            like = ((np.linalg.norm(lab[y0, x0] - r, axis=-1) < max_de)
+                    & (np.linalg.norm(lab[y1, x1] - r, axis=-1) < max_de))
+            ok |= inside & free[y0, x0] & free[y1, x1] & like & has_ref[rr, cc]
+    out = np.zeros_like(thin)
+    out[rr[ok], cc[ok]] = True
+    return out
 
 
 def refine_boundary(image: np.ndarray, mask: np.ndarray, never: np.ndarray, *, band_px: int = 3,
@@ -277,11 +355,15 @@ def _column_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.nda
     return np.where(has, p, 0.5).astype(np.float32)
 
 
-def _seeded(mask: np.ndarray, seeds: np.ndarray, *, bridge_px: int = 0) -> np.ndarray:
+def _seeded(mask: np.ndarray, seeds: np.ndarray, *, bridge_px: int = 0,
+            link: np.ndarray | None = None) -> np.ndarray:
     """The components of ``mask`` (8-connected: a sky crossed by a wire stays one) that hold a seed
     or touch the top row; with ``bridge_px``, components apart by at most that many pixels (a lamp's
-    arm, a pole's crossbar, a bundle of wires: not a wall) count as one."""
+    arm, a pole's crossbar, a bundle of wires: not a wall) count as one; pixels of ``link`` (thin
+    occluders, :func:`thin_occluders`) join the components they touch."""
     joined = mask.astype(np.uint8)
+    if link is not None:
+        joined |= link.astype(np.uint8)
     if bridge_px > 0:
         joined = cv2.morphologyEx(joined, cv2.MORPH_CLOSE, np.ones((2 * bridge_px + 1,) * 2, np.uint8))
     n, labels = cv2.connectedComponents(joined, connectivity=8)
@@ -353,7 +435,8 @@ class SkySegmentation:
     facts: dict[str, Any] = field(default_factory=dict)
 
 
-def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0) -> SkySegmentation:
+def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
+                untrusted: list[np.ndarray] | None = None) -> SkySegmentation:
     """Sky masks of every frame (see the module docstring).
 
     Parameters
@@ -364,6 +447,11 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         frame's own): never sky.
     seed : int
         Seeds the sampling of the classifier's training pixels.
+    untrusted : list of ndarray [H, W] bool, optional
+        Per frame, the pixels any sweep's return lands in (``any_sweep_masks`` of the scene's analysis:
+        the copies of a structure that other sweeps' registration puts a few px off). Within reach of
+        a crossed thin occluder they are never sky either: the sky found across a wire or a pole keeps
+        clear of every copy of it.
 
     Returns
     -------
@@ -372,13 +460,14 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         then nothing can be told from the image with confidence; ``facts["fallback"]`` says so).
     """
     n, h, w = len(views), views.height, views.width
+    if untrusted is not None and (len(untrusted) != n or any(u.shape != (h, w) for u in untrusted)):
+        raise ValueError(f"untrusted: {n} masks of {h}x{w} (one per frame) were expected")
     clearance = max(1, round(_SEED_CLEARANCE_PX * w / 480))
     kernel = np.ones((2 * clearance + 1, 2 * clearance + 1), np.uint8)
-    feats, above, sky_seeds, not_seeds = [], [], [], []
+    feats, above, sky_seeds, not_seeds, links, corridors = [], [], [], [], [], []
     for k in range(n):
         elev = views.elevation(k)
         feat = sky_features(views.images[k], infinity_residual(views, k), elev)
-        near = cv2.dilate(solid[k].astype(np.uint8), kernel).astype(bool)
         # not the continuation of a wall above its topmost return, up to the first edge (a spinning
         # lidar's upper beams are degrees apart: between two of them a wall returns nothing either)
         reach = views.K[k][1, 1] * math.tan(math.radians(_BEAM_GAP_DEG))
@@ -389,14 +478,30 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
         smooth_static = (feat[..., 3] < 10 * _SEED_MAX_STD) & (feat[..., 6] < 10 * _SEED_MAX_RESIDUAL)
         # connected to the top through the open sky: not across a lidar return, nor a roof line; and in a
         # patch of seeds of some size (a window mirroring the blue sky is a small one)
-        clear = (elev > 0.0) & ~near & ~_step_edges(views.images[k])
+        edges = _step_edges(views.images[k])
+        near = cv2.dilate(solid[k].astype(np.uint8), kernel).astype(bool)
+        clear = (elev > 0.0) & ~near & ~edges
         seeds = _large(_top_connected(clear) & beyond & smooth_static & (within | blue), _MIN_OPEN_SKY)
+        # thin occluders with that sky on both sides (a wire, a mast arm, a pole's top) are crossed on the
+        # way to the top, and the seeds need only clear their mixed pixels; other returns keep the clearance
+        thin = thin_occluders(views.images[k], solid[k], elev > 0.0, seeds)
+        if thin.any():
+            thick = cv2.dilate((solid[k] & ~thin).astype(np.uint8), kernel).astype(bool)
+            near = thick | cv2.dilate(thin.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+            corridor = cv2.dilate(thin.astype(np.uint8), kernel).astype(bool) & ~thick & (elev > 0.0)
+            clear = (elev > 0.0) & ~near & ~edges
+            open_sky = _top_connected(clear | corridor)
+            candidates = open_sky & clear & beyond & smooth_static & (within | blue)
+            seeds = _large(candidates | (open_sky & corridor), _MIN_OPEN_SKY) & candidates
         if not solid[k].any():  # no lidar in view: nothing here is confirmed empty, and no seed is made
             seeds = np.zeros_like(seeds)
         feats.append(feat)
         above.append(elev > 0.0)
         sky_seeds.append(seeds)
-        not_seeds.append(solid[k] & (elev > -0.02))
+        # a thin occluder's returns are mixed pixels of it and the sky behind: not the non-sky's colours
+        not_seeds.append(solid[k] & ~thin & (elev > -0.02))
+        corridors.append(cv2.dilate(thin.astype(np.uint8), kernel).astype(bool))
+        links.append(cv2.dilate(thin.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (elev > 0.0))
     n_sky = int(sum(s.sum() for s in sky_seeds))
     n_not = int(sum(s.sum() for s in not_seeds))
     facts: dict[str, Any] = {"size": [w, h], "sky_seed_pixels": n_sky, "non_sky_seed_pixels": n_not}
@@ -441,10 +546,11 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0)
                         for e in evidence], axis=0)
         p = np.where(region, 1.0 / (1.0 + np.exp(-odds)), 0.0).astype(np.float32)
         probability[k] = p
-        cut = _cut(views.images[k], p, ~region | solid[k], sky_seeds[k]) & region & ~solid[k]
-        mask, alpha = refine_boundary(views.images[k], cut, ~region | solid[k])
+        never = ~region | solid[k] | (untrusted[k] & corridors[k] if untrusted is not None else False)
+        cut = _cut(views.images[k], p, never, sky_seeds[k] & ~never) & ~never
+        mask, alpha = refine_boundary(views.images[k], cut, never)
         # the sky is one with the open sky: a patch enclosed by the scene, with no seed, is not
-        keep = _seeded(mask, sky_seeds[k], bridge_px=max(1, round(2 * w / 480)))
+        keep = _seeded(mask, sky_seeds[k], bridge_px=max(1, round(2 * w / 480)), link=links[k])
         masks[k], alphas[k] = keep, np.where(mask & ~keep, 0.0, alpha).astype(np.float32)
     facts.update(classifier=f"random forest ({_TREES} trees, depth {_DEPTH}) on {len(xs)} sky and {len(xn)} "
                             f"non-sky seed pixels", sky_fraction=round(float(masks.mean()), 4))

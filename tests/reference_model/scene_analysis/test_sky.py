@@ -121,8 +121,8 @@ def test_the_harder_street_sky_against_its_truth_and_never_on_a_lidar_return(syn
 
 @pytest.mark.slow
 @pytest.mark.model
-@pytest.mark.parametrize("name, bound", [("pandaset_002", 0.93), ("pandaset_002_back", 0.96),
-                                         ("pandaset_002_front_right", 0.93), ("pandaset_002_right", 0.93)])
+@pytest.mark.parametrize("name, bound", [("pandaset_002", 0.95), ("pandaset_002_back", 0.975),
+                                         ("pandaset_002_front_right", 0.93), ("pandaset_002_right", 0.95)])
 def test_the_real_cameras_sky_against_the_hand_drawn_masks(name, bound):
     from wcbench.scenes.loaders import load_scene
 
@@ -154,3 +154,80 @@ def test_a_frame_no_lidar_return_lands_in_gets_no_invented_sky(synth_hard):
     false_sky = sky.masks[k] & ~t
     # the scene's classifier, trained on the other frames, still finds its sky; no wall becomes sky
     assert false_sky.mean() < 0.01 and (sky.masks[k] & t).sum() > 0.8 * t.sum()
+
+
+def _street_with_an_arm(*, arm_rows: slice = slice(28, 31)) -> tuple[AnalysisViews, list[np.ndarray]]:
+    """Three still frames, 90 x 120 (horizon at row 45): a blue sky paling toward the horizon, two
+    buildings the lidar hits (columns 0-29 and 90-119, from row 10 down), and a signal's mast arm
+    (``arm_rows``, 3 px) the lidar hits too, spanning the street between them: the sky under the
+    arm (rows 31-44, columns 30-89) is cut off from the open sky by returns."""
+    h, w = 90, 120
+    image = np.empty((h, w, 3), np.float32)
+    t = (np.arange(h, dtype=np.float32) / 45.0).clip(0.0, 1.0)[:, None]
+    # the clear sky's blue high up, paler (hazier) toward the horizon, the same hue
+    image[..., 0], image[..., 1], image[..., 2] = 0.45 + 0.2 * t, 0.6 + 0.12 * t, 0.92 + 0.03 * t
+    image[45:] = 0.35  # the road
+    solid = np.zeros((h, w), bool)
+    for cols in (slice(0, 30), slice(90, 120)):
+        image[10:45, cols] = (0.55, 0.35, 0.3)  # brick
+        solid[10:60, cols] = True
+    image[arm_rows, 30:90] = 0.15
+    solid[arm_rows, 30:90] = True
+    solid[45:, :] = True  # the road's returns
+    images = [image.copy() for _ in range(3)]
+    return _views(images, [np.eye(3)] * 3), [solid.copy() for _ in range(3)]
+
+
+def test_a_thin_occluder_is_a_wire_against_the_sky_and_not_a_wall_s_scan_line():
+    from wcbench.reference_model.scene_analysis.sky import thin_occluders
+
+    views, solid = _street_with_an_arm()
+    image, s = views.images[0], solid[0]
+    above = views.elevation(0) > 0.0
+    sky = np.zeros_like(s)
+    sky[:22, 35:85] = True  # the seeds above the arm
+    thin = thin_occluders(image, s, above, sky)
+    assert thin[28:31, 40:80].all()  # the arm, with the sky's colour above and below
+    assert not thin[20:45, :30].any() and not thin[20:45, 90:].any()  # the buildings are not thin
+    # a wall's scan line: a 2 px line of returns with the wall's colour on both sides is no occluder
+    wall = image.copy()
+    wall[20:45, 30:90] = (0.8, 0.78, 0.7)
+    lines = s.copy()
+    lines[28:31] = False
+    lines[34:36, 30:90] = True
+    assert not thin_occluders(wall, lines, above, sky)[34:36].any()
+    # without sky seeds nearby nothing is crossed
+    assert not thin_occluders(image, s, above, np.zeros_like(s)).any()
+    with pytest.raises(ValueError, match="one"):
+        thin_occluders(image, s[:10], above, sky)
+
+
+def test_the_hazy_sky_under_a_mast_arm_the_lidar_hits_is_sky_and_the_arm_is_not():
+    from wcbench.reference_model.scene_analysis.sky import segment_sky
+
+    views, solid = _street_with_an_arm()
+    sky = segment_sky(views, solid)
+    under = np.zeros((90, 120), bool)
+    under[33:43, 34:86] = True  # the sky under the arm, off its mixed pixels and the buildings
+    for k in range(3):
+        assert sky.masks[k][under].mean() > 0.95
+        assert sky.masks[k][:8, 40:80].all()  # the open sky
+        assert not (sky.masks[k] & solid[k]).any()  # the arm and the buildings stay non-sky
+        assert not sky.masks[k][12:44, 2:28].any() and not sky.masks[k][12:44, 92:118].any()
+
+
+def test_another_sweep_s_copy_of_a_crossed_arm_stays_non_sky():
+    from wcbench.reference_model.scene_analysis.sky import segment_sky
+
+    views, solid = _street_with_an_arm()
+    copies = []
+    for s in solid:
+        u = s.copy()
+        u[31, 30:90] = True  # another sweep's copy of the arm, 1 px lower (4 px at 480 wide: its registration)
+        copies.append(u)
+    sky = segment_sky(views, solid, untrusted=copies)
+    for k in range(3):
+        assert not sky.masks[k][31, 30:90].any()
+        assert sky.masks[k][34:43, 34:86].mean() > 0.95
+    with pytest.raises(ValueError, match="one per frame"):
+        segment_sky(views, solid, untrusted=copies[:1])
