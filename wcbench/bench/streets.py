@@ -56,8 +56,8 @@ from wcbench.methods.weathercity import WeatherCityMethod
 from wcbench.metrics.temporal.flicker import temporal_flicker
 from wcbench.reference_model.appearance.editor import WeatherEditor
 from wcbench.reference_model.model.sky import view_directions
-from wcbench.reference_model.scene_analysis.analysis import analyse_scene
-from wcbench.reference_model.scene_analysis.views import PointColumns, resample_mask
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene, any_sweep_masks
+from wcbench.reference_model.scene_analysis.views import resample_mask
 from wcbench.reference_model.training.config import make_config
 from wcbench.reference_model.weather.renderer import scale_camera
 from wcbench.scenes.loaders import load_scene
@@ -133,16 +133,9 @@ def _sky_case(name: str, scene: Any, masks: Path) -> BenchCase:
 
 
 def _every_sweep_hits(analysis: Any) -> list[np.ndarray]:
-    """Per frame, the pixels every static return of every sweep (and the frame's own) lands in."""
-    cols = PointColumns.of(analysis.returns.static_points())
-    out = []
-    for k in range(len(analysis.views)):
-        hits = analysis.views.hit_map(cols, k)
-        own = analysis.returns.frame_dynamic(k)
-        if len(own):
-            hits |= analysis.views.hit_map(own, k)
-        out.append(hits)
-    return out
+    """Per frame, the pixels every static return of every sweep (and the frame's own) lands in (the
+    analysis' own :func:`~wcbench.reference_model.scene_analysis.analysis.any_sweep_masks`)."""
+    return any_sweep_masks(analysis.views, analysis.returns)
 
 
 def _hand_sky(name: str, size: tuple[int, int], n_frames: int) -> list[np.ndarray]:
