@@ -437,9 +437,10 @@ def fill_footprints(means: np.ndarray, colors: np.ndarray, boxes: Sequence[tuple
     **ground plane fitted** by least squares to the background points within ``ring_m`` around it
     and within ``ground_band_m`` of its bottom face (no fill where fewer than ``min_ring`` are
     found, nothing to colour from, or on fewer than ``min_sides`` of its four sides, a wall's
-    foot rather than a road). A tile a background point lies near (within ``seen_m``
-    sideways, about the lidar cloud's spacing, and ``ground_band_m`` of the plane: the road seen
-    there, in the frames a mover did not stand on it) is left to that point. A tile's colour is
+    foot rather than a road). A tile a background point lies near (sideways within ``seen_m``
+    or the ring's median point spacing, whichever is more, and within
+    ``ground_band_m`` of the plane: the road seen there, in the frames a mover did not stand on
+    it) is left to that point. A tile's colour is
     the inverse-squared-distance mean of its ``neighbours`` nearest ring points (Shepard 1968):
     the road around the footprint as the cameras saw it (``colour_at``), continued inwards, as
     image inpainting continues a hole's border (Bertalmio et al. 2000; Telea 2004) and as
@@ -539,8 +540,12 @@ def fill_footprints(means: np.ndarray, colors: np.ndarray, boxes: Sequence[tuple
         # a tile the lidar saw the ground on keeps that return
         seen_pts = np.abs(height - plane) <= ground_band_m
         if np.any(seen_pts):
+            # far from the sensor the returns on a road lie in rings a metre apart, and their
+            # Gaussians, as wide, cover it between them: seen is within a spacing of the ring's
+            ab = np.stack([fa[ground], fb[ground]], 1)
+            spacing = float(np.median(cKDTree(ab).query(ab, k=2)[0][:, 1]))
             d, _ = cKDTree(np.stack([fa[seen_pts], fb[seen_pts]], 1)).query(np.stack([ta, tb], 1))
-            todo = d > seen_m
+            todo = d > max(seen_m, spacing)
         else:
             todo = np.ones(len(ta), bool)
         tl = np.zeros((len(ta), 3))
