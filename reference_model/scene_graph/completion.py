@@ -459,7 +459,7 @@ def fill_footprints(means: np.ndarray, colors: np.ndarray, boxes: Sequence[tuple
     up : ndarray [3]
         The scene's unit up vector; a box's axis nearest it is its height.
     cell_m : float
-        Tile spacing (m); a tile is a flat Gaussian of half that standard deviation sideways and
+        Tile spacing (m); a tile is a flat Gaussian of 0.75 of it as standard deviation sideways and
         ``thickness_m`` across.
     opacity : float
         Of every tile, in (0, 1].
@@ -575,7 +575,7 @@ def fill_footprints(means: np.ndarray, colors: np.ndarray, boxes: Sequence[tuple
         wgt = 1.0 / np.maximum(d, 1e-3) ** 2
         rgb = np.einsum("nk,nkc->nc", wgt, ring_rgb[j]) / wgt.sum(1, keepdims=True)
         scale = np.empty((len(world), 3))
-        scale[:, [a, b]] = cell_m / 2.0
+        scale[:, [a, b]] = 0.75 * cell_m  # neighbours overlap: no seam shows what lies beneath
         scale[:, v] = thickness_m
         out_means.append(world)
         out_colors.append(rgb)
