@@ -7,6 +7,8 @@
   stay in the background), its lidar returns cut out of the background, so that every object the
   scene ships a box for can be edited; tracks of deformable classes (pedestrians, cyclists) become
   non-rigid nodes. A node type with no object is not built, and its code never runs.
+- Under each node's box, where no lidar return saw the ground, opaque flat Gaussians on the fitted
+  ground coloured from the road around it (``footprint_fill``): a removed object leaves road.
 - Decoders for the clear weather and each supervised weather only (a weather without supervision
   is not trained); one sky map per decoded weather, warm-started from the sky pixels.
 
@@ -15,6 +17,7 @@ What was built and skipped is returned as a JSON-ready record for ``info.json``.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -31,6 +34,7 @@ from wcbench.reference_model.scene_graph.completion import (
     FILL_GROUND,
     FILL_WALL,
     complete_distance,
+    fill_footprints,
     ground_height_below,
 )
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
@@ -43,7 +47,12 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 from wcbench.reference_model.training.config import TrainConfig
 from wcbench.reference_model.training.views import TrainingView, box_mask
 
-__all__ = ["NONRIGID_WORDS", "build_model", "completion_cloud", "far_cloud", "in_any_frustum", "is_nonrigid"]
+__all__ = ["FILL_OPACITY", "NONRIGID_WORDS", "build_model", "completion_cloud", "far_cloud", "in_any_frustum",
+           "is_nonrigid", "seen_colour"]
+
+#: Opacity the footprint fill starts with: hidden behind its object in every training view, it gets
+#: no gradient to grow from the low opacity the others start at, and must stand as the road does.
+FILL_OPACITY = 0.95
 
 #: Track classes containing one of these words (case-insensitive) deform: non-rigid nodes.
 NONRIGID_WORDS = ("pedestrian", "person", "cyclist", "bicyclist", "human", "child")
@@ -178,6 +187,50 @@ def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px
     return _isotropic_cloud(means, colors, scales, opacity)
 
 
+def seen_colour(points: np.ndarray, views: Sequence[TrainingView], objects: Mapping[int, np.ndarray], *,
+                slack_m: float = 0.5, grow_px: int = 2) -> np.ndarray:
+    """[N, 3] median clear RGB of world ``points`` [N, 3] (m) over the views that see them: inside the
+    image, outside ``objects[frame]`` (the nodes' boxes, [H, W] bool, grown by ``grow_px``) and not behind the view's
+    lidar depth there by more than ``slack_m`` (something else before them); NaN where none does."""
+    pts = np.asarray(points, np.float64)
+    samples: list[np.ndarray] = []
+    for v in views:
+        cam = pts @ v.world_to_camera[:3, :3].T + v.world_to_camera[:3, 3]
+        z = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = cam[:, :2] / z[:, None] * np.diag(v.K)[:2] + v.K[:2, 2]
+        ok = (z > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < v.width) & (uv[:, 1] >= 0) & (uv[:, 1] < v.height)
+        ij = np.where(ok[:, None], uv, 0.0).astype(np.int64)
+        if v.frame in objects:  # grown by a few pixels: the edge pixels blend the object in
+            grown = cv2.dilate(objects[v.frame].astype(np.uint8), np.ones((2 * grow_px + 1,) * 2, np.uint8))
+            ok &= grown[ij[:, 1], ij[:, 0]] == 0
+        if v.depth is not None:
+            d = v.depth[ij[:, 1], ij[:, 0]]
+            ok &= ~((d > 0) & (d < z - slack_m))
+        rgb = np.full((len(pts), 3), np.nan)
+        rgb[ok] = sample_image(v.images["clear"], uv[ok])
+        samples.append(rgb)
+    if not samples:
+        return np.full((len(pts), 3), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN column: a point no view sees
+        return np.nanmedian(np.stack(samples), axis=0)
+
+
+def _distinct_boxes(tracks: Sequence[Any], *, tolerance_m: float = 0.05) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each track's (object-to-world [4, 4], size [3]) boxes, a held track's repeated box once."""
+    out: list[tuple[np.ndarray, np.ndarray]] = []
+    for track in tracks:
+        poses = np.asarray(track.object_to_world, np.float64)
+        sizes = np.asarray(track.box_size, np.float64).reshape(-1, 3)
+        last: np.ndarray | None = None
+        for T, size in zip(poses, sizes):
+            if last is None or np.abs(T[:3, 3] - last).max() > tolerance_m:
+                out.append((T, size))
+                last = T[:3, 3]
+    return out
+
+
 def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, *,
                 weathers: Sequence[str]) -> tuple[WeatherCityModel, dict[str, Any]]:
     """The model to train, initialised from the scene's lidar and the training views.
@@ -213,6 +266,13 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         far = far_cloud(views, opacity=config.init_opacity, objects=objects)
         n_far = len(far)
         clouds.append(far)
+    n_fill = 0
+    if config.footprint_fill and boxed:
+        fill = fill_footprints(graph.static.means, graph.static.colors, _distinct_boxes(boxed),
+                               np.asarray(scene.up, np.float64), margin_m=options.box_margin_m + 0.1,
+                               opacity=FILL_OPACITY, colour_at=lambda p: seen_colour(p, views, objects))
+        n_fill = len(fill)
+        clouds.append(fill)
     n_completion = 0
     if config.completion_points:
         completed = completion_cloud(views, up=np.asarray(scene.up, np.float64), opacity=config.init_opacity,
@@ -267,6 +327,7 @@ def build_model(scene: Any, views: Sequence[TrainingView], config: TrainConfig, 
         "gaussians": model.counts(),
         "far_gaussians": n_far,
         "completion_gaussians": n_completion,
+        "footprint_fill_gaussians": n_fill,
         "skipped": {
             "tracks_in_background": len(scene.tracks) - n_nodes,
             "tracks_without_lidar_points": empty_nodes,

@@ -97,6 +97,11 @@ class TrainConfig:
         Add Gaussians on the surfaces a view sees beyond its lidar, the ground plane below its lowest
         beam and the walls above its highest (:func:`~.build.completion_cloud`), so that they are
         Gaussians at their depth, not the sky map's (an edited weather's haze hides the sky).
+    footprint_fill : bool
+        Add opaque flat Gaussians on the fitted ground under every node's box where no lidar
+        return saw it, coloured from the road around it
+        (:func:`~wcbench.reference_model.scene_graph.completion.fill_footprints`), so that a
+        removed object leaves road, not a hole (issue 39).
     budget : int
         Most Gaussians the densification may reach (the render speed depends on it).
     densify_from, densify_until, densify_interval : int
@@ -152,6 +157,7 @@ class TrainConfig:
     init_opacity: float = 0.1
     far_points: bool = True
     completion_points: bool = True
+    footprint_fill: bool = True
     cull_frustum: bool = True
     moving_threshold_m: float = 0.5
     static_nodes: bool = False

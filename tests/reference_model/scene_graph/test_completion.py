@@ -13,6 +13,7 @@ from wcbench.reference_model.scene_graph.completion import (
     Facades,
     closing_among,
     complete_distance,
+    fill_footprints,
     fit_facades,
     ground_height_below,
 )
@@ -263,3 +264,66 @@ def test_a_ray_that_does_not_meet_a_rising_street_is_a_wall_as_far_as_the_level_
     assert np.all(kind[21] == FILL_GROUND)  # 1/20 below: meets the street at 32 m
     np.testing.assert_allclose(out[21], 1.6 / -rays[21, :, 2], rtol=1e-9)
     assert np.all(np.isfinite(out))
+
+
+#: The road's colour around the boxes of the footprint tests (RGB in [0, 1]).
+ROAD = np.array([0.30, 0.32, 0.36])
+
+
+def _road(slope: float = 0.0, step: float = 0.2) -> np.ndarray:
+    """Road points on z = slope x over 16 m x 16 m (world, m; z up)."""
+    x, y = np.meshgrid(np.arange(-8, 8, step), np.arange(-8, 8, step))
+    return np.stack([x.ravel(), y.ravel(), slope * x.ravel()], 1)
+
+
+def _box(center: tuple[float, float, float], yaw: float) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = center
+    return T
+
+
+def _in_footprint(points: np.ndarray, T: np.ndarray, half: np.ndarray, grow: float = 0.0) -> np.ndarray:
+    local = (points - T[:3, 3]) @ T[:3, :3]
+    return np.all(np.abs(local[:, :2]) <= half[:2] + grow, axis=1)
+
+
+def test_the_ground_no_return_saw_under_a_parked_box_is_tiled_with_the_roads_colour():
+    size = np.array([4.0, 2.0, 1.5])
+    T = _box((1.0, 0.5, 0.75 + 0.05 * 1.0), 0.4)  # standing on a road rising 5 cm per metre
+    road = _road(slope=0.05)
+    seen = ~_in_footprint(road, T, size / 2, grow=0.2)  # the box and its margin hid the rest
+    colors = np.tile(ROAD, (int(seen.sum()), 1))
+    fill = fill_footprints(road[seen], colors, [(T, size)], np.array([0.0, 0.0, 1.0]))
+    assert len(fill) > 100
+    # every point of the footprint is within reach of a tile or of the road seen beside it; the
+    # tiles lie on the road's plane, flat along up, road-coloured and opaque
+    inner = road[_in_footprint(road, T, size / 2)]
+    both = np.concatenate([fill.means[:, :2], road[seen][:, :2]])
+    d = np.linalg.norm(inner[:, None, :2] - both[None, :, :2], axis=2).min(1)
+    assert d.max() < 0.25 and 0.25 ** 2 * _in_footprint(fill.means, T, size / 2).sum() > 0.8 * 8.0
+    np.testing.assert_allclose(fill.means[:, 2], 0.05 * fill.means[:, 0], atol=0.02)
+    normal = np.stack([np.eye(3)[2]] * len(fill))
+    from wcbench.reference_model.transforms import quat_to_matrix
+    axes = np.stack([quat_to_matrix(q) for q in fill.quats.astype(np.float64)])
+    thin = axes[np.arange(len(fill)), :, np.argmin(fill.scales, axis=1)]
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", thin, normal)), 1.0, atol=1e-3)
+    assert fill.scales.min() <= 0.02 + 1e-6 and np.all(fill.opacities >= 0.9)
+    np.testing.assert_allclose(fill.colors, np.tile(ROAD, (len(fill), 1)), atol=1e-3)
+
+
+def test_a_tile_takes_the_colour_of_the_road_nearest_it_and_seen_ground_is_not_tiled_again():
+    size = np.array([4.0, 2.0, 1.5])
+    T = _box((0.0, 0.0, 0.75), 0.0)
+    road = _road()
+    colors = np.where(road[:, :1] < 0, 0.2, 0.6) * np.ones((1, 3))  # a dark left half, a pale right one
+    seen = ~_in_footprint(road, T, size / 2, grow=0.2)
+    fill = fill_footprints(road[seen], colors[seen], [(T, size)], np.array([0.0, 0.0, 1.0]))
+    left, right = fill.means[:, 0] < -1.0, fill.means[:, 0] > 1.0
+    assert np.all(fill.colors[left] < 0.3) and np.all(fill.colors[right] > 0.5)
+    # a mover's box over road the lidar saw (other sweeps): nothing to fill; and no ground, no tile
+    assert len(fill_footprints(road, colors, [(T, size)], np.array([0.0, 0.0, 1.0]))) == 0
+    assert len(fill_footprints(road[:0], colors[:0], [(T, size)], np.array([0.0, 0.0, 1.0]))) == 0
+    with pytest.raises(ValueError, match="colors"):
+        fill_footprints(road, colors[:5], [(T, size)], np.array([0.0, 0.0, 1.0]))

@@ -271,3 +271,77 @@ def test_edits_reach_a_parked_node_of_the_trained_model(tmp_path: Path) -> None:
         copies = [g.means[a:b].detach().numpy() for key, a, b in g.segments if key == "rigid:parked"]
         assert len(copies) == 2
         np.testing.assert_allclose(copies[1], copies[0] + [-3.0, 0.0, 0.0], atol=1e-5)
+
+
+def _parked_on_a_road(tmp_path: Path) -> tuple[Scene, np.ndarray]:
+    """Three frames of a camera 10 m above a grey road (z up) looking steeply down along +x at a red
+    4 x 2 x 1.5 m box parked at the origin: no sweep sees the road under it. Returns the scene and
+    the road's colour (RGB in [0, 1])."""
+    road_rgb = np.array([0.35, 0.35, 0.40])
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1.0]])
+    forward = np.array([0.2, 0.0, -1.0]) / np.linalg.norm([0.2, 0.0, -1.0])
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    R = np.stack([right, np.cross(forward, right), forward], 1)  # OpenCV camera axes in the world
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[:, 2, 3] = 0.75
+    size = np.array([4.0, 2.0, 1.5])
+    frames, poses = [], []
+    for k in range(3):
+        c2w = np.eye(4)
+        c2w[:3, :3] = R
+        c2w[:3, 3] = [0.3 * k - 2.3, 0.0, 10.0]
+        cam = Camera(K=K, width=W, height=H, camera_to_world=c2w)
+        img = np.empty((H, W, 3), np.uint8)
+        img[:] = (road_rgb[::-1] * 255).round().astype(np.uint8)
+        corners = np.array([[sx * 2.0, sy * 1.0, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (0.0, 1.5)])
+        uv, _ = cam.project(corners)
+        cv2.fillConvexPoly(img, cv2.convexHull(np.round(uv).astype(np.int32)), (0, 0, 255))  # BGR red
+        path = tmp_path / f"{k:03d}.png"
+        cv2.imwrite(str(path), img)
+        frames.append(Frame(index=k, timestamp=0.1 * k, camera=cam, image_path=path,
+                            lidar_path=tmp_path / f"{k:03d}.bin"))
+        poses.append(c2w)
+    x, y = np.meshgrid(np.arange(-7, 7, 0.1), np.arange(-5, 5, 0.1))
+    road = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    road = road[(np.abs(road[:, 0]) > 2.2) | (np.abs(road[:, 1]) > 1.2)]  # hidden under the box and its margin
+    top = _grid(-1.95, 1.95, -0.95, 0.95, 1.5, 0.1)
+
+    def loader(frame: Frame) -> LidarSweep:
+        return LidarSweep(points=np.concatenate([road, top]).astype(np.float32))
+
+    track = ObjectTrack(id="parked", class_name="Car", frames=np.arange(3), object_to_world=T,
+                        box_size=np.tile(size, (3, 1)))
+    scene = Scene(id="parked_on_road", frames=frames, tracks=[track], up=np.array([0.0, 0.0, 1.0]),
+                  world_offset=np.zeros(3), source_format="test", root=tmp_path, lidar_loader=loader)
+    return scene, road_rgb
+
+
+def test_removing_a_parked_car_leaves_the_road_under_it_not_a_hole(tmp_path: Path) -> None:
+    pytest.importorskip("torch")
+    import torch
+
+    from wcbench.reference_model.editing.edits import parse_edits, placement_for
+    from wcbench.reference_model.model.sky import view_directions
+    from wcbench.reference_model.training.build import build_model
+    from wcbench.reference_model.training.config import make_config
+    from wcbench.reference_model.training.views import build_views
+
+    scene, road_rgb = _parked_on_a_road(tmp_path)
+    views, _ = build_views(scene, size=(W, H), derive_sky=False)
+    config = make_config("quick", width=W, voxel_m=0.1, node_voxel_m=0.1, far_points=False,
+                         completion_points=False, static_nodes=True, init_opacity=0.9)
+    model, facts = build_model(scene, views, config, weathers=("clear",))
+    assert facts["footprint_fill_gaussians"] > 50
+    model.eval()
+    cam = scene.frames[1].camera
+    c2w = np.asarray(cam.camera_to_world, np.float64)
+    w2c = np.linalg.inv(c2w)
+    grid = model.sky.grid(torch.from_numpy(view_directions(c2w, cam.K, W, H)))
+    place = placement_for(parse_edits("remove class=car"), model.objects())
+    with torch.no_grad():
+        out = model.render(1, w2c, cam.K, W, H, ("clear",), sky_grid=grid, placement=place)
+    image = out.images.numpy().reshape(H, W, 3)
+    uv, _ = cam.project(np.array([[x, y, 0.0] for x in (-1.5, 0.0, 1.5) for y in (-0.6, 0.0, 0.6)]))
+    under = image[np.floor(uv[:, 1]).astype(int), np.floor(uv[:, 0]).astype(int)]
+    np.testing.assert_allclose(under, np.tile(road_rgb, (len(under), 1)), atol=0.06)  # road, not red, not sky
