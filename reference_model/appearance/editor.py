@@ -490,8 +490,9 @@ def decontaminate(image: np.ndarray, alpha: np.ndarray, *, sigma_px: float | Non
         return img
     sigma = sigma_px if sigma_px is not None else 6.0 * img.shape[0] / 270.0
     inside = (np.asarray(alpha) >= 0.99).astype(np.float32)
-    num = cv2.GaussianBlur(img * inside[..., None], (0, 0), sigma)
-    den = cv2.GaussianBlur(inside, (0, 0), sigma)[..., None]
+    # the numerator and the weight blurred as one four-channel image (OpenCV filters each alone)
+    blurred = cv2.GaussianBlur(np.dstack([img * inside[..., None], inside]), (0, 0), sigma)
+    num, den = blurred[..., :3], blurred[..., 3:]
     behind = np.where(den > 1e-3, num / np.maximum(den, 1e-3), img)
     fg = np.clip((img - a[..., None] * behind) / (1.0 - a[..., None]), 0.0, 1.0)
     return np.where(mixed[..., None], fg, img).astype(np.float32)

@@ -430,6 +430,19 @@ class SurfaceScene:
         self._frame_memo = (index, cloud, out)
         return cloud, out
 
+    def mirrored_static(self) -> tuple[np.ndarray, np.ndarray]:
+        """(indices [M] of the static Gaussians that are not ground, float32 quaternions [M, 4] of
+        their surfels with the normals mirrored about the plane normal to ``up``), made once: the
+        mirror's height moves the centres, never the orientations."""
+        memo = getattr(self, "_mirror_memo", None)
+        if memo is None:
+            up = np.asarray(self.up, np.float64)
+            keep = np.flatnonzero(self.static_attributes[:, 3] < 0.5)
+            normals = np.asarray(self.static_attributes, np.float32)[keep, :3].astype(np.float64)
+            memo = (keep, quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32))
+            self._mirror_memo = memo
+        return memo
+
     def near(self, index: int, center: np.ndarray, radius: float) -> np.ndarray:
         """Indices into :meth:`at_frame`'s Gaussians of frame ``index`` within ``radius`` (m) of
         ``center``: the static ones from a k-d tree made once, the frame's moving ones directly."""
@@ -438,9 +451,14 @@ class SurfaceScene:
             tree = cKDTree(np.asarray(self.gaussians.static.means, np.float64))
             self._static_tree = tree
         static = np.asarray(tree.query_ball_point(np.asarray(center, np.float64), radius), np.int64)
-        cloud, _ = self.at_frame(index)
         n = len(self.gaussians.static)
-        moving = np.asarray(cloud.means[n:], np.float64)
+        # the frame's moving centres are kept: a frame asks once per tracked box
+        memo = getattr(self, "_moving_memo", None)
+        if memo is None or memo[0] != index:
+            cloud, _ = self.at_frame(index)
+            memo = (index, np.asarray(cloud.means[n:], np.float64))
+            self._moving_memo = memo
+        moving = memo[1]
         d2 = np.einsum("ij,ij->i", moving - center, moving - center)
         return np.concatenate([static, n + np.flatnonzero(d2 <= radius * radius)])
 

@@ -10,8 +10,10 @@ import pytest
 
 pytest.importorskip("torch")
 
-from wcbench.reference_model.appearance.maps import _box_shells, _rays
+from wcbench.reference_model.appearance.maps import _box_misses_view, _box_shells, _mirrored_cloud, _rays
+from wcbench.reference_model.appearance.surfaces import build_surfaces
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 from wcbench.scenes.scene import Camera
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -90,3 +92,78 @@ def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_ente
     assert changed[pixel] and fields["open"][pixel] == 1.0 and fields["ground"][pixel] == 0.0
     np.testing.assert_allclose(normal[pixel], [0.0, -0.94, 0.34], atol=1e-6)
     assert distance[pixel] == pytest.approx(entry + 0.2)
+
+
+def _old_box_skip(T, half, w2c, K, width, height, rng):
+    """The per-point skip of a box (the slow twin): points filling the box (its corners among them)
+    in front of the camera by over 0.1 m, fewer than 3, or all past one edge of the image."""
+    local = np.concatenate([rng.uniform(-1, 1, (4000, 3)), np.array(np.meshgrid(*[[-1.0, 1.0]] * 3)).reshape(3, -1).T])
+    cam = (local * half @ T[:3, :3].T + T[:3, 3]) @ w2c[:3, :3].T + w2c[:3, 3]
+    cam = cam[cam[:, 2] > 0.1]
+    if len(cam) < 3:
+        return True
+    u, v = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+    return bool(u.max() < 0 or u.min() >= width or v.max() < 0 or v.min() >= height)
+
+
+def test_a_box_is_skipped_by_its_corners_only_where_no_point_of_it_could_be_drawn():
+    # the corner test stands for the per-point test of every point of the box: it may keep a box
+    # whose points all miss (a box straddling the camera's plane), never skip one that shows
+    rng = np.random.default_rng(3)
+    camera = _camera(1.6)
+    w2c, K = np.asarray(camera.world_to_camera, np.float64), np.asarray(camera.K, np.float64)
+    skipped = agree = 0
+    for _ in range(300):
+        T = np.eye(4)
+        yaw = rng.uniform(0, 2 * np.pi)
+        T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+        T[:3, 3] = [rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(0, 2)]
+        half = rng.uniform(0.3, 3.0, 3)
+        fast = _box_misses_view(T, half, w2c, K, camera.width, camera.height)
+        slow = _old_box_skip(T, half, w2c, K, camera.width, camera.height, rng)
+        assert not fast or slow, f"a box at {T[:3, 3]} that shows was skipped"
+        skipped += fast
+        agree += fast == slow
+    # most boxes around a camera with a 56-degree view miss it, and the corners tell nearly all
+    assert skipped > 150 and agree > 280
+
+
+def _old_mirrored_cloud(surfaces, index, ground_height):
+    """The mirrored cloud with every surfel turned per frame (the slow twin of the cached one)."""
+    cloud, attrs = surfaces.at_frame(index)
+    up = surfaces.up
+    keep = attrs[:, 3] < 0.5
+    means = cloud.means[keep].astype(np.float64)
+    h = means @ up - ground_height
+    above = h > 0.05
+    normals = attrs[keep][above, :3].astype(np.float64)
+    return GaussianCloud(means=means[above] - 2.0 * np.outer(h[above], up),
+                         quats=quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32),
+                         scales=cloud.scales[keep][above], opacities=cloud.opacities[keep][above],
+                         colors=cloud.colors[keep][above])
+
+
+def test_the_mirrored_cloud_with_its_static_orientations_made_once_is_the_per_frame_one(demo_scene, monkeypatch):
+    surfaces = build_surfaces(demo_scene)
+    static, static_attrs = surfaces.at_frame(0)
+    assert len(static) == len(surfaces.gaussians.static)
+    # a frame's moving surfels after the static ones (as at_frame appends them): tilted normals,
+    # a third of them ground, some under the mirror
+    rng = np.random.default_rng(5)
+    n = 500
+    attrs = np.zeros((n, static_attrs.shape[1]), np.float32)
+    attrs[:, :3] = rng.normal(size=(n, 3))
+    attrs[:, :3] /= np.linalg.norm(attrs[:, :3], axis=1, keepdims=True)
+    attrs[:, 3] = rng.uniform(size=n) < 1 / 3
+    means = np.asarray(static.means)[rng.integers(0, len(static), n)] + rng.normal(0, 1.0, (n, 3)).astype(np.float32)
+    movers = GaussianCloud(means=means.astype(np.float32), quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+                           scales=np.full((n, 3), 0.05, np.float32), opacities=np.full(n, 0.9, np.float32),
+                           colors=rng.uniform(size=(n, 3)).astype(np.float32))
+    frame = (GaussianCloud.concatenate([static, movers]), np.concatenate([static_attrs, attrs]))
+    monkeypatch.setattr(surfaces, "at_frame", lambda k: frame)
+    for height in (0.0, 0.4, -0.2):
+        fast, slow = _mirrored_cloud(surfaces, 3, height), _old_mirrored_cloud(surfaces, 3, height)
+        assert len(slow) > len(static) // 10
+        for name in ("means", "quats", "scales", "opacities", "colors"):
+            # the same float operations on the same rows, in the same order: equal to the bit
+            np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
