@@ -54,6 +54,8 @@ _EDGE_ALPHA, _EDGE_GAMMA, _EDGE_REACH = 1.0 / 3.0, 0.9, 12
 #: _NEIGHBOUR_ROWS up or down, at 960 px) continue its surface and on the other side lie all behind
 #: it by more than 1 m + 30 % of its range, or are missing (sky); only returns nearer than _NEAR_M.
 _NEIGHBOUR_PX, _NEIGHBOUR_ROWS, _NEAR_M = 10.0, 4.0, 40.0
+#: At most this many nearest neighbours are looked at.
+_NEIGHBOURS = 24
 #: Frames with fewer discontinuities than this do not vote.
 _MIN_EDGES = 20
 
@@ -136,18 +138,25 @@ def range_edges(uv: np.ndarray, depth: np.ndarray, *, scale: float = 1.0) -> np.
     du, dv = _NEIGHBOUR_PX * scale, max(_NEIGHBOUR_ROWS * scale, 1.0)
     xy = np.c_[uv[:, 0], uv[:, 1] * (du / dv)]
     near = np.nonzero(depth < _NEAR_M)[0]
-    for i, nb in zip(near, cKDTree(xy).query_ball_point(xy[near], r=du), strict=True):
-        nb = np.asarray(nb)
-        nb = nb[nb != i]
-        z = depth[i]
-        jump, same = [], []
-        for side in (nb[uv[nb, 0] < uv[i, 0]], nb[uv[nb, 0] > uv[i, 0]]):
-            jump.append(10.0 if len(side) == 0 else max(0.0, float(depth[side].min() - z)))
-            same.append(len(side) > 0 and int((np.abs(depth[side] - z) < 0.1 + 0.03 * z).sum()) >= 2)
-        # the surface continues on one side; the other is empty or wholly behind
-        j = max(jump[0] if same[1] else 0.0, jump[1] if same[0] else 0.0)
-        if j > 1.0 + 0.3 * z:
-            out[i] = min(j, 10.0) ** 0.5
+    if len(near) == 0:
+        return out
+    # the _NEIGHBOURS nearest returns within the neighbourhood (index n where there are fewer)
+    _, nb = cKDTree(xy).query(xy[near], k=min(_NEIGHBOURS + 1, n), distance_upper_bound=du)
+    nb = nb.reshape(len(near), -1)
+    valid = (nb < n) & (nb != near[:, None])
+    nb = np.where(valid, nb, 0)
+    z = depth[near][:, None]
+    zn, un = depth[nb], uv[nb, 0]
+    jump = np.zeros((len(near), 2))
+    same = np.zeros((len(near), 2), bool)
+    for s, side in enumerate((valid & (un < uv[near, 0][:, None]), valid & (un > uv[near, 0][:, None]))):
+        nearest_behind = np.where(side, zn, np.inf).min(axis=1) - z[:, 0]
+        jump[:, s] = np.where(side.any(axis=1), np.maximum(nearest_behind, 0.0), 10.0)  # empty: sky or a gap
+        same[:, s] = (side & (np.abs(zn - z) < 0.1 + 0.03 * z)).sum(axis=1) >= 2
+    # the surface continues on one side; the other is empty or wholly behind
+    j = np.maximum(np.where(same[:, 1], jump[:, 0], 0.0), np.where(same[:, 0], jump[:, 1], 0.0))
+    edge = j > 1.0 + 0.3 * z[:, 0]
+    out[near[edge]] = np.minimum(j[edge], 10.0) ** 0.5
     return out
 
 
