@@ -1,7 +1,9 @@
 """All the scene analyses of a scene, run once and shared by the weather editor and training.
 
 :func:`analyse_scene` reads a scene's frames at the analysis size, labels its lidar returns
-(:mod:`.motion`), marks the pixels the returns land in (*solid*: never sky, :func:`solid_masks`),
+(:mod:`.motion`), registers them to the camera (a time offset found from the frames' own edges,
+Levinson & Thrun 2013; :mod:`.register`: every later step and the editor's surfaces read the
+registered returns), marks the pixels the returns land in (*solid*: never sky, :func:`solid_masks`),
 segments the sky (:mod:`.sky`; the scene's own masks when it ships them), finds the ego
 vehicle's body (:mod:`.ego`) and the clear frames' sun (:mod:`.sun`). The result is kept for the
 last scenes analysed in this process (the editor and the training views of one run ask for the
@@ -22,6 +24,7 @@ from wcbench.core.errors import InputError
 from wcbench.core.progress import announce
 from wcbench.reference_model.scene_analysis.ego import ego_mask
 from wcbench.reference_model.scene_analysis.motion import LidarReturns, classify_returns
+from wcbench.reference_model.scene_analysis.register import LidarTimeOffset, fit_time_offset
 from wcbench.reference_model.scene_analysis.sky import SkySegmentation, segment_sky, sky_matte
 from wcbench.reference_model.scene_analysis.sun import SunEstimate, fit_sun
 from wcbench.reference_model.scene_analysis.views import (
@@ -48,6 +51,7 @@ class SceneAnalysis:
     ----------
     views : AnalysisViews
     returns : LidarReturns
+        Registered to the camera by ``lidar_offset``.
     solid : list of ndarray [H, W] bool
         Per frame, the pixels a lidar return lands in (:func:`solid_masks`): never sky.
     sky : SkySegmentation
@@ -55,8 +59,10 @@ class SceneAnalysis:
         The ego vehicle's body (the same in every frame; all false when there is none).
     sun : SunEstimate
         The clear frames' sun and what casts shadows (no direction when none is seen).
+    lidar_offset : LidarTimeOffset
+        The lidar's time offset to the camera that ``returns`` are moved by (0 s without support).
     facts : dict
-        For ``info.json``: counts, the sky's and the ego mask's facts, timings.
+        For ``info.json``: counts, the registration, the sky's and the ego mask's facts, timings.
     """
 
     views: AnalysisViews
@@ -65,6 +71,7 @@ class SceneAnalysis:
     sky: SkySegmentation
     ego: np.ndarray
     sun: SunEstimate
+    lidar_offset: LidarTimeOffset = field(default_factory=lambda: LidarTimeOffset(0.0))
     facts: dict[str, Any] = field(default_factory=dict)
 
     def record(self) -> dict[str, Any]:
@@ -212,11 +219,14 @@ def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = announc
         return _CACHE[key]
     if log is not None:
         log(f"analysing scene {getattr(scene, 'id', '')} ({len(scene.frames)} frames at {size[0]}x{size[1]}): "
-            "moving returns, sky, ego vehicle, sun")
+            "moving returns, registration, sky, ego vehicle, sun")
     t0 = time.perf_counter()
     views = build_analysis_views(scene, size)
     t1 = time.perf_counter()
     returns = classify_returns(scene, views)
+    t_reg = time.perf_counter()
+    offset = fit_time_offset(views, returns)
+    returns = offset.apply(views, returns)
     t2 = time.perf_counter()
     static = returns.static_points()
     solid, without = solid_masks(views, returns)
@@ -227,11 +237,14 @@ def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = announc
     t5 = time.perf_counter()
     sun = fit_sun(views, returns, sky.masks)
     t6 = time.perf_counter()
-    facts = {"size": list(size), "returns": returns.facts, "sky": sky.facts, **ego_facts, "sun": sun.facts,
+    facts = {"size": list(size), "returns": returns.facts, "lidar_time_offset": offset.facts, "sky": sky.facts,
+             **ego_facts, "sun": sun.facts,
              "frames_without_lidar_in_view": without,
-             "seconds": {"views": round(t1 - t0, 2), "returns": round(t2 - t1, 2), "solid": round(t3 - t2, 2),
+             "seconds": {"views": round(t1 - t0, 2), "returns": round(t_reg - t1, 2),
+                         "register": round(t2 - t_reg, 2), "solid": round(t3 - t2, 2),
                          "sky": round(t4 - t3, 2), "ego": round(t5 - t4, 2), "sun": round(t6 - t5, 2)}}
-    out = SceneAnalysis(views=views, returns=returns, solid=solid, sky=sky, ego=ego, sun=sun, facts=facts)
+    out = SceneAnalysis(views=views, returns=returns, solid=solid, sky=sky, ego=ego, sun=sun, lidar_offset=offset,
+                        facts=facts)
     _CACHE[key] = out
     while len(_CACHE) > _KEEP:
         _CACHE.popitem(last=False)
