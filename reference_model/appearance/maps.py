@@ -142,6 +142,22 @@ def _box_misses_view(T: np.ndarray, half: np.ndarray, w2c: np.ndarray, K: np.nda
     return bool(u.max() < 0 or u.min() >= width or v.max() < 0 or v.min() >= height)
 
 
+def _hull_pixels(hull: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows [P], columns [P]) of the pixels inside the convex polygon ``hull`` ([V, 1, 2] int32
+    pixel corners, as :func:`cv2.convexHull` gives it; it may reach past the frame) where
+    ``allowed`` [H, W] bool holds. Drawn in the polygon's bounding rectangle clipped to the frame,
+    not on a whole frame per polygon (a frame has dozens of boxes)."""
+    h, w = allowed.shape
+    x0, y0, bw, bh = cv2.boundingRect(hull)
+    x1, y1, x0, y0 = min(w, x0 + bw), min(h, y0 + bh), max(0, x0), max(0, y0)
+    if x1 <= x0 or y1 <= y0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillConvexPoly(inside, hull - np.array([x0, y0], np.int32), 1)
+    rr, cc = np.nonzero(inside.astype(bool) & allowed[y0:y1, x0:x1])
+    return rr + y0, cc + x0
+
+
 def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
                 distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray) -> np.ndarray:
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
@@ -167,25 +183,30 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     if not boxes or len(cloud) == 0:
         return changed
     h, w = distance.shape
-    means = np.asarray(cloud.means, np.float64)
     w2c = np.asarray(camera.world_to_camera, np.float64)
     K = np.asarray(camera.K, np.float64)
+    seen_boxes = []
     for T, size in boxes:
-        R, t = T[:3, :3], T[:3, 3]
         half = np.asarray(size, np.float64) / 2.0
-        o = R.T @ (center - t)
+        o = T[:3, :3].T @ (center - T[:3, 3])
         if np.all(np.abs(o) <= half):
             continue  # the camera inside a box (the ego vehicle's own track): no shell
         if _box_misses_view(T, half + 0.1, w2c, K, w, h):
             continue  # none of its points could be drawn: skip the neighbour search
-        near = surfaces.near(index, t, float(np.linalg.norm(half + 0.1)))
+        seen_boxes.append((T, half, o))
+    # the neighbours of every box that may show, in one query
+    neighbours = surfaces.near(index, np.array([T[:3, 3] for T, _, _ in seen_boxes]).reshape(-1, 3),
+                               np.array([np.linalg.norm(half + 0.1) for _, half, _ in seen_boxes]))
+    for (T, half, o), near in zip(seen_boxes, neighbours):
+        R, t = T[:3, :3], T[:3, 3]
         if near.size < 3:
             continue
-        local = (means[near] - t) @ R
-        inside = near[np.all(np.abs(local) <= half + 0.1, axis=1)]
-        if inside.size < 3:
+        pts = np.asarray(cloud.means[near], np.float64)
+        local = (pts - t) @ R
+        inside = np.all(np.abs(local) <= half + 0.1, axis=1)
+        if np.count_nonzero(inside) < 3:
             continue
-        cam = means[inside] @ w2c[:3, :3].T + w2c[:3, 3]
+        cam = pts[inside] @ w2c[:3, :3].T + w2c[:3, 3]
         cam = cam[cam[:, 2] > 0.1]
         if len(cam) < 3:
             continue
@@ -193,9 +214,7 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         if uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
             continue
         hull = cv2.convexHull(np.clip(np.round(uv - 0.5), -4 * w, 4 * w).astype(np.int32))
-        silhouette = np.zeros((h, w), np.uint8)
-        cv2.fillConvexPoly(silhouette, hull, 1)
-        rr, cc = np.nonzero(silhouette.astype(bool) & ~sky)
+        rr, cc = _hull_pixels(hull, ~sky)
         if rr.size == 0:
             continue
         d = rays[rr, cc] @ R  # ray directions in the box frame
@@ -322,23 +341,26 @@ def _mirrored_cloud(surfaces: SurfaceScene, index: int, ground_height: float) ->
     not turn)."""
     cloud, attrs = surfaces.at_frame(index)
     up = surfaces.up
-    # the static surfels' mirrored orientations are made once (the plane's height moves only the
-    # centres); the frame's moving ones are turned here
+    # the static rows come gathered and their orientations mirrored once
+    # (SurfaceScene.mirrored_static); only the frame's moving ones are gathered and turned here
+    st = surfaces.mirrored_static()
     n_static = len(surfaces.gaussians.static)
-    static_keep, static_quats = surfaces.mirrored_static()
     moving_keep = n_static + np.flatnonzero(attrs[n_static:, 3] < 0.5)
-    keep = np.concatenate([static_keep, moving_keep])
-    means = cloud.means[keep].astype(np.float64)
-    h = means @ up - ground_height
-    keep_above = h > 0.05
-    mirrored = means[keep_above] - 2.0 * np.outer(h[keep_above], up)
+    h_static = st.heights - ground_height
+    above_static = h_static > 0.05
+    moving = cloud.means[moving_keep].astype(np.float64)
+    h_moving = moving @ up - ground_height
+    above_moving = h_moving > 0.05
+    mirrored = np.concatenate([st.means[above_static] - 2.0 * np.outer(h_static[above_static], up),
+                               moving[above_moving] - 2.0 * np.outer(h_moving[above_moving], up)])
     # a surfel's normal is mirrored with it (the isotropic ones do not turn)
-    normals = attrs[moving_keep, :3].astype(np.float64)
+    normals = attrs[moving_keep[above_moving], :3].astype(np.float64)
     moving_quats = quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32)
-    quats = np.concatenate([static_quats, moving_quats])[keep_above]
-    rows = keep[keep_above]
-    return GaussianCloud(means=mirrored, quats=quats, scales=cloud.scales[rows], opacities=cloud.opacities[rows],
-                         colors=cloud.colors[rows])
+    rows = moving_keep[above_moving]
+    return GaussianCloud(means=mirrored, quats=np.concatenate([st.quats[above_static], moving_quats]),
+                         scales=np.concatenate([st.scales[above_static], cloud.scales[rows]]),
+                         opacities=np.concatenate([st.opacities[above_static], cloud.opacities[rows]]),
+                         colors=np.concatenate([st.colors[above_static], cloud.colors[rows]]))
 
 
 def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float, exposure: float,
@@ -487,6 +509,8 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
             ok = todo & (den > 1e-3)
             filled[ok] = num[ok] / den[ok, None]
             todo &= ~ok
+            if not todo.any():
+                break  # the wider blur is needed only for what the narrower one left unfilled
         # no seen reflection within reach: what the frame shows where the ray points
         image = filled
     return image.astype(np.float32), seen

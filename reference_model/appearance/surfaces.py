@@ -48,8 +48,8 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "object_sides", "open_to_sky", "pca_normals",
-           "value_noise"]
+__all__ = ["ATTRIBUTES", "MirroredStatic", "SurfaceScene", "build_surfaces", "lane_paths", "object_sides",
+           "open_to_sky", "pca_normals", "value_noise"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -321,6 +321,34 @@ def lane_paths(scene: Any, *, up: np.ndarray, step_m: float = 0.1) -> np.ndarray
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
+@dataclass(frozen=True)
+class MirroredStatic:
+    """The static non-ground Gaussians as the ground's mirror image needs them
+    (:meth:`SurfaceScene.mirrored_static`).
+
+    Attributes
+    ----------
+    rows : ndarray [M] int
+        Their indices among the static Gaussians.
+    means : ndarray [M, 3] float64
+        World centres (m), not mirrored.
+    heights : ndarray [M] float64
+        ``means @ up`` (m).
+    quats : ndarray [M, 4] float32
+        Orientations of the surfels with their normals mirrored about the plane normal to ``up``.
+    scales, opacities, colors : ndarray
+        Their rows of the static cloud's arrays.
+    """
+
+    rows: np.ndarray
+    means: np.ndarray
+    heights: np.ndarray
+    quats: np.ndarray
+    scales: np.ndarray
+    opacities: np.ndarray
+    colors: np.ndarray
+
+
 @dataclass
 class SurfaceScene:
     """A scene's lidar Gaussians with surface attributes (see the module docstring).
@@ -430,37 +458,47 @@ class SurfaceScene:
         self._frame_memo = (index, cloud, out)
         return cloud, out
 
-    def mirrored_static(self) -> tuple[np.ndarray, np.ndarray]:
-        """(indices [M] of the static Gaussians that are not ground, float32 quaternions [M, 4] of
-        their surfels with the normals mirrored about the plane normal to ``up``), made once: the
-        mirror's height moves the centres, never the orientations."""
+    def mirrored_static(self) -> MirroredStatic:
+        """The static Gaussians that are not ground, gathered once with their surfels' normals
+        mirrored about the plane normal to ``up``: the mirror's height moves the centres, never the
+        orientations, and a frame selects and shifts rows of these arrays instead of gathering
+        them from the whole cloud again."""
         memo = getattr(self, "_mirror_memo", None)
         if memo is None:
             up = np.asarray(self.up, np.float64)
             keep = np.flatnonzero(self.static_attributes[:, 3] < 0.5)
             normals = np.asarray(self.static_attributes, np.float32)[keep, :3].astype(np.float64)
-            memo = (keep, quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32))
+            st = self.gaussians.static
+            means = np.asarray(st.means)[keep].astype(np.float64)
+            memo = MirroredStatic(
+                rows=keep, means=means, heights=means @ up,
+                quats=quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32),
+                scales=np.asarray(st.scales)[keep], opacities=np.asarray(st.opacities)[keep],
+                colors=np.asarray(st.colors)[keep])
             self._mirror_memo = memo
         return memo
 
-    def near(self, index: int, center: np.ndarray, radius: float) -> np.ndarray:
-        """Indices into :meth:`at_frame`'s Gaussians of frame ``index`` within ``radius`` (m) of
-        ``center``: the static ones from a k-d tree made once, the frame's moving ones directly."""
+    def near(self, index: int, centers: np.ndarray, radii: np.ndarray) -> list[np.ndarray]:
+        """For each of ``centers`` [B, 3], the indices into :meth:`at_frame`'s Gaussians of frame
+        ``index`` within its ``radii`` [B] (m): the static ones from a k-d tree made once (all
+        centres in one parallel query), the frame's moving ones directly."""
         tree = getattr(self, "_static_tree", None)
         if tree is None:
             tree = cKDTree(np.asarray(self.gaussians.static.means, np.float64))
             self._static_tree = tree
-        static = np.asarray(tree.query_ball_point(np.asarray(center, np.float64), radius), np.int64)
+        centers = np.asarray(centers, np.float64).reshape(-1, 3)
+        radii = np.asarray(radii, np.float64).reshape(-1)
+        if len(centers) == 0:
+            return []
+        static = tree.query_ball_point(centers, radii, workers=-1)
         n = len(self.gaussians.static)
-        # the frame's moving centres are kept: a frame asks once per tracked box
-        memo = getattr(self, "_moving_memo", None)
-        if memo is None or memo[0] != index:
-            cloud, _ = self.at_frame(index)
-            memo = (index, np.asarray(cloud.means[n:], np.float64))
-            self._moving_memo = memo
-        moving = memo[1]
-        d2 = np.einsum("ij,ij->i", moving - center, moving - center)
-        return np.concatenate([static, n + np.flatnonzero(d2 <= radius * radius)])
+        cloud, _ = self.at_frame(index)
+        moving = np.asarray(cloud.means[n:], np.float64)
+        out = []
+        for c, r, hits in zip(centers, radii, static):
+            d2 = np.einsum("ij,ij->i", moving - c, moving - c)
+            out.append(np.concatenate([np.asarray(hits, np.int64), n + np.flatnonzero(d2 <= r * r)]))
+        return out
 
     def _frame_dynamic(self, index: int) -> tuple[GaussianCloud, np.ndarray] | None:
         """The untracked dynamic returns of frame ``index`` as Gaussians (colours from the frame at

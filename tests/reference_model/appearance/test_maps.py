@@ -10,7 +10,9 @@ import pytest
 
 pytest.importorskip("torch")
 
-from wcbench.reference_model.appearance.maps import _box_misses_view, _box_shells, _mirrored_cloud, _rays
+import cv2
+
+from wcbench.reference_model.appearance.maps import _box_misses_view, _box_shells, _hull_pixels, _mirrored_cloud, _rays
 from wcbench.reference_model.appearance.surfaces import build_surfaces
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
@@ -41,7 +43,8 @@ def _surfaces():
                           scales=np.full((n, 3), 0.1, np.float32), opacities=np.ones(n, np.float32),
                           colors=np.zeros((n, 3), np.float32))
     return SimpleNamespace(up=UP, boxes_at=lambda k: [(BOX, SIZE)], at_frame=lambda k: (cloud, None),
-                           near=lambda k, c, r: np.flatnonzero(np.linalg.norm(shell - c, axis=1) <= r))
+                           near=lambda k, cs, rs: [np.flatnonzero(np.linalg.norm(shell - c, axis=1) <= r)
+                                                   for c, r in zip(cs, rs)])
 
 
 def _pixel(camera, point):
@@ -167,3 +170,22 @@ def test_the_mirrored_cloud_with_its_static_orientations_made_once_is_the_per_fr
         for name in ("means", "quats", "scales", "opacities", "colors"):
             # the same float operations on the same rows, in the same order: equal to the bit
             np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+
+
+def test_a_hulls_pixels_drawn_in_its_rectangle_are_those_drawn_on_the_whole_frame():
+    # the slow twin: the polygon filled on a frame of its own; hulls inside, across the edges and
+    # corners, wholly outside, and degenerate (a point, a segment)
+    rng = np.random.default_rng(11)
+    h, w = 90, 160
+    allowed = rng.uniform(size=(h, w)) > 0.2
+    for trial in range(300):
+        n = int(rng.integers(1, 12))
+        spread = rng.uniform(0.5, 120)
+        pts = rng.normal([rng.uniform(-60, 220), rng.uniform(-40, 130)], spread, (n, 2))
+        hull = cv2.convexHull(np.round(pts).astype(np.int32))
+        frame = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(frame, hull, 1)
+        slow = set(zip(*np.nonzero(frame.astype(bool) & allowed)))
+        rr, cc = _hull_pixels(hull, allowed)
+        assert set(zip(rr.tolist(), cc.tolist())) == slow, f"trial {trial}: {hull.reshape(-1, 2).tolist()}"
+        assert len(rr) == len(slow)

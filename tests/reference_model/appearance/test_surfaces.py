@@ -179,3 +179,21 @@ def test_a_parked_cars_sills_shelter_only_the_ground_under_it():
     assert not is_open[(np.abs(road[:, 0]) < 2.2) & (np.abs(road[:, 1]) < 0.85)].any()
     with pytest.raises(ValueError, match="shelters"):
         open_to_sky(points, normals, up=up, shelters=body[:-1])
+
+
+def test_the_batched_neighbour_search_finds_what_a_brute_force_one_does(demo_scene):
+    # the slow twin: distances to every Gaussian of the frame, static and moving alike
+    surfaces = build_surfaces(demo_scene)
+    rng = np.random.default_rng(4)
+    for index in (0, 7):
+        cloud, _ = surfaces.at_frame(index)
+        means = np.asarray(cloud.means, np.float64)
+        centers = means[rng.integers(0, len(means), 6)] + rng.normal(0, 2.0, (6, 3))
+        radii = rng.uniform(0.5, 6.0, 6)
+        found = surfaces.near(index, centers, radii)
+        assert len(found) == 6
+        for c, r, idx in zip(centers, radii, found):
+            slow = np.flatnonzero(np.linalg.norm(means - c, axis=1) <= r)
+            np.testing.assert_array_equal(np.sort(idx), slow)
+        assert sum(len(i) for i in found) > 0
+    assert surfaces.near(0, np.zeros((0, 3)), np.zeros(0)) == []
