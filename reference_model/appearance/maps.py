@@ -13,10 +13,10 @@ reach (docs/design.md §7):
   is fitted, else the closing's depth), facing the camera horizontally: structure above
   the lidar's reach keeps its appearance, nothing settles on it.
 
-:func:`mirror_render` renders the non-ground surfaces mirrored about that ground plane: where the
-reflected ray of each pixel meets the scene; :func:`screen_reflection` takes the colour of what is
-met there from the frame itself (what the camera sees above the road), never from the lidar's
-colours.
+:func:`mirror_distance` renders the non-ground surfaces mirrored about that ground plane: how far
+the reflected ray of each pixel travels to the scene; :func:`screen_reflection` takes the colour of
+what is met there from the frame itself (what the camera sees above the road), never from the
+lidar's colours.
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ import cv2
 import numpy as np
 import torch
 
-from wcbench.reference_model.appearance.shading import linear_to_srgb, srgb_to_linear
 from wcbench.reference_model.appearance.surfaces import SurfaceScene
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
@@ -36,7 +35,7 @@ from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["SurfaceMaps", "glossy_blur", "mirror_render", "refine", "screen_reflection", "surface_maps"]
+__all__ = ["SurfaceMaps", "glossy_blur", "mirror_distance", "refine", "screen_reflection", "surface_maps"]
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
@@ -186,6 +185,7 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     w2c = np.asarray(camera.world_to_camera, np.float64)
     K = np.asarray(camera.K, np.float64)
     seen_boxes = []
+    not_sky = ~sky
     for T, size in boxes:
         half = np.asarray(size, np.float64) / 2.0
         o = T[:3, :3].T @ (center - T[:3, 3])
@@ -214,7 +214,7 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         if uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
             continue
         hull = cv2.convexHull(np.clip(np.round(uv - 0.5), -4 * w, 4 * w).astype(np.int32))
-        rr, cc = _hull_pixels(hull, ~sky)
+        rr, cc = _hull_pixels(hull, not_sky)
         if rr.size == 0:
             continue
         d = rays[rr, cc] @ R  # ray directions in the box frame
@@ -363,13 +363,15 @@ def _mirrored_cloud(surfaces: SurfaceScene, index: int, ground_height: float) ->
                          colors=np.concatenate([st.colors[above_static], cloud.colors[rows]]))
 
 
-def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float, exposure: float,
-                  background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """What the ground plane mirrors at each pixel: the non-ground lidar surfaces reflected about it.
+def mirror_distance(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float) -> np.ndarray:
+    """How far each pixel's ray reflected by the ground plane travels to the non-ground lidar
+    surfaces: the length of the unfolded path.
 
     Rendering the surfaces mirrored about the plane from the real camera gives, at a pixel on the
-    plane, what the reflected ray meets (mirroring the centres and the surfels' normals is exact).
-    It is rendered at half the camera's size and resized up (a wet surface blurs its reflection).
+    plane, what the reflected ray meets (mirroring the centres and the surfels' normals is exact);
+    only its depth is needed, since the colour of what is met is taken from the frame itself
+    (:func:`screen_reflection`), so one dummy channel is composited. It is rendered at half the
+    camera's size and resized up (a wet surface blurs its reflection).
 
     Parameters
     ----------
@@ -378,36 +380,26 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
     camera : Camera
     ground_height : float
         The plane's height along ``up`` (m).
-    exposure : float
-        Linear-light factor on the surfaces' clear colours (the weather's overcast exposure).
-    background : ndarray [3]
-        What the reflected ray sees where it meets no surface (the weather's sky), display RGB.
 
     Returns
     -------
-    image : ndarray [H, W, 3] float32
-        Display RGB of the reflection.
-    distance : ndarray [H, W] float32
+    ndarray [H, W] float32
         Length of the reflected path from the camera (m; ``inf`` where it meets no surface).
     """
+    w, h = int(camera.width), int(camera.height)
     sub = _mirrored_cloud(surfaces, index, ground_height)
     if len(sub) == 0:
-        hh, ww = int(camera.height), int(camera.width)
-        return np.broadcast_to(np.asarray(background, np.float32), (hh, ww, 3)).copy(), np.full((hh, ww), np.inf,
-                                                                                               np.float32)
+        return np.full((h, w), np.inf, np.float32)
     # at half the size: a reflection is blurred by the wet surface (a puddle's sharp one by little)
-    w, h = int(camera.width), int(camera.height)
     half = replace(camera, K=np.diag([0.5, 0.5, 1.0]) @ np.asarray(camera.K, np.float64), width=max(1, w // 2),
                    height=max(1, h // 2))
     half = replace(half, K=np.diag([half.width / (0.5 * w), half.height / (0.5 * h), 1.0]) @ half.K)
-    color, alpha, depth = _rasterize(sub, linear_to_srgb(srgb_to_linear(sub.colors) * exposure), half)
+    # the compositing's weights and depth do not depend on the channels: one channel of zeros
+    _, alpha, depth = _rasterize(sub, np.zeros((len(sub), 1), np.float32), half)
     _, z_per_m = _rays(half)
-    a = np.clip(alpha, 0.0, 1.0)[..., None]
-    image = color * a + np.asarray(background, np.float32) * (1.0 - a)
     distance = np.where(alpha > _COVERED, depth / np.maximum(z_per_m, 1e-9), 1e6).astype(np.float32)
-    image = cv2.resize(np.clip(image, 0.0, 1.0).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     distance = cv2.resize(distance, (w, h), interpolation=cv2.INTER_LINEAR)
-    return image, np.where(distance >= 1e6, np.inf, distance).astype(np.float32)
+    return np.where(distance >= 1e6, np.inf, distance).astype(np.float32)
 
 
 def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray, *,
@@ -418,7 +410,7 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
     A wet road reflects what stands above it, and what stands above it the camera mostly sees: the
     reflected ray of a pixel leaves the plane at the ray's intersection G along the mirrored
     direction r' = r - 2 (r . up) up and meets the scene at X = G + r' (L - |G - C|), where L is the
-    length of the unfolded path to the first mirrored surface (:func:`mirror_render`), or at
+    length of the unfolded path to the first mirrored surface (:func:`mirror_distance`), or at
     infinity where it meets none. X projected into the camera gives the pixel whose colour in
     ``source`` is the reflection, when the camera sees X there (its surface at that pixel is not
     nearer than X; an X at infinity is seen wherever it projects). The lidar's own colours (a
@@ -439,7 +431,7 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
     maps : SurfaceMaps
         The view's completed maps (rays, distances, ground plane height).
     mirror_distance : ndarray [H, W] float32
-        :func:`mirror_render`'s path lengths (m; ``inf`` where the reflected ray meets no surface).
+        :func:`mirror_distance`'s path lengths (m; ``inf`` where the reflected ray meets no surface).
     up : ndarray [3]
         The world's up.
     sky : ndarray [H, W, 3] float32, optional

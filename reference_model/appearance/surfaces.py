@@ -86,6 +86,8 @@ _DYNAMIC_ABOVE_GROUND_M, _DYNAMIC_NEIGHBOUR_M = 0.2, 0.5
 _DYNAMIC_PATCH_RETURNS_M2, _DYNAMIC_SHARE, _DYNAMIC_NEIGHBOURS = 6800.0, 0.1, (3, 20)
 #: A ground cell (2 m) gives the height within this distance of its centre (m); beyond, the plane.
 _CELL_REACH_M = 4.0
+#: Static balls :meth:`SurfaceScene.near` keeps (a scene has about a thousand distinct box poses).
+_BALL_MEMO = 4096
 #: An object's side: inside its box (grown by ``_SIDE_MARGIN_M`` sideways, for the annotation's fit),
 #: from ``_SIDE_MARGIN_M`` above the box's bottom (the road under it, with a lidar return's range
 #: noise) up to ``_SIDE_SHARE`` of its height all round (a car's bonnet and boot lie higher, the
@@ -480,24 +482,44 @@ class SurfaceScene:
 
     def near(self, index: int, centers: np.ndarray, radii: np.ndarray) -> list[np.ndarray]:
         """For each of ``centers`` [B, 3], the indices into :meth:`at_frame`'s Gaussians of frame
-        ``index`` within its ``radii`` [B] (m): the static ones from a k-d tree made once (all
-        centres in one parallel query), the frame's moving ones directly."""
+        ``index`` within its ``radii`` [B] (m).
+
+        The static ones come from a k-d tree made once, each ball's kept (most boxes are parked
+        cars', asked for again at every frame with the same centre); the frame's moving ones from
+        their centres sorted along x once per frame, each ball testing only the slab of them
+        within its radius along x.
+        """
         tree = getattr(self, "_static_tree", None)
         if tree is None:
             tree = cKDTree(np.asarray(self.gaussians.static.means, np.float64))
             self._static_tree = tree
+            self._ball_memo = {}
         centers = np.asarray(centers, np.float64).reshape(-1, 3)
         radii = np.asarray(radii, np.float64).reshape(-1)
-        if len(centers) == 0:
-            return []
-        static = tree.query_ball_point(centers, radii, workers=-1)
+        memo: dict[bytes, np.ndarray] = self._ball_memo
+        keys = [c.tobytes() + r.tobytes() for c, r in zip(centers, radii)]
+        todo = [i for i, key in enumerate(keys) if key not in memo]
+        if todo:
+            for i, hits in zip(todo, tree.query_ball_point(centers[todo], radii[todo], workers=-1)):
+                memo[keys[i]] = np.sort(np.asarray(hits, np.int64))
+            while len(memo) > _BALL_MEMO:  # the oldest first (dicts keep insertion order)
+                memo.pop(next(iter(memo)))
         n = len(self.gaussians.static)
-        cloud, _ = self.at_frame(index)
-        moving = np.asarray(cloud.means[n:], np.float64)
+        moving = getattr(self, "_moving_by_x", None)
+        if moving is None or moving[0] != index:
+            cloud, _ = self.at_frame(index)
+            pts = np.asarray(cloud.means[n:], np.float64)
+            order = np.argsort(pts[:, 0], kind="stable")
+            moving = (index, pts[order], order)
+            self._moving_by_x = moving
+        _, by_x, order = moving
         out = []
-        for c, r, hits in zip(centers, radii, static):
-            d2 = np.einsum("ij,ij->i", moving - c, moving - c)
-            out.append(np.concatenate([np.asarray(hits, np.int64), n + np.flatnonzero(d2 <= r * r)]))
+        for c, r, key in zip(centers, radii, keys):
+            lo = int(np.searchsorted(by_x[:, 0], c[0] - r, side="left"))
+            hi = int(np.searchsorted(by_x[:, 0], c[0] + r, side="right"))
+            slab = by_x[lo:hi] - c
+            close = np.sort(order[lo:hi][np.einsum("ij,ij->i", slab, slab) <= r * r])
+            out.append(np.concatenate([memo[key], n + close]))
         return out
 
     def _frame_dynamic(self, index: int) -> tuple[GaussianCloud, np.ndarray] | None:

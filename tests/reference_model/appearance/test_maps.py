@@ -3,16 +3,25 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 
 pytest.importorskip("torch")
 
-import cv2
-
-from wcbench.reference_model.appearance.maps import _box_misses_view, _box_shells, _hull_pixels, _mirrored_cloud, _rays
+from wcbench.reference_model.appearance.maps import (
+    _COVERED,
+    _box_misses_view,
+    _box_shells,
+    _hull_pixels,
+    _mirrored_cloud,
+    _rasterize,
+    _rays,
+    mirror_distance,
+)
 from wcbench.reference_model.appearance.surfaces import build_surfaces
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
@@ -189,3 +198,23 @@ def test_a_hulls_pixels_drawn_in_its_rectangle_are_those_drawn_on_the_whole_fram
         rr, cc = _hull_pixels(hull, allowed)
         assert set(zip(rr.tolist(), cc.tolist())) == slow, f"trial {trial}: {hull.reshape(-1, 2).tolist()}"
         assert len(rr) == len(slow)
+
+
+def test_the_mirrors_distance_from_one_dummy_channel_is_the_coloured_renders(demo_scene):
+    # the slow twin: the mirrored surfaces rendered with their colours, as the reflection's image
+    # was; the compositing weights and the depth do not depend on the channels
+    surfaces = build_surfaces(demo_scene)
+    cam = demo_scene.frames[4].camera
+    height = float(surfaces.ground_height(np.asarray(cam.center, np.float64)[None])[0])
+    fast = mirror_distance(surfaces, 4, cam, height)
+    w, h = int(cam.width), int(cam.height)
+    half = replace(cam, K=np.diag([0.5, 0.5, 1.0]) @ np.asarray(cam.K, np.float64), width=w // 2, height=h // 2)
+    half = replace(half, K=np.diag([half.width / (0.5 * w), half.height / (0.5 * h), 1.0]) @ half.K)
+    sub = _mirrored_cloud(surfaces, 4, height)
+    _, alpha, depth = _rasterize(sub, np.asarray(sub.colors, np.float32), half)
+    _, z_per_m = _rays(half)
+    slow = np.where(alpha > _COVERED, depth / np.maximum(z_per_m, 1e-9), 1e6).astype(np.float32)
+    slow = cv2.resize(slow, (w, h), interpolation=cv2.INTER_LINEAR)
+    slow = np.where(slow >= 1e6, np.inf, slow).astype(np.float32)
+    assert np.isfinite(fast).mean() > 0.2 and np.isinf(fast).any()
+    np.testing.assert_array_equal(fast, slow)

@@ -18,6 +18,7 @@ from wcbench.reference_model.appearance.surfaces import (
     pca_normals,
     value_noise,
 )
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.scenes.scene import ObjectTrack
 
 
@@ -181,19 +182,33 @@ def test_a_parked_cars_sills_shelter_only_the_ground_under_it():
         open_to_sky(points, normals, up=up, shelters=body[:-1])
 
 
-def test_the_batched_neighbour_search_finds_what_a_brute_force_one_does(demo_scene):
+def test_the_batched_neighbour_search_finds_what_a_brute_force_one_does(demo_scene, monkeypatch):
     # the slow twin: distances to every Gaussian of the frame, static and moving alike
     surfaces = build_surfaces(demo_scene)
+    static, static_attrs = surfaces.at_frame(0)
     rng = np.random.default_rng(4)
-    for index in (0, 7):
-        cloud, _ = surfaces.at_frame(index)
-        means = np.asarray(cloud.means, np.float64)
-        centers = means[rng.integers(0, len(means), 6)] + rng.normal(0, 2.0, (6, 3))
-        radii = rng.uniform(0.5, 6.0, 6)
+    frames = {}
+    for index in (0, 7):  # each frame's own movers after the static Gaussians (as at_frame appends them)
+        n = 400
+        means = (np.asarray(static.means)[rng.integers(0, len(static), n)]
+                 + rng.normal(0, 1.5, (n, 3))).astype(np.float32)
+        movers = GaussianCloud(means=means, quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+                               scales=np.full((n, 3), 0.05, np.float32), opacities=np.full(n, 0.9, np.float32),
+                               colors=np.zeros((n, 3), np.float32))
+        frames[index] = (GaussianCloud.concatenate([static, movers]),
+                         np.concatenate([static_attrs, np.zeros((n, static_attrs.shape[1]), np.float32)]))
+    monkeypatch.setattr(surfaces, "at_frame", lambda k: frames[k])
+    balls = {}
+    for index in (0, 7, 0, 7):  # each frame's balls asked again (the kept ones), frames in turn
+        means = np.asarray(frames[index][0].means, np.float64)
+        if index not in balls:
+            balls[index] = (means[rng.integers(0, len(means), 6)] + rng.normal(0, 2.0, (6, 3)),
+                            rng.uniform(0.5, 6.0, 6))
+        centers, radii = balls[index]
         found = surfaces.near(index, centers, radii)
         assert len(found) == 6
         for c, r, idx in zip(centers, radii, found):
             slow = np.flatnonzero(np.linalg.norm(means - c, axis=1) <= r)
             np.testing.assert_array_equal(np.sort(idx), slow)
-        assert sum(len(i) for i in found) > 0
+        assert any(np.any(i >= len(static)) for i in found), "a ball holds movers"
     assert surfaces.near(0, np.zeros((0, 3)), np.zeros(0)) == []
