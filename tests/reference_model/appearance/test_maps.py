@@ -16,6 +16,7 @@ from wcbench.reference_model.appearance.maps import (
     _COVERED,
     _box_misses_view,
     _box_shells,
+    _gaussian_blur,
     _hull_pixels,
     _mirrored_cloud,
     _rasterize,
@@ -218,3 +219,27 @@ def test_the_mirrors_distance_from_one_dummy_channel_is_the_coloured_renders(dem
     slow = np.where(slow >= 1e6, np.inf, slow).astype(np.float32)
     assert np.isfinite(fast).mean() > 0.2 and np.isinf(fast).any()
     np.testing.assert_array_equal(fast, slow)
+
+
+@pytest.mark.parametrize("sigma", [4.0, 12.0, 18.0, 24.0, 40.0])
+def test_a_wide_blur_on_a_quarter_size_image_is_the_full_size_blur(sigma):
+    # the slow twin: OpenCV's blur at full size. A normalised convolution's inputs: a sparse weight
+    # (a reflection seen at scattered places) and colours on it
+    rng = np.random.default_rng(7)
+    h, w = 270, 480
+    weight = (cv2.GaussianBlur(rng.uniform(size=(h, w)).astype(np.float32), (0, 0), 6) > 0.5).astype(np.float32)
+    colour = cv2.GaussianBlur(rng.uniform(size=(h, w, 3)).astype(np.float32), (0, 0), 3)
+    stacked = np.dstack([colour * weight[..., None], weight])
+    fast, slow = _gaussian_blur(stacked, sigma), cv2.GaussianBlur(stacked, (0, 0), sigma)
+    assert fast.shape == slow.shape and fast.dtype == np.float32
+    if sigma <= 12.0:
+        np.testing.assert_array_equal(fast, slow)
+        return
+    # away from the frame's edges (the border rules differ), within 1 % of the range; the normalised
+    # colour (what the fill uses) likewise where the weight is not vanishing
+    inner = (slice(int(2 * sigma), h - int(2 * sigma)), slice(int(2 * sigma), w - int(2 * sigma)))
+    assert np.abs(fast - slow)[inner].max() < 0.01
+    ok = slow[..., 3][inner] > 0.05
+    ratio_fast = fast[..., :3][inner][ok] / fast[..., 3][inner][ok, None]
+    ratio_slow = slow[..., :3][inner][ok] / slow[..., 3][inner][ok, None]
+    assert np.abs(ratio_fast - ratio_slow).max() < 0.01
