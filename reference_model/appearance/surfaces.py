@@ -493,10 +493,10 @@ class SurfaceScene:
         if tree is None:
             tree = cKDTree(np.asarray(self.gaussians.static.means, np.float64))
             self._static_tree = tree
-            self._ball_memo = {}
+            self._ball_memo: dict[bytes, np.ndarray] = {}
         centers = np.asarray(centers, np.float64).reshape(-1, 3)
         radii = np.asarray(radii, np.float64).reshape(-1)
-        memo: dict[bytes, np.ndarray] = self._ball_memo
+        memo = self._ball_memo
         keys = [c.tobytes() + r.tobytes() for c, r in zip(centers, radii)]
         todo = [i for i, key in enumerate(keys) if key not in memo]
         if todo:
