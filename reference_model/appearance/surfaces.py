@@ -11,8 +11,9 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 * **ground** (1 where the normal points up and the Gaussian lies on the local ground height);
 * **open** (1 where no return that overhangs it, facing up or down, lies half a metre higher within
   half a metre sideways, nor any return within 0.15 m: open to the sky, so snow settles and rain
-  falls; 0 under a tree, a car or a roof, while a wall shelters none of the ground beside it, and a
-  parked track's body only the ground inside its box's footprint),
+  falls; 0 under a car or a roof, half under a tree's crown, which holds part of the fall and
+  lets the rest through, while a wall shelters none of the ground beside it, and a parked track's
+  body only the ground inside its box's footprint),
   averaged with the normals over the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
 * **puddle**: a smooth noise field over the ground plane (two octaves of value noise, 4 m and
   1.5 m), thresholded by the editor at the rain's puddle fraction;
@@ -70,6 +71,11 @@ _WHEELED = ("vehicle",)
 _SHELTER_RISE_M, _SHELTER_REACH_M, _SHELTER_WALL_M = 0.5, 0.5, 0.15
 #: Up-component of a return's normal from which it overhangs what lies below it.
 _OVERHANG_UP = 0.3
+#: A tree's crown lets part of the fall through: returns scattered through a volume (their surface
+#: variation over ``_FOLIAGE_VARIATION``: foliage, not a roof, a wall or a car's body) intercept
+#: ``_CROWN_INTERCEPTION`` of the fall (a share of the snowfall a canopy holds, growing with its
+#: leaf area; Hedstrom & Pomeroy 1998).
+_FOLIAGE_VARIATION, _CROWN_INTERCEPTION = 0.1, 0.5
 #: A static surfel's thickness (standard deviation along its normal) over its width: a few cm at
 #: the 0.1 m voxel, the noise of a lidar return's range.
 _SURFEL_THICKNESS = 0.25
@@ -111,24 +117,34 @@ def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     ndarray [N, 3] float64
         +z for fewer than 3 points.
     """
+    return _principal_axes(points, k)[0]
+
+
+def _principal_axes(points: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`pca_normals`, the surface variation [N]: the smallest eigenvalue of the ``k``
+    nearest points' covariance over their sum, 0 on a plane, 1/3 for points scattered through a
+    volume; Pauly, Gross & Kobbelt 2002)."""
     n = len(points)
     if n < 3:
         out = np.zeros((n, 3))
         out[:, 2] = 1.0
-        return out
+        return out, np.zeros(n)
     _, idx = cKDTree(points).query(points, k=min(k, n), workers=-1)
     nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    _, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
-    return v[:, :, 0]
+    w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return v[:, :, 0], w[:, 0] / np.maximum(w.sum(axis=1), 1e-12)
 
 
 def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
-                shelters: np.ndarray | None = None) -> np.ndarray:
-    """Which points the falling snow and rain reach: no return 0.5 m higher that overhangs the point
-    (its normal's up-component above 0.3 in magnitude: a roof, a canopy, a car's body) within 0.5 m
-    sideways, nor any return within 0.15 m, among the returns that may shelter (``shelters``). The
-    fall is taken as vertical, so a wall shelters none of the ground beside it, while the ground
-    under a car or a tree stays dry.
+                shelters: np.ndarray | None = None, porous: np.ndarray | None = None) -> np.ndarray:
+    """How much of the falling snow and rain reaches each point, in [0, 1].
+
+    A return 0.5 m higher that overhangs the point (its normal's up-component above 0.3 in
+    magnitude: a roof, a canopy, a car's body) within 0.5 m sideways, or any return within 0.15 m,
+    among the returns that may shelter (``shelters``), shelters it: 0. Where most of them are
+    ``porous`` (a tree's crown: foliage, which holds part of the fall and lets the rest through),
+    0.5. Otherwise 1. The fall is taken as vertical, so a wall shelters none of the
+    ground beside it, while the ground under a car or a roof stays dry and under a tree gets half.
 
     Parameters
     ----------
@@ -140,18 +156,22 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
         Unit up vector.
     shelters : ndarray [N] bool, optional
         The returns that may shelter others (default all).
+    porous : ndarray [N] bool, optional
+        The returns that let part of the fall through (default none).
 
     Returns
     -------
-    ndarray [N] bool
+    ndarray [N] float64
+        1 open, 0.5 under mostly porous shelter, 0 sheltered.
     """
     points = np.asarray(points, np.float64)
     up = np.asarray(up, np.float64)
     n = len(points)
-    if shelters is not None and np.shape(shelters) != (n,):
-        raise ValueError(f"shelters has shape {np.shape(shelters)}; ({n},) was expected, one per point")
+    for name, mask in (("shelters", shelters), ("porous", porous)):
+        if mask is not None and np.shape(mask) != (n,):
+            raise ValueError(f"{name} has shape {np.shape(mask)}; ({n},) was expected, one per point")
     if n == 0:
-        return np.zeros(0, bool)
+        return np.zeros(0)
     xy = points @ _plane_axes(up).T
     height = points @ up
     dist, idx = cKDTree(xy).query(xy, k=min(32, n), distance_upper_bound=_SHELTER_REACH_M, workers=-1)
@@ -162,7 +182,12 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
     if shelters is not None:
         overhang &= np.asarray(shelters, bool)[other]
     above = (idx < n) & (height[other] - height[:, None] > _SHELTER_RISE_M) & overhang
-    return ~np.any(above, axis=1)
+    sheltered = above.any(axis=1)
+    if porous is None:
+        return np.where(sheltered, 0.0, 1.0)
+    # foliage where most of the shelter is (a leaf seen flat among them makes no roof)
+    foliage = np.count_nonzero(above & np.asarray(porous, bool)[other], axis=1) * 2 > np.count_nonzero(above, axis=1)
+    return np.where(~sheltered, 1.0, np.where(foliage, 1.0 - _CROWN_INTERCEPTION, 0.0))
 
 
 def object_sides(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], *,
@@ -603,7 +628,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     up = up / np.linalg.norm(up)
     axes = _plane_axes(up)
     means = gaussians.static.means.astype(np.float64)
-    normals = pca_normals(means)
+    normals, variation = _principal_axes(means)
     cams = np.stack([np.asarray(f.camera.center, np.float64) for f in scene.frames])
     _, near_cam = cKDTree(cams).query(means, workers=-1)
     flip = np.einsum("ij,ij->i", cams[near_cam] - means, normals) < 0
@@ -645,7 +670,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     parked = [(T, size) for t in scene.tracks if str(t.id) not in moving
               for T, size in _distinct_poses(t.object_to_world, t.box_size)]
     side, body, under = _box_parts(means, parked, up=up)
-    open_ = open_to_sky(means, normals, up=up, shelters=~body) & ~under
+    open_ = open_to_sky(means, normals, up=up, shelters=~body, porous=variation > _FOLIAGE_VARIATION) * ~under
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
     # Gaussians (about half a metre), so that what is drawn from them is not speckled; a neighbour
     # counts by how much its normal agrees (cos^4), so a car's roof and side, or a kerb's top and
