@@ -36,8 +36,9 @@ Cases
     (outside ``--quick``) The README's main job, ``wcbench run --method weathercity --scenes <set>
     --profile quick --report``, in a new process as on a fresh install: empty scene cache (the scenes are
     generated), empty model store (the weights it needs are fetched on first use, as the README's
-    first command does), empty numba cache (the kernels compile). ``limit_s`` is the time it must stay under (3 min for ``synth_1``,
-    15 min for ``synth_3``); ``psnr_<weather>``: against the truth (clear: against the raw frames).
+    first command does), empty numba cache (the kernels compile). ``limit_s`` is the time it must
+    stay under (3 min for ``synth_1``, 15 min for ``synth_3``); ``psnr_<weather>``: against the
+    truth (clear: against the raw frames).
 
 ``--quick`` runs ``synth_1`` with two severities; the full suite runs ``synth_3``.
 """
