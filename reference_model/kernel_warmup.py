@@ -72,6 +72,12 @@ def _raster() -> None:
                         absgrad=True, backend="numba")
         loss = out.color.sum() + out.alpha.sum() + (out.depth.sum() if out.depth is not None else 0.0)
         loss.backward()
+    # the physical editor's inference renders: the surface maps (normal and four fields: 7
+    # channels) and the mirror's distance (one dummy channel), both with depth
+    with torch.no_grad():
+        for channels in (7, 1):
+            rasterize_image(means.detach(), quats.detach(), scales.detach(), opacities.detach(),
+                            torch.rand(len(means), channels), torch.eye(4), K, 32, 24, backend="numba")
 
 
 def _weather() -> None:

@@ -43,7 +43,7 @@ from wcbench.core.options import Option, Range, validate_options
 from wcbench.reference_model.appearance.maps import (
     SurfaceMaps,
     glossy_blur,
-    mirror_render,
+    mirror_distance,
     refine,
     screen_reflection,
     surface_maps,
@@ -338,7 +338,6 @@ class WeatherEditor:
         albedo = lin / np.maximum(clear, 1e-3)
         light = exposure * overcast_irradiance(n_up, model=p.light)[..., None]
         beta, haze_color, offset = weather.haze()
-        sky_seen = haze_color if beta > 0 else p.sky_color
         # the sky: at infinity, the haze's airlight; without haze, the overcast sky
         sky = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else self.overcast_sky(m.rays)
         info: dict[str, Any] = {}
@@ -363,7 +362,7 @@ class WeatherEditor:
             # the weather (the edit without reflection, its haze over the camera's path to the
             # reflected point, close to the reflected path's beyond the ground point; the pixel's own
             # haze, camera to ground, is added with everything else below)
-            _, refl_dist = mirror_render(self.surfaces, index, camera, m.ground_height, exposure, sky_seen)
+            refl_dist = mirror_distance(self.surfaces, index, camera, m.ground_height)
             seen = apply_haze(linear_to_srgb(base), m.distance, beta=beta, color=haze_color, offset_m=offset)
             seen = over_sky(seen, sky, m.sky_alpha)
             mirrored = m.rays - 2.0 * (m.rays @ up.astype(np.float32))[..., None] * up.astype(np.float32)

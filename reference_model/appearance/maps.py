@@ -13,10 +13,10 @@ reach (docs/design.md §7):
   is fitted, else the closing's depth), facing the camera horizontally: structure above
   the lidar's reach keeps its appearance, nothing settles on it.
 
-:func:`mirror_render` renders the non-ground surfaces mirrored about that ground plane: where the
-reflected ray of each pixel meets the scene; :func:`screen_reflection` takes the colour of what is
-met there from the frame itself (what the camera sees above the road), never from the lidar's
-colours.
+:func:`mirror_distance` renders the non-ground surfaces mirrored about that ground plane: how far
+the reflected ray of each pixel travels to the scene; :func:`screen_reflection` takes the colour of
+what is met there from the frame itself (what the camera sees above the road), never from the
+lidar's colours.
 """
 
 from __future__ import annotations
@@ -28,7 +28,6 @@ import cv2
 import numpy as np
 import torch
 
-from wcbench.reference_model.appearance.shading import linear_to_srgb, srgb_to_linear
 from wcbench.reference_model.appearance.surfaces import SurfaceScene
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
@@ -36,7 +35,7 @@ from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["SurfaceMaps", "glossy_blur", "mirror_render", "refine", "screen_reflection", "surface_maps"]
+__all__ = ["SurfaceMaps", "glossy_blur", "mirror_distance", "refine", "screen_reflection", "surface_maps"]
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
@@ -142,6 +141,22 @@ def _box_misses_view(T: np.ndarray, half: np.ndarray, w2c: np.ndarray, K: np.nda
     return bool(u.max() < 0 or u.min() >= width or v.max() < 0 or v.min() >= height)
 
 
+def _hull_pixels(hull: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows [P], columns [P]) of the pixels inside the convex polygon ``hull`` ([V, 1, 2] int32
+    pixel corners, as :func:`cv2.convexHull` gives it; it may reach past the frame) where
+    ``allowed`` [H, W] bool holds. Drawn in the polygon's bounding rectangle clipped to the frame,
+    not on a whole frame per polygon (a frame has dozens of boxes)."""
+    h, w = allowed.shape
+    x0, y0, bw, bh = cv2.boundingRect(hull)
+    x1, y1, x0, y0 = min(w, x0 + bw), min(h, y0 + bh), max(0, x0), max(0, y0)
+    if x1 <= x0 or y1 <= y0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillConvexPoly(inside, hull - np.array([x0, y0], np.int32), 1)
+    rr, cc = np.nonzero(inside.astype(bool) & allowed[y0:y1, x0:x1])
+    return rr + y0, cc + x0
+
+
 def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
                 distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray) -> np.ndarray:
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
@@ -167,25 +182,31 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     if not boxes or len(cloud) == 0:
         return changed
     h, w = distance.shape
-    means = np.asarray(cloud.means, np.float64)
     w2c = np.asarray(camera.world_to_camera, np.float64)
     K = np.asarray(camera.K, np.float64)
+    seen_boxes = []
+    not_sky = ~sky
     for T, size in boxes:
-        R, t = T[:3, :3], T[:3, 3]
         half = np.asarray(size, np.float64) / 2.0
-        o = R.T @ (center - t)
+        o = T[:3, :3].T @ (center - T[:3, 3])
         if np.all(np.abs(o) <= half):
             continue  # the camera inside a box (the ego vehicle's own track): no shell
         if _box_misses_view(T, half + 0.1, w2c, K, w, h):
             continue  # none of its points could be drawn: skip the neighbour search
-        near = surfaces.near(index, t, float(np.linalg.norm(half + 0.1)))
+        seen_boxes.append((T, half, o))
+    # the neighbours of every box that may show, in one query
+    neighbours = surfaces.near(index, np.array([T[:3, 3] for T, _, _ in seen_boxes]).reshape(-1, 3),
+                               np.array([np.linalg.norm(half + 0.1) for _, half, _ in seen_boxes]))
+    for (T, half, o), near in zip(seen_boxes, neighbours):
+        R, t = T[:3, :3], T[:3, 3]
         if near.size < 3:
             continue
-        local = (means[near] - t) @ R
-        inside = near[np.all(np.abs(local) <= half + 0.1, axis=1)]
-        if inside.size < 3:
+        pts = np.asarray(cloud.means[near], np.float64)
+        local = (pts - t) @ R
+        inside = np.all(np.abs(local) <= half + 0.1, axis=1)
+        if np.count_nonzero(inside) < 3:
             continue
-        cam = means[inside] @ w2c[:3, :3].T + w2c[:3, 3]
+        cam = pts[inside] @ w2c[:3, :3].T + w2c[:3, 3]
         cam = cam[cam[:, 2] > 0.1]
         if len(cam) < 3:
             continue
@@ -193,9 +214,7 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         if uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
             continue
         hull = cv2.convexHull(np.clip(np.round(uv - 0.5), -4 * w, 4 * w).astype(np.int32))
-        silhouette = np.zeros((h, w), np.uint8)
-        cv2.fillConvexPoly(silhouette, hull, 1)
-        rr, cc = np.nonzero(silhouette.astype(bool) & ~sky)
+        rr, cc = _hull_pixels(hull, not_sky)
         if rr.size == 0:
             continue
         d = rays[rr, cc] @ R  # ray directions in the box frame
@@ -322,32 +341,37 @@ def _mirrored_cloud(surfaces: SurfaceScene, index: int, ground_height: float) ->
     not turn)."""
     cloud, attrs = surfaces.at_frame(index)
     up = surfaces.up
-    # the static surfels' mirrored orientations are made once (the plane's height moves only the
-    # centres); the frame's moving ones are turned here
+    # the static rows come gathered and their orientations mirrored once
+    # (SurfaceScene.mirrored_static); only the frame's moving ones are gathered and turned here
+    st = surfaces.mirrored_static()
     n_static = len(surfaces.gaussians.static)
-    static_keep, static_quats = surfaces.mirrored_static()
     moving_keep = n_static + np.flatnonzero(attrs[n_static:, 3] < 0.5)
-    keep = np.concatenate([static_keep, moving_keep])
-    means = cloud.means[keep].astype(np.float64)
-    h = means @ up - ground_height
-    keep_above = h > 0.05
-    mirrored = means[keep_above] - 2.0 * np.outer(h[keep_above], up)
+    h_static = st.heights - ground_height
+    above_static = h_static > 0.05
+    moving = cloud.means[moving_keep].astype(np.float64)
+    h_moving = moving @ up - ground_height
+    above_moving = h_moving > 0.05
+    mirrored = np.concatenate([st.means[above_static] - 2.0 * np.outer(h_static[above_static], up),
+                               moving[above_moving] - 2.0 * np.outer(h_moving[above_moving], up)])
     # a surfel's normal is mirrored with it (the isotropic ones do not turn)
-    normals = attrs[moving_keep, :3].astype(np.float64)
+    normals = attrs[moving_keep[above_moving], :3].astype(np.float64)
     moving_quats = quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32)
-    quats = np.concatenate([static_quats, moving_quats])[keep_above]
-    rows = keep[keep_above]
-    return GaussianCloud(means=mirrored, quats=quats, scales=cloud.scales[rows], opacities=cloud.opacities[rows],
-                         colors=cloud.colors[rows])
+    rows = moving_keep[above_moving]
+    return GaussianCloud(means=mirrored, quats=np.concatenate([st.quats[above_static], moving_quats]),
+                         scales=np.concatenate([st.scales[above_static], cloud.scales[rows]]),
+                         opacities=np.concatenate([st.opacities[above_static], cloud.opacities[rows]]),
+                         colors=np.concatenate([st.colors[above_static], cloud.colors[rows]]))
 
 
-def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float, exposure: float,
-                  background: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """What the ground plane mirrors at each pixel: the non-ground lidar surfaces reflected about it.
+def mirror_distance(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float) -> np.ndarray:
+    """How far each pixel's ray reflected by the ground plane travels to the non-ground lidar
+    surfaces: the length of the unfolded path.
 
     Rendering the surfaces mirrored about the plane from the real camera gives, at a pixel on the
-    plane, what the reflected ray meets (mirroring the centres and the surfels' normals is exact).
-    It is rendered at half the camera's size and resized up (a wet surface blurs its reflection).
+    plane, what the reflected ray meets (mirroring the centres and the surfels' normals is exact);
+    only its depth is needed, since the colour of what is met is taken from the frame itself
+    (:func:`screen_reflection`), so one dummy channel is composited. It is rendered at half the
+    camera's size and resized up (a wet surface blurs its reflection).
 
     Parameters
     ----------
@@ -356,36 +380,26 @@ def mirror_render(surfaces: SurfaceScene, index: int, camera: Any, ground_height
     camera : Camera
     ground_height : float
         The plane's height along ``up`` (m).
-    exposure : float
-        Linear-light factor on the surfaces' clear colours (the weather's overcast exposure).
-    background : ndarray [3]
-        What the reflected ray sees where it meets no surface (the weather's sky), display RGB.
 
     Returns
     -------
-    image : ndarray [H, W, 3] float32
-        Display RGB of the reflection.
-    distance : ndarray [H, W] float32
+    ndarray [H, W] float32
         Length of the reflected path from the camera (m; ``inf`` where it meets no surface).
     """
+    w, h = int(camera.width), int(camera.height)
     sub = _mirrored_cloud(surfaces, index, ground_height)
     if len(sub) == 0:
-        hh, ww = int(camera.height), int(camera.width)
-        return np.broadcast_to(np.asarray(background, np.float32), (hh, ww, 3)).copy(), np.full((hh, ww), np.inf,
-                                                                                               np.float32)
+        return np.full((h, w), np.inf, np.float32)
     # at half the size: a reflection is blurred by the wet surface (a puddle's sharp one by little)
-    w, h = int(camera.width), int(camera.height)
     half = replace(camera, K=np.diag([0.5, 0.5, 1.0]) @ np.asarray(camera.K, np.float64), width=max(1, w // 2),
                    height=max(1, h // 2))
     half = replace(half, K=np.diag([half.width / (0.5 * w), half.height / (0.5 * h), 1.0]) @ half.K)
-    color, alpha, depth = _rasterize(sub, linear_to_srgb(srgb_to_linear(sub.colors) * exposure), half)
+    # the compositing's weights and depth do not depend on the channels: one channel of zeros
+    _, alpha, depth = _rasterize(sub, np.zeros((len(sub), 1), np.float32), half)
     _, z_per_m = _rays(half)
-    a = np.clip(alpha, 0.0, 1.0)[..., None]
-    image = color * a + np.asarray(background, np.float32) * (1.0 - a)
     distance = np.where(alpha > _COVERED, depth / np.maximum(z_per_m, 1e-9), 1e6).astype(np.float32)
-    image = cv2.resize(np.clip(image, 0.0, 1.0).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     distance = cv2.resize(distance, (w, h), interpolation=cv2.INTER_LINEAR)
-    return image, np.where(distance >= 1e6, np.inf, distance).astype(np.float32)
+    return np.where(distance >= 1e6, np.inf, distance).astype(np.float32)
 
 
 def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray, *,
@@ -396,7 +410,7 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
     A wet road reflects what stands above it, and what stands above it the camera mostly sees: the
     reflected ray of a pixel leaves the plane at the ray's intersection G along the mirrored
     direction r' = r - 2 (r . up) up and meets the scene at X = G + r' (L - |G - C|), where L is the
-    length of the unfolded path to the first mirrored surface (:func:`mirror_render`), or at
+    length of the unfolded path to the first mirrored surface (:func:`mirror_distance`), or at
     infinity where it meets none. X projected into the camera gives the pixel whose colour in
     ``source`` is the reflection, when the camera sees X there (its surface at that pixel is not
     nearer than X; an X at infinity is seen wherever it projects). The lidar's own colours (a
@@ -417,7 +431,7 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
     maps : SurfaceMaps
         The view's completed maps (rays, distances, ground plane height).
     mirror_distance : ndarray [H, W] float32
-        :func:`mirror_render`'s path lengths (m; ``inf`` where the reflected ray meets no surface).
+        :func:`mirror_distance`'s path lengths (m; ``inf`` where the reflected ray meets no surface).
     up : ndarray [3]
         The world's up.
     sky : ndarray [H, W, 3] float32, optional
@@ -482,14 +496,40 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
         todo = missing.copy()
         stacked = np.dstack([image * weight[..., None], weight])  # blurred per channel, as one image
         for s in (sigma, 4.0 * sigma):
-            blurred = cv2.GaussianBlur(stacked, (0, 0), s)
+            blurred = _gaussian_blur(stacked, s)
             num, den = blurred[..., :3], blurred[..., 3]
             ok = todo & (den > 1e-3)
             filled[ok] = num[ok] / den[ok, None]
             todo &= ~ok
+            if not todo.any():
+                break  # the wider blur is needed only for what the narrower one left unfilled
         # no seen reflection within reach: what the frame shows where the ray points
         image = filled
     return image.astype(np.float32), seen
+
+
+#: Blurs wider than this (px) are taken on an image a quarter the size (:func:`_gaussian_blur`).
+_WIDE_BLUR_PX = 12.0
+
+
+def _gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """A Gaussian blur of ``image`` [H, W, C] float32 by ``sigma_px``; a wide one (over 12 px) on a
+    quarter-size image, resized back.
+
+    A 24 px blur is a 193-tap kernel over every pixel; area-averaged to a quarter of the size, the
+    same blur is 4 times narrower on 16 times fewer pixels. The averaging adds the variance of a
+    4 px box (4^2 / 12 px^2, under 0.3 % of a 24 px blur's) and the bilinear resize back a little
+    more: the result is within 1 % of the image's range of the full-size blur away from the frame's
+    edges (tests/reference_model/appearance/test_maps.py).
+    """
+    img = np.asarray(image, np.float32)
+    if sigma_px <= _WIDE_BLUR_PX:
+        return cv2.GaussianBlur(img, (0, 0), sigma_px)
+    h, w = img.shape[:2]
+    small = cv2.resize(img, (max(1, round(w / 4)), max(1, round(h / 4))), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigma_px * small.shape[1] / w)
+    out = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    return out.reshape(img.shape)
 
 
 #: Longest vertical stretch of a glossy reflection over its width (a view 7 degrees below the horizon).

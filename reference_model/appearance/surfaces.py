@@ -11,8 +11,9 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 * **ground** (1 where the normal points up and the Gaussian lies on the local ground height);
 * **open** (1 where no return that overhangs it, facing up or down, lies half a metre higher within
   half a metre sideways, nor any return within 0.15 m: open to the sky, so snow settles and rain
-  falls; 0 under a tree, a car or a roof, while a wall shelters none of the ground beside it, and a
-  parked track's body only the ground inside its box's footprint),
+  falls; 0 under a car or a roof, half under a tree's crown, which holds part of the fall and
+  lets the rest through, while a wall shelters none of the ground beside it, and a parked track's
+  body only the ground inside its box's footprint),
   averaged with the normals over the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
 * **puddle**: a smooth noise field over the ground plane (two octaves of value noise, 4 m and
   1.5 m), thresholded by the editor at the rain's puddle fraction;
@@ -48,8 +49,8 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["ATTRIBUTES", "SurfaceScene", "build_surfaces", "lane_paths", "object_sides", "open_to_sky", "pca_normals",
-           "value_noise"]
+__all__ = ["ATTRIBUTES", "MirroredStatic", "SurfaceScene", "build_surfaces", "lane_paths", "object_sides",
+           "open_to_sky", "pca_normals", "value_noise"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -70,6 +71,11 @@ _WHEELED = ("vehicle",)
 _SHELTER_RISE_M, _SHELTER_REACH_M, _SHELTER_WALL_M = 0.5, 0.5, 0.15
 #: Up-component of a return's normal from which it overhangs what lies below it.
 _OVERHANG_UP = 0.3
+#: A tree's crown lets part of the fall through: returns scattered through a volume (their surface
+#: variation over ``_FOLIAGE_VARIATION``: foliage, not a roof, a wall or a car's body) intercept
+#: ``_CROWN_INTERCEPTION`` of the fall (a share of the snowfall a canopy holds, growing with its
+#: leaf area; Hedstrom & Pomeroy 1998).
+_FOLIAGE_VARIATION, _CROWN_INTERCEPTION = 0.1, 0.5
 #: A static surfel's thickness (standard deviation along its normal) over its width: a few cm at
 #: the 0.1 m voxel, the noise of a lidar return's range.
 _SURFEL_THICKNESS = 0.25
@@ -86,6 +92,8 @@ _DYNAMIC_ABOVE_GROUND_M, _DYNAMIC_NEIGHBOUR_M = 0.2, 0.5
 _DYNAMIC_PATCH_RETURNS_M2, _DYNAMIC_SHARE, _DYNAMIC_NEIGHBOURS = 6800.0, 0.1, (3, 20)
 #: A ground cell (2 m) gives the height within this distance of its centre (m); beyond, the plane.
 _CELL_REACH_M = 4.0
+#: Static balls :meth:`SurfaceScene.near` keeps (a scene has about a thousand distinct box poses).
+_BALL_MEMO = 4096
 #: An object's side: inside its box (grown by ``_SIDE_MARGIN_M`` sideways, for the annotation's fit),
 #: from ``_SIDE_MARGIN_M`` above the box's bottom (the road under it, with a lidar return's range
 #: noise) up to ``_SIDE_SHARE`` of its height all round (a car's bonnet and boot lie higher, the
@@ -109,24 +117,34 @@ def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     ndarray [N, 3] float64
         +z for fewer than 3 points.
     """
+    return _principal_axes(points, k)[0]
+
+
+def _principal_axes(points: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`pca_normals`, the surface variation [N]: the smallest eigenvalue of the ``k``
+    nearest points' covariance over their sum, 0 on a plane, 1/3 for points scattered through a
+    volume; Pauly, Gross & Kobbelt 2002)."""
     n = len(points)
     if n < 3:
         out = np.zeros((n, 3))
         out[:, 2] = 1.0
-        return out
+        return out, np.zeros(n)
     _, idx = cKDTree(points).query(points, k=min(k, n), workers=-1)
     nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    _, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
-    return v[:, :, 0]
+    w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return v[:, :, 0], w[:, 0] / np.maximum(w.sum(axis=1), 1e-12)
 
 
 def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
-                shelters: np.ndarray | None = None) -> np.ndarray:
-    """Which points the falling snow and rain reach: no return 0.5 m higher that overhangs the point
-    (its normal's up-component above 0.3 in magnitude: a roof, a canopy, a car's body) within 0.5 m
-    sideways, nor any return within 0.15 m, among the returns that may shelter (``shelters``). The
-    fall is taken as vertical, so a wall shelters none of the ground beside it, while the ground
-    under a car or a tree stays dry.
+                shelters: np.ndarray | None = None, porous: np.ndarray | None = None) -> np.ndarray:
+    """How much of the falling snow and rain reaches each point, in [0, 1].
+
+    A return 0.5 m higher that overhangs the point (its normal's up-component above 0.3 in
+    magnitude: a roof, a canopy, a car's body) within 0.5 m sideways, or any return within 0.15 m,
+    among the returns that may shelter (``shelters``), shelters it: 0. Where most of them are
+    ``porous`` (a tree's crown: foliage, which holds part of the fall and lets the rest through),
+    0.5. Otherwise 1. The fall is taken as vertical, so a wall shelters none of the
+    ground beside it, while the ground under a car or a roof stays dry and under a tree gets half.
 
     Parameters
     ----------
@@ -138,18 +156,22 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
         Unit up vector.
     shelters : ndarray [N] bool, optional
         The returns that may shelter others (default all).
+    porous : ndarray [N] bool, optional
+        The returns that let part of the fall through (default none).
 
     Returns
     -------
-    ndarray [N] bool
+    ndarray [N] float64
+        1 open, 0.5 under mostly porous shelter, 0 sheltered.
     """
     points = np.asarray(points, np.float64)
     up = np.asarray(up, np.float64)
     n = len(points)
-    if shelters is not None and np.shape(shelters) != (n,):
-        raise ValueError(f"shelters has shape {np.shape(shelters)}; ({n},) was expected, one per point")
+    for name, mask in (("shelters", shelters), ("porous", porous)):
+        if mask is not None and np.shape(mask) != (n,):
+            raise ValueError(f"{name} has shape {np.shape(mask)}; ({n},) was expected, one per point")
     if n == 0:
-        return np.zeros(0, bool)
+        return np.zeros(0)
     xy = points @ _plane_axes(up).T
     height = points @ up
     dist, idx = cKDTree(xy).query(xy, k=min(32, n), distance_upper_bound=_SHELTER_REACH_M, workers=-1)
@@ -160,7 +182,12 @@ def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
     if shelters is not None:
         overhang &= np.asarray(shelters, bool)[other]
     above = (idx < n) & (height[other] - height[:, None] > _SHELTER_RISE_M) & overhang
-    return ~np.any(above, axis=1)
+    sheltered = above.any(axis=1)
+    if porous is None:
+        return np.where(sheltered, 0.0, 1.0)
+    # foliage where most of the shelter is (a leaf seen flat among them makes no roof)
+    foliage = np.count_nonzero(above & np.asarray(porous, bool)[other], axis=1) * 2 > np.count_nonzero(above, axis=1)
+    return np.where(~sheltered, 1.0, np.where(foliage, 1.0 - _CROWN_INTERCEPTION, 0.0))
 
 
 def object_sides(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], *,
@@ -321,6 +348,34 @@ def lane_paths(scene: Any, *, up: np.ndarray, step_m: float = 0.1) -> np.ndarray
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
+@dataclass(frozen=True)
+class MirroredStatic:
+    """The static non-ground Gaussians as the ground's mirror image needs them
+    (:meth:`SurfaceScene.mirrored_static`).
+
+    Attributes
+    ----------
+    rows : ndarray [M] int
+        Their indices among the static Gaussians.
+    means : ndarray [M, 3] float64
+        World centres (m), not mirrored.
+    heights : ndarray [M] float64
+        ``means @ up`` (m).
+    quats : ndarray [M, 4] float32
+        Orientations of the surfels with their normals mirrored about the plane normal to ``up``.
+    scales, opacities, colors : ndarray
+        Their rows of the static cloud's arrays.
+    """
+
+    rows: np.ndarray
+    means: np.ndarray
+    heights: np.ndarray
+    quats: np.ndarray
+    scales: np.ndarray
+    opacities: np.ndarray
+    colors: np.ndarray
+
+
 @dataclass
 class SurfaceScene:
     """A scene's lidar Gaussians with surface attributes (see the module docstring).
@@ -430,37 +485,67 @@ class SurfaceScene:
         self._frame_memo = (index, cloud, out)
         return cloud, out
 
-    def mirrored_static(self) -> tuple[np.ndarray, np.ndarray]:
-        """(indices [M] of the static Gaussians that are not ground, float32 quaternions [M, 4] of
-        their surfels with the normals mirrored about the plane normal to ``up``), made once: the
-        mirror's height moves the centres, never the orientations."""
+    def mirrored_static(self) -> MirroredStatic:
+        """The static Gaussians that are not ground, gathered once with their surfels' normals
+        mirrored about the plane normal to ``up``: the mirror's height moves the centres, never the
+        orientations, and a frame selects and shifts rows of these arrays instead of gathering
+        them from the whole cloud again."""
         memo = getattr(self, "_mirror_memo", None)
         if memo is None:
             up = np.asarray(self.up, np.float64)
             keep = np.flatnonzero(self.static_attributes[:, 3] < 0.5)
             normals = np.asarray(self.static_attributes, np.float32)[keep, :3].astype(np.float64)
-            memo = (keep, quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32))
+            st = self.gaussians.static
+            means = np.asarray(st.means)[keep].astype(np.float64)
+            memo = MirroredStatic(
+                rows=keep, means=means, heights=means @ up,
+                quats=quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32),
+                scales=np.asarray(st.scales)[keep], opacities=np.asarray(st.opacities)[keep],
+                colors=np.asarray(st.colors)[keep])
             self._mirror_memo = memo
         return memo
 
-    def near(self, index: int, center: np.ndarray, radius: float) -> np.ndarray:
-        """Indices into :meth:`at_frame`'s Gaussians of frame ``index`` within ``radius`` (m) of
-        ``center``: the static ones from a k-d tree made once, the frame's moving ones directly."""
+    def near(self, index: int, centers: np.ndarray, radii: np.ndarray) -> list[np.ndarray]:
+        """For each of ``centers`` [B, 3], the indices into :meth:`at_frame`'s Gaussians of frame
+        ``index`` within its ``radii`` [B] (m).
+
+        The static ones come from a k-d tree made once, each ball's kept (most boxes are parked
+        cars', asked for again at every frame with the same centre); the frame's moving ones from
+        their centres sorted along x once per frame, each ball testing only the slab of them
+        within its radius along x.
+        """
         tree = getattr(self, "_static_tree", None)
         if tree is None:
             tree = cKDTree(np.asarray(self.gaussians.static.means, np.float64))
             self._static_tree = tree
-        static = np.asarray(tree.query_ball_point(np.asarray(center, np.float64), radius), np.int64)
+            self._ball_memo: dict[bytes, np.ndarray] = {}
+        centers = np.asarray(centers, np.float64).reshape(-1, 3)
+        radii = np.asarray(radii, np.float64).reshape(-1)
+        memo = self._ball_memo
+        keys = [c.tobytes() + r.tobytes() for c, r in zip(centers, radii)]
+        todo = [i for i, key in enumerate(keys) if key not in memo]
+        if todo:
+            for i, hits in zip(todo, tree.query_ball_point(centers[todo], radii[todo], workers=-1)):
+                memo[keys[i]] = np.sort(np.asarray(hits, np.int64))
+            while len(memo) > _BALL_MEMO:  # the oldest first (dicts keep insertion order)
+                memo.pop(next(iter(memo)))
         n = len(self.gaussians.static)
-        # the frame's moving centres are kept: a frame asks once per tracked box
-        memo = getattr(self, "_moving_memo", None)
-        if memo is None or memo[0] != index:
+        moving = getattr(self, "_moving_by_x", None)
+        if moving is None or moving[0] != index:
             cloud, _ = self.at_frame(index)
-            memo = (index, np.asarray(cloud.means[n:], np.float64))
-            self._moving_memo = memo
-        moving = memo[1]
-        d2 = np.einsum("ij,ij->i", moving - center, moving - center)
-        return np.concatenate([static, n + np.flatnonzero(d2 <= radius * radius)])
+            pts = np.asarray(cloud.means[n:], np.float64)
+            order = np.argsort(pts[:, 0], kind="stable")
+            moving = (index, pts[order], order)
+            self._moving_by_x = moving
+        _, by_x, order = moving
+        out = []
+        for c, r, key in zip(centers, radii, keys):
+            lo = int(np.searchsorted(by_x[:, 0], c[0] - r, side="left"))
+            hi = int(np.searchsorted(by_x[:, 0], c[0] + r, side="right"))
+            slab = by_x[lo:hi] - c
+            close = np.sort(order[lo:hi][np.einsum("ij,ij->i", slab, slab) <= r * r])
+            out.append(np.concatenate([memo[key], n + close]))
+        return out
 
     def _frame_dynamic(self, index: int) -> tuple[GaussianCloud, np.ndarray] | None:
         """The untracked dynamic returns of frame ``index`` as Gaussians (colours from the frame at
@@ -543,7 +628,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     up = up / np.linalg.norm(up)
     axes = _plane_axes(up)
     means = gaussians.static.means.astype(np.float64)
-    normals = pca_normals(means)
+    normals, variation = _principal_axes(means)
     cams = np.stack([np.asarray(f.camera.center, np.float64) for f in scene.frames])
     _, near_cam = cKDTree(cams).query(means, workers=-1)
     flip = np.einsum("ij,ij->i", cams[near_cam] - means, normals) < 0
@@ -585,7 +670,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     parked = [(T, size) for t in scene.tracks if str(t.id) not in moving
               for T, size in _distinct_poses(t.object_to_world, t.box_size)]
     side, body, under = _box_parts(means, parked, up=up)
-    open_ = open_to_sky(means, normals, up=up, shelters=~body) & ~under
+    open_ = open_to_sky(means, normals, up=up, shelters=~body, porous=variation > _FOLIAGE_VARIATION) * ~under
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
     # Gaussians (about half a metre), so that what is drawn from them is not speckled; a neighbour
     # counts by how much its normal agrees (cos^4), so a car's roof and side, or a kerb's top and

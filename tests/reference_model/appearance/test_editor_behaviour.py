@@ -14,7 +14,7 @@ pytest.importorskip("torch")
 
 from wcbench.methods.weather_spec import resolve_physics
 from wcbench.reference_model.appearance.editor import AppearanceParams, WeatherEditor
-from wcbench.reference_model.appearance.maps import mirror_render, screen_reflection
+from wcbench.reference_model.appearance.maps import mirror_distance, screen_reflection
 from wcbench.reference_model.appearance.shading import (
     clear_irradiance,
     linear_to_srgb,
@@ -59,7 +59,7 @@ def test_rain_darkens_and_mirrors_open_ground(synth_hard):
     # puddles of still water mirror the scene: at a grazing view their colour follows the reflection
     mirror = WeatherEditor(synth_hard, analysis=analysis, params=AppearanceParams.load({"rain": {"puddle_max": 0.6}}))
     out = mirror.edit(raw, k, cam, weather)[0]
-    _, refl_dist = mirror_render(mirror.surfaces, k, cam, m.ground_height, 0.5, np.asarray(weather.haze()[1]))
+    refl_dist = mirror_distance(mirror.surfaces, k, cam, m.ground_height)
     refl, _ = screen_reflection(a, cam, m, refl_dist, up=mirror.surfaces.up)
     puddles = (m.puddle > np.quantile(mirror._puddle_values, 0.5)) & (m.ground > 0.9) & (m.distance > 15) \
         & (m.distance < 60)
@@ -107,7 +107,7 @@ def test_the_wet_road_mirrors_the_open_sky_past_the_frame_top(synth_hard):
     editor = WeatherEditor(synth_hard, analysis=analysis, params=AppearanceParams.load({"rain": {"puddle_max": 0.6}}))
     m = editor.maps(k, cam, raw)
     up = editor.surfaces.up
-    _, refl_dist = mirror_render(editor.surfaces, k, cam, m.ground_height, 0.5, np.asarray(weather.haze()[1]))
+    refl_dist = mirror_distance(editor.surfaces, k, cam, m.ground_height)
     rays = m.rays.astype(np.float64)
     height = float(np.asarray(cam.center, np.float64) @ up - m.ground_height)
     down = rays @ up

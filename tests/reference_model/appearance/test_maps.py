@@ -3,14 +3,26 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 
 pytest.importorskip("torch")
 
-from wcbench.reference_model.appearance.maps import _box_misses_view, _box_shells, _mirrored_cloud, _rays
+from wcbench.reference_model.appearance.maps import (
+    _COVERED,
+    _box_misses_view,
+    _box_shells,
+    _gaussian_blur,
+    _hull_pixels,
+    _mirrored_cloud,
+    _rasterize,
+    _rays,
+    mirror_distance,
+)
 from wcbench.reference_model.appearance.surfaces import build_surfaces
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
@@ -41,7 +53,8 @@ def _surfaces():
                           scales=np.full((n, 3), 0.1, np.float32), opacities=np.ones(n, np.float32),
                           colors=np.zeros((n, 3), np.float32))
     return SimpleNamespace(up=UP, boxes_at=lambda k: [(BOX, SIZE)], at_frame=lambda k: (cloud, None),
-                           near=lambda k, c, r: np.flatnonzero(np.linalg.norm(shell - c, axis=1) <= r))
+                           near=lambda k, cs, rs: [np.flatnonzero(np.linalg.norm(shell - c, axis=1) <= r)
+                                                   for c, r in zip(cs, rs)])
 
 
 def _pixel(camera, point):
@@ -167,3 +180,66 @@ def test_the_mirrored_cloud_with_its_static_orientations_made_once_is_the_per_fr
         for name in ("means", "quats", "scales", "opacities", "colors"):
             # the same float operations on the same rows, in the same order: equal to the bit
             np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+
+
+def test_a_hulls_pixels_drawn_in_its_rectangle_are_those_drawn_on_the_whole_frame():
+    # the slow twin: the polygon filled on a frame of its own; hulls inside, across the edges and
+    # corners, wholly outside, and degenerate (a point, a segment)
+    rng = np.random.default_rng(11)
+    h, w = 90, 160
+    allowed = rng.uniform(size=(h, w)) > 0.2
+    for trial in range(300):
+        n = int(rng.integers(1, 12))
+        spread = rng.uniform(0.5, 120)
+        pts = rng.normal([rng.uniform(-60, 220), rng.uniform(-40, 130)], spread, (n, 2))
+        hull = cv2.convexHull(np.round(pts).astype(np.int32))
+        frame = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(frame, hull, 1)
+        slow = set(zip(*np.nonzero(frame.astype(bool) & allowed)))
+        rr, cc = _hull_pixels(hull, allowed)
+        assert set(zip(rr.tolist(), cc.tolist())) == slow, f"trial {trial}: {hull.reshape(-1, 2).tolist()}"
+        assert len(rr) == len(slow)
+
+
+def test_the_mirrors_distance_from_one_dummy_channel_is_the_coloured_renders(demo_scene):
+    # the slow twin: the mirrored surfaces rendered with their colours, as the reflection's image
+    # was; the compositing weights and the depth do not depend on the channels
+    surfaces = build_surfaces(demo_scene)
+    cam = demo_scene.frames[4].camera
+    height = float(surfaces.ground_height(np.asarray(cam.center, np.float64)[None])[0])
+    fast = mirror_distance(surfaces, 4, cam, height)
+    w, h = int(cam.width), int(cam.height)
+    half = replace(cam, K=np.diag([0.5, 0.5, 1.0]) @ np.asarray(cam.K, np.float64), width=w // 2, height=h // 2)
+    half = replace(half, K=np.diag([half.width / (0.5 * w), half.height / (0.5 * h), 1.0]) @ half.K)
+    sub = _mirrored_cloud(surfaces, 4, height)
+    _, alpha, depth = _rasterize(sub, np.asarray(sub.colors, np.float32), half)
+    _, z_per_m = _rays(half)
+    slow = np.where(alpha > _COVERED, depth / np.maximum(z_per_m, 1e-9), 1e6).astype(np.float32)
+    slow = cv2.resize(slow, (w, h), interpolation=cv2.INTER_LINEAR)
+    slow = np.where(slow >= 1e6, np.inf, slow).astype(np.float32)
+    assert np.isfinite(fast).mean() > 0.2 and np.isinf(fast).any()
+    np.testing.assert_array_equal(fast, slow)
+
+
+@pytest.mark.parametrize("sigma", [4.0, 12.0, 18.0, 24.0, 40.0])
+def test_a_wide_blur_on_a_quarter_size_image_is_the_full_size_blur(sigma):
+    # the slow twin: OpenCV's blur at full size. A normalised convolution's inputs: a sparse weight
+    # (a reflection seen at scattered places) and colours on it
+    rng = np.random.default_rng(7)
+    h, w = 270, 480
+    weight = (cv2.GaussianBlur(rng.uniform(size=(h, w)).astype(np.float32), (0, 0), 6) > 0.5).astype(np.float32)
+    colour = cv2.GaussianBlur(rng.uniform(size=(h, w, 3)).astype(np.float32), (0, 0), 3)
+    stacked = np.dstack([colour * weight[..., None], weight])
+    fast, slow = _gaussian_blur(stacked, sigma), cv2.GaussianBlur(stacked, (0, 0), sigma)
+    assert fast.shape == slow.shape and fast.dtype == np.float32
+    if sigma <= 12.0:
+        np.testing.assert_array_equal(fast, slow)
+        return
+    # away from the frame's edges (the border rules differ), within 1 % of the range; the normalised
+    # colour (what the fill uses) likewise where the weight is not vanishing
+    inner = (slice(int(2 * sigma), h - int(2 * sigma)), slice(int(2 * sigma), w - int(2 * sigma)))
+    assert np.abs(fast - slow)[inner].max() < 0.01
+    ok = slow[..., 3][inner] > 0.05
+    ratio_fast = fast[..., :3][inner][ok] / fast[..., 3][inner][ok, None]
+    ratio_slow = slow[..., :3][inner][ok] / slow[..., 3][inner][ok, None]
+    assert np.abs(ratio_fast - ratio_slow).max() < 0.01

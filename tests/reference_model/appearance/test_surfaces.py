@@ -10,7 +10,9 @@ import pytest
 pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.surfaces import (
+    _FOLIAGE_VARIATION,
     _box_parts,
+    _principal_axes,
     build_surfaces,
     lane_paths,
     object_sides,
@@ -18,6 +20,7 @@ from wcbench.reference_model.appearance.surfaces import (
     pca_normals,
     value_noise,
 )
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.scenes.scene import ObjectTrack
 
 
@@ -58,8 +61,10 @@ def test_surfaces_of_the_demo_street(demo_scene):
     # the ground lies at the ground height, everything else above it or beside
     heights = surf.gaussians.static.means.astype(np.float64) @ surf.up
     np.testing.assert_array_less(heights[ground] - surf.ground_height(surf.gaussians.static.means[ground]), 0.3)
-    # openness: the share of the 8 nearest Gaussians open to the sky
-    assert set(np.unique(attrs[:, 4] * 8).round(4)) <= set(range(9)) and attrs[:, 4].mean() > 0.3
+    # openness: the mean over the 8 nearest Gaussians of how much of the fall reaches each (1 open,
+    # 0.5 under a tree's crown, 0 sheltered); the demo street's trees give halves
+    values = set(np.unique(attrs[:, 4] * 16).round(4))
+    assert values <= set(range(17)) and attrs[:, 4].mean() > 0.3
     # wheel paths are near the cameras' path, off the rest of the ground
     assert attrs[ground, 6].max() > 0.9 and np.median(attrs[ground, 6]) < 0.5
     # a frame's attributes turn with the nodes; the static part is the static one
@@ -97,6 +102,32 @@ def test_snow_reaches_the_ground_beside_a_wall_not_under_a_canopy():
     x = ground[:, 0]
     assert is_open[(x > 2.0) & (x < 5.8)].all()  # up to 0.2 m from the wall's foot
     assert not is_open[x < 1.45].any()  # under the canopy
+
+
+def test_a_trees_crown_lets_half_the_snow_through_a_roof_none():
+    # a 6 x 4 m ground at 0.1 m under two shelters: a flat roof 3 m up over x < 1.5 (a sheet) and
+    # a crown over x > 4 (returns scattered through 2.5-4.5 m, normals every way, as foliage gives
+    # them); which returns are foliage comes from their own neighbourhoods' surface variation
+    rng = np.random.default_rng(3)
+    g = np.stack(np.meshgrid(np.arange(0.0, 6.0, 0.1), np.arange(0.0, 4.0, 0.1)), -1).reshape(-1, 2)
+    ground = np.column_stack([g, np.zeros(len(g))])
+    c = np.stack(np.meshgrid(np.arange(0.0, 1.5, 0.1), np.arange(0.0, 4.0, 0.1)), -1).reshape(-1, 2)
+    roof = np.column_stack([c, np.full(len(c), 3.0)])
+    crown = np.column_stack([rng.uniform(4.0, 6.0, 4000), rng.uniform(0.0, 4.0, 4000), rng.uniform(2.5, 4.5, 4000)])
+    points = np.concatenate([ground, roof, crown])
+    normals, variation = _principal_axes(points)
+    porous = variation > _FOLIAGE_VARIATION
+    assert not porous[:len(ground) + len(roof)].any() and porous[len(ground) + len(roof):].mean() > 0.9
+    up = np.array([0.0, 0.0, 1.0])
+    openness = open_to_sky(points, normals, up=up, porous=porous)[:len(ground)]
+    x = ground[:, 0]
+    assert np.all(openness[x < 1.45] == 0.0)  # under the roof: dry
+    assert np.all(openness[(x > 1.8) & (x < 3.6)] == 1.0)  # in the open
+    assert np.mean(openness[x > 4.2] == 0.5) > 0.95  # under the crown: half the fall
+    # without the foliage told apart, the crown shelters as a roof does (the rule before)
+    assert np.mean(open_to_sky(points, normals, up=up)[:len(ground)][x > 4.2] == 0.0) > 0.95
+    with pytest.raises(ValueError, match="porous"):
+        open_to_sky(points, normals, up=up, porous=porous[:-1])
 
 
 def test_people_leave_no_wheel_path(demo_scene):
@@ -174,8 +205,40 @@ def test_a_parked_cars_sills_shelter_only_the_ground_under_it():
     # build_surfaces' rule: the car's body shelters nothing beside it, its footprint is sheltered
     _, body, under = _box_parts(points, [(T, size)], up=up)
     np.testing.assert_array_equal(body, np.arange(len(points)) >= len(road))
-    is_open = (open_to_sky(points, normals, up=up, shelters=~body) & ~under)[:len(road)]
-    assert is_open[beside].all()
+    is_open = (open_to_sky(points, normals, up=up, shelters=~body) * ~under)[:len(road)]
+    assert np.all(is_open[beside] == 1.0)
     assert not is_open[(np.abs(road[:, 0]) < 2.2) & (np.abs(road[:, 1]) < 0.85)].any()
     with pytest.raises(ValueError, match="shelters"):
         open_to_sky(points, normals, up=up, shelters=body[:-1])
+
+
+def test_the_batched_neighbour_search_finds_what_a_brute_force_one_does(demo_scene, monkeypatch):
+    # the slow twin: distances to every Gaussian of the frame, static and moving alike
+    surfaces = build_surfaces(demo_scene)
+    static, static_attrs = surfaces.at_frame(0)
+    rng = np.random.default_rng(4)
+    frames = {}
+    for index in (0, 7):  # each frame's own movers after the static Gaussians (as at_frame appends them)
+        n = 400
+        means = (np.asarray(static.means)[rng.integers(0, len(static), n)]
+                 + rng.normal(0, 1.5, (n, 3))).astype(np.float32)
+        movers = GaussianCloud(means=means, quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+                               scales=np.full((n, 3), 0.05, np.float32), opacities=np.full(n, 0.9, np.float32),
+                               colors=np.zeros((n, 3), np.float32))
+        frames[index] = (GaussianCloud.concatenate([static, movers]),
+                         np.concatenate([static_attrs, np.zeros((n, static_attrs.shape[1]), np.float32)]))
+    monkeypatch.setattr(surfaces, "at_frame", lambda k: frames[k])
+    balls = {}
+    for index in (0, 7, 0, 7):  # each frame's balls asked again (the kept ones), frames in turn
+        means = np.asarray(frames[index][0].means, np.float64)
+        if index not in balls:
+            balls[index] = (means[rng.integers(0, len(means), 6)] + rng.normal(0, 2.0, (6, 3)),
+                            rng.uniform(0.5, 6.0, 6))
+        centers, radii = balls[index]
+        found = surfaces.near(index, centers, radii)
+        assert len(found) == 6
+        for c, r, idx in zip(centers, radii, found):
+            slow = np.flatnonzero(np.linalg.norm(means - c, axis=1) <= r)
+            np.testing.assert_array_equal(np.sort(idx), slow)
+        assert any(np.any(i >= len(static)) for i in found), "a ball holds movers"
+    assert surfaces.near(0, np.zeros((0, 3)), np.zeros(0)) == []
