@@ -42,6 +42,10 @@ _COVERED = 0.5
 #: The reflected point counts as what the camera sees at its pixel unless the camera's surface there
 #: lies nearer than its distance by more than this fraction of it plus ``_SEEN_SLACK_M`` (occluded).
 _SEEN_FRACTION, _SEEN_SLACK_M = 0.1, 0.5
+#: Camera depth (m) of the near plane; a box with a corner nearer (the camera beside the object)
+#: gets a shell only from this many returns in front of it (a parked car 3 m off the front-right
+#: camera of pandaset_002 has 11, one beside the rear camera 370).
+_NEAR_M, _MIN_BESIDE_RETURNS = 0.1, 100
 #: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
 _BOX_SLACK_M = 0.3
 #: Share of a box's height below which the body fills it (a car's belt line, ~0.9 m of a 1.45 m
@@ -173,7 +177,9 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
 
     The silhouette is the convex hull of the projections of the surface Gaussians inside the box
     (grown by 0.1 m), so the air around a car inside its box keeps what lies behind it; the ray's
-    entry into the box is found by the slab method in the box frame.
+    entry into the box is found by the slab method in the box frame. A box the camera is beside (a
+    corner behind its near plane, 0.1 m) with fewer than 100 returns in front of it has no shell:
+    the lidar's blind zone and the frame's edge left a sliver of it in view.
     """
     changed = np.zeros(distance.shape, bool)
     up = np.asarray(surfaces.up, np.float64)
@@ -207,8 +213,12 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         if np.count_nonzero(inside) < 3:
             continue
         cam = pts[inside] @ w2c[:3, :3].T + w2c[:3, 3]
-        cam = cam[cam[:, 2] > 0.1]
-        if len(cam) < 3:
+        cam = cam[cam[:, 2] > _NEAR_M]
+        beside = np.any(((_CUBE * half) @ R.T + t) @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
+        if len(cam) < (_MIN_BESIDE_RETURNS if beside else 3):
+            # the camera beside the object (a corner of its box behind the near plane), the lidar's
+            # blind zone and the frame's edge may leave a sliver of its returns in view, whose hull
+            # would cut the object in two: its lidar surfaces are left as they are
             continue
         uv = np.stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], 1)
         if uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:

@@ -49,6 +49,12 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    within 4 px of them that any sweep's return lands in (``untrusted``: other sweeps register a pole
    or a wire a few px off, and the sky found across it keeps clear of every copy).
 
+7. **Support over time** (:func:`neighbour_support`): a patch of sky is kept only where one of
+   frames k -/+ 1, 2, warped by the rotation between them, calls at least half of it sky (the best
+   neighbour: a near roof edge's parallax hides part of a side camera's sky from the frames on one
+   side). A facade between the lidar's upper scan lines can hold seeds in one frame; its
+   neighbours call it wall.
+
 A frame no lidar return lands in gets no seeds of its own (nothing in it is confirmed empty): its
 sky is the scene's classifier's, cut with the frame's contrast, and only where it reaches the top
 of the frame; a scene with no seed in any frame has no sky (``facts["fallback"]``).
@@ -70,8 +76,8 @@ import numpy as np
 
 from wcbench.reference_model.scene_analysis.views import AnalysisViews
 
-__all__ = ["SkySegmentation", "infinity_residual", "refine_boundary", "segment_sky", "sky_features", "sky_matte",
-           "thin_occluders"]
+__all__ = ["SkySegmentation", "infinity_residual", "neighbour_support", "refine_boundary", "rotation_homography",
+           "segment_sky", "sky_features", "sky_matte", "thin_occluders"]
 
 #: Trees and depth of the per-scene classifier; seeds drawn per class at most.
 _TREES, _DEPTH, _MAX_SEEDS = 20, 12, 15000
@@ -94,6 +100,9 @@ _MIN_OPEN_SKY = 0.003
 #: signal's mast arm, a pole's top), looked past ``_THIN_GAP_PX`` px on either side for the sky's
 #: colour nearby (CIELAB difference under ``_THIN_DE``).
 _THIN_PX, _THIN_GAP_PX, _THIN_DE = 2, (2, 3, 4), 10.0
+#: A patch of sky is kept when the neighbouring frames call at least this share of it sky (warped by
+#: the rotation between them).
+_MIN_SUPPORT = 0.5
 #: Smoothness weight of the minimum cut, and the clip of the classifier's probability.
 _LAMBDA, _P_CLIP = 4.0, 0.03
 
@@ -103,12 +112,10 @@ def infinity_residual(views: AnalysisViews, k: int, *, gap: int = 2) -> np.ndarr
     homography of the rotation between them (the motion of points at infinity): the smaller mean
     absolute RGB difference of the two, blurred by 1 px. Zero when the scene has one frame."""
     out = []
-    shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])  # pixel centres at +0.5
     for j in (k - gap, k + gap):
         if not 0 <= j < len(views):
             continue
-        R = views.camera_to_world[j][:3, :3].T @ views.camera_to_world[k][:3, :3]
-        H = np.linalg.inv(shift) @ views.K[j] @ R @ np.linalg.inv(views.K[k]) @ shift
+        H = rotation_homography(views, k, j)
         warped = cv2.warpPerspective(views.images[j], H, views.size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                      borderMode=cv2.BORDER_REPLICATE)
         out.append(np.abs(warped - views.images[k]).mean(axis=-1))
@@ -355,22 +362,82 @@ def _column_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.nda
     return np.where(has, p, 0.5).astype(np.float32)
 
 
-def _seeded(mask: np.ndarray, seeds: np.ndarray, *, bridge_px: int = 0,
-            link: np.ndarray | None = None) -> np.ndarray:
+def _sky_components(mask: np.ndarray, seeds: np.ndarray, *, bridge_px: int = 0,
+                    link: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The components of ``mask`` (8-connected: a sky crossed by a wire stays one) that hold a seed
     or touch the top row; with ``bridge_px``, components apart by at most that many pixels (a lamp's
     arm, a pole's crossbar, a bundle of wires: not a wall) count as one; pixels of ``link`` (thin
-    occluders, :func:`thin_occluders`) join the components they touch."""
+    occluders, :func:`thin_occluders`) join the components they touch. A component that does
+    neither (a pane in a wall) is dropped.
+
+    Returns
+    -------
+    labels : ndarray [H, W] int32
+        The component of each pixel of ``mask`` (0 outside it).
+    kept : ndarray [N] int
+        The labels that hold a seed or touch the top row.
+    """
     joined = mask.astype(np.uint8)
     if link is not None:
         joined |= link.astype(np.uint8)
     if bridge_px > 0:
         joined = cv2.morphologyEx(joined, cv2.MORPH_CLOSE, np.ones((2 * bridge_px + 1,) * 2, np.uint8))
-    n, labels = cv2.connectedComponents(joined, connectivity=8)
-    if n <= 1:
-        return mask.copy()
-    keep = np.unique(np.concatenate([labels[seeds & mask], labels[0][mask[0]]]))
-    return np.isin(labels, keep[keep > 0]) & mask
+    _, labels = cv2.connectedComponents(joined, connectivity=8)
+    labels = np.where(mask, labels, 0).astype(np.int32)
+    kept = np.unique(np.concatenate([labels[seeds & mask], labels[0][mask[0]]]))
+    return labels, kept[kept > 0]
+
+
+def rotation_homography(views: AnalysisViews, k: int, j: int) -> np.ndarray:
+    """[3, 3] float64: the homography that maps a pixel of frame ``k`` to the pixel of frame ``j``
+    that sees the same direction (points at infinity: K_j R_j^T R_k K_k^-1, in pixel-centre
+    coordinates, as ``cv2.warpPerspective`` takes it with ``WARP_INVERSE_MAP``)."""
+    shift = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])  # pixel centres at +0.5
+    R = views.camera_to_world[j][:3, :3].T @ views.camera_to_world[k][:3, :3]
+    return np.linalg.inv(shift) @ views.K[j] @ R @ np.linalg.inv(views.K[k]) @ shift
+
+
+def neighbour_support(views: AnalysisViews, masks: np.ndarray, k: int, labels: np.ndarray, *,
+                      gaps: tuple[int, ...] = (1, 2)) -> np.ndarray:
+    """Per region of frame ``k``, the share of it that the neighbouring frames ``k -/+ gaps`` also
+    call sky, each warped by the rotation between them (the sky lies at infinity: it stays where the
+    rotation puts it, a surface at finite distance does not); the mean over the neighbours that see
+    at least half of the region, NaN where none does (a scene of one frame).
+
+    Parameters
+    ----------
+    views : AnalysisViews
+    masks : ndarray [F, H, W] bool
+        Every frame's sky.
+    k : int
+    labels : ndarray [H, W] int
+        Regions of frame ``k``, 1 to N (0: none).
+
+    Returns
+    -------
+    ndarray [N + 1] float64
+        Index 0 (no region) is NaN.
+    """
+    n = int(labels.max()) + 1
+    area = np.bincount(labels.ravel(), minlength=n).astype(np.float64)
+    best = np.full(n, np.nan)
+    flags = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
+    for gap in gaps:
+        for j in (k - gap, k + gap):
+            if not 0 <= j < len(views):
+                continue
+            H = rotation_homography(views, k, j)
+            seen = cv2.warpPerspective(np.ones(masks[j].shape, np.uint8), H, views.size, flags=flags,
+                                       borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+            sky = cv2.warpPerspective(masks[j].astype(np.uint8), H, views.size, flags=flags,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(bool) & seen
+            n_seen = np.bincount(labels[seen], minlength=n)
+            n_sky = np.bincount(labels[sky], minlength=n)
+            use = n_seen >= 0.5 * np.maximum(area, 1)
+            share = n_sky[use] / n_seen[use]
+            best[use] = np.where(np.isnan(best[use]), share, np.maximum(best[use], share))
+    best[0] = np.nan
+    return best
 
 
 def _top_connected(mask: np.ndarray) -> np.ndarray:
@@ -508,6 +575,9 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
     probability = np.zeros((n, h, w), np.float32)
     masks = np.zeros((n, h, w), bool)
     alphas = np.zeros((n, h, w), np.float32)
+    labels = np.zeros((n, h, w), np.int32)
+    kept: list[np.ndarray] = [np.zeros(0, int)] * n
+    refined = np.zeros((n, h, w), bool)
     if n_sky == 0:
         facts["fallback"] = "no confident sky pixel in any frame: no sky"
         return SkySegmentation(masks=masks, probability=probability, alpha=alphas, facts=facts)
@@ -550,8 +620,23 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         cut = _cut(views.images[k], p, never, sky_seeds[k] & ~never) & ~never
         mask, alpha = refine_boundary(views.images[k], cut, never)
         # the sky is one with the open sky: a patch enclosed by the scene, with no seed, is not
-        keep = _seeded(mask, sky_seeds[k], bridge_px=max(1, round(2 * w / 480)), link=links[k])
-        masks[k], alphas[k] = keep, np.where(mask & ~keep, 0.0, alpha).astype(np.float32)
+        labels[k], kept[k] = _sky_components(mask, sky_seeds[k], bridge_px=max(1, round(2 * w / 480)),
+                                             link=links[k])
+        masks[k], alphas[k] = np.isin(labels[k], kept[k]), alpha
+        refined[k] = mask
+    # and it is sky in the neighbouring frames too: a facade between the lidar's upper scan lines that
+    # one frame calls sky (its seeds and all) the next does not; decided against every frame's first
+    # labels, so the order of frames does not matter
+    first = masks.copy()
+    dropped = 0
+    for k in range(n):
+        support = neighbour_support(views, first, k, labels[k])
+        weak = kept[k][support[kept[k]] < _MIN_SUPPORT]  # NaN (no neighbour sees it) compares False
+        if len(weak):
+            masks[k] &= ~np.isin(labels[k], weak)
+            dropped += len(weak)
+        alphas[k] = np.where(refined[k] & ~masks[k], 0.0, alphas[k]).astype(np.float32)
+    facts["patches_without_support"] = dropped
     facts.update(classifier=f"random forest ({_TREES} trees, depth {_DEPTH}) on {len(xs)} sky and {len(xn)} "
                             f"non-sky seed pixels", sky_fraction=round(float(masks.mean()), 4))
     return SkySegmentation(masks=masks, probability=probability, alpha=alphas, facts=facts)

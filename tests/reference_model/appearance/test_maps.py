@@ -44,15 +44,15 @@ def _camera(height_m):
                   camera_to_world=c2w)
 
 
-def _surfaces():
+def _surfaces(box=BOX, grid=(7, 5, 5)):
     """The lidar's few returns of the car: points over its box's surface (the hull covers it)."""
-    g = np.stack(np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-1, 1, 5), np.linspace(-1, 1, 5)), -1).reshape(-1, 3)
-    shell = g[np.max(np.abs(g), axis=1) == 1.0] * SIZE / 2 + BOX[:3, 3]
+    g = np.stack(np.meshgrid(*(np.linspace(-1, 1, n) for n in grid)), -1).reshape(-1, 3)
+    shell = g[np.max(np.abs(g), axis=1) == 1.0] * SIZE / 2 + box[:3, 3]
     n = len(shell)
     cloud = GaussianCloud(means=shell.astype(np.float32), quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
                           scales=np.full((n, 3), 0.1, np.float32), opacities=np.ones(n, np.float32),
                           colors=np.zeros((n, 3), np.float32))
-    return SimpleNamespace(up=UP, boxes_at=lambda k: [(BOX, SIZE)], at_frame=lambda k: (cloud, None),
+    return SimpleNamespace(up=UP, boxes_at=lambda k: [(box, SIZE)], at_frame=lambda k: (cloud, None),
                            near=lambda k, cs, rs: [np.flatnonzero(np.linalg.norm(shell - c, axis=1) <= r)
                                                    for c, r in zip(cs, rs)])
 
@@ -105,6 +105,28 @@ def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_ente
     assert changed[pixel] and fields["open"][pixel] == 1.0 and fields["ground"][pixel] == 0.0
     np.testing.assert_allclose(normal[pixel], [0.0, -0.94, 0.34], atol=1e-6)
     assert distance[pixel] == pytest.approx(entry + 0.2)
+
+
+@pytest.mark.parametrize("grid, shell", [((4, 3, 3), False), ((13, 7, 7), True)])
+def test_a_car_beside_the_camera_gets_a_shell_only_from_enough_returns_in_view(grid, shell):
+    # a parked car beside the camera, its rear half behind the image plane: the lidar's blind zone
+    # leaves a few of its returns in front of it, whose hull is a sliver of the car (no shell, the
+    # lidar's surfaces stay), or many, whose hull outlines it (a shell)
+    camera = _camera(1.8)
+    rays, _ = _rays(camera)
+    box = np.eye(4)
+    box[:3, 3] = [1.5, -2.0, 0.75]
+    surfaces = _surfaces(box, grid)
+    cloud, _ = surfaces.at_frame(0)
+    in_front = int(np.count_nonzero(cloud.means[:, 0] > 0.1))  # camera depth is world x here
+    assert (in_front >= 100) == shell
+    distance, normal, fields = _maps(camera)
+    changed = _box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields,
+                          np.zeros(distance.shape, bool))
+    pixel = _pixel(camera, [2.5, -1.15, 1.2])  # the near side, the ray then through the glasshouse
+    assert changed[pixel] == shell and changed.any() == shell
+    if not shell:
+        assert np.all(distance == 30.0)
 
 
 def _old_box_skip(T, half, w2c, K, width, height, rng):

@@ -65,7 +65,7 @@ def _views(images: list[np.ndarray], rotations: list[np.ndarray]) -> AnalysisVie
 
 
 def test_a_patch_of_sky_behind_a_lamp_arm_is_kept_and_one_inside_a_wall_is_not():
-    from wcbench.reference_model.scene_analysis.sky import _seeded
+    from wcbench.reference_model.scene_analysis.sky import _sky_components
 
     mask = np.zeros((60, 80), bool)
     mask[:20] = True                 # the open sky, reaching the top
@@ -73,12 +73,47 @@ def test_a_patch_of_sky_behind_a_lamp_arm_is_kept_and_one_inside_a_wall_is_not()
     mask[45:55, 50:70] = True        # a pane in a wall, 10 rows under the sky: not sky
     seeds = np.zeros_like(mask)
     seeds[2:5, 2:5] = True
-    kept = _seeded(mask, seeds, bridge_px=2)
+
+    def kept_by(**kw):
+        labels, kept = _sky_components(mask, seeds, **kw)
+        return np.isin(labels, kept)
+
+    kept = kept_by(bridge_px=2)
     assert kept[22:35, 5:40].all() and kept[:20].all()
     assert not kept[45:55, 50:70].any()
     assert not (kept & ~mask).any()  # the bridge joins patches, it adds no sky
     # without a bridge the arm cuts the patch off, as before
-    assert not _seeded(mask, seeds)[22:35, 5:40].any()
+    assert not kept_by()[22:35, 5:40].any()
+
+
+def test_a_patch_of_sky_one_frame_alone_sees_has_no_support_and_the_open_sky_has():
+    from wcbench.reference_model.scene_analysis.sky import neighbour_support, rotation_homography
+
+    # a camera turning 2 degrees a frame under a sky at infinity: frame k's sky, warped by the
+    # rotation, is the sky of frame j; a patch only frame 2 calls sky (a facade between the lidar's
+    # scan lines) is sky in no neighbour
+    h, w = 60, 80
+    rotations = []
+    for k in range(5):
+        a = np.radians(2.0 * k)
+        rotations.append(np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]))
+    views = _views([np.zeros((h, w, 3), np.float32)] * 5, rotations)
+    masks = np.zeros((5, h, w), bool)
+    masks[:, :20] = True            # the sky above the horizon's row 20 (a pure yaw keeps rows)
+    masks[2, 30:40, 50:70] = True   # frame 2 alone
+    labels = np.zeros((h, w), np.int32)
+    labels[:20] = 1
+    labels[30:40, 50:70] = 2
+    support = neighbour_support(views, masks, 2, labels)
+    assert np.isnan(support[0])
+    assert support[1] > 0.95 and support[2] == 0.0
+    # the same direction seen by frame 3 lies where the homography says, 2 degrees (~3.5 px) aside
+    H = rotation_homography(views, 2, 3)
+    p = H @ np.array([40.0, 10.0, 1.0])
+    assert abs(p[0] / p[2] - 40.0 - 100.0 * np.tan(np.radians(-2.0))) < 0.2 and abs(p[1] / p[2] - 10.0) < 0.2
+    # a scene of one frame has no neighbour to ask
+    one = _views([np.zeros((h, w, 3), np.float32)], rotations[:1])
+    assert np.isnan(neighbour_support(one, masks[:1], 0, labels)[1:]).all()
 
 
 def test_the_infinity_residual_vanishes_under_a_pure_rotation(rng):
