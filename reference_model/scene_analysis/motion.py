@@ -5,7 +5,10 @@ no track box, pedestrians, a scooter, exhaust. Accumulated over the sequence the
 trails and blotches in every frame. :func:`classify_returns` labels every return of every sweep
 (docs/design.md §7, "Beyond the lidar"):
 
-* **tracked movers**: inside the box of a track that moves, at its own frame;
+* **tracked movers**: inside the box of a track that moves, at its own frame, grown by 0.2 m (the
+  scene graph's rigid nodes hold them); *trailing* returns, outside it but within how far the box
+  moves in a frame along each of its axes, are dynamic too (a sweep takes a frame's time, and its
+  box stands at one instant of it: a car's bumper pulling away), and in no node;
 * **people and transients by semantics**, where the scene ships per-point classes: pedestrians,
   cyclists and animals (even standing, they are not surfaces to weather), smoke, exhaust, spray
   and the ghost returns labelled as reflections;
@@ -134,10 +137,28 @@ class LidarReturns:
         return np.concatenate([self.static_points(), self.frame_dynamic(k)])
 
 
-def _tracked(points: np.ndarray, frame: int, tracks: list[Any], margin_m: float) -> np.ndarray:
-    """[N] bool: ``points`` inside the (grown) box of any of ``tracks`` at ``frame`` (candidates
-    within each box's bounding sphere first, from a k-d tree of the sweep)."""
-    out = np.zeros(len(points), bool)
+def _travel(track: Any, i: int) -> np.ndarray:
+    """[3] m: how far the box of ``track`` moves along each of its own axes between its annotation
+    ``i`` and the neighbouring ones (the larger per axis, per frame apart)."""
+    T = np.asarray(track.object_to_world, np.float64)
+    frames = np.asarray(track.frames)
+    out = np.zeros(3)
+    for j in (i - 1, i + 1):
+        if 0 <= j < len(frames) and frames[j] != frames[i]:
+            step = np.abs(T[i, :3, :3].T @ (T[j, :3, 3] - T[i, :3, 3])) / abs(int(frames[j]) - int(frames[i]))
+            out = np.maximum(out, step)
+    return out
+
+
+def _tracked(points: np.ndarray, frame: int, tracks: list[Any], margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """([N] bool, [N] bool): ``points`` inside the box of any of ``tracks`` at ``frame`` grown by
+    ``margin_m``, and those outside it but inside the box grown further, along each of its axes,
+    by how far it moves in a frame (*trailing*): a spinning lidar's sweep takes a frame's time, and
+    the box annotated for it stands at one instant of it (the rear bumper of a car pulling away on
+    pandaset_002 lies 0.21 m behind its box at frame 5, where the box moves 0.2-0.6 m a frame).
+    Candidates are those within each box's bounding sphere, from a k-d tree of the sweep."""
+    inside = np.zeros(len(points), bool)
+    grown = np.zeros(len(points), bool)
     tree = None
     for track in tracks:
         hit = np.nonzero(np.asarray(track.frames) == frame)[0]
@@ -145,13 +166,15 @@ def _tracked(points: np.ndarray, frame: int, tracks: list[Any], margin_m: float)
             continue
         T = np.asarray(track.object_to_world[int(hit[0])], np.float64)
         half = np.asarray(track.box_size[int(hit[0])], np.float64) / 2 + margin_m
+        reach = half + _travel(track, int(hit[0]))
         tree = tree or cKDTree(points)
-        idx = np.asarray(tree.query_ball_point(T[:3, 3], float(np.linalg.norm(half))), np.int64)
+        idx = np.asarray(tree.query_ball_point(T[:3, 3], float(np.linalg.norm(reach))), np.int64)
         if idx.size == 0:
             continue
-        local = apply_linear(points[idx] - T[:3, 3], T[:3, :3])
-        out[idx[np.all(np.abs(local) <= half, axis=1)]] = True
-    return out
+        local = np.abs(apply_linear(points[idx] - T[:3, 3], T[:3, :3]))
+        inside[idx[np.all(local <= half, axis=1)]] = True
+        grown[idx[np.all(local <= reach, axis=1)]] = True
+    return inside, grown & ~inside
 
 
 def _nearest_depth(views: AnalysisViews, points: np.ndarray, k: int, scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -238,9 +261,9 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
             labels[k] = None if sweep.labels is None else np.asarray(sweep.labels)
     tracks = moving_tracks(scene, moving_threshold_m)
     lookup = transient_classes(dict(getattr(scene, "class_names", {}) or {}))
-    tracked, semantic = {}, {}
+    tracked, trailing, semantic = {}, {}, {}
     for k, p in points.items():
-        tracked[k] = _tracked(p, k, tracks, box_margin_m)
+        tracked[k], trailing[k] = _tracked(p, k, tracks, box_margin_m)
         lab = labels[k]
         semantic[k] = (lookup[np.clip(lab.astype(np.int64), 0, 255)] if lab is not None and lookup.any()
                        else np.zeros(len(p), bool))
@@ -251,7 +274,7 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
     seen_through = {}
     for j, p_all in points.items():
         # only what is not labelled yet, one test per 0.1 m voxel of the sweep (labels broadcast back)
-        todo = np.nonzero(~tracked[j] & ~semantic[j])[0]
+        todo = np.nonzero(~tracked[j] & ~trailing[j] & ~semantic[j])[0]
         key = np.floor(p_all[todo] / _TEST_VOXEL_M).astype(np.int64)
         _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
         p = p_all[todo[first]]
@@ -274,7 +297,7 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
         flag[todo] = (((through >= 2) & (through > confirmed)) | (alone & (through >= 1)))[inverse.ravel()]
         seen_through[j] = flag
 
-    dynamic, counts = {}, {"tracked": 0, "semantic": 0, "free_space": 0, "returns": 0}
+    dynamic, counts = {}, {"tracked": 0, "trailing": 0, "semantic": 0, "free_space": 0, "returns": 0}
     for k, p in points.items():
         raw = seen_through[k] & ~tracked[k] & ~semantic[k]
         if len(p) > _VOTE_K and raw.any():
@@ -284,10 +307,11 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
             votes = np.where(found, raw[np.minimum(nb, len(p) - 1)], False).sum(axis=1)
             n = found.sum(axis=1)
             raw = np.where(n >= 3, votes > 0.5 * n, raw)
-        dynamic[k] = tracked[k] | semantic[k] | raw
+        dynamic[k] = tracked[k] | trailing[k] | semantic[k] | raw
         counts["tracked"] += int(tracked[k].sum())
+        counts["trailing"] += int((trailing[k] & ~semantic[k]).sum())
         counts["semantic"] += int((semantic[k] & ~tracked[k]).sum())
-        counts["free_space"] += int((raw & ~tracked[k] & ~semantic[k]).sum())
+        counts["free_space"] += int((raw & ~tracked[k] & ~trailing[k] & ~semantic[k]).sum())
         counts["returns"] += len(p)
 
     # noise: sparse voxels of the static scene over the whole sequence
