@@ -401,8 +401,9 @@ def neighbour_support(views: AnalysisViews, masks: np.ndarray, k: int, labels: n
                       gaps: tuple[int, ...] = (1, 2)) -> np.ndarray:
     """Per region of frame ``k``, the share of it that the neighbouring frames ``k -/+ gaps`` also
     call sky, each warped by the rotation between them (the sky lies at infinity: it stays where the
-    rotation puts it, a surface at finite distance does not); the mean over the neighbours that see
-    at least half of the region, NaN where none does (a scene of one frame).
+    rotation puts it, a surface at finite distance does not); the largest over the neighbours that
+    see at least half of the region (a near edge's parallax hides part of the sky from the frames on
+    one side), NaN where none does (a scene of one frame).
 
     Parameters
     ----------
