@@ -11,12 +11,13 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    continuation of a wall above its topmost return (up to the highest step edge within 5 degrees
    above it: a spinning lidar's upper beams are 2-5 degrees apart, and between two of them a wall
    returns nothing either), smooth (local standard
-   deviation of L* under 0.03), static under the camera's rotation alone (see 2), and either
+   deviation of L*, wires closed away, under 0.03), static under the camera's rotation alone (see 2), and either
    within the lidar's coverage (ray elevation under 12 degrees: there the lidar would have
    returned anything within its range) or of the clear sky's blue (b* < -12, -20 < a* < 5:
    Rayleigh scattering). Confident non-sky: every return's pixel above the horizon.
 2. **Features** per pixel: CIELAB colour, the local standard deviation of L* over 5 x 5 and 15 x 15
-   px, its gradient, the ray's elevation, and the *infinity residual*: the smaller of the mean
+   px and its gradient (taken after closing away dark lines up to 4 px wide: wires do not make the
+   sky between them rough, and its smoothness holds seeds there too), the ray's elevation, and the *infinity residual*: the smaller of the mean
    absolute differences to frames k - 2 and k + 2 warped by the homography of the rotation alone,
    K R_j^T R_k K^-1. The sky lies at infinity, so it aligns under that warp (residual ~0); a
    textured surface at finite distance moves with the translation and does not (a window band at
@@ -103,6 +104,11 @@ _THIN_PX, _THIN_GAP_PX, _THIN_DE = 2, (2, 3, 4), 10.0
 #: A patch of sky is kept when the neighbouring frames call at least this share of it sky (warped by
 #: the rotation between them).
 _MIN_SUPPORT = 0.5
+#: Dark lines at most twice this wide (px at 480 wide: overhead wires) are closed away before the
+#: texture features are taken: on pandaset_002_front_right the strip of sky between the lowest wire
+#: and a roof line was rough over 5 x 5 px everywhere, held no seed and went to the roof
+#: (docs/findings.md, "Sky between wires").
+_LINE_PX = 2
 #: Smoothness weight of the minimum cut, and the clip of the classifier's probability.
 _LAMBDA, _P_CLIP = 4.0, 0.03
 
@@ -124,13 +130,23 @@ def infinity_residual(views: AnalysisViews, k: int, *, gap: int = 2) -> np.ndarr
     return cv2.GaussianBlur(np.min(out, axis=0).astype(np.float32), (0, 0), 1.0)
 
 
-def sky_features(image: np.ndarray, residual: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+def sky_features(image: np.ndarray, residual: np.ndarray, elevation: np.ndarray, *,
+                 line_px: int = _LINE_PX) -> np.ndarray:
     """[H, W, 8] float32 per-pixel features: L*/100, a*/50, b*/50, 10 x the local standard deviation
     of L*/100 over 5 x 5 and 15 x 15 px, the gradient magnitude of L*/100 (Sobel of a 1 px blur),
     10 x the infinity residual and 5 x the sine of the ray's elevation (the clear sky darkens and
-    deepens in blue toward the zenith: a dark blue-grey is sky high up, a wall near the horizon)."""
+    deepens in blue toward the zenith: a dark blue-grey is sky high up, a wall near the horizon).
+
+    The texture features (deviations and gradient) are of L* after a morphological closing by a
+    square of side ``2 line_px + 1`` px, which removes dark lines at most ``2 line_px`` px wide:
+    overhead wires do not make the sky between them rough (0: the image as it is)."""
+    if line_px < 0:
+        raise ValueError(f"line_px must be >= 0 (px), got {line_px}")
     lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
     L = lab[..., 0] / 100.0
+    colour_L = L
+    if line_px:
+        L = cv2.morphologyEx(L, cv2.MORPH_CLOSE, np.ones((2 * line_px + 1,) * 2, np.uint8))
 
     def local_std(size: int) -> np.ndarray:
         mu = cv2.blur(L, (size, size))
@@ -138,7 +154,7 @@ def sky_features(image: np.ndarray, residual: np.ndarray, elevation: np.ndarray)
 
     blurred = cv2.GaussianBlur(L, (0, 0), 1.0)
     grad = np.hypot(cv2.Sobel(blurred, cv2.CV_32F, 1, 0), cv2.Sobel(blurred, cv2.CV_32F, 0, 1))
-    return np.stack([L, lab[..., 1] / 50.0, lab[..., 2] / 50.0, 10.0 * local_std(5), 10.0 * local_std(15), grad,
+    return np.stack([colour_L, lab[..., 1] / 50.0, lab[..., 2] / 50.0, 10.0 * local_std(5), 10.0 * local_std(15), grad,
                      10.0 * residual, 5.0 * elevation], -1).astype(np.float32)
 
 
@@ -532,10 +548,11 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         raise ValueError(f"untrusted: {n} masks of {h}x{w} (one per frame) were expected")
     clearance = max(1, round(_SEED_CLEARANCE_PX * w / 480))
     kernel = np.ones((2 * clearance + 1, 2 * clearance + 1), np.uint8)
+    line_px = max(1, round(_LINE_PX * w / 480))
     feats, above, sky_seeds, not_seeds, links, corridors = [], [], [], [], [], []
     for k in range(n):
         elev = views.elevation(k)
-        feat = sky_features(views.images[k], infinity_residual(views, k), elev)
+        feat = sky_features(views.images[k], infinity_residual(views, k), elev, line_px=line_px)
         # not the continuation of a wall above its topmost return, up to the first edge (a spinning
         # lidar's upper beams are degrees apart: between two of them a wall returns nothing either)
         reach = views.K[k][1, 1] * math.tan(math.radians(_BEAM_GAP_DEG))
