@@ -17,11 +17,12 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    Rayleigh scattering). Confident non-sky: every return's pixel above the horizon.
 2. **Features** per pixel: CIELAB colour, the local standard deviation of L* over 5 x 5 and 15 x 15
    px and its gradient (taken after closing away dark lines up to 4 px wide: wires do not make the
-   sky between them rough, and its smoothness holds seeds there too), the ray's elevation, and the *infinity residual*: the smaller of the mean
-   absolute differences to frames k - 2 and k + 2 warped by the homography of the rotation alone,
-   K R_j^T R_k K^-1. The sky lies at infinity, so it aligns under that warp (residual ~0); a
-   textured surface at finite distance moves with the translation and does not (a window band at
-   the top of the frame, a pole, a wire).
+   sky between them rough, and its smoothness holds seeds there too), the ray's elevation, and
+   the *infinity residual*: the smaller of the mean absolute differences to frames k - 2 and
+   k + 2 warped by the homography of the rotation alone, K R_j^T R_k K^-1. The sky lies at
+   infinity, so it aligns under that warp (residual ~0); a textured surface at finite distance
+   moves with the translation and does not (a window band at the top of the frame, a pole, a
+   wire).
 3. **Evidence**, three independent estimates of the probability of sky, averaged in log-odds: a
    per-scene classifier (random forest, OpenCV's ``ml.RTrees``, 20 trees of depth 12, trained on up
    to 15,000 seeds of each class from every frame); the frame's own colours (Gaussian mixtures of
