@@ -268,11 +268,11 @@ def test_another_sweep_s_copy_of_a_crossed_arm_stays_non_sky():
         segment_sky(views, solid, untrusted=copies[:1])
 
 
-def _sky_with_wires(h: int = 90, w: int = 120) -> tuple[AnalysisViews, list[np.ndarray], np.ndarray]:
-    """Three still frames: a blue sky paling toward the horizon (row 45), a brick building the lidar
-    hits across the frame from row 30 down, and three dark wires no return hits, 1 px wide at rows
-    19, 23 and 27: every pixel of the sky from row 17 to the roof line is within 2 px of a wire.
-    Returns the views, the solid masks and the sky between the wires and the roof."""
+def _sky_with_wires(h: int = 90, w: int = 120) -> tuple[AnalysisViews, np.ndarray]:
+    """Three still frames: a blue sky paling toward the horizon (row 45), a brick building across the
+    frame from row 30 down, and three dark wires 1 px wide at rows 19, 23 and 27: every pixel of the
+    sky from row 17 to the roof line is within 2 px of a wire. Returns the views and the sky between
+    the wires and the roof."""
     image = np.empty((h, w, 3), np.float32)
     t = (np.arange(h, dtype=np.float32) / 45.0).clip(0.0, 1.0)[:, None]
     # the clear sky's blue (CIELAB a* about 2, b* about -40: seeds above the lidar's coverage too)
@@ -281,17 +281,15 @@ def _sky_with_wires(h: int = 90, w: int = 120) -> tuple[AnalysisViews, list[np.n
     image[45:] = 0.35  # the road
     for row in (19, 23, 27):
         image[row] = 0.12
-    solid = np.zeros((h, w), bool)
-    solid[30:, :] = True
     strip = np.zeros((h, w), bool)
     strip[[20, 21, 22, 24, 25, 26, 28], 4:-4] = True
-    return _views([image.copy() for _ in range(3)], [np.eye(3)] * 3), [solid.copy() for _ in range(3)], strip
+    return _views([image.copy() for _ in range(3)], [np.eye(3)] * 3), strip
 
 
 def test_wires_across_the_sky_do_not_make_it_rough():
     from wcbench.reference_model.scene_analysis.sky import sky_features
 
-    views, _, strip = _sky_with_wires()
+    views, strip = _sky_with_wires()
     image, elev = views.images[0], views.elevation(0)
     residual = np.zeros(elev.shape, np.float32)
     closed = sky_features(image, residual, elev)
