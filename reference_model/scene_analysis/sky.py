@@ -46,7 +46,9 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    on both sides along a row, a column or a diagonal) cut the hazy sky under them off from the open
    sky and from the seeds, and their mixed pixels teach the classifiers that pale sky beside a
    structure is not sky. Found after a first pass of seeds, they are crossed on the way to the top
-   (the seeds of a second pass need only clear them by 1 px), join the patches they separate in
+   (the seeds of a second pass need only clear them by 1 px; the way across is the occluder, its
+   mixed pixels and the pixels within 4 px of the sky's colour nearby, so a wire crossing a roof
+   line does not lead into the wall below), join the patches they separate in
    step 5, and are left out of the non-sky training. They stay non-sky, and so does every pixel
    within 4 px of them that any sweep's return lands in (``untrusted``: other sweeps register a pole
    or a wire a few px off, and the sky found across it keeps clear of every copy).
@@ -102,6 +104,8 @@ _MIN_OPEN_SKY = 0.003
 #: signal's mast arm, a pole's top), looked past ``_THIN_GAP_PX`` px on either side for the sky's
 #: colour nearby (CIELAB difference under ``_THIN_DE``).
 _THIN_PX, _THIN_GAP_PX, _THIN_DE = 2, (2, 3, 4), 10.0
+#: How far (px, a Gaussian's sigma) the seeds give the sky's colour around a thin occluder.
+_THIN_REACH_PX = 12.0
 #: A patch of sky is kept when the neighbouring frames call at least this share of it sky (warped by
 #: the rotation between them).
 _MIN_SUPPORT = 0.5
@@ -195,9 +199,17 @@ def _wall_continuation(image: np.ndarray, solid: np.ndarray, reach_px: float) ->
     return (rows >= stop[None, :]) & (rows <= top[None, :]) & (top[None, :] < h)
 
 
+def _sky_colour_nearby(lab: np.ndarray, sky: np.ndarray, reach_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mean CIELAB colour [H, W, 3] of the ``sky`` pixels within a Gaussian of ``reach_px``
+    (normalised convolution), and where it is defined [H, W] bool (not far from every sky pixel)."""
+    den = cv2.GaussianBlur(sky.astype(np.float32), (0, 0), reach_px)
+    ref = cv2.GaussianBlur(lab * sky[..., None].astype(np.float32), (0, 0), reach_px) / np.maximum(den, 1e-6)[..., None]
+    return ref, den > 1e-2
+
+
 def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky: np.ndarray, *,
                    width_px: int = _THIN_PX, gaps_px: tuple[int, ...] = _THIN_GAP_PX, max_de: float = _THIN_DE,
-                   max_std: float = _SEED_MAX_STD, reach_px: float = 12.0) -> np.ndarray:
+                   max_std: float = _SEED_MAX_STD, reach_px: float = _THIN_REACH_PX) -> np.ndarray:
     """[H, W] bool: the returns of thin structures in front of a smooth background (a wire, a
     signal's mast arm, the top of a pole against the sky), which the sky may be connected across.
 
@@ -234,10 +246,7 @@ def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky:
     if not thin.any() or not sky.any():
         return np.zeros_like(thin)
     lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
-    # the sky's colour nearby (normalised convolution of the seeds); none far from every seed
-    den = cv2.GaussianBlur(sky.astype(np.float32), (0, 0), reach_px)
-    ref = cv2.GaussianBlur(lab * sky[..., None].astype(np.float32), (0, 0), reach_px) / np.maximum(den, 1e-6)[..., None]
-    has_ref = den > 1e-2
+    ref, has_ref = _sky_colour_nearby(lab, sky, reach_px)
     L = lab[..., 0] / 100.0
     mu = cv2.blur(L, (3, 3))
     std = np.sqrt(np.maximum(cv2.blur(L * L, (3, 3)) - mu * mu, 0.0))
@@ -549,7 +558,7 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         raise ValueError(f"untrusted: {n} masks of {h}x{w} (one per frame) were expected")
     clearance = max(1, round(_SEED_CLEARANCE_PX * w / 480))
     kernel = np.ones((2 * clearance + 1, 2 * clearance + 1), np.uint8)
-    line_px = max(1, round(_LINE_PX * w / 480))
+    line_px = max(1, round(_LINE_PX * w / 480)) if _LINE_PX else 0  # 0: no closing, at any size
     feats, above, sky_seeds, not_seeds, links, corridors = [], [], [], [], [], []
     for k in range(n):
         elev = views.elevation(k)
@@ -573,8 +582,14 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         thin = thin_occluders(views.images[k], solid[k], elev > 0.0, seeds)
         if thin.any():
             thick = cv2.dilate((solid[k] & ~thin).astype(np.uint8), kernel).astype(bool)
-            near = thick | cv2.dilate(thin.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-            corridor = cv2.dilate(thin.astype(np.uint8), kernel).astype(bool) & ~thick & (elev > 0.0)
+            mixed = cv2.dilate(thin.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+            near = thick | mixed
+            # the corridor is the occluder, its mixed pixels and the sky's colour around it: where a wire
+            # crosses a roof line, the wall below is not on the way (pandaset_002_back, frame 12)
+            ref, has_ref = _sky_colour_nearby(lab, seeds, _THIN_REACH_PX)
+            sky_like = has_ref & (np.linalg.norm(lab - ref, axis=-1) < _THIN_DE)
+            corridor = (cv2.dilate(thin.astype(np.uint8), kernel).astype(bool) & ~thick & (elev > 0.0)
+                        & (sky_like | mixed))
             clear = (elev > 0.0) & ~near & ~edges
             open_sky = _top_connected(clear | corridor)
             candidates = open_sky & clear & beyond & smooth_static & (within | blue)

@@ -52,9 +52,9 @@ def test_the_matte_feathers_only_the_boundary_and_keeps_lidar_hits_under_a_half(
     assert alpha[5, 3] < 0.5
 
 
-def _views(images: list[np.ndarray], rotations: list[np.ndarray]) -> AnalysisViews:
+def _views(images: list[np.ndarray], rotations: list[np.ndarray], *, focal_px: float = 100.0) -> AnalysisViews:
     h, w = images[0].shape[:2]
-    K = np.array([[100.0, 0, w / 2], [0, 100.0, h / 2], [0, 0, 1]])
+    K = np.array([[focal_px, 0, w / 2], [0, focal_px, h / 2], [0, 0, 1]])
     poses = []
     for R in rotations:
         T = np.eye(4)
@@ -304,3 +304,30 @@ def test_wires_across_the_sky_do_not_make_it_rough():
     with pytest.raises(ValueError, match="line_px"):
         sky_features(image, residual, elev, line_px=-1)
 
+
+def test_a_wire_across_a_roof_line_does_not_lead_the_sky_into_the_wall_below():
+    from wcbench.reference_model.scene_analysis.sky import segment_sky
+
+    # three still frames at the analysis size (480 x 270, a focal length of 490 px as PandaSet's
+    # front camera there; horizon at row 135): a blue sky, a smooth dark facade from row 60 down that
+    # the lidar hits only from row 120 (rows 60-76 lie above a wall's continuation of 5 degrees and
+    # within the lidar's coverage of 12), and a wire the lidar hits above the roof line only (now
+    # and then: not where the facade is behind it), running down from the top-left across the roof
+    # line at column 120: a thin occluder while the sky is on both its sides. Crossing it must not
+    # cross the roof line (pandaset_002_back, frame 12).
+    h, w = 270, 480
+    image = np.empty((h, w, 3), np.float32)
+    t = (np.arange(h, dtype=np.float32) / 135.0).clip(0.0, 1.0)[:, None]
+    image[..., 0], image[..., 1], image[..., 2] = 0.45 + 0.1 * t, 0.65 + 0.05 * t, 0.92 + 0.03 * t
+    image[60:135] = (0.22, 0.25, 0.3)  # the facade: dark blue-grey, smooth
+    image[135:] = 0.35
+    solid = np.zeros((h, w), bool)
+    solid[120:] = True
+    for r in range(0, 120):  # the wire: 1 px, 45 degrees
+        image[r, 60 + r] = 0.12
+        solid[r, 60 + r] = r < 60
+    views = _views([image.copy() for _ in range(3)], [np.eye(3)] * 3, focal_px=490.0)
+    sky = segment_sky(views, [solid.copy() for _ in range(3)])
+    for k in range(3):
+        assert sky.masks[k][:50, 200:].all()  # the open sky
+        assert not sky.masks[k][63:120].any()  # the wall, below its roof line's mixed rows
