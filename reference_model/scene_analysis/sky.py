@@ -47,8 +47,8 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    sky and from the seeds, and their mixed pixels teach the classifiers that pale sky beside a
    structure is not sky. Found after a first pass of seeds, they are crossed on the way to the top
    (the seeds of a second pass need only clear them by 1 px; the way across is the occluder, its
-   mixed pixels and the pixels within 4 px of the sky's colour nearby, so a wire crossing a roof
-   line does not lead into the wall below), join the patches they separate in
+   mixed pixels and those pixels within 4 px of it that have the colour of the sky seeds nearby, so
+   a wire crossing a roof line does not lead into the wall below), join the patches they separate in
    step 5, and are left out of the non-sky training. They stay non-sky, and so does every pixel
    within 4 px of them that any sweep's return lands in (``untrusted``: other sweeps register a pole
    or a wire a few px off, and the sky found across it keeps clear of every copy).
