@@ -560,7 +560,7 @@ class SurfaceScene:
         # a mover stands on the ground and is sampled by several beams: what lies on the road's own
         # surface or alone would be drawn as a blob on the road, not wetted, mirrored or snowed on
         above = pts @ self.up - self.ground_height(pts) > _DYNAMIC_ABOVE_GROUND_M
-        counts = np.asarray([len(n) for n in cKDTree(pts).query_ball_point(pts, _DYNAMIC_NEIGHBOUR_M)]) - 1
+        counts = np.asarray(cKDTree(pts).query_ball_point(pts, _DYNAMIC_NEIGHBOUR_M, return_length=True)) - 1
         d2 = np.maximum(np.sum((pts - a.views.center(index)) ** 2, axis=1), 1.0)
         needed = np.clip(_DYNAMIC_SHARE * _DYNAMIC_PATCH_RETURNS_M2 / d2, *_DYNAMIC_NEIGHBOURS)
         pts = pts[above & (counts >= needed)]
