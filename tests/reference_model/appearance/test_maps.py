@@ -18,9 +18,11 @@ from wcbench.reference_model.appearance.maps import (
     _box_shells,
     _gaussian_blur,
     _hull_pixels,
+    _in_box,
     _mirrored_cloud,
     _rasterize,
     _rays,
+    _slab_interval,
     mirror_distance,
 )
 from wcbench.reference_model.appearance.surfaces import build_surfaces
@@ -221,6 +223,27 @@ def test_a_hulls_pixels_drawn_in_its_rectangle_are_those_drawn_on_the_whole_fram
         rr, cc = _hull_pixels(hull, allowed)
         assert set(zip(rr.tolist(), cc.tolist())) == slow, f"trial {trial}: {hull.reshape(-1, 2).tolist()}"
         assert len(rr) == len(slow)
+
+
+def test_the_slab_interval_and_the_box_test_by_columns_are_the_row_reductions():
+    # the slow twins: np.nanmax / np.nanmin over each row's three slabs, np.all over its three
+    # axes; rays parallel to a slab (a zero component: inf or NaN parameters) and origins on a
+    # slab's plane included. Equal to the bit (a max, a min and comparisons round nothing)
+    rng = np.random.default_rng(5)
+    half = np.array([2.2, 0.9, 0.75])
+    for origin in (rng.normal(0.0, 4.0, 3), np.array([2.2, 0.0, -5.0]), np.array([0.0, 0.9, 0.75])):
+        dirs = rng.normal(size=(4000, 3))
+        dirs[rng.uniform(size=dirs.shape) < 0.15] = 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (-half - origin) / dirs, (half - origin) / dirs
+            slow_in = np.nanmax(np.minimum(t1, t2), axis=1)
+            slow_out = np.nanmin(np.maximum(t1, t2), axis=1)
+            fast_in, fast_out = _slab_interval(origin, dirs, -half, half)
+        np.testing.assert_array_equal(fast_in, slow_in)
+        np.testing.assert_array_equal(fast_out, slow_out)
+    points = rng.uniform(-3.0, 3.0, (4000, 3))
+    points[:10] = half  # on the box's corner: inside
+    np.testing.assert_array_equal(_in_box(points, half), np.all(np.abs(points) <= half, axis=1))
 
 
 def test_the_mirrors_distance_from_one_dummy_channel_is_the_coloured_renders(demo_scene):
