@@ -11,7 +11,7 @@ from paths import DATA, SHARED_DATA
 pytest.importorskip("torch")
 
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
-from wcbench.reference_model.scene_analysis.sky import infinity_residual, refine_boundary, sky_matte
+from wcbench.reference_model.scene_analysis.sky import infinity_residual, refine_boundary, segment_sky, sky_matte
 from wcbench.reference_model.scene_analysis.views import AnalysisViews, resample_mask
 
 
@@ -177,8 +177,6 @@ def test_the_real_cameras_sky_against_the_hand_drawn_masks(name, bound):
 
 @pytest.mark.model
 def test_a_frame_no_lidar_return_lands_in_gets_no_invented_sky(synth_hard):
-    from wcbench.reference_model.scene_analysis.sky import segment_sky
-
     analysis = analyse_scene(synth_hard)
     solid = [s.copy() for s in analysis.solid]
     k = 12
@@ -238,8 +236,6 @@ def test_a_thin_occluder_is_a_wire_against_the_sky_and_not_a_wall_s_scan_line():
 
 
 def test_the_hazy_sky_under_a_mast_arm_the_lidar_hits_is_sky_and_the_arm_is_not():
-    from wcbench.reference_model.scene_analysis.sky import segment_sky
-
     views, solid = _street_with_an_arm()
     sky = segment_sky(views, solid)
     under = np.zeros((90, 120), bool)
@@ -252,8 +248,6 @@ def test_the_hazy_sky_under_a_mast_arm_the_lidar_hits_is_sky_and_the_arm_is_not(
 
 
 def test_another_sweep_s_copy_of_a_crossed_arm_stays_non_sky():
-    from wcbench.reference_model.scene_analysis.sky import segment_sky
-
     views, solid = _street_with_an_arm()
     copies = []
     for s in solid:
@@ -306,8 +300,6 @@ def test_wires_across_the_sky_do_not_make_it_rough():
 
 
 def test_a_wire_across_a_roof_line_does_not_lead_the_sky_into_the_wall_below():
-    from wcbench.reference_model.scene_analysis.sky import segment_sky
-
     # three still frames at the analysis size (480 x 270, a focal length of 490 px as PandaSet's
     # front camera there; horizon at row 135): a blue sky, a smooth dark facade from row 60 down that
     # the lidar hits only from row 120 (rows 60-76 lie above a wall's continuation of 5 degrees and
