@@ -35,7 +35,10 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    and hard constraints: returns and the pixels below the horizon are not sky, sky seeds are.
 5. **The boundary placed by colour** (:func:`refine_boundary`): within 3 px of it, each pixel's
    share of sky from the colour line between the nearby sky and foreground colours (alpha
-   matting's colour-line model); sky where the share is at least one half. A patch of sky that
+   matting's colour-line model), or, for a pixel far off that line (a third colour: a pale
+   building top between a dark roof and a blue sky), from the line of the nearby surface colour
+   that explains it best (sampling-based matting's chromatic distortion); sky where the share is
+   at least one half. A patch of sky that
    holds no seed and does not reach the top of the frame (a pane of a window, a gap the cut left
    in a wall) is dropped: the sky is one with the open sky. Patches apart by 2 px or less (at 480
    wide: a lamp's arm, a pole's crossbar, a bundle of wires) count as one, so the sky under an arm
@@ -114,6 +117,11 @@ _MIN_SUPPORT = 0.5
 #: and a roof line was rough over 5 x 5 px everywhere, held no seed and went to the roof
 #: (docs/findings.md, "Sky between wires").
 _LINE_PX = 2
+#: The boundary's third colour (:func:`refine_boundary`): a pixel off the line of the farthest
+#: foreground colour and the sky by more than this chromatic distortion (CIELAB) takes its share from
+#: the line of a nearby surface colour at least ``_SURFACE_DE`` from the sky's, if that explains it
+#: better.
+_MAX_DISTORTION, _SURFACE_DE = 6.0, 16.0
 #: Smoothness weight of the minimum cut, and the clip of the classifier's probability.
 _LAMBDA, _P_CLIP = 4.0, 0.03
 
@@ -209,7 +217,8 @@ def _sky_colour_nearby(lab: np.ndarray, sky: np.ndarray, reach_px: float) -> tup
 
 def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky: np.ndarray, *,
                    width_px: int = _THIN_PX, gaps_px: tuple[int, ...] = _THIN_GAP_PX, max_de: float = _THIN_DE,
-                   max_std: float = _SEED_MAX_STD, reach_px: float = _THIN_REACH_PX) -> np.ndarray:
+                   max_std: float = _SEED_MAX_STD, reach_px: float = _THIN_REACH_PX,
+                   sky_colour: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """[H, W] bool: the returns of thin structures in front of a smooth background (a wire, a
     signal's mast arm, the top of a pole against the sky), which the sky may be connected across.
 
@@ -235,6 +244,9 @@ def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky:
         Pixels above the horizon.
     sky : ndarray [H, W] bool
         Confident sky (the seeds found without crossing anything).
+    sky_colour : (ndarray [H, W, 3] float32, ndarray [H, W] bool), optional
+        The mean CIELAB colour of the ``sky`` pixels within a Gaussian of ``reach_px`` and where it
+        is defined, when the caller has it already (it needs it for the corridor across the occluders).
     """
     if solid.shape != image.shape[:2] or above.shape != solid.shape or sky.shape != solid.shape:
         raise ValueError(f"image {image.shape}, solid {solid.shape}, above {above.shape} and sky {sky.shape}: one "
@@ -246,7 +258,7 @@ def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky:
     if not thin.any() or not sky.any():
         return np.zeros_like(thin)
     lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
-    ref, has_ref = _sky_colour_nearby(lab, sky, reach_px)
+    ref, has_ref = sky_colour if sky_colour is not None else _sky_colour_nearby(lab, sky, reach_px)
     L = lab[..., 0] / 100.0
     mu = cv2.blur(L, (3, 3))
     std = np.sqrt(np.maximum(cv2.blur(L * L, (3, 3)) - mu * mu, 0.0))
@@ -267,8 +279,17 @@ def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky:
     return out
 
 
+def _colour_line(pix: np.ndarray, F: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row, the share a in [0, 1] of B in ``pix`` on the line from F to B ([N, 3] each, CIELAB)
+    and the chromatic distortion |pix - (F + a (B - F))|."""
+    line = B - F
+    t = np.clip(np.sum((pix - F) * line, axis=1) / np.maximum(np.sum(line * line, axis=1), 1e-6), 0.0, 1.0)
+    return t, np.linalg.norm(pix - F - t[:, None] * line, axis=1)
+
+
 def refine_boundary(image: np.ndarray, mask: np.ndarray, never: np.ndarray, *, band_px: int = 3,
-                    window_px: int = 3, min_contrast: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+                    window_px: int = 3, min_contrast: float = 5.0, max_distortion: float = _MAX_DISTORTION,
+                    surface_de: float = _SURFACE_DE) -> tuple[np.ndarray, np.ndarray]:
     """The sky's boundary placed by colour: each pixel within ``band_px`` of the boundary takes the
     share of the sky in it, the projection of its colour on the line from the nearby foreground
     colour F to the nearby sky colour B (the colour-line model of alpha matting, Levin, Lischinski &
@@ -278,6 +299,17 @@ def refine_boundary(image: np.ndarray, mask: np.ndarray, never: np.ndarray, *, b
     (normalised convolution); F is the colour farthest from B among the non-sky pixels within
     ``window_px`` (the core of a wire, a pole, the wall behind an edge). Where B and F differ by less
     than ``min_contrast`` (CIELAB), the label is kept.
+
+    A pixel need not lie on that line: the pale top of a far building under a blue sky, beside the
+    dark roof below it, is a third colour, and its projection on the dark-to-blue line says sky. So,
+    as sampling-based matting picks the foreground sample by the *chromatic distortion*
+    ``|C - (a F + (1 - a) B)|`` (Wang & Cohen 2007, "Optimized color sampling for robust matting",
+    CVPR), where that distortion exceeds ``max_distortion`` (CIELAB) the pixel takes its share
+    from the line of the nearby surface colour that explains it best, if that explains it better: a
+    non-sky pixel within ``window_px`` whose 3 x 3 neighbourhood is all non-sky (a surface's body,
+    not a wire's mixed pixel) and whose colour differs from B by more than ``surface_de``. Both
+    values were chosen on the hand-drawn masks (``docs/findings.md``, "A third colour at the sky's
+    boundary").
 
     Parameters
     ----------
@@ -310,9 +342,15 @@ def refine_boundary(image: np.ndarray, mask: np.ndarray, never: np.ndarray, *, b
     sky_col = cv2.GaussianBlur(lab * interior[..., None], (0, 0), sigma) / np.maximum(den, 1e-6)[..., None]
     B = sky_col[rr, cc]
     has_b = den[rr, cc] > 1e-3
-    # F: the non-sky colour farthest from B within the window
+    pix = lab[rr, cc]
+    # a surface's body: its 3 x 3 neighbourhood all non-sky (a wire's mixed pixels are not)
+    body = cv2.erode((~mask).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    # F: the non-sky colour farthest from B within the window; and the surface colour whose line with
+    # B explains the pixel best (the least chromatic distortion) with its share
     best = np.full(rr.size, -1.0)
     F = np.zeros((rr.size, 3), np.float32)
+    surface_distortion = np.full(rr.size, np.inf)
+    surface_share = np.zeros(rr.size)
     for dy in range(-window_px, window_px + 1):
         for dx in range(-window_px, window_px + 1):
             y, x = rr + dy, cc + dx
@@ -324,10 +362,16 @@ def refine_boundary(image: np.ndarray, mask: np.ndarray, never: np.ndarray, *, b
             take = d > best
             best = np.where(take, d, best)
             F[take] = col[take]
-    pix = lab[rr, cc]
-    line = B - F
-    norm2 = np.sum(line * line, axis=1)
-    share = np.clip(np.sum((pix - F) * line, axis=1) / np.maximum(norm2, 1e-6), 0.0, 1.0)
+            surface = ok & body[y, x] & (d > surface_de ** 2)
+            if surface.any():
+                t, distortion = _colour_line(pix, col, B)
+                better = surface & (distortion < surface_distortion)
+                surface_distortion = np.where(better, distortion, surface_distortion)
+                surface_share = np.where(better, t, surface_share)
+    share, distortion = _colour_line(pix, F, B)
+    third = (distortion > max_distortion) & (surface_distortion < distortion)
+    share = np.where(third, surface_share, share)
+    norm2 = np.sum((B - F) ** 2, axis=1)
     decided = has_b & (best >= 0) & (norm2 > min_contrast ** 2)
     alpha[rr[decided], cc[decided]] = share[decided]
     out = alpha >= 0.5
@@ -579,14 +623,16 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         seeds = _large(_top_connected(clear) & beyond & smooth_static & (within | blue), _MIN_OPEN_SKY)
         # thin occluders with that sky on both sides (a wire, a mast arm, a pole's top) are crossed on the
         # way to the top, and the seeds need only clear their mixed pixels; other returns keep the clearance
-        thin = thin_occluders(views.images[k], solid[k], elev > 0.0, seeds)
-        if thin.any():
+        # the sky's colour around the seeds: the occluders' test and the corridor across them both need it
+        sky_colour = _sky_colour_nearby(lab, seeds, _THIN_REACH_PX) if seeds.any() else None
+        thin = thin_occluders(views.images[k], solid[k], elev > 0.0, seeds, sky_colour=sky_colour)
+        if thin.any() and sky_colour is not None:
             thick = cv2.dilate((solid[k] & ~thin).astype(np.uint8), kernel).astype(bool)
             mixed = cv2.dilate(thin.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
             near = thick | mixed
             # the corridor is the occluder, its mixed pixels and the sky's colour around it: where a wire
             # crosses a roof line, the wall below is not on the way (pandaset_002_back, frame 12)
-            ref, has_ref = _sky_colour_nearby(lab, seeds, _THIN_REACH_PX)
+            ref, has_ref = sky_colour
             sky_like = has_ref & (np.linalg.norm(lab - ref, axis=-1) < _THIN_DE)
             corridor = (cv2.dilate(thin.astype(np.uint8), kernel).astype(bool) & ~thick & (elev > 0.0)
                         & (sky_like | mixed))
