@@ -38,11 +38,10 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    matting's colour-line model), or, for a pixel far off that line (a third colour: a pale
    building top between a dark roof and a blue sky), from the line of the nearby surface colour
    that explains it best (sampling-based matting's chromatic distortion); sky where the share is
-   at least one half. A patch of sky that
-   holds no seed and does not reach the top of the frame (a pane of a window, a gap the cut left
-   in a wall) is dropped: the sky is one with the open sky. Patches apart by 2 px or less (at 480
-   wide: a lamp's arm, a pole's crossbar, a bundle of wires) count as one, so the sky under an arm
-   stays sky.
+   at least one half. A patch of sky that holds no seed and does not reach the top of the frame
+   (a pane of a window, a gap the cut left in a wall) is dropped: the sky is one with the open
+   sky. Patches apart by 2 px or less (at 480 wide: a lamp's arm, a pole's crossbar, a bundle of
+   wires) count as one, so the sky under an arm stays sky.
 6. **Thin occluders** (:func:`thin_occluders`): the returns of a structure a few px wide in front of
    the sky (a wire, a signal's mast arm, a pole's top: the hit set minus its morphological opening
    by a 5 x 5 px square, with smooth, return-free pixels of the nearby seeds' colour 2-4 px past it
