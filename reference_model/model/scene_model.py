@@ -164,6 +164,16 @@ class WeatherCityModel(nn.Module):
         out.update({f"nonrigid:{o.track_id}": o for o in self.nonrigid_objects()})
         return out
 
+    def with_objects(self, extra: Sequence[RigidObject]) -> WeatherCityModel:
+        """This model with ``extra`` rigid objects added (objects set down by an edit): a new model
+        that shares every node, decoder and sky map with this one (nothing is copied)."""
+        keys = set(self.objects())
+        clash = sorted(f"rigid:{o.track_id}" for o in extra if f"rigid:{o.track_id}" in keys)
+        if clash:
+            raise ValueError(f"objects {clash} are nodes of the model already")
+        return WeatherCityModel(self.background, [*self.rigid_objects(), *extra], self.nonrigid_objects(),
+                                self.decoders, self.sky)
+
     def nodes(self) -> dict[str, GaussianParams]:
         """The Gaussians of every node by key, the background first."""
         out = {BACKGROUND: self.background}

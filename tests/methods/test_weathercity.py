@@ -309,3 +309,33 @@ def test_a_request_made_again_loads_its_model_without_editing_and_any_change_edi
     shutil.rmtree(facts["checkpoint"])
     with pytest.raises(_Prepared):
         scene_training.train_scene(scene, config, show_progress=False, log=lambda m: None)
+
+
+@pytest.mark.model
+def test_an_object_of_another_scene_is_carried_in_on_the_ground_and_recorded(tmp_path):
+    """``insert scene=... at=``: the method finds the other scene (a folder, one beside, or a
+    built-in set), sets the object down on the lidar's ground and records the fit in ``describe``;
+    bad names fail before any training. The models are the hand-made ones (no training here)."""
+    pytest.importorskip("torch")
+    import weather_models as wm
+
+    from wcbench.core.errors import InputError
+    from wcbench.scenes.sets import get_scene_set
+
+    scene = get_scene_set("synth_1").scenes[0].load()
+    method = get_method("weathercity", edits=["remove class=vehicle", "insert scene=synth_1 id=5 at=20,1,30"])
+    method.check_scene(scene, "rain")
+    method._sources["synth_1"] = wm.make_model(("clear", "rain"))  # stands for the trained source model
+    method.use_model(scene, wm.make_model(("clear", "rain")), {})
+    (placed,) = method.describe()["placed_objects"]
+    assert placed["node"] == "rigid:synth_1/5#1" and placed["carried"] and placed["clear_error"] < 0.02
+    pose = np.asarray(placed["object_to_world"])
+    ground = np.percentile(scene.all_lidar_points()[:, 2], 5)  # the synthetic street is flat
+    assert pose[:2, 3] == pytest.approx([20.0, 1.0])
+    assert pose[2, 3] - 0.8 == pytest.approx(ground, abs=0.1)  # its box (1.6 m tall) on the ground
+    assert method._placement.hidden == {"rigid:5"}  # the removal came first: the carried car stays
+    for edits, match in [("insert scene=nowhere id=5 at=0,0,0", "no scene 'nowhere'"),
+                         ("insert scene=synth_1 id=99 at=0,0,0", "has no track '99'"),
+                         ("insert id=99 at=0,0,0", "has no track '99'")]:
+        with pytest.raises(InputError, match=match):
+            get_method("weathercity", edits=edits).check_scene(scene, "rain")

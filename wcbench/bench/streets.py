@@ -24,6 +24,13 @@ docs/findings.md):
   the editor's milliseconds per 480 x 270 frame as a run of one weather pays them, the frame's
   surface maps included (median over frames and weathers, per weather, and the slowest frame; the
   scene's set-up separately).
+* ``insert_<source>_<id>_into_<target>`` (outside ``--quick``, when both scenes ran): the README's
+  insertion across scenes (:data:`INSERT`): the carried object's mean clear-colour error against
+  its own model's (its ``error``; also the exemplars' before the refinement), the time to carry it,
+  and the texture its other weathers add over its clear colours where it is opaque in one frame
+  (the mean absolute Laplacian of the luminance, weather over clear; the object alone, no particles
+  nor haze), with its Gaussians' 16 exemplars averaged and with one (docs/design.md §7, "Object
+  editing").
 * ``synth_hard``: on the harder truth, the editor's and the raw frames' PSNR against the truth per
   weather, over all pixels and inside the clear frames' cast shadows (``truth/masks/shadow``);
   outside ``--quick`` also WeatherCity's main job (``quick`` profile) there, PSNR and LPIPS per
@@ -52,9 +59,12 @@ from wcbench.methods import get_method
 from wcbench.methods.physical_editor import raw_frame
 from wcbench.methods.scene_training import train_scene
 from wcbench.methods.weather_spec import resolve_physics
-from wcbench.methods.weathercity import WeatherCityMethod
+from wcbench.methods.weathercity import WeatherCityMethod, scene_ground
 from wcbench.metrics.temporal.flicker import temporal_flicker
 from wcbench.reference_model.appearance.editor import WeatherEditor
+from wcbench.reference_model.editing.edits import parse_edits
+from wcbench.reference_model.editing.transfer import box_heights, carried_features, placed_objects
+from wcbench.reference_model.model.scene_model import BACKGROUND, Placement
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene, any_sweep_masks
 from wcbench.reference_model.scene_analysis.views import resample_mask
@@ -71,6 +81,10 @@ REAL_SCENES = ("pandaset_002", "pandaset_002_back", "pandaset_002_front_right", 
 EDITED = ("rain", "snow", "fog")
 #: Frames of the hand-drawn sky masks.
 MASK_FRAMES = (5, 15, 25)
+#: The README's insertion across scenes: a car of one camera's model set down on another's street
+#: (``insert scene=SOURCE id=ID at=X,Y,YAW``), looked at in one frame.
+INSERT: dict[str, Any] = {"source": "pandaset_002_back", "id": "42", "target": "pandaset_002",
+                          "at": (12.46, 16.71, 137.8), "frame": 20}
 
 
 #: Where the hand-drawn sky masks are, when not in the checkout the package runs from.
@@ -198,7 +212,7 @@ def _editor_case(name: str, scene: Any) -> tuple[BenchCase, Any]:
                             "setup_s": round(setup, 2), "size": list(size), **checks}), analysis
 
 
-def _weathercity_case(name: str, scene: Any, analysis: Any) -> BenchCase:
+def _weathercity_case(name: str, scene: Any, analysis: Any) -> tuple[BenchCase, Any]:
     start = time.perf_counter()
     config = make_config("default")
     method = WeatherCityMethod(profile="default")
@@ -227,7 +241,53 @@ def _weathercity_case(name: str, scene: Any, analysis: Any) -> BenchCase:
                              _hand_sky(name, size, len(scene)))
     return BenchCase(name=f"weathercity_{name}", knob="scene", value=name, time_ms=1e3 * train_s, error=None,
                      error_unit="-", extra={"holdout": facts.get("holdout"), **checks,
-                                            "train_seconds": facts.get("train_seconds")})
+                                            "train_seconds": facts.get("train_seconds")}), model
+
+
+def _texture(image: np.ndarray, mask: np.ndarray) -> float:
+    """Mean absolute Laplacian of the luminance of ``image`` [H, W, 3] over ``mask``."""
+    gray = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2GRAY)
+    return float(np.abs(cv2.Laplacian(gray, cv2.CV_32F))[mask].mean())
+
+
+def _insert_case(target: Any, model: Any, sources: dict[str, Any]) -> BenchCase:
+    """:data:`INSERT`, the README's insertion: the carried object's fit, and how much texture its
+    decoded weathers add over its clear colours where it is opaque in frame 20 (the object alone,
+    480 x 270, no particles nor haze), with the 16 exemplars a Gaussian averages and with one."""
+    source_name, track, at = INSERT["source"], INSERT["id"], INSERT["at"]
+    edits = parse_edits(f"insert scene={source_name} id={track} at={','.join(str(v) for v in at)}")
+    start = time.perf_counter()
+    objects, keys, facts = placed_objects(edits, model, n_frames=len(target), up=np.asarray(target.up, np.float64),
+                                          ground=scene_ground(target), sources=sources)
+    seconds = time.perf_counter() - start
+    placed = model.with_objects(objects)
+    key, (fit,) = keys[0], facts
+    cam = scale_camera(target.frames[INSERT["frame"]].camera, 480, 270)
+    grid = placed.sky.grid(torch.from_numpy(view_directions(cam.camera_to_world, cam.K, 480, 270)))
+    alone = Placement(hidden={BACKGROUND} | {k for k in placed.objects() if k != key})
+    ratios: dict[str, Any] = {}
+    for label, neighbours in (("", 16), ("_one_exemplar", 1)):
+        if neighbours != 16:
+            obj = sources[source_name].objects()[f"rigid:{track}"]
+            with torch.no_grad():
+                colors = sources[source_name].decoders(obj.gaussians.features, ["clear"])
+            feats, _ = carried_features(colors, box_heights(obj), model, class_name=obj.class_name,
+                                        neighbours=neighbours)
+            with torch.no_grad():
+                placed.objects()[key].gaussians.features.copy_(feats)
+        with torch.no_grad():
+            out = placed.render(INSERT["frame"], np.asarray(cam.world_to_camera), np.asarray(cam.K), 480, 270,
+                                ["clear", *EDITED], sky_grid=grid, placement=alone)
+        opaque = cv2.erode((out.alpha.numpy() > 0.95).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        clear = _texture(out.image("clear").numpy(), opaque)
+        ratios.update({f"texture_ratio_{w}{label}": round(_texture(out.image(w).numpy(), opaque) / clear, 3)
+                       for w in EDITED})
+        ratios[f"opaque_px{label}"] = int(opaque.sum())
+    return BenchCase(name=f"insert_{source_name}_{track}_into_{target.id}", knob="scene", value=target.id,
+                     time_ms=1e3 * seconds, error=fit["clear_error"], error_unit="mean |clear - own clear| in [0, 1]",
+                     extra={"edit": edits[0].to_json(), "frame": INSERT["frame"], "exemplars": fit["exemplars"],
+                            "clear_error_exemplars": fit["clear_error_exemplars"], "clear_error": fit["clear_error"],
+                            "gaussians": fit["gaussians"], **ratios})
 
 
 def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
@@ -326,6 +386,8 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
         report.stand_ins.append(f"real scenes not found under {data_root}: {', '.join(missing)}")
     if quick:
         found = found[:1]
+    models: dict[str, Any] = {}
+    scenes: dict[str, Any] = {}
     for name in found:
         scene = load_scene(Path(data_root) / name) if data_root is not None else None
         assert scene is not None
@@ -336,7 +398,12 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
         case, analysis = _editor_case(name, scene)
         report.cases.append(case)
         if not quick:
-            report.cases.append(_weathercity_case(name, scene, analysis))
+            case, models[name] = _weathercity_case(name, scene, analysis)
+            report.cases.append(case)
+            scenes[name] = scene
+    if INSERT["source"] in models and INSERT["target"] in models:
+        report.cases.append(_insert_case(scenes[INSERT["target"]], models[INSERT["target"]],
+                                         {INSERT["source"]: models[INSERT["source"]]}))
     report.cases.append(_synth_hard_case(quick))
     report.notes.append("lidar_hits_as_sky counts the returns the analysis trusts (the frame's own sweep, static "
                         "returns of sweeps within two frames, every static return beyond 20 m); "

@@ -326,7 +326,9 @@ def add_method_options(parser: argparse.ArgumentParser, *, edit: bool = True) ->
     if edit:
         group.add_argument("--edit", action="append", default=None, metavar="EDIT",
                            help="object edit, repeatable: 'remove class=Car except ids=3,7', "
-                                "'translate id=5 by=0,2,0', or a JSON list")
+                                "'translate id=5 by=0,2,0', 'insert id=5 by=0,4,0' (a copy), "
+                                "'insert scene=OTHER id=5 at=X,Y,YAW' (an object of another trained scene "
+                                "standing on this one's ground, world metres and degrees), or a JSON list")
     return group
 
 

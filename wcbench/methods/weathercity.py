@@ -26,6 +26,7 @@ skipped, the supervision, and the whole-frame render FPS.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any, ClassVar
@@ -34,7 +35,7 @@ import cv2
 import numpy as np
 import torch
 
-from wcbench.core.errors import InputError
+from wcbench.core.errors import InputError, UnknownNameError
 from wcbench.core.image_io import to_uint8
 from wcbench.core.options import Option, Range
 from wcbench.core.weathers import WEATHERS
@@ -62,6 +63,7 @@ from wcbench.methods.weather_spec import (
 from wcbench.reference_model.appearance.editor import AppearanceParams, masked_ego
 from wcbench.reference_model.devices import DEVICES, device_problem, on_device
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
+from wcbench.reference_model.editing.transfer import ground_axes, ground_point, placed_objects
 from wcbench.reference_model.model.scene_model import FrameRows, Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
@@ -74,7 +76,9 @@ from wcbench.reference_model.training.config import (
 )
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import GaussianArrays, WeatherRenderer, camera_velocity, scale_camera
+from wcbench.scenes.loaders import load_scene
 from wcbench.scenes.scene import Scene
+from wcbench.scenes.sets import get_scene_set
 
 __all__ = ["WeatherCityMethod", "check_supervision_spec"]
 
@@ -252,6 +256,8 @@ class WeatherCityMethod(FrameRenderer):
         self._ego: tuple[tuple[Any, ...], np.ndarray] | None = None
         self._appearance = AppearanceParams.load()
         self._placement = Placement()
+        self._placed_facts: list[dict[str, Any]] = []
+        self._sources: dict[str, WeatherCityModel] = {}
         self._rows: FrameRows | None = None
 
     def required_models(self) -> tuple[str, ...]:
@@ -311,9 +317,13 @@ class WeatherCityMethod(FrameRenderer):
             try:
                 # the scene graph's objects are some of the scene's tracks (those with lidar returns in
                 # their box): an edit that selects no track at all can never select one of them
-                tracks: dict[str, Any] = {str(t.id): SimpleNamespace(track_id=str(t.id), class_name=t.class_name)
-                                          for t in scene.tracks}
-                placement_for(self.edits, tracks)
+                placement_for([e for e in self.edits if e.at is None], _track_stand_ins(scene))
+                for edit in self.edits:
+                    if edit.at is not None:
+                        other = scene if edit.scene is None else source_scene(scene, edit.scene)
+                        if edit.ids[0] not in {str(t.id) for t in other.tracks}:
+                            raise ValueError(f"edit {edit.to_json()}: scene {other.id!r} has no track "
+                                             f"{edit.ids[0]!r}")
             except ValueError as exc:
                 raise InputError(f"weathercity: {exc}") from None
 
@@ -359,9 +369,28 @@ class WeatherCityMethod(FrameRenderer):
         self._centers = np.stack([f.camera.center for f in scene.frames])
         self._times = np.array([f.timestamp for f in scene.frames], np.float64)
         try:
-            self._placement = placement_for(self.edits, model.objects())
+            placed: dict[int, str] = {}
+            self._placed_facts = []
+            if any(e.at is not None for e in self.edits):
+                objects, placed, self._placed_facts = placed_objects(
+                    self.edits, model, n_frames=len(scene), up=np.asarray(scene.up, np.float64),
+                    ground=scene_ground(scene), sources=self._source_models(scene))
+                self._model = model = model.with_objects(objects)
+            self._placement = placement_for(self.edits, model.objects(), placed=placed)
         except ValueError as exc:
             raise InputError(f"weathercity: {exc}") from None
+
+    def _source_models(self, scene: Scene) -> dict[str, WeatherCityModel]:
+        """The trained model of every scene an ``insert scene=...`` names, trained with this method's
+        settings (or loaded from the cache, as the scene's own is)."""
+        for name in sorted({e.scene for e in self.edits if e.scene is not None}):
+            if name not in self._sources:
+                other = source_scene(scene, name)
+                model, _, _ = train_scene(
+                    other, self.config, supervision=self.supervision, jitter=self.jitter, content=self.content,
+                    physics=self.training_physics(other), show_progress=True, device=self.device)
+                self._sources[name] = model
+        return self._sources
 
     @staticmethod
     def _decode_nodes(model: WeatherCityModel, weather: str) -> dict[str, torch.Tensor]:
@@ -373,6 +402,8 @@ class WeatherCityMethod(FrameRenderer):
         """Training facts (time, counts, skips, supervision) and the renderer's settings (the physics:
         :meth:`physics`)."""
         out: dict[str, Any] = {"training": self._facts, "decoded_weather": getattr(self, "_decoded", None)}
+        if self._placed_facts:
+            out["placed_objects"] = self._placed_facts
         if self._renderer is not None:
             out["renderer"] = self._renderer.info()
         return out
@@ -485,3 +516,46 @@ class WeatherCityMethod(FrameRenderer):
         if self._ego is None or self._ego[0] != key:
             self._ego = (key, analyse_scene(scene).ego_mask(size))
         return self._ego[1]
+
+
+def scene_ground(scene: Scene) -> Callable[[float, float], np.ndarray]:
+    """``(x, y) -> [3]`` the ground's world point below world x, y from the scene's lidar
+    (:func:`~wcbench.reference_model.editing.transfer.ground_point`), the search starting at the
+    height of the frame's camera nearest to x, y."""
+    points = scene.all_lidar_points()
+    up = np.asarray(scene.up, np.float64)
+    centers = np.stack([f.camera.center for f in scene.frames])
+    first, second, _ = ground_axes(up)
+
+    def ground(x: float, y: float) -> np.ndarray:
+        near = centers[int(np.argmin(np.hypot(centers[:, first] - x, centers[:, second] - y)))]
+        return ground_point(points, x, y, up=up, reference=near)
+
+    return ground
+
+
+def source_scene(scene: Scene, name: str) -> Scene:
+    """The scene an ``insert scene=NAME`` names: the folder NAME (a path), else the folder NAME
+    beside ``scene``'s, else the built-in scene set NAME of one scene (``synth_1``).
+
+    Raises
+    ------
+    ValueError
+        If none of them is a scene.
+    """
+    for folder in (Path(name).expanduser(), Path(scene.root).parent / name):
+        if folder.is_dir():
+            return load_scene(folder)
+    try:
+        found = get_scene_set(name, data_root=Path(scene.root).parent)
+    except (UnknownNameError, InputError):
+        found = None
+    if found is not None and len(found.scenes) == 1:
+        return found.scenes[0].load()
+    raise ValueError(f"insert scene={name}: no scene {name!r} (neither a folder, nor a folder beside "
+                     f"{Path(scene.root)}, nor a built-in scene set of one scene)")
+
+
+def _track_stand_ins(scene: Scene) -> dict[str, Any]:
+    """The scene's tracks as the objects an edit selects from (id and class)."""
+    return {str(t.id): SimpleNamespace(track_id=str(t.id), class_name=t.class_name) for t in scene.tracks}
