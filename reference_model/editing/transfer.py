@@ -18,8 +18,8 @@ colours:
    feature, since off the target's own features the decoders' reading of the other weathers is
    not constrained by anything.
 
-Every other weather's colour is then the target's decoder reading that feature: the wet paint and
-the snow on the roof that the target's model learned for surfaces of that colour and place, as an
+Every other weather's colour is then the target's decoder reading that feature: the wet or snowy
+look that the target's model learned for surfaces of that colour and height, as an
 image analogy carries a learned filter to a new image (Hertzmann et al. 2001, "Image Analogies",
 SIGGRAPH). An object of the same scene keeps its features (the same decoders read them).
 
