@@ -27,7 +27,8 @@ NOT_HERE = {
 NOT_HERE_PATTERNS = {
     r"waymo_5|nuscenes_5|(?<![\w.])/data\b|(?<!\.)/shared/data|HOST": "needs datasets or a cluster this machine lacks",
     r"--predictions (my_frames|cn_out|controlnet_out|fresco_rain)/": "needs another tool's outputs",
-    r"--scenes pandaset_002 --data-root \.\./shared/data --out runs/wc\b|--out runs/wc-edit|--out runs/wc-insert|--out runs/train\b":
+    r"--scenes pandaset_002 --data-root \.\./shared/data --out runs/wc\b|--out runs/wc-(edit|insert)\b"
+    r"|--out runs/train\b":
         "trains the default profile (about 7 minutes each; the insertion two scenes): measured by `wcbench bench "
         "model` and `bench streets` instead",
     r"^wcbench bench (--all|all|model|metrics|raster|weather|report|scale|validity|streets)\b":
