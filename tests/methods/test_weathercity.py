@@ -339,3 +339,20 @@ def test_an_object_of_another_scene_is_carried_in_on_the_ground_and_recorded(tmp
                          ("insert id=99 at=0,0,0", "has no track '99'")]:
         with pytest.raises(InputError, match=match):
             get_method("weathercity", edits=edits).check_scene(scene, "rain")
+
+
+def test_the_source_scene_is_a_path_or_a_folder_beside_the_scene(tmp_path, demo_scene):
+    """``insert scene=NAME``: NAME as a path, then as a folder beside the scene's own, then a built-in set."""
+    pytest.importorskip("torch")
+    import shutil
+
+    from wcbench.methods.weathercity import source_scene
+    from wcbench.scenes.loaders import load_scene
+
+    for name in ("street_a", "street_b"):
+        shutil.copytree(demo_scene.root, tmp_path / name)
+    here = load_scene(tmp_path / "street_a")
+    assert Path(source_scene(here, "street_b").root) == tmp_path / "street_b"  # beside
+    assert Path(source_scene(here, str(tmp_path / "street_b")).root) == tmp_path / "street_b"  # a path
+    with pytest.raises(ValueError, match="no scene 'street_c'"):
+        source_scene(here, "street_c")
