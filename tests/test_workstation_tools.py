@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -68,3 +69,34 @@ def test_the_fallback_equals_opencvs_for_a_gray_guide_and_a_colour_guide_at_eps_
 @pytest.mark.parametrize("script", ["workstation_check.sh", "prepare_workstation_wheels.sh"])
 def test_the_workstation_scripts_parse(script):
     subprocess.run(["bash", "-n", str(TOOLS / script)], check=True)
+
+
+def test_the_prebuilt_gsplat_module_raises_importerror_when_its_file_does_not_load(tmp_path, monkeypatch):
+    # gsplat imports gsplat.csrc inside try/except ImportError and builds its kernels instead: any other
+    # exception from a file that does not load (another torch, no CUDA here) would stop it.
+    bad = tmp_path / "gsplat_cuda.so"
+    bad.write_bytes(b"not a shared object")
+    monkeypatch.setenv("WCBENCH_GSPLAT_SO", str(bad))
+    spec = importlib.util.spec_from_file_location("csrc_under_test", TOOLS / "gsplat_prebuilt.py")
+    assert spec is not None and spec.loader is not None
+    with pytest.raises(ImportError, match="the prebuilt gsplat extension does not load"):
+        spec.loader.exec_module(importlib.util.module_from_spec(spec))
+    monkeypatch.delenv("WCBENCH_GSPLAT_SO")
+    with pytest.raises(ImportError):  # no file named at all
+        spec.loader.exec_module(importlib.util.module_from_spec(spec))
+
+
+@pytest.mark.slow  # the sky segmentation of 30 frames: about 50 s on the shared 2-core machine
+def test_the_exported_sky_masks_are_what_the_analysis_then_reads(pandaset_root, tmp_path):
+    pytest.importorskip("torch")
+    from wcbench.reference_model.scene_analysis.analysis import analyse_scene, clear_analysis_cache
+    from wcbench.scenes.loaders import load_scene
+
+    scene_dir = tmp_path / "pandaset_002"
+    shutil.copytree(pandaset_root, scene_dir, ignore=shutil.ignore_patterns("sky_masks"))
+    subprocess.run([sys.executable, str(TOOLS / "export_sky_masks.py"), str(scene_dir)], check=True)
+    clear_analysis_cache()
+    segmented = analyse_scene(load_scene(pandaset_root), log=None)
+    shipped = analyse_scene(load_scene(scene_dir), log=None)  # the workstation's path: no cv2.ml needed
+    assert shipped.sky.facts["source"] == "shipped sky masks"
+    np.testing.assert_array_equal(shipped.sky.masks, segmented.sky.masks)

@@ -85,9 +85,9 @@ class GaussianParams(nn.Module):
         )
 
     @classmethod
-    def empty(cls, feature_dim: int) -> GaussianParams:
-        """A node with no Gaussians."""
-        return cls(torch.zeros(0, 3), torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0), torch.zeros(0, feature_dim))
+    def empty(cls, feature_dim: int, device: torch.device | str = "cpu") -> GaussianParams:
+        """A node with no Gaussians (on ``device``)."""
+        return cls(*(torch.zeros(shape, device=device) for shape in ((0, 3), (0, 3), (0, 4), (0,), (0, feature_dim))))
 
     def __len__(self) -> int:
         return int(self.means.shape[0])

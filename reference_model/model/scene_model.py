@@ -228,7 +228,7 @@ class WeatherCityModel(nn.Module):
             start += int(means.shape[0])
         nodes = {key: params for key, _, _, params in parts}
         if not parts:
-            empty = GaussianParams.empty(self.background.feature_dim)
+            empty = GaussianParams.empty(self.background.feature_dim, self.sky.basis.device)
             parts.append((BACKGROUND, empty.means, empty.quats, empty))
             nodes = {BACKGROUND: empty}
             activated = None

@@ -191,8 +191,9 @@ class SkyModel(nn.Module):
         cx = ((g[:, 0] + 1) / 2 * cols - 0.5).round().clamp(0, cols - 1).long()
         cy = ((g[:, 1] + 1) / 2 * rows - 0.5).round().clamp(0, rows - 1).long()
         cell = cy * cols + cx
-        sums = torch.zeros(rows * cols, 3).index_add_(0, cell, colors[mask].float())
-        counts = torch.zeros(rows * cols).index_add_(0, cell, torch.ones(len(cell)))
+        dev = cell.device
+        sums = torch.zeros(rows * cols, 3, device=dev).index_add_(0, cell, colors[mask].float())
+        counts = torch.zeros(rows * cols, device=dev).index_add_(0, cell, torch.ones(len(cell), device=dev))
         seen = counts > 0
         mean = (sums[seen] / counts[seen, None]).clamp(0.02, 0.98)
         flat = self.logits.data[k].reshape(3, -1)

@@ -41,8 +41,8 @@ _C1, _C2 = 0.01**2, 0.03**2
 _EPS = 1e-6
 
 
-def _gaussian_taps(dtype: torch.dtype) -> torch.Tensor:
-    x = torch.arange(_SSIM_SIZE, dtype=dtype) - _SSIM_SIZE // 2
+def _gaussian_taps(dtype: torch.dtype, device: torch.device | str = "cpu") -> torch.Tensor:
+    x = torch.arange(_SSIM_SIZE, dtype=dtype, device=device) - _SSIM_SIZE // 2
     g = torch.exp(-(x**2) / (2 * _SSIM_SIGMA**2))
     return g / g.sum()
 
@@ -118,7 +118,7 @@ def training_ssim_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """
     c = a.shape[-1]
     x, y = a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]
-    g = _gaussian_taps(a.dtype)
+    g = _gaussian_taps(a.dtype, a.device)  # on the images' device (a GPU's twin, docs/workstation.md)
     row = g.view(1, 1, 1, -1).expand(5 * c, 1, 1, _SSIM_SIZE)
     col = g.view(1, 1, -1, 1).expand(5 * c, 1, _SSIM_SIZE, 1)
     pad = _SSIM_SIZE // 2

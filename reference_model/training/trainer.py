@@ -424,10 +424,12 @@ def evaluate_renders(render: Callable[[TrainingView], torch.Tensor],
 
 
 def evaluate_views(model: WeatherCityModel, views: Sequence[TrainingView], *,
-                   rasterizer: Callable[..., Any] = rasterize) -> dict[str, Any]:
-    """:func:`evaluate_renders` of the model's clear renders (on the model's device: pass the matching
-    ``rasterizer``, :func:`~wcbench.reference_model.devices.rasterizer_for`)."""
+                   rasterizer: Callable[..., Any] | None = None) -> dict[str, Any]:
+    """:func:`evaluate_renders` of the model's clear renders, on the model's device (``rasterizer``:
+    default :func:`~wcbench.reference_model.devices.rasterizer_for` that device)."""
     dev = model.sky.basis.device
+    if rasterizer is None:
+        rasterizer = rasterizer_for(dev.type)
 
     def render(v: TrainingView) -> torch.Tensor:
         grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)).to(dev))

@@ -62,6 +62,18 @@ def test_quick_run_without_data_root(tmp_path: Path) -> None:
     assert "note:" in report.format_table()
 
 
+def test_the_groups_variable_runs_the_profiles_alone_and_names_unknown_groups(monkeypatch) -> None:
+    from wcbench.bench.raster import run
+    from wcbench.core.errors import InputError
+
+    monkeypatch.setenv("WCBENCH_BENCH_RASTER_GROUPS", "profile")
+    obj = run(data_root=None, quick=True).to_json()
+    assert [c["name"] for c in obj["cases"]] == ["profile_b_240x135"]  # the workstation check's run
+    monkeypatch.setenv("WCBENCH_BENCH_RASTER_GROUPS", "profile,speeds")
+    with pytest.raises(InputError, match=r"unknown groups \['speeds'\]; known: speed, profile, start"):
+        run(data_root=None, quick=True)
+
+
 @pytest.mark.slow
 def test_start_cases_time_a_cold_and_a_warm_process() -> None:
     from wcbench.bench.raster import _start_cases
@@ -114,3 +126,4 @@ def test_phase_table_reports_medians_speedups_and_says_the_projection_is_one() -
     assert rows["b"]["serial"] == 1.0 and rows["b"]["projected_16t"] == 1.0 and rows["b"]["share"] == 0.1
     assert rows["total"]["serial"] == pytest.approx(0.1, abs=1e-4)
     assert "projection" in lines[0] and len(lines) == 2 + 3
+    assert "numba threading layer" in lines[0] and fields["threading_layer"] in ("omp", "tbb", "workqueue", "none yet")

@@ -18,6 +18,8 @@ import statistics
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numba
+
 from wcbench.reference_model.raster.threads import max_threads, threads
 
 __all__ = ["PROJECT_TO", "amdahl_serial", "amdahl_speedup", "parse_threads", "phase_table", "run_interleaved"]
@@ -97,6 +99,16 @@ def run_interleaved(run_once: Callable[[], dict[str, float]], counts: Sequence[i
     return samples, effective
 
 
+def threading_layer() -> str:
+    """numba's threading layer (``"omp"``, ``"tbb"`` or ``"workqueue"``), or ``"none yet"`` before the
+    first parallel kernel ran: how a parallel loop's chunks are scheduled depends on it, so a thread
+    profile records it (docs/workstation.md)."""
+    try:
+        return str(numba.threading_layer())
+    except ValueError:  # no parallel kernel has run in this process
+        return "none yet"
+
+
 def phase_table(title: str, samples: dict[int, list[dict[str, float]]], effective: Sequence[int],
                 phases: Sequence[str], total: str) -> tuple[dict[str, Any], list[str]]:
     """Per-phase medians, speed-ups, serial fractions and the 16-thread projection.
@@ -115,7 +127,8 @@ def phase_table(title: str, samples: dict[int, list[dict[str, float]]], effectiv
     Returns
     -------
     fields : dict
-        JSON-ready: ``threads`` (requested), ``threads_effective``, ``load_1min``, and per row
+        JSON-ready: ``threads`` (requested), ``threads_effective``, ``load_1min``,
+        ``threading_layer`` (numba's), and per row
         (each phase and ``total``) ``ms`` (median per count), ``share`` (of the first count's total),
         ``speedup`` (first count over second), ``speedup_vs_first`` (per count), ``serial`` (Amdahl
         fraction from those two) and ``projected_<PROJECT_TO>t`` (Amdahl's speed-up at that many
@@ -142,8 +155,10 @@ def phase_table(title: str, samples: dict[int, list[dict[str, float]]], effectiv
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     head = "".join(f"{f'{n}t ms':>10s}" for n in counts)
     last = f"x at {counts[-1]}t" if len(counts) > 2 else ""
-    lines = [f"{title} (1-min load {load:.2f}; medians; the {PROJECT_TO}-thread column is an Amdahl "
-             f"projection from the {effective[0]}- and {effective[1]}-thread times, not a measurement)",
+    layer = threading_layer()
+    lines = [f"{title} (1-min load {load:.2f}; numba threading layer {layer}; medians; the {PROJECT_TO}-thread "
+             f"column is an Amdahl projection from the {effective[0]}- and {effective[1]}-thread times, "
+             "not a measurement)",
              f"{'phase':14s}{head}{'share':>8s}{'speed-up':>10s}{'serial':>8s}{f'{PROJECT_TO}t proj.':>11s}{last:>10s}"]
     for key, row in rows.items():
         cells = "".join(f"{row['ms'][str(n)]:10.2f}" for n in counts)
@@ -152,5 +167,6 @@ def phase_table(title: str, samples: dict[int, list[dict[str, float]]], effectiv
                      + (f"{row['speedup_vs_first'][str(counts[-1])]:9.2f}x" if last else ""))
     if list(effective) != counts:
         lines.append(f"requested threads {counts} ran at {list(effective)} (this machine has {max_threads()})")
-    fields = {"threads": counts, "threads_effective": list(effective), "load_1min": round(load, 2), "phases": rows}
+    fields = {"threads": counts, "threads_effective": list(effective), "load_1min": round(load, 2),
+              "threading_layer": layer, "phases": rows}
     return fields, lines

@@ -25,6 +25,11 @@ start_cold, start_warm: a new process that imports wcbench and runs every numba 
    with an empty numba cache, then again with the cache the first run wrote: what a fresh
    install's first render waits for, and what every later process pays.
 
+Set ``WCBENCH_BENCH_RASTER_GROUPS`` to run some of the groups ``speed,profile,start`` (default all):
+``speed`` the cases a to d, ``profile`` the per-phase profiles (case b's Gaussians, built without
+timing its fast path against the twin), ``start`` the cold and warm starts; the workstation check
+(docs/workstation.md) runs the profiles alone.
+
 Per case: forward and backward wall time of the fast path (median over repeats after a warm-up)
 and of the pure-torch twin (one run), the Gaussian-pixel pairs evaluated, ns per pair, the
 speed-up over the twin, the fraction of the compiled-kernel floor of docs/design.md §8 reached, and the
@@ -52,6 +57,7 @@ import torch
 
 from wcbench.bench.phases import parse_threads, phase_table, run_interleaved
 from wcbench.bench.schema import BenchCase, BenchReport
+from wcbench.core.errors import InputError
 from wcbench.reference_model.raster.kernels import RenderJob
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.raster.torch_twin import rasterize_torch
@@ -66,6 +72,8 @@ REAL_SIZE = (480, 270)
 #: Channels of the default training's weather step (four weathers' RGB and three hazes).
 WEATHER_STEP_CHANNELS = 15
 VOXEL_M = 0.15
+#: The case groups of ``WCBENCH_BENCH_RASTER_GROUPS`` (default all).
+GROUPS = ("speed", "profile", "start")
 
 
 def _params(means: np.ndarray, quats: np.ndarray, scales: np.ndarray, opac: np.ndarray,
@@ -379,6 +387,10 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False, threads: str | l
     BenchReport
         Suite ``"raster"``; one case per workload with the fields listed in the module docstring.
     """
+    groups = set(os.environ.get("WCBENCH_BENCH_RASTER_GROUPS", ",".join(GROUPS)).split(","))
+    if groups - set(GROUPS):
+        raise InputError(f"WCBENCH_BENCH_RASTER_GROUPS: unknown groups {sorted(groups - set(GROUPS))}; "
+                         f"known: {', '.join(GROUPS)}")
     counts = parse_threads(threads)
     report = BenchReport(suite="raster")
     repeats = 1 if quick else 5
@@ -393,16 +405,16 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False, threads: str | l
     report.notes.append(
         "floor_fraction: docs/design.md §8 floor (4 ms fwd / 10 ms bwd per 6M pairs) divided by the measured time")
 
-    # (d) first, so that the growth of the process's max RSS is the case's own peak.
-    n_d, size_d = (30_000, (320, 180)) if quick else (1_000_000, (1920, 1080))
-    report.cases.append(_case_memory(f"d_random_{n_d // 1000}k_{size_d[0]}x{size_d[1]}",
-                                     _random_cloud(n_d, *size_d, seed=3), repeats=repeats))
-    report.notes.append("case d: peak_mb = growth of the process's max RSS (resource.ru_maxrss) over the forward "
-                        "calls; peak_mb_tracemalloc = numpy allocations traced by tracemalloc")
-
-    n_a, size_a = (2_000, (160, 90)) if quick else (20_000, (320, 180))
-    report.cases.append(_case(f"a_random_{n_a // 1000}k", _random_cloud(n_a, *size_a, seed=0), repeats=repeats,
-                              with_twin=True))
+    if "speed" in groups:
+        # (d) first, so that the growth of the process's max RSS is the case's own peak.
+        n_d, size_d = (30_000, (320, 180)) if quick else (1_000_000, (1920, 1080))
+        report.cases.append(_case_memory(f"d_random_{n_d // 1000}k_{size_d[0]}x{size_d[1]}",
+                                         _random_cloud(n_d, *size_d, seed=3), repeats=repeats))
+        report.notes.append("case d: peak_mb = growth of the process's max RSS (resource.ru_maxrss) over the "
+                            "forward calls; peak_mb_tracemalloc = numpy allocations traced by tracemalloc")
+        n_a, size_a = (2_000, (160, 90)) if quick else (20_000, (320, 180))
+        report.cases.append(_case(f"a_random_{n_a // 1000}k", _random_cloud(n_a, *size_a, seed=0),
+                                  repeats=repeats, with_twin=True))
 
     spec, why = _real_scene(data_root, 20_000 if quick else None)
     if spec is None:
@@ -420,27 +432,32 @@ def run(*, data_root: pathlib.Path | None, quick: bool = False, threads: str | l
     if quick:
         spec["size"] = (240, 135)
         spec["K"] = np.array(spec["K"]) * np.array([[0.5], [0.5], [1.0]])
-    report.cases.append(_case(name, spec, repeats=repeats, with_twin=True))
-    rgb = report.cases[-1]
-    # The training's weather step: four weathers' RGB and three hazes' transmittance in one pass.
-    m, q, s, o, c = spec["params"]
-    extra = torch.rand((len(c), WEATHER_STEP_CHANNELS - 3), generator=torch.Generator().manual_seed(4))
-    wide = {**spec, "params": [p.detach().clone().requires_grad_(True) for p in (m, q, s, o)]
-            + [torch.cat([c.detach(), extra], 1).requires_grad_(True)]}
-    case = _case(f"{name}_{WEATHER_STEP_CHANNELS}ch", wide, repeats=repeats, with_twin=False)
-    case.extra.update(fwd_vs_rgb=round(case.extra["fwd_ms"] / rgb.extra["fwd_ms"], 3),
-                      bwd_vs_rgb=round(case.extra["bwd_ms"] / rgb.extra["bwd_ms"], 3))
-    report.cases.append(case)
-    report.notes.append(f"case {case.name}: case b's Gaussians with {WEATHER_STEP_CHANNELS} channels (a training "
-                        "weather step: four weathers' RGB and three hazes); fwd_vs_rgb / bwd_vs_rgb: its times over "
-                        "case b's, measured in this run")
-    profiles, table = _profile_cases(spec, name.split("_")[0], counts, quick=quick)
-    report.cases += profiles
-    report.notes += table
+    if "speed" in groups:
+        report.cases.append(_case(name, spec, repeats=repeats, with_twin=True))
+        rgb = report.cases[-1]
+        # The training's weather step: four weathers' RGB and three hazes' transmittance in one pass.
+        m, q, s, o, c = spec["params"]
+        extra = torch.rand((len(c), WEATHER_STEP_CHANNELS - 3), generator=torch.Generator().manual_seed(4))
+        wide = {**spec, "params": [p.detach().clone().requires_grad_(True) for p in (m, q, s, o)]
+                + [torch.cat([c.detach(), extra], 1).requires_grad_(True)]}
+        case = _case(f"{name}_{WEATHER_STEP_CHANNELS}ch", wide, repeats=repeats, with_twin=False)
+        case.extra.update(fwd_vs_rgb=round(case.extra["fwd_ms"] / rgb.extra["fwd_ms"], 3),
+                          bwd_vs_rgb=round(case.extra["bwd_ms"] / rgb.extra["bwd_ms"], 3))
+        report.cases.append(case)
+        report.notes.append(f"case {case.name}: case b's Gaussians with {WEATHER_STEP_CHANNELS} channels (a training "
+                            "weather step: four weathers' RGB and three hazes); fwd_vs_rgb / bwd_vs_rgb: its times "
+                            "over case b's, measured in this run")
+    if "profile" in groups:
+        profiles, table = _profile_cases(spec, name.split("_")[0], counts, quick=quick)
+        report.cases += profiles
+        report.notes += table
 
-    n_c, size_c = (4_000, (240, 135)) if quick else (40_000, REAL_SIZE)
-    report.cases.append(_case(f"c_rain_{n_c // 1000}k", _rain(n_c, *size_c, seed=2), repeats=repeats,
-                              with_twin=True))
+    if "speed" in groups:
+        n_c, size_c = (4_000, (240, 135)) if quick else (40_000, REAL_SIZE)
+        report.cases.append(_case(f"c_rain_{n_c // 1000}k", _rain(n_c, *size_c, seed=2), repeats=repeats,
+                                  with_twin=True))
+    if "start" not in groups:
+        return report
     if quick:
         report.notes.append("start_cold / start_warm: not run by --quick (a cold start compiles for over a minute)")
         return report

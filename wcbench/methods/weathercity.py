@@ -363,7 +363,9 @@ class WeatherCityMethod(FrameRenderer):
 
         :meth:`prepare` calls it after training; benchmarks hand in a model they trained themselves.
         """
-        self._model, self._facts = model, facts
+        # the renderer's scene rows, sky and particles are numpy: a model trained on a GPU comes back
+        # to the CPU, and only the rasterizer runs on self.device (docs/workstation.md)
+        self._model, self._facts = model.to("cpu"), facts
         self._scene_key = (scene.id, str(scene.root))
         self._ego = None
         self._centers = np.stack([f.camera.center for f in scene.frames])

@@ -126,3 +126,29 @@ def test_an_unknown_or_unavailable_device_is_refused_in_one_line(monkeypatch):
     problem = device_problem("cuda")
     assert problem is not None and "\n" not in problem
     assert "gsplat" in problem or "CUDA" in problem
+
+
+@pytest.mark.cuda  # run by tools/workstation_check.sh on a lent GPU machine; skipped without one
+def test_a_training_on_cuda_follows_the_cpu_and_comes_back_evaluable(demo_scene, demo_views):
+    # The whole step on the GPU (gsplat, the torch twins of SSIM and the sky) against the CPU's numba
+    # step from the same model: the first losses agree to the rasterizers' float differences (gsplat's
+    # images are within 1e-3 of ours, tests/reference_model/raster/test_gsplat_agreement.py), later
+    # ones drift apart as the parameters do. Every tensor the step meets must be on the model's device.
+    from wcbench.reference_model.training.trainer import evaluate_views
+
+    problem = device_problem("cuda")
+    if problem is not None:
+        pytest.skip(problem)
+    config = make_config("quick", width=SIZE[0], iterations=4, voxel_m=0.4, far_points=False)
+    cpu = Trainer(build_model(demo_scene, demo_views, config, weathers=("clear", "rain"))[0], demo_views, config)
+    gpu = Trainer(build_model(demo_scene, demo_views, config, weathers=("clear", "rain"))[0], demo_views, config,
+                  device="cuda")
+    assert next(gpu.model.parameters()).device.type == "cuda"
+    a, b = cpu.train(), gpu.train()
+    assert all(np.isfinite(log.loss) for log in b)
+    np.testing.assert_allclose(b[0].loss, a[0].loss, rtol=1e-2)
+    held = evaluate_views(gpu.model, demo_views[:2])  # on the GPU, gsplat chosen by the model's device
+    assert np.isfinite(held["mean_psnr"])
+    gpu.model.to("cpu")
+    back = evaluate_views(gpu.model, demo_views[:2])  # back on the CPU: numba, the same images to 1e-3
+    assert abs(back["mean_psnr"] - held["mean_psnr"]) < 0.05
