@@ -42,8 +42,10 @@ if [[ -z "${SKIP_INSTALL:-}" ]]; then  # SKIP_INSTALL=1: the environment as it i
     # its OpenCV lacks the contrib modules (the 69 MB wheel does not travel): the guided filter's fallback
     "$PY" -c "import cv2; cv2.ximgproc" 2>/dev/null || cp tools/ximgproc_fallback.py "$SITE/sitecustomize.py"
     # gsplat's extension as an earlier call built it (carry .gsplat too): no build; ImportError -> build
+    # (then nothing runs beside the build step, and the numba kernels compile in the first training's
+    # preparation, which the training's time leaves out)
     if [[ -f .gsplat/gsplat_cuda.so.xz ]]; then
-        export WCBENCH_GSPLAT_SO=/tmp/gsplat_cuda.so
+        export WCBENCH_GSPLAT_SO=/tmp/gsplat_cuda.so WARM=${WARM:-0}
         xz -dc .gsplat/gsplat_cuda.so.xz > "$WCBENCH_GSPLAT_SO" && cp tools/gsplat_prebuilt.py "$SITE/gsplat/csrc.py"
     fi
 fi
@@ -71,7 +73,8 @@ PY
 
 # gsplat's CUDA build (or the prebuilt one's load) in the foreground; beside it, numba compiles our
 # kernels (cached beside the package) and a one-step CPU training compiles those of the scene analysis
-# and the editor, so that no later step's time includes a compilation (WARM=0: not beside it)
+# and the editor, so that no later step's time includes a compilation (WARM=0: not beside it; the default
+# when the prebuilt extension travels)
 train=(-m wcbench train --scenes pandaset_002 --data-root "$DATA" --holdout 5,15,25)
 run build 300 bash -c '[[ ${WARM:-1} == 0 ]] || { "$0" -m wcbench compile > "$1/warm.txt" 2>&1 && \
     "$0" "${@:2}" --method-option settings.iterations=1 --out "$1/warm" >> "$1/warm.txt" 2>&1; } &

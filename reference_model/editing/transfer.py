@@ -296,8 +296,8 @@ def placed_objects(edits: Sequence[Edit], target: WeatherCityModel, *, n_frames:
             where = f"scene {edit.scene!r}" if edit.scene is not None else "this scene"
             nodes = sorted(o.track_id for o in source.objects().values())
             raise ValueError(f"edit {edit.to_json()}: track {edit.ids[0]!r} is not an object node of {where}'s model "
-                             f"(nodes: {', '.join(nodes) or 'none'}; a parked car is one with "
-                             "settings.static_nodes=true)")
+                             f"(nodes: {', '.join(nodes) or 'none'}; a parked car is one unless "
+                             "settings.static_nodes=false)")
         obj = found[0]
         fit: dict[str, Any] = {"carried": False}
         features = obj.gaussians.features.detach()

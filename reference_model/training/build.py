@@ -3,8 +3,8 @@
 - Background: Gaussians from the lidar of the training frames (voxel-downsampled, colored by their
   own frame), plus sparse far Gaussians along the rays of pixels no lidar return reaches, so that
   distant structure exists; Gaussians outside every training frustum are dropped.
-- One rigid node per boxed track, moving or not (``static_nodes``; off, tracks that do not move
-  stay in the background), its lidar returns cut out of the background, so that every object the
+- One rigid node per boxed track, moving or not (``static_nodes``, on by default; off, tracks that
+  do not move stay in the background), its lidar returns cut out of the background, so that every object the
   scene ships a box for can be edited; tracks of deformable classes (pedestrians, cyclists) become
   non-rigid nodes. A node type with no object is not built, and its code never runs.
 - Under each node's box, where no lidar return saw the ground, opaque flat Gaussians on the fitted
