@@ -4,6 +4,8 @@ guided filter (and OpenCV's where OpenCV's is) (docs/workstation.md)."""
 from __future__ import annotations
 
 import importlib.util
+import json
+import os
 import shutil
 import subprocess
 import sys
@@ -100,3 +102,33 @@ def test_the_exported_sky_masks_are_what_the_analysis_then_reads(pandaset_root, 
     shipped = analyse_scene(load_scene(scene_dir), log=None)  # the workstation's path: no cv2.ml needed
     assert shipped.sky.facts["source"] == "shipped sky masks"
     np.testing.assert_array_equal(shipped.sky.masks, segmented.sky.masks)
+
+
+def _step_profile(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(TOOLS / "gpu_step_profile.py"), *args], capture_output=True,
+                          text=True, env={**os.environ, "WCBENCH_PROGRESS": "0", "WCBENCH_OFFLINE": "1"})
+
+
+def test_the_step_profile_refuses_bad_options_in_one_line(tmp_path):
+    pytest.importorskip("torch")
+    bad = _step_profile("--data-root", str(tmp_path), "--out", str(tmp_path / "p.json"))
+    assert bad.returncode == 2 and "pandaset_002: no such folder" in bad.stderr
+    bad = _step_profile("--data-root", str(tmp_path), "--steps", "0", "--out", str(tmp_path / "p.json"))
+    assert bad.returncode == 2 and "must be at least 1" in bad.stderr
+    assert not (tmp_path / "p.json").exists()
+
+
+@pytest.mark.slow  # prepares pandaset_002's training: about 60 s on the shared 2-core machine
+def test_the_step_profile_labels_every_part_of_a_cpu_step(pandaset_root, tmp_path):
+    pytest.importorskip("torch")
+    out = tmp_path / "p.json"
+    done = _step_profile("--data-root", str(pandaset_root.parent), "--device", "cpu", "--warmup", "1", "--steps", "2",
+                         "--record", "2", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    profile = json.loads(out.read_text())
+    assert profile["device"] == "cpu" and profile["gaussians"] > 100_000 and profile["ms_per_step"] > 0
+    parts = profile["parts_host_ms_per_step"]
+    for part in ("render", "rasterizer", "decoders", "sky", "rgb_loss", "backward", "optimizer", "log_transfer"):
+        assert parts[part] > 0, part
+    assert parts["render"] >= parts["rasterizer"] + parts["decoders"]  # nested inside the render
+    assert profile["aten_calls_per_step"] > 100 and profile["launches_per_step"] is None

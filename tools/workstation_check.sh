@@ -3,11 +3,12 @@
 # That machine reaches no package registry: tools/prepare_workstation_wheels.sh fills .whl/ and data/
 # here first, and the device tool carries them (carry: [".whl", "data"]).
 #
-# It writes at most seven files under $OUT (the tool brings back 8; commit the first six under
+# It writes at most eight files under $OUT (the tool brings back 8; commit the first seven under
 # docs/bench/workstation/):
 #   raster.json        bench raster's per-phase profiles (case b at 480x270 and 1920x1080), threads 1,2,4,8,16
 #   model.json         bench model's per-phase profile of a `default` training step, threads 2,4,8,16
 #   train_cuda.json    the `default` profile's whole training of pandaset_002 on the GPU (held-out PSNR)
+#   step_profile.json  where a GPU training step's time goes (tools/gpu_step_profile.py)
 #   train_cpu16.json   a 200-step `default` training on the CPU's 16 threads (its time per step)
 #   train_cuda200.json the same 200 steps on the GPU
 #   log.txt            every step's command, output, exit status and time: gsplat's build time, the
@@ -24,7 +25,7 @@
 # ours beside it, so that no measured step includes a compilation.
 set -uo pipefail
 OUT=${OUT:-docs/bench/workstation}
-ONLY=${ONLY:-build,agreement,train_cuda,raster,model,train_cuda200,train_cpu16,paper}
+ONLY=${ONLY:-build,agreement,train_cuda,step_profile,raster,model,train_cuda200,train_cpu16,paper}
 PY=${PY:-python3}
 SITE=${SITE:-/tmp/site}
 DATA=${DATA:-data}
@@ -75,7 +76,11 @@ PY
 # kernels (cached beside the package) and a one-step CPU training compiles those of the scene analysis
 # and the editor, so that no later step's time includes a compilation (WARM=0: not beside it; the default
 # when the prebuilt extension travels)
-train=(-m wcbench train --scenes pandaset_002 --data-root "$DATA" --holdout 5,15,25)
+# the content loss off: its VGG16 weights (59 MB) do not fit beside the scene in what the device tool
+# carries (64 MB), and a training without them would skip it anyway; the CPU reference it is compared
+# with is trained here the same way (docs/workstation.md)
+train=(-m wcbench train --scenes pandaset_002 --data-root "$DATA" --holdout 5,15,25
+       --method-option settings.content_weight=0)
 run build 300 bash -c '[[ ${WARM:-1} == 0 ]] || { "$0" -m wcbench compile > "$1/warm.txt" 2>&1 && \
     "$0" "${@:2}" --method-option settings.iterations=1 --out "$1/warm" >> "$1/warm.txt" 2>&1; } &
     "$0" -c "import time; t = time.time(); from gsplat.cuda._backend import _C; \
@@ -92,6 +97,8 @@ keep() {  # keep NAME: OUT/NAME/pandaset_002/training.json as OUT/train_NAME.jso
     cp "$OUT/$1/pandaset_002/training.json" "$OUT/train_$1.json" 2>/dev/null; rm -rf "${OUT:?}/$1"
 }
 WCBENCH_PROGRESS=1 run train_cuda 180 "$PY" "${train[@]}" --device cuda --out "$OUT/cuda"; keep cuda
+# where a GPU step's time goes: synchronised ms per step, device busy time, launches, labelled parts
+run step_profile 120 "$PY" tools/gpu_step_profile.py --data-root "$DATA" --device cuda --out "$OUT/step_profile.json"
 WCBENCH_BENCH_RASTER_GROUPS=profile run raster 120 "$PY" -m wcbench bench raster --data-root "$DATA" \
     --threads 1,2,4,8,16 --out "$OUT/raster.json"
 WCBENCH_BENCH_MODEL_GROUPS=profile run model 150 "$PY" -m wcbench bench model --data-root "$DATA" \

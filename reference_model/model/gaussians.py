@@ -16,10 +16,20 @@ from torch import nn
 from wcbench.reference_model.model.decoders import color_logits
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 
-__all__ = ["PARAMETER_NAMES", "GaussianParams"]
+__all__ = ["PARAMETER_NAMES", "GaussianParams", "activate_opacities", "activate_scales"]
 
 #: The per-Gaussian tensors of a node, in checkpoint and optimizer order.
 PARAMETER_NAMES = ("means", "log_scales", "quats", "opacity_logits", "features")
+
+
+def activate_scales(log_scales: torch.Tensor) -> torch.Tensor:
+    """Standard deviations (m) of log-scales [..., 3] (elementwise: nodes may be activated together)."""
+    return torch.exp(log_scales)
+
+
+def activate_opacities(logits: torch.Tensor) -> torch.Tensor:
+    """Opacities in (0, 1) of logits [...] (elementwise)."""
+    return torch.sigmoid(logits)
 
 
 class GaussianParams(nn.Module):
@@ -99,11 +109,11 @@ class GaussianParams(nn.Module):
 
     def scales(self) -> torch.Tensor:
         """[N, 3] standard deviations (m)."""
-        return torch.exp(self.log_scales)
+        return activate_scales(self.log_scales)
 
     def opacities(self) -> torch.Tensor:
         """[N] opacities in (0, 1)."""
-        return torch.sigmoid(self.opacity_logits)
+        return activate_opacities(self.opacity_logits)
 
     def tensors(self) -> dict[str, nn.Parameter]:
         """The parameters by name, in :data:`PARAMETER_NAMES` order."""

@@ -9,6 +9,9 @@ delta_t [N, 3] in the box frame, kept small and smooth in time by the training's
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Sequence
+
 import numpy as np
 import torch
 from torch import nn
@@ -16,7 +19,7 @@ from torch import nn
 from wcbench.reference_model.model.gaussians import GaussianParams
 from wcbench.reference_model.transforms import quat_from_matrix
 
-__all__ = ["NonRigidObject", "RigidObject", "quat_left_matrix", "quat_multiply_torch"]
+__all__ = ["NonRigidObject", "RigidObject", "place_objects", "quat_left_matrix", "quat_multiply_torch"]
 
 
 def quat_multiply_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -90,17 +93,21 @@ class RigidObject(nn.Module):
         self.register_buffer("position", torch.from_numpy(pos))
         self.register_buffer("quat", torch.from_numpy(quat))
         self.register_buffer("quat_left", quat_left_matrix(self.quat), persistent=False)
+        self._present_host = present.copy()
         # a loaded state brings its own poses: derive the matrices again from them
         self.register_load_state_dict_post_hook(_refresh_after_load)  # a named function: picklable
         self.box_size = np.asarray(box_size, np.float64).reshape(3)
 
     def refresh_poses(self) -> None:
-        """Derive ``quat_left`` again after ``quat`` changed (a loaded state, an edit of the track)."""
+        """Derive ``quat_left`` (and the host copy of ``present``) again after the poses changed (a
+        loaded state, an edit of the track)."""
         self.quat_left = quat_left_matrix(self.quat)
+        # read per node and frame: on a GPU, bool() of the buffer would wait for the device's queue
+        self._present_host = self.present.detach().cpu().numpy().copy()
 
     def at(self, frame: int) -> bool:
         """Whether the object exists at ``frame``."""
-        return 0 <= frame < len(self.present) and bool(self.present[frame])
+        return 0 <= frame < len(self._present_host) and bool(self._present_host[frame])
 
     def local_means(self, frame: int) -> torch.Tensor:
         """[N, 3] box-frame centres at ``frame`` (the learned ones; deformed for non-rigid objects)."""
@@ -115,6 +122,51 @@ class RigidObject(nn.Module):
         means = torch.addmm(p, self.local_means(frame), R.T)
         quats = self.gaussians.quats @ self.quat_left[frame].T
         return means, quats
+
+
+@functools.lru_cache(maxsize=16)
+def _row_nodes(counts: tuple[int, ...], device: str) -> torch.Tensor:
+    """[sum(counts)] int64: the index of the node each row belongs to (cached: the counts change only
+    when densification does)."""
+    rows = np.repeat(np.arange(len(counts)), counts)
+    return torch.from_numpy(rows).to(device)
+
+
+def place_objects(objects: Sequence[tuple[RigidObject, torch.Tensor | None]], frame: int, *,
+                  batched: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """World centres [M, 3] and rotations [M, 4] of several objects at ``frame``, concatenated in order.
+
+    Parameters
+    ----------
+    objects : sequence of (RigidObject, Tensor [3] or None)
+        Objects present at ``frame`` and the world translation (m) added to each one's pose (edits).
+    frame : int
+    batched : bool
+        ``False``: :meth:`RigidObject.world` per object, two small products each (fastest on a CPU).
+        ``True``: one batched product for all of them, a few kernels however many objects there are:
+        a GPU step is bound by its kernel launches, two per object forward and more backward
+        (docs/workstation.md). The two agree within float32 rounding (the products' sums are ordered
+        differently); tests compare them.
+
+    Returns
+    -------
+    means : Tensor [M, 3]
+    quats : Tensor [M, 4]
+    """
+    if not objects:
+        raise ValueError("no objects to place")
+    if not batched:
+        placed = [obj.world(frame, offset) for obj, offset in objects]
+        return torch.cat([m for m, _ in placed]), torch.cat([q for _, q in placed])
+    local = torch.cat([obj.local_means(frame) for obj, _ in objects])
+    quats = torch.cat([obj.gaussians.quats for obj, _ in objects])
+    rotation = torch.stack([obj.rotation[frame] for obj, _ in objects])  # [K, 3, 3]
+    position = torch.stack([obj.position[frame] if offset is None else obj.position[frame] + offset
+                            for obj, offset in objects])  # [K, 3]
+    left = torch.stack([obj.quat_left[frame] for obj, _ in objects])  # [K, 4, 4]
+    rows = _row_nodes(tuple(len(obj.gaussians) for obj, _ in objects), str(local.device))
+    means = torch.baddbmm(position[rows, :, None], rotation[rows], local[:, :, None])[..., 0]
+    return means, torch.bmm(left[rows], quats[:, :, None])[..., 0]
 
 
 class NonRigidObject(RigidObject):

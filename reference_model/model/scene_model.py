@@ -24,9 +24,9 @@ import torch
 from torch import nn
 
 from wcbench.reference_model.model.decoders import WeatherDecoders
-from wcbench.reference_model.model.gaussians import GaussianParams
+from wcbench.reference_model.model.gaussians import GaussianParams, activate_opacities, activate_scales
 from wcbench.reference_model.model.haze import Haze, compose_haze, haze_transmittance, hazy_weathers
-from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
+from wcbench.reference_model.model.objects import NonRigidObject, RigidObject, place_objects
 from wcbench.reference_model.model.sky import SkyModel
 from wcbench.reference_model.raster.rasterizer import rasterize
 
@@ -144,6 +144,10 @@ class WeatherCityModel(nn.Module):
         self.nonrigid = nn.ModuleList(nonrigid)
         self.decoders = decoders
         self.sky = sky
+        #: How :meth:`frame_gaussians` places the objects (:func:`.objects.place_objects`): ``None``,
+        #: batched on a CUDA device (a GPU step is bound by its kernel launches) and object by object
+        #: elsewhere (faster on a CPU); ``True`` / ``False`` force one (tools/gpu_step_profile.py).
+        self.batched_placement: bool | None = None
 
     @property
     def weathers(self) -> tuple[str, ...]:
@@ -204,45 +208,50 @@ class WeatherCityModel(nn.Module):
         """
         place = placement or Placement()
         means_device = self.background.means.device
-        parts: list[tuple[str, torch.Tensor, torch.Tensor, GaussianParams]] = []
-        if BACKGROUND not in place.hidden:
-            bg = self.background
-            parts.append((BACKGROUND, bg.means, bg.quats, bg))
         objects = self.objects()
         instances: list[tuple[str, np.ndarray | None]] = [
             (key, place.offsets.get(key)) for key in objects if key not in place.hidden
         ]
         instances += [(key, np.asarray(offset)) for key, offset in place.copies]
+        placed: list[tuple[str, RigidObject, torch.Tensor | None]] = []
         for key, offset in instances:
             if key not in objects:
                 raise KeyError(f"no node {key!r}; nodes: {sorted(objects)}")
             obj = objects[key]
-            if not obj.at(frame):
-                continue
-            off = None if offset is None else torch.as_tensor(np.asarray(offset, np.float32), device=means_device)
-            means, quats = obj.world(frame, off)
-            parts.append((key, means, quats, obj.gaussians))
+            if obj.at(frame):
+                off = None if offset is None else torch.as_tensor(np.asarray(offset, np.float32), device=means_device)
+                placed.append((key, obj, off))
+        parts: list[tuple[str, GaussianParams]] = []
+        means: list[torch.Tensor] = []
+        quats: list[torch.Tensor] = []
+        if BACKGROUND not in place.hidden:
+            parts.append((BACKGROUND, self.background))
+            means.append(self.background.means)
+            quats.append(self.background.quats)
+        if placed:
+            batched = self.batched_placement if self.batched_placement is not None else means_device.type == "cuda"
+            m, q = place_objects([(obj, off) for _, obj, off in placed], frame, batched=batched)
+            parts += [(key, obj.gaussians) for key, obj, _ in placed]
+            means.append(m)
+            quats.append(q)
         segments, start = [], 0
-        for key, means, _, _ in parts:
-            segments.append((key, start, start + int(means.shape[0])))
-            start += int(means.shape[0])
-        nodes = {key: params for key, _, _, params in parts}
+        for key, params in parts:
+            segments.append((key, start, start + len(params)))
+            start += len(params)
+        nodes = dict(parts)
         if not parts:
             empty = GaussianParams.empty(self.background.feature_dim, self.sky.basis.device)
-            parts.append((BACKGROUND, empty.means, empty.quats, empty))
-            nodes = {BACKGROUND: empty}
+            parts, means, quats, nodes = [(BACKGROUND, empty)], [empty.means], [empty.quats], {BACKGROUND: empty}
             activated = None
-        keys = [key for key, _, _, _ in parts]
-        if activated is None or not all(key in activated for key in keys):
-            activated = {key: (params.scales(), params.opacities()) for key, _, _, params in parts}
-        return FrameGaussians(
-            means=torch.cat([p[1] for p in parts]),
-            quats=torch.cat([p[2] for p in parts]),
-            scales=torch.cat([activated[key][0] for key in keys]),
-            opacities=torch.cat([activated[key][1] for key in keys]),
-            segments=segments,
-            nodes=nodes,
-        )
+        keys = [key for key, _ in parts]
+        if activated is not None and all(key in activated for key in keys):
+            scales = torch.cat([activated[key][0] for key in keys])
+            opacities = torch.cat([activated[key][1] for key in keys])
+        else:  # once on the concatenation: elementwise, node by node's values (sigmoid's to 1 ulp)
+            scales = activate_scales(torch.cat([params.log_scales for _, params in parts]))
+            opacities = activate_opacities(torch.cat([params.opacity_logits for _, params in parts]))
+        return FrameGaussians(means=torch.cat(means), quats=torch.cat(quats), scales=scales, opacities=opacities,
+                              segments=segments, nodes=nodes)
 
     def activated(self) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
         """Each node's scales [n, 3] (m) and opacities [n], detached (for :meth:`frame_gaussians`)."""

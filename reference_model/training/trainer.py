@@ -19,6 +19,7 @@ same next step (:mod:`.checkpoint`).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -299,25 +300,27 @@ class Trainer:
             target = torch.where(tv.ignore[..., None], render.images.detach(), target)
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
         terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
-        logged: dict[str, float] = {f"rgb_{w}": float(x) for w, x in zip(weathers, per_weather.detach())}
+        # the logged terms stay on the device until the step's end: one host transfer per step (on a GPU
+        # each float() would wait for the queue to drain)
+        logged: dict[str, torch.Tensor] = {f"rgb_{w}": x for w, x in zip(weathers, per_weather.detach())}
         if self._content_step(it) and self.content is not None:
             cc = self.content(render.images[..., 3:], v.frame, tv.targets["clear"], tv.non_sky)
             terms.append((cfg.content_weight, cc))
-            logged["content"] = float(cc.detach())
+            logged["content"] = cc.detach()
         if want_depth:
             assert render.depth is not None and tv.depth is not None
             d = depth_l1(render.depth, tv.depth)
             terms.append((cfg.depth_weight, d))
-            logged["depth"] = float(d.detach())
+            logged["depth"] = d.detach()
         if cfg.opacity_weight > 0:
             o = opacity_loss(render.alpha, tv.sky, solid=cfg.opacity_solid, lidar=tv.solid,
                              lidar_weight=cfg.opacity_lidar)
             terms.append((cfg.opacity_weight, o))
-            logged["opacity"] = float(o.detach())
+            logged["opacity"] = o.detach()
         if self.model.nonrigid and cfg.deform_weight > 0:
             pen = torch.stack([obj.deformation_penalty() for obj in self.model.nonrigid_objects()]).sum()
             terms.append((cfg.deform_weight, pen))
-            logged["deform"] = float(pen.detach())
+            logged["deform"] = pen.detach()
         loss = weighted_sum(terms)
         marks.append(("losses", time.perf_counter()))
         loss.backward()
@@ -333,7 +336,10 @@ class Trainer:
             self.densify()
         marks.append(("densify", time.perf_counter()))
         with torch.no_grad():
-            quality = psnr(render.image("clear").detach(), tv.targets["clear"])
+            mse = (render.image("clear").detach() - tv.targets["clear"]).double().square().mean()
+        loss_value, mse_value, *term_values = torch.stack(
+            [loss.detach().double(), mse, *(t.double() for t in logged.values())]).tolist()
+        quality = 10.0 * math.log10(1.0 / mse_value) if mse_value > 0 else float("inf")
         end = time.perf_counter()
         marks.append(("log", end))
         seconds = end - start
@@ -342,7 +348,8 @@ class Trainer:
         for name, t in marks:
             phases[name] = 1e3 * (t - prev)
             prev = t
-        log = StepLog(step=it, frame=v.frame, loss=float(loss.detach()), terms=logged, psnr_clear=quality,
+        log = StepLog(step=it, frame=v.frame, loss=loss_value, terms=dict(zip(logged, term_values)),
+                      psnr_clear=quality,
                       gaussians=self.model.counts()["total"], seconds=seconds, phase_ms=phases,
                       raster_ms=dict(render.raster.meta.get("phase_ms", {})))
         self.history.append(log)

@@ -30,6 +30,7 @@ import numpy as np
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_uint8
 from wcbench.core.options import Option
+from wcbench.core.progress import progress
 from wcbench.core.weathers import WEATHERS
 from wcbench.methods.protocol import MethodInfo
 from wcbench.methods.runnable import FrameRenderer, size_option
@@ -79,7 +80,7 @@ def raw_frame(scene: Scene, index: int, size: tuple[int, int]) -> np.ndarray:
 
 
 def edit_scene(scene: Scene, weathers: dict[str, Weather], size: tuple[int, int], *,
-               editor: WeatherEditor | None = None
+               editor: WeatherEditor | None = None, show_progress: bool = True
                ) -> tuple[dict[str, list[np.ndarray]], dict[str, Any], dict[str, float]]:
     """Every frame of ``scene`` edited into each of ``weathers`` at ``size`` (WeatherCity's supervision).
 
@@ -92,6 +93,9 @@ def edit_scene(scene: Scene, weathers: dict[str, Weather], size: tuple[int, int]
         (width, height) of the frames.
     editor : WeatherEditor, optional
         One already built for ``scene``.
+    show_progress : bool
+        Count the frames with their time left on stderr (:func:`~wcbench.core.progress.progress`): at
+        a scene's native size (the ``paper`` training profile) the edits take minutes.
 
     Returns
     -------
@@ -111,7 +115,9 @@ def edit_scene(scene: Scene, weathers: dict[str, Weather], size: tuple[int, int]
     editor = editor or WeatherEditor(scene)
     frames: dict[str, list[np.ndarray]] = {w: [] for w in weathers}
     start = time.perf_counter()
-    for k in range(len(scene)):
+    desc = f"editing {scene.id} into {', '.join(weathers)} at {size[0]}x{size[1]}"
+    frames_done = progress(range(len(scene)), desc=desc, enabled=show_progress and bool(weathers), unit="frame")
+    for k in frames_done:
         camera = scale_camera(scene.frames[k].camera, *size)
         raw = raw_frame(scene, k, size)
         for kind, weather in weathers.items():

@@ -98,15 +98,16 @@ def check_supervision(spec: str, jitter: float) -> float | None:
 
 
 def supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitter: float, seed: int, *,
-                        physics: Mapping[str, Weather] | None = None, size: tuple[int, int] | None = None
-                        ) -> tuple[dict[str, list[np.ndarray]], dict[str, Any]]:
+                        physics: Mapping[str, Weather] | None = None, size: tuple[int, int] | None = None,
+                        show_progress: bool = True) -> tuple[dict[str, list[np.ndarray]], dict[str, Any]]:
     """Edited frames per weather from ``spec`` (``physical-editor``, ``filter2d``, ``sim-editor[:SEVERITY]``
     or ``READER:DIR``) and a record of them, each weather checked against the run's ``physics``.
 
     The record's ``weather_check`` says per weather how the supervision's weather relates to the
     physics: ``"consistent"`` (made from the same spec, or recorded and equal) or
     ``"unverified: ..."`` (``filter2d``'s rain and snow, which have no rate; a folder that records
-    no weather). A recorded contradiction is refused.
+    no weather). A recorded contradiction is refused. ``show_progress``: count the physical editor's
+    frames on stderr.
 
     Raises
     ------
@@ -119,7 +120,7 @@ def supervision_frames(scene: Scene, spec: str, weathers: tuple[str, ...], jitte
     edited = {w: physics[w] for w in weathers if w in physics}
     if spec == PHYSICAL_EDITOR:
         check_supervision(spec, jitter)
-        frames_f, record, timings = edit_scene(scene, edited, size)
+        frames_f, record, timings = edit_scene(scene, edited, size, show_progress=show_progress)
         record["weather_check"] = {w: "consistent: edited with the run's physics" for w in edited}
         record["timings"] = timings  # dropped from the training's key (:func:`train_scene`)
         return {w: list(v) for w, v in frames_f.items()}, record
@@ -267,10 +268,11 @@ class TrainingInputs:
 
 def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = PHYSICAL_EDITOR, jitter: float = 0.0,
                     weathers: tuple[str, ...] = ("rain", "snow", "fog"),
-                    physics: Mapping[str, Weather] | None = None) -> TrainingInputs:
+                    physics: Mapping[str, Weather] | None = None, show_progress: bool = True) -> TrainingInputs:
     """The views (raw frames, edits of every supervised weather, lidar depth, sky and object masks)
     of ``scene`` at ``config``'s training size, and the haze of each weather's physics (``physics``;
-    the kind's default weather where it has none).
+    the kind's default weather where it has none); ``show_progress``: count the edited frames (the
+    physical editor's) on stderr.
 
     Raises
     ------
@@ -280,7 +282,7 @@ def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = PHY
     size = config.size_for(scene.image_size)
     physics = dict(physics) if physics is not None else resolve_physics(scene, "presets")
     frames, sup_record = supervision_frames(scene, supervision, weathers, jitter, config.seed, physics=physics,
-                                             size=size)
+                                             size=size, show_progress=show_progress)
     trained = ("clear", *[w for w in weathers if w in frames])
     views, view_facts = build_views(scene, size=size, supervision={w: frames[w] for w in trained if w != "clear"},
                                     solid=config.opacity_lidar > 0)
@@ -479,7 +481,7 @@ def _train(scene: Scene, config: TrainConfig, *, supervision: str, jitter: float
     from the checkpoint of its model key): :func:`train_scene` without the request's record.
     ``start``: when the call began (``time.perf_counter``); ``waited_s``: seconds it waited before."""
     inputs = training_inputs(scene, config, supervision=supervision, jitter=jitter, weathers=weathers,
-                             physics=physics)
+                             physics=physics, show_progress=show_progress)
     views, trained = inputs.views, inputs.trained
     content_loss, content_note = content
     made = {k: v for k, v in inputs.supervision.items() if k != "timings"}  # what makes the frames, not how fast

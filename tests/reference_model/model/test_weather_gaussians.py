@@ -171,6 +171,7 @@ def test_keep_only_and_except_select_by_id_and_class():
 def test_an_object_absent_at_a_frame_is_not_rendered():
     model = wm.make_model()
     model.rigid[0].present[2] = False
+    model.rigid[0].refresh_poses()  # the host copy that at() reads
     g = model.frame_gaussians(2)
     assert [s[0] for s in g.segments] == ["background"]
     assert len(g) == len(model.background)
@@ -259,6 +260,7 @@ def test_fixed_rows_hold_each_frames_gaussians_and_render_the_same_image(placeme
 
     model = wm.make_model()
     model.rigid[0].present[2] = False
+    model.rigid[0].refresh_poses()  # the host copy that at() reads
     with torch.no_grad():
         model.background.opacity_logits += torch.linspace(-1, 1, len(model.background))
         colors = {key: model.decoders(p.features, ["rain"]) for key, p in model.nodes().items()}
@@ -287,3 +289,57 @@ def test_fixed_rows_hold_each_frames_gaussians_and_render_the_same_image(placeme
         torch.testing.assert_close(fast.alpha, slow.alpha, rtol=0, atol=IMAGE_TOL)
     with pytest.raises(ValueError, match="missing"):
         FrameRows(model, {"background": colors["background"]}, placement=placement)
+
+
+def _placed_objects(seed: int) -> list:
+    """Three rigid objects and a deformed one of different sizes, random poses, one moved by an edit."""
+    from scipy.spatial.transform import Rotation
+
+    from wcbench.reference_model.model.gaussians import GaussianParams
+    from wcbench.reference_model.model.objects import NonRigidObject, RigidObject
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for k, n in enumerate((7, 64, 1, 30)):
+        poses = np.tile(np.eye(4), (3, 1, 1))
+        poses[:, :3, :3] = Rotation.random(3, random_state=seed + k).as_matrix()
+        poses[:, :3, 3] = rng.normal(0, 20, (3, 3))
+        params = GaussianParams(*(torch.tensor(rng.normal(size=shape), dtype=torch.float32)
+                                  for shape in ((n, 3), (n, 3), (n, 4), (n,), (n, 8))))
+        cls = NonRigidObject if k == 3 else RigidObject
+        obj = cls(params, track_id=str(k), class_name="Car", frames=np.arange(3), object_to_world=poses,
+                  box_size=np.ones(3), n_frames=3)
+        if k == 3:
+            with torch.no_grad():
+                obj.offsets.normal_(0, 0.1, generator=torch.Generator().manual_seed(seed))
+        out.append((obj, torch.tensor([1.5, -2.0, 0.25]) if k == 1 else None))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_batched_placement_of_objects_equals_the_per_object_one(seed):
+    # place_objects(batched=True), the GPU's path (a few kernels for any number of objects), against
+    # RigidObject.world per object, the CPU's: the same centres, rotations and gradients to float32
+    # rounding (the products' sums run in another order; 1e-5 of coordinates of tens of metres)
+    from wcbench.reference_model.model.objects import place_objects
+
+    objects = _placed_objects(seed)
+    leaves = [t for obj, _ in objects for t in (obj.gaussians.means, obj.gaussians.quats)]
+    leaves.append(objects[3][0].offsets)
+    weights = None
+    results = []
+    for batched in (False, True):
+        means, quats = place_objects(objects, 2, batched=batched)
+        if weights is None:
+            g = torch.Generator().manual_seed(seed)
+            weights = (torch.randn(means.shape, generator=g), torch.randn(quats.shape, generator=g))
+        grads = torch.autograd.grad((means * weights[0]).sum() + (quats * weights[1]).sum(), leaves)
+        results.append((means.detach(), quats.detach(), grads))
+    (m0, q0, g0), (m1, q1, g1) = results
+    assert m0.shape == (102, 3) and q0.shape == (102, 4)
+    torch.testing.assert_close(m1, m0, rtol=0, atol=1e-4)  # |means| ~ 40 m: ~2 float32 ulps
+    torch.testing.assert_close(q1, q0, rtol=0, atol=1e-5)
+    for a, b in zip(g1, g0):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="no objects"):
+        place_objects([], 0, batched=True)
