@@ -363,12 +363,13 @@ class Trainer:
         # thresholds are stated: the same threshold then holds at any resolution
         norm = (g.grad * g.grad.new_tensor([0.5 * width, 0.5 * height])).norm(dim=1)
         visible = (render.raster.radii > 0).all(dim=1)
+        masked, seen = torch.where(visible, norm, 0.0), visible.to(norm.dtype)  # once for every node
         nodes = self.model.nodes()
         for key, start, stop in render.gaussians.segments:
             if key in self.stats:
                 st = self.stats[key]
                 st.ensure(len(nodes[key]), device=norm.device)
-                st.add(norm[start:stop], visible[start:stop])
+                st.add_masked(masked[start:stop], seen[start:stop])
 
     def densify(self) -> dict[str, Any]:
         """Clone, split and prune every densified node within the budget (see :mod:`.densify`)."""
