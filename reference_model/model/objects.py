@@ -142,7 +142,7 @@ def place_objects(objects: Sequence[tuple[RigidObject, torch.Tensor | None]], fr
         Objects present at ``frame`` and the world translation (m) added to each one's pose (edits).
     frame : int
     batched : bool
-        ``False``: :meth:`RigidObject.world` per object, two small products each (fastest on a CPU).
+        ``False``: :meth:`RigidObject.world` per object, two small products each (the CPU's path).
         ``True``: one batched product for all of them, a few kernels however many objects there are:
         a GPU step is bound by its kernel launches, two per object forward and more backward
         (docs/workstation.md). The two agree within float32 rounding (the products' sums are ordered

@@ -146,7 +146,7 @@ class WeatherCityModel(nn.Module):
         self.sky = sky
         #: How :meth:`frame_gaussians` places the objects (:func:`.objects.place_objects`): ``None``,
         #: batched on a CUDA device (a GPU step is bound by its kernel launches) and object by object
-        #: elsewhere (faster on a CPU); ``True`` / ``False`` force one (tools/gpu_step_profile.py).
+        #: elsewhere (as before); ``True`` / ``False`` force one (tools/gpu_step_profile.py).
         self.batched_placement: bool | None = None
 
     @property
