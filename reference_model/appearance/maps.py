@@ -21,6 +21,7 @@ lidar's colours.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -28,7 +29,7 @@ import cv2
 import numpy as np
 import torch
 
-from wcbench.reference_model.appearance.surfaces import SurfaceScene
+from wcbench.reference_model.appearance.surfaces import SurfaceScene, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
@@ -92,11 +93,23 @@ class SurfaceMaps:
     ground_height: float
 
 
+@functools.lru_cache(maxsize=8)
+def _camera_rays(K: bytes, width: int, height: int) -> np.ndarray:
+    """Unit camera-frame rays [H, W, 3] float64 of a camera's pixels (``K`` the bytes of its float64
+    [3, 3] intrinsics), read-only: the same for every frame of a camera, so each frame only turns them."""
+    rays = view_directions(np.eye(4), np.frombuffer(K, np.float64).reshape(3, 3), width, height).astype(np.float64)
+    rays.flags.writeable = False
+    return rays
+
+
 def _rays(camera: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(unit world rays [H, W, 3] of ``camera``'s pixels, the camera depth of each unit ray [H, W]),
-    float64."""
+    """(unit world rays [H, W, 3] of ``camera``'s pixels, float32 values, the camera depth of each
+    unit ray [H, W]), float64: the camera's rays turned by the frame's rotation (a rotation keeps
+    them unit: the same rays as :func:`view_directions` of the pose up to float32 rounding)."""
     c2w = np.asarray(camera.camera_to_world, np.float64)
-    rays = view_directions(c2w, camera.K, int(camera.width), int(camera.height)).astype(np.float64)
+    K = np.ascontiguousarray(camera.K, np.float64)
+    rays = (_camera_rays(K.tobytes(), int(camera.width), int(camera.height)) @ c2w[:3, :3].T)
+    rays = rays.astype(np.float32).astype(np.float64)
     return rays, rays @ c2w[:3, 2]
 
 
@@ -126,14 +139,6 @@ def _slab_interval(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray,
             np.fmin(np.fmin(far[:, 0], far[:, 1]), far[:, 2]))
 
 
-def _in_box(local: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """[N] bool: whether each point of ``local`` [N, 3] (a box's frame) lies within ``half`` [3] of its
-    centre on every axis (three column tests: ``np.all(..., axis=1)`` over three columns costs several
-    times more)."""
-    a = np.abs(local)
-    return (a[:, 0] <= half[0]) & (a[:, 1] <= half[1]) & (a[:, 2] <= half[2])
-
-
 def _slab_hits(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """[N] bool: whether each ray ``origin + t dirs[i]`` (t > 0) meets the axis-aligned box [lo, hi]
     (:func:`_slab_interval`)."""
@@ -145,22 +150,23 @@ def _slab_hits(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndar
 _CUBE = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
 
 
-def _box_misses_view(T: np.ndarray, half: np.ndarray, w2c: np.ndarray, K: np.ndarray, width: int,
-                     height: int) -> bool:
-    """Whether no point of the box (object-to-world ``T`` [4, 4], half-size ``half`` [3], m) with a
-    camera depth over 0.1 m projects into the ``width`` x ``height`` image, judged by its corners: the
-    depth is linear, so all corners at most 0.1 m deep put every point there; a box wholly in
-    front projects into the convex hull of its corners' projections, so all corners past one edge
-    of the image put every point past it. Otherwise ``False`` (it may be seen)."""
-    corners = (_CUBE * half) @ T[:3, :3].T + T[:3, 3]
+def _boxes_miss_view(poses: np.ndarray, halves: np.ndarray, w2c: np.ndarray, K: np.ndarray, width: int,
+                     height: int) -> np.ndarray:
+    """[B] bool: whether no point of each box (object-to-world ``poses`` [B, 4, 4], half-sizes
+    ``halves`` [B, 3], m) with a camera depth over 0.1 m projects into the ``width`` x ``height``
+    image, judged by its corners: the depth is linear, so all corners at most 0.1 m deep put every
+    point there; a box wholly in front projects into the convex hull of its corners' projections,
+    so all corners past one edge of the image put every point past it. Otherwise ``False`` (it may
+    be seen)."""
+    corners = np.einsum("bij,bcj->bci", poses[:, :3, :3], _CUBE[None] * halves[:, None]) + poses[:, None, :3, 3]
     cam = corners @ w2c[:3, :3].T + w2c[:3, 3]
-    if np.all(cam[:, 2] <= 0.1):
-        return True
-    if np.any(cam[:, 2] <= 0.1):
-        return False
-    u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]
-    v = K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
-    return bool(u.max() < 0 or u.min() >= width or v.max() < 0 or v.min() >= height)
+    z = cam[..., 2]
+    behind, front = np.all(z <= 0.1, axis=1), np.all(z > 0.1, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * cam[..., 0] / z + K[0, 2]
+        v = K[1, 1] * cam[..., 1] / z + K[1, 2]
+    outside = (u.max(1) < 0) | (u.min(1) >= width) | (v.max(1) < 0) | (v.min(1) >= height)
+    return behind | (front & outside)
 
 
 def _hull_pixels(hull: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,35 +208,25 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     changed = np.zeros(distance.shape, bool)
     up = np.asarray(surfaces.up, np.float64)
     boxes = surfaces.boxes_at(index)
-    cloud, _ = surfaces.at_frame(index)
-    if not boxes or len(cloud) == 0:
+    if not boxes or len(surfaces.at_frame(index)[0]) == 0:
         return changed
     h, w = distance.shape
     w2c = np.asarray(camera.world_to_camera, np.float64)
     K = np.asarray(camera.K, np.float64)
-    seen_boxes = []
+    poses = np.stack([np.asarray(T, np.float64) for T, _ in boxes])
+    halves = np.stack([np.asarray(size, np.float64) / 2.0 for _, size in boxes])
+    # the camera centre in every box's frame; a camera inside its box (the ego vehicle's own
+    # track) gets no shell, nor a box none of whose points could be drawn: both judged for every
+    # box at once before the neighbour search
+    origins = np.einsum("bji,bj->bi", poses[:, :3, :3], center - poses[:, :3, 3])
+    shown = ~np.all(np.abs(origins) <= halves, axis=1) & ~_boxes_miss_view(poses, halves + 0.1, w2c, K, w, h)
+    poses, halves, origins = poses[shown], halves[shown], origins[shown]
     not_sky = ~sky
-    for T, size in boxes:
-        half = np.asarray(size, np.float64) / 2.0
-        o = T[:3, :3].T @ (center - T[:3, 3])
-        if np.all(np.abs(o) <= half):
-            continue  # the camera inside a box (the ego vehicle's own track): no shell
-        if _box_misses_view(T, half + 0.1, w2c, K, w, h):
-            continue  # none of its points could be drawn: skip the neighbour search
-        seen_boxes.append((T, half, o))
-    # the neighbours of every box that may show, in one query
-    neighbours = surfaces.near(index, np.array([T[:3, 3] for T, _, _ in seen_boxes]).reshape(-1, 3),
-                               np.array([np.linalg.norm(half + 0.1) for _, half, _ in seen_boxes]))
-    for (T, half, o), near in zip(seen_boxes, neighbours):
+    for T, half, o, pts in zip(poses, halves, origins, surfaces.inside_boxes(index, poses, halves + 0.1)):
         R, t = T[:3, :3], T[:3, 3]
-        if near.size < 3:
+        if len(pts) < 3:
             continue
-        pts = np.take(cloud.means, near, axis=0).astype(np.float64)
-        local = (pts - t) @ R
-        inside = _in_box(local, half + 0.1)
-        if np.count_nonzero(inside) < 3:
-            continue
-        cam = np.compress(inside, pts, axis=0) @ w2c[:3, :3].T + w2c[:3, 3]
+        cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
         cam = np.compress(cam[:, 2] > _NEAR_M, cam, axis=0)
         beside = np.any(((_CUBE * half) @ R.T + t) @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
         if len(cam) < (_MIN_BESIDE_RETURNS if beside else 3):
@@ -263,7 +259,7 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         behind = enters & (near + _BOX_SLACK_M < seen) & through_body
         on = np.zeros_like(enters)  # the lidar's surface lies on the object
         finite = enters & np.isfinite(seen)
-        on[finite] = _in_box(o + d[finite] * seen[finite, None], half + _BOX_SLACK_M)
+        on[finite] = in_box(o + d[finite] * seen[finite, None], half + _BOX_SLACK_M)
         on &= ~behind
         hit = behind | on
         if not hit.any():
@@ -369,29 +365,26 @@ def _mirrored_cloud(surfaces: SurfaceScene, index: int, ground_height: float) ->
     not turn)."""
     cloud, attrs = surfaces.at_frame(index)
     up = surfaces.up
-    # the static rows come gathered and their orientations mirrored once
-    # (SurfaceScene.mirrored_static); only the frame's moving ones are gathered and turned here
+    # the static rows come sorted by height and mirrored about the plane through the origin once
+    # (SurfaceScene.mirrored_static): those above this plane are a slice, shifted by twice its
+    # height; only the frame's moving ones are gathered and turned here
     st = surfaces.mirrored_static()
     n_static = len(surfaces.gaussians.static)
+    first = int(np.searchsorted(st.heights, ground_height + 0.05, side="right"))
     moving_keep = n_static + np.flatnonzero(attrs[n_static:, 3] < 0.5)
-    h_static = st.heights - ground_height
-    # the static rows gathered by index (np.take), several times faster than a boolean mask's gather
-    # of the same rows from arrays of 200k
-    above_static = np.flatnonzero(h_static > 0.05)
     moving = cloud.means[moving_keep].astype(np.float64)
     h_moving = moving @ up - ground_height
     above_moving = h_moving > 0.05
-    mirrored = np.concatenate([np.take(st.means, above_static, axis=0)
-                               - 2.0 * np.outer(np.take(h_static, above_static), up),
-                               moving[above_moving] - 2.0 * np.outer(h_moving[above_moving], up)])
+    mirrored = np.concatenate([st.means[first:] + 2.0 * ground_height * np.asarray(up, np.float64),
+                               moving[above_moving] - 2.0 * np.outer(h_moving[above_moving], up)]).astype(np.float32)
     # a surfel's normal is mirrored with it (the isotropic ones do not turn)
     normals = attrs[moving_keep[above_moving], :3].astype(np.float64)
     moving_quats = quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32)
     rows = moving_keep[above_moving]
-    return GaussianCloud(means=mirrored, quats=np.concatenate([np.take(st.quats, above_static, axis=0), moving_quats]),
-                         scales=np.concatenate([np.take(st.scales, above_static, axis=0), cloud.scales[rows]]),
-                         opacities=np.concatenate([np.take(st.opacities, above_static), cloud.opacities[rows]]),
-                         colors=np.concatenate([np.take(st.colors, above_static, axis=0), cloud.colors[rows]]))
+    return GaussianCloud(means=mirrored, quats=np.concatenate([st.quats[first:], moving_quats]),
+                         scales=np.concatenate([st.scales[first:], cloud.scales[rows]]),
+                         opacities=np.concatenate([st.opacities[first:], cloud.opacities[rows]]),
+                         colors=np.concatenate([st.colors[first:], cloud.colors[rows]]))
 
 
 def mirror_distance(surfaces: SurfaceScene, index: int, camera: Any, ground_height: float) -> np.ndarray:
@@ -603,8 +596,8 @@ def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: 
     # the numerator's three channels and the weight blurred as one four-channel image (OpenCV
     # filters each channel alone: the same sums as four separate blurs, in a quarter of the calls)
     across = cv2.GaussianBlur(np.dstack([num, wgt]), (0, 0), sigmaX=sigma_px, sigmaY=1e-3)
-    out = np.zeros_like(num)
-    den_out = np.zeros_like(wgt)
+    # the numerator and the weight accumulated as one four-channel image: one pass a level
+    acc = np.zeros(across.shape, np.float32)
     # stretches 1, 2, 4, 8 and a linear blend in log2 of the stretch between them
     level = np.log2(stretch)
     for i in range(4):
@@ -619,8 +612,8 @@ def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: 
         nd = cv2.GaussianBlur(cv2.resize(across, small, interpolation=cv2.INTER_AREA), (0, 0), sigmaX=1e-3,
                               sigmaY=sigma_px)
         nd = cv2.resize(nd, (num.shape[1], num.shape[0]), interpolation=cv2.INTER_LINEAR)
-        out += nd[..., :3] * share[..., None]
-        den_out += nd[..., 3] * share
+        acc += nd * share[..., None]
+    out, den_out = acc[..., :3], acc[..., 3]
     blurred = out / np.maximum(den_out, 1e-6)[..., None]
     return np.where(den_out[..., None] > 1e-4, blurred, image).astype(np.float32)
 

@@ -49,7 +49,7 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["ATTRIBUTES", "MirroredStatic", "SurfaceScene", "build_surfaces", "lane_paths", "object_sides",
+__all__ = ["ATTRIBUTES", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths", "object_sides",
            "open_to_sky", "pca_normals", "value_noise"]
 
 #: Attribute channels, in order.
@@ -348,6 +348,14 @@ def lane_paths(scene: Any, *, up: np.ndarray, step_m: float = 0.1) -> np.ndarray
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
+def in_box(local: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """[N] bool: whether each point of ``local`` [N, 3] (a box's frame) lies within ``half`` [3] of its
+    centre on every axis (three column tests: ``np.all(..., axis=1)`` over three columns costs several
+    times more)."""
+    a = np.abs(local)
+    return (a[:, 0] <= half[0]) & (a[:, 1] <= half[1]) & (a[:, 2] <= half[2])
+
+
 @dataclass(frozen=True)
 class MirroredStatic:
     """The static non-ground Gaussians as the ground's mirror image needs them
@@ -356,11 +364,13 @@ class MirroredStatic:
     Attributes
     ----------
     rows : ndarray [M] int
-        Their indices among the static Gaussians.
+        Their indices among the static Gaussians, in the order of ``heights``.
     means : ndarray [M, 3] float64
-        World centres (m), not mirrored.
+        World centres mirrored about the plane through the origin normal to ``up`` (m): the mirror
+        image about the plane at height g is these plus ``2 g up``.
     heights : ndarray [M] float64
-        ``means @ up`` (m).
+        Their heights ``means @ up`` before mirroring (m), ascending: the Gaussians above a plane are a
+        suffix of the arrays (a slice, not a gather).
     quats : ndarray [M, 4] float32
         Orientations of the surfels with their normals mirrored about the plane normal to ``up``.
     scales, opacities, colors : ndarray
@@ -486,19 +496,22 @@ class SurfaceScene:
         return cloud, out
 
     def mirrored_static(self) -> MirroredStatic:
-        """The static Gaussians that are not ground, gathered once with their surfels' normals
-        mirrored about the plane normal to ``up``: the mirror's height moves the centres, never the
-        orientations, and a frame selects and shifts rows of these arrays instead of gathering
-        them from the whole cloud again."""
+        """The static Gaussians that are not ground, gathered once, sorted by height, with their
+        centres and their surfels' normals mirrored about the plane through the origin normal to
+        ``up``: the mirror's height only shifts the centres, so a frame slices the rows above its
+        plane and shifts them instead of gathering them from the whole cloud again."""
         memo = getattr(self, "_mirror_memo", None)
         if memo is None:
             up = np.asarray(self.up, np.float64)
             keep = np.flatnonzero(self.static_attributes[:, 3] < 0.5)
+            heights = np.asarray(self.gaussians.static.means)[keep].astype(np.float64) @ up
+            order = np.argsort(heights, kind="stable")
+            keep, heights = keep[order], heights[order]
             normals = np.asarray(self.static_attributes, np.float32)[keep, :3].astype(np.float64)
             st = self.gaussians.static
             means = np.asarray(st.means)[keep].astype(np.float64)
             memo = MirroredStatic(
-                rows=keep, means=means, heights=means @ up,
+                rows=keep, means=means - 2.0 * np.outer(heights, up), heights=heights,
                 quats=quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32),
                 scales=np.asarray(st.scales)[keep], opacities=np.asarray(st.opacities)[keep],
                 colors=np.asarray(st.colors)[keep])
@@ -545,6 +558,52 @@ class SurfaceScene:
             slab = by_x[lo:hi] - c
             close = np.sort(order[lo:hi][np.einsum("ij,ij->i", slab, slab) <= r * r])
             out.append(np.concatenate([memo[key], n + close]))
+        return out
+
+    def inside_boxes(self, index: int, poses: np.ndarray, halves: np.ndarray) -> list[np.ndarray]:
+        """For each box, the centres of :meth:`at_frame`'s Gaussians of frame ``index`` inside it.
+
+        A box is an object-to-world pose ``poses[b]`` [4, 4] and half-sizes ``halves[b]`` [3] (m); a
+        point is inside when it lies within the half-size of the centre on each of the box's axes.
+        The candidates are :meth:`near`'s ball around the box. A box asked for again with the same
+        pose and size (a parked car's, at every frame) keeps its static points: only the frame's
+        moving Gaussians are tested again.
+
+        Parameters
+        ----------
+        index : int
+        poses : ndarray [B, 4, 4] float64
+        halves : ndarray [B, 3] float64
+
+        Returns
+        -------
+        list of ndarray [P_b, 3] float64
+            World centres (m): the static Gaussians first, then the frame's moving ones, each in the
+            order of :meth:`at_frame`.
+        """
+        poses = np.asarray(poses, np.float64).reshape(-1, 4, 4)
+        halves = np.asarray(halves, np.float64).reshape(-1, 3)
+        neighbours = self.near(index, poses[:, :3, 3], np.linalg.norm(halves, axis=1))
+        cloud, _ = self.at_frame(index)
+        n = len(self.gaussians.static)
+        memo = getattr(self, "_inside_memo", None)
+        if memo is None:
+            memo = {}
+            self._inside_memo: dict[bytes, np.ndarray] = memo
+        out = []
+        for T, half, near in zip(poses, halves, neighbours):
+            R, t = T[:3, :3], T[:3, 3]
+            split = int(np.searchsorted(near, n))
+            key = T.tobytes() + half.tobytes()
+            static = memo.get(key)
+            if static is None:
+                pts = np.take(cloud.means, near[:split], axis=0).astype(np.float64)
+                static = np.compress(in_box((pts - t) @ R, half), pts, axis=0)
+                memo[key] = static
+                while len(memo) > _BALL_MEMO:  # the oldest first (dicts keep insertion order)
+                    memo.pop(next(iter(memo)))
+            pts = np.take(cloud.means, near[split:], axis=0).astype(np.float64)
+            out.append(np.concatenate([static, np.compress(in_box((pts - t) @ R, half), pts, axis=0)]))
         return out
 
     def _frame_dynamic(self, index: int) -> tuple[GaussianCloud, np.ndarray] | None:

@@ -178,6 +178,14 @@ class WeatherCityModel(nn.Module):
         return WeatherCityModel(self.background, [*self.rigid_objects(), *extra], self.nonrigid_objects(),
                                 self.decoders, self.sky)
 
+    def with_background(self, background: GaussianParams) -> WeatherCityModel:
+        """This model with ``background`` for its background node (an edit's filled background): a new
+        model that shares every object, decoder and sky map with this one."""
+        if background.feature_dim != self.background.feature_dim:
+            raise ValueError(f"the background's features have {background.feature_dim} channels; the "
+                             f"decoders read {self.background.feature_dim}")
+        return WeatherCityModel(background, self.rigid_objects(), self.nonrigid_objects(), self.decoders, self.sky)
+
     def nodes(self) -> dict[str, GaussianParams]:
         """The Gaussians of every node by key, the background first."""
         out = {BACKGROUND: self.background}

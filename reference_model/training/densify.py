@@ -125,16 +125,12 @@ class DensifyStats:
         elif self.grad.device != dev:  # a checkpoint's statistics, loaded on the CPU, resumed on a GPU
             self.grad, self.count = self.grad.to(dev), self.count.to(dev)
 
-    def add(self, grad_norm: torch.Tensor, visible: torch.Tensor) -> None:
-        """Accumulate one step's |grad| [N] of the visible Gaussians [N] bool."""
-        # Dense masked adds, not boolean indexing: no nonzero / gather / scatter per node and step,
-        # and the same sums (x + 0 is x for the non-negative statistics).
-        self.add_masked(torch.where(visible, grad_norm, 0.0), visible.to(self.count.dtype))
-
     def add_masked(self, masked_grad: torch.Tensor, visible: torch.Tensor) -> None:
-        """:meth:`add` of |grad| already zero where not visible [N] and visibility as 0 / 1 [N] in the
-        statistics' dtype: the trainer masks a frame's rows once for every node, leaving two in-place adds
-        per node instead of a select, a conversion and two adds (on a GPU a step is bound by its launches)."""
+        """Accumulate one step's |grad| [N], already zero where a Gaussian was not visible, and the
+        visibility [N] as 0 / 1 in the statistics' dtype. The trainer masks a frame's rows once for
+        every node (dense masked adds, not boolean indexing: no gather or scatter per node and step,
+        and the same sums, x + 0 being x for the non-negative statistics), leaving two in-place adds
+        per node (on a GPU a step is bound by its launches)."""
         self.grad += masked_grad
         self.count += visible
 

@@ -31,6 +31,8 @@ __all__ = [
     "ContentLoss",
     "depth_l1",
     "opacity_loss",
+    "psnr",
+    "psnr_from_mse",
     "rgb_loss",
     "training_ssim",
     "training_ssim_torch",
@@ -268,7 +270,11 @@ def psnr(render: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None =
         if not bool(mask.any()):
             return float("nan")
         d = d[mask]
-    mse = float(d.mean())
+    return psnr_from_mse(float(d.mean()))
+
+
+def psnr_from_mse(mse: float) -> float:
+    """PSNR (dB) of a mean squared error of values in [0, 1]; ``inf`` for 0."""
     return 10.0 * math.log10(1.0 / mse) if mse > 0 else float("inf")
 
 

@@ -19,7 +19,6 @@ same next step (:mod:`.checkpoint`).
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -41,6 +40,7 @@ from wcbench.reference_model.training.losses import (
     depth_l1,
     opacity_loss,
     psnr,
+    psnr_from_mse,
     rgb_loss,
     weighted_sum,
 )
@@ -339,7 +339,7 @@ class Trainer:
             mse = (render.image("clear").detach() - tv.targets["clear"]).double().square().mean()
         loss_value, mse_value, *term_values = torch.stack(
             [loss.detach().double(), mse, *(t.double() for t in logged.values())]).tolist()
-        quality = 10.0 * math.log10(1.0 / mse_value) if mse_value > 0 else float("inf")
+        quality = psnr_from_mse(mse_value)
         end = time.perf_counter()
         marks.append(("log", end))
         seconds = end - start

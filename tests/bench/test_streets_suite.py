@@ -1,14 +1,20 @@
-"""``wcbench bench streets``: the clear sky's blue, and the quick suite on a real scene (slow)."""
+"""``wcbench bench streets``: the clear sky's blue, the removal case on a hand-made street, and the quick suite on a
+real scene (slow)."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from paths import DATA, SHARED_DATA
 
-pytest.importorskip("torch")
+torch = pytest.importorskip("torch")
 
-from wcbench.bench.streets import clear_sky_blue
+from parked_car import CAMERAS, HEIGHT, UP, WIDTH, K, scene  # noqa: E402
+
+from wcbench.bench.streets import _remove_case, clear_sky_blue  # noqa: E402
+from wcbench.scenes.scene import Camera  # noqa: E402
 
 
 def test_clear_sky_blue_is_the_blue_of_a_clear_sky_not_of_a_car_or_an_overcast_sky():
@@ -46,3 +52,19 @@ def test_bench_streets_quick_runs_on_a_real_scene_and_the_harder_street(monkeypa
     hard = cases["synth_hard"]
     for w in ("rain", "snow", "fog"):  # above the raw frames against the truth
         assert hard[f"psnr_editor_{w}"] > hard[f"psnr_raw_{w}"]
+
+
+def test_the_removal_case_counts_what_a_removed_car_leaves_filled_and_as_trained():
+    # the hand-made street of tests/support/parked_car.py: as trained, the ground behind the car is
+    # see-through and a strip keeps its red; filled, neither
+    model, _ = scene()
+    frames = [SimpleNamespace(camera=Camera(K=K, width=WIDTH, height=HEIGHT, camera_to_world=np.linalg.inv(w2c)))
+              for _, w2c, _, _, _ in CAMERAS]
+    street = SimpleNamespace(id="parked_car", up=UP, frames=frames)
+    with torch.no_grad():
+        case = _remove_case(street, model)
+    e = case.extra
+    assert e["removed_nodes"] == 1 and e["hidden_gaussians"] > 0 and e["ground_tiles"] > 0
+    assert e["see_through_below_horizon_as_trained"] > 0.1 and e["see_through_below_horizon_filled"] == 0.0
+    assert e["car_like_filled"] < e["car_like_as_trained"]
+    assert case.error == e["car_like_filled"]

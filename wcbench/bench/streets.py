@@ -31,6 +31,13 @@ docs/findings.md):
   (the mean absolute Laplacian of the luminance, weather over clear; the object alone, no particles
   nor haze), with its Gaussians' 16 exemplars averaged and with one (docs/design.md §7, "Object
   editing").
+* ``remove_<scene>`` (outside ``--quick``): :data:`REMOVE`, the README's removal, on the trained
+  model, with the background it leaves filled (:mod:`wcbench.reference_model.editing.vacated`) and
+  as trained: in every frame's clear render, over the removed nodes' silhouettes (the hull of their
+  Gaussians), the share of the pixels below the horizon where the background is see-through
+  (accumulated opacity under one half: the sky shows there) and the share whose colour stayed
+  nearer the car's there (the unedited render's) than the mean colour of a ring 8 px wide around
+  the silhouettes (its ``error``, filled); the Gaussians refilled, the ground laid and the time.
 * ``synth_hard``: on the harder truth, the editor's and the raw frames' PSNR against the truth per
   weather, over all pixels and inside the clear frames' cast shadows (``truth/masks/shadow``);
   outside ``--quick`` also WeatherCity's main job (``quick`` profile) there, PSNR and LPIPS per
@@ -62,10 +69,12 @@ from wcbench.methods.weather_spec import resolve_physics
 from wcbench.methods.weathercity import WeatherCityMethod, scene_ground
 from wcbench.metrics.temporal.flicker import temporal_flicker
 from wcbench.reference_model.appearance.editor import WeatherEditor
-from wcbench.reference_model.editing.edits import parse_edits
+from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.editing.transfer import box_heights, carried_features, placed_objects
+from wcbench.reference_model.editing.vacated import object_cover, vacated_background
 from wcbench.reference_model.model.scene_model import BACKGROUND, Placement
 from wcbench.reference_model.model.sky import view_directions
+from wcbench.reference_model.raster.rasterizer import rasterize_image
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene, any_sweep_masks
 from wcbench.reference_model.scene_analysis.views import resample_mask
 from wcbench.reference_model.training.config import make_config
@@ -81,6 +90,8 @@ REAL_SCENES = ("pandaset_002", "pandaset_002_back", "pandaset_002_front_right", 
 EDITED = ("rain", "snow", "fog")
 #: Frames of the hand-drawn sky masks.
 MASK_FRAMES = (5, 15, 25)
+#: The README's removal: every car of a camera's model.
+REMOVE: dict[str, Any] = {"scene": "pandaset_002", "edit": "remove class=Car"}
 #: The README's insertion across scenes: a car of one camera's model set down on another's street
 #: (``insert scene=SOURCE id=ID at=X,Y,YAW``), looked at in one frame.
 INSERT: dict[str, Any] = {"source": "pandaset_002_back", "id": "42", "target": "pandaset_002",
@@ -290,6 +301,53 @@ def _insert_case(target: Any, model: Any, sources: dict[str, Any]) -> BenchCase:
                             "gaussians": fit["gaussians"], **ratios})
 
 
+def _remove_case(scene: Any, model: Any) -> BenchCase:
+    """:data:`REMOVE` on ``scene``'s trained ``model``: what the removal leaves in every frame's clear
+    render at 480 x 270, filled and as trained (the module docstring)."""
+    place = placement_for(parse_edits(REMOVE["edit"]), model.objects())
+    gone_keys = sorted(place.hidden)
+    size = (480, 270)
+    cams = [scale_camera(f.camera, *size) for f in scene.frames]
+    cameras = [(k, np.asarray(c.world_to_camera), np.asarray(c.K), c.width, c.height) for k, c in enumerate(cams)]
+    up = np.asarray(scene.up, np.float64)
+    start = time.perf_counter()
+    filled, facts = vacated_background(model, gone_keys, cameras, up=up)
+    seconds = time.perf_counter() - start
+    gone = [model.objects()[k] for k in gone_keys]
+    ring_kernel = np.ones((17, 17), np.uint8)
+    counts = {label: {"below": 0, "see_through": 0, "pixels": 0, "car_like": 0} for label in ("filled", "as_trained")}
+    with torch.no_grad():
+        for k, cam in enumerate(cams):
+            silhouette = np.isfinite(object_cover(gone, k, cameras[k][1], cameras[k][2], *size))
+            if not silhouette.any():
+                continue
+            rays = view_directions(cam.camera_to_world, cam.K, *size)
+            below = silhouette & (rays @ up.astype(np.float32) < 0)
+            ring = cv2.dilate(silhouette.astype(np.uint8), ring_kernel).astype(bool) & ~silhouette
+            grid = model.sky.grid(torch.from_numpy(rays))
+            args = (k, np.asarray(cam.world_to_camera), np.asarray(cam.K), *size, ["clear"])
+            car = model.render(*args, sky_grid=grid, depth=False, rasterizer=rasterize_image).images.numpy()
+            for label, m in (("filled", filled), ("as_trained", model)):
+                out = m.render(*args, sky_grid=grid, depth=False, rasterizer=rasterize_image, placement=place)
+                image, alpha = out.images.numpy(), out.alpha.numpy()
+                c = counts[label]
+                c["below"] += int(below.sum())
+                c["see_through"] += int((below & (alpha < 0.5)).sum())
+                c["pixels"] += int(silhouette.sum())
+                if ring.any():
+                    around = image[ring].mean(0)
+                    near_car = np.linalg.norm(image - car, axis=-1) < np.linalg.norm(image - around, axis=-1)
+                    c["car_like"] += int((near_car & silhouette).sum())
+    share = {label: {"see_through_below_horizon": round(c["see_through"] / max(c["below"], 1), 4),
+                     "car_like": round(c["car_like"] / max(c["pixels"], 1), 4)} for label, c in counts.items()}
+    return BenchCase(name=f"remove_{scene.id}", knob="scene", value=scene.id, time_ms=1e3 * seconds,
+                     error=share["filled"]["car_like"], error_unit="share of the removed silhouettes' pixels nearer "
+                     "the car's colour than the ring around them's", extra={
+                         "edit": REMOVE["edit"], "removed_nodes": len(gone_keys), "size": list(size), **facts,
+                         **{f"{key}_{label}": v for label, d in share.items() for key, v in d.items()},
+                         "silhouette_px": counts["filled"]["pixels"]})
+
+
 def _masked_psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
     if not mask.any():
         return None
@@ -401,6 +459,8 @@ def run(*, data_root: Path | None, quick: bool = False) -> BenchReport:
             case, models[name] = _weathercity_case(name, scene, analysis)
             report.cases.append(case)
             scenes[name] = scene
+    if REMOVE["scene"] in models:
+        report.cases.append(_remove_case(scenes[REMOVE["scene"]], models[REMOVE["scene"]]))
     if INSERT["source"] in models and INSERT["target"] in models:
         report.cases.append(_insert_case(scenes[INSERT["target"]], models[INSERT["target"]],
                                          {INSERT["source"]: models[INSERT["source"]]}))

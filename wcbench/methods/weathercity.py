@@ -64,6 +64,7 @@ from wcbench.reference_model.appearance.editor import AppearanceParams, masked_e
 from wcbench.reference_model.devices import DEVICES, device_problem, on_device
 from wcbench.reference_model.editing.edits import parse_edits, placement_for
 from wcbench.reference_model.editing.transfer import ground_axes, ground_point, placed_objects
+from wcbench.reference_model.editing.vacated import vacated_background
 from wcbench.reference_model.model.scene_model import FrameRows, Placement, WeatherCityModel
 from wcbench.reference_model.model.sky import camera_rays
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
@@ -170,6 +171,11 @@ class WeatherCityMethod(FrameRenderer):
         docstring; scored at the scene's working size, as every method).
     edits : str or list, optional
         Object edits (``"remove class=Car except ids=3,7"``, a JSON list...).
+    fill_vacated : bool
+        What a removed or moved object hid takes the features of the background seen around it,
+        and ground is laid where nothing was learned
+        (:func:`~wcbench.reference_model.editing.vacated.vacated_background`); ``False`` renders
+        the background as trained.
     content : ContentLoss, None or "auto"
         See :func:`~wcbench.methods.scene_training.train_scene`.
     weathers : optional
@@ -197,6 +203,9 @@ class WeatherCityMethod(FrameRenderer):
                             f"{METRIC_RESOLUTION} px)"),
         "edits": Option("edits", "custom", "object edits, e.g. 'remove class=Car except ids=3,7'", nullable=True,
                         check=_check_edits, allowed="an edit such as 'remove class=Car', or a list of them"),
+        "fill_vacated": Option("fill_vacated", "bool", "what a removed or moved object hid takes the look of the "
+                               "background seen around it, and ground is laid where nothing was learned "
+                               "(docs/design.md §7)", default=True),
         "content": Option("content", "custom", "the content loss: 'auto' (VGG16) or null (off)", default="auto",
                           nullable=True, check=_check_content, allowed="'auto' or null"),
         "device": Option("device", "str", "where it trains and rasterizes: 'cpu' or 'cuda' (gsplat; "
@@ -216,6 +225,7 @@ class WeatherCityMethod(FrameRenderer):
         physics: Any = None,
         size: tuple[int, int] | None = None,
         edits: str | list[Any] | None = None,
+        fill_vacated: bool = True,
         content: Any = "auto",
         weathers: Any = None,
         device: str = "cpu",
@@ -233,6 +243,7 @@ class WeatherCityMethod(FrameRenderer):
         if problem is not None:
             raise InputError(f"weathercity: --device {device}: {problem}")
         self.device = device
+        self.fill_vacated = bool(fill_vacated)
         self.supervision, self.jitter, self.content = supervision, float(jitter), content
         self.physics_spec: PhysicsSpec = physics_argument(profile_physics(profile, physics, weathers), weathers,
                                                           who="weathercity")
@@ -257,6 +268,7 @@ class WeatherCityMethod(FrameRenderer):
         self._appearance = AppearanceParams.load()
         self._placement = Placement()
         self._placed_facts: list[dict[str, Any]] = []
+        self._vacated_facts: dict[str, Any] = {}
         self._sources: dict[str, WeatherCityModel] = {}
         self._rows: FrameRows | None = None
 
@@ -379,6 +391,16 @@ class WeatherCityMethod(FrameRenderer):
                     ground=scene_ground(scene), sources=self._source_models(scene))
                 self._model = model = model.with_objects(objects)
             self._placement = placement_for(self.edits, model.objects(), placed=placed)
+            # what a removed or moved object hid takes the look of the background seen around it;
+            # an object an edit set down hid nothing in the frames the model learned from
+            vacated = (self._placement.hidden | set(self._placement.offsets)) - set(placed.values())
+            self._vacated_facts = {}
+            if vacated and self.fill_vacated:
+                size = self.native_size(scene)
+                cameras = [(k, np.asarray(cam.world_to_camera), np.asarray(cam.K), cam.width, cam.height)
+                           for k, cam in ((k, scale_camera(f.camera, *size)) for k, f in enumerate(scene.frames))]
+                self._model, self._vacated_facts = vacated_background(self._model, sorted(vacated), cameras,
+                                                                          up=np.asarray(scene.up, np.float64))
         except ValueError as exc:
             raise InputError(f"weathercity: {exc}") from None
 
@@ -406,6 +428,8 @@ class WeatherCityMethod(FrameRenderer):
         out: dict[str, Any] = {"training": self._facts, "decoded_weather": getattr(self, "_decoded", None)}
         if self._placed_facts:
             out["placed_objects"] = self._placed_facts
+        if self._vacated_facts:
+            out["vacated"] = self._vacated_facts
         if self._renderer is not None:
             out["renderer"] = self._renderer.info()
         return out

@@ -14,18 +14,18 @@ pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.maps import (
     _COVERED,
-    _box_misses_view,
     _box_shells,
+    _boxes_miss_view,
     _gaussian_blur,
     _hull_pixels,
-    _in_box,
     _mirrored_cloud,
     _rasterize,
     _rays,
     _slab_interval,
     mirror_distance,
 )
-from wcbench.reference_model.appearance.surfaces import build_surfaces
+from wcbench.reference_model.appearance.surfaces import build_surfaces, in_box
+from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 from wcbench.scenes.scene import Camera
@@ -55,8 +55,8 @@ def _surfaces(box=BOX, grid=(7, 5, 5)):
                           scales=np.full((n, 3), 0.1, np.float32), opacities=np.ones(n, np.float32),
                           colors=np.zeros((n, 3), np.float32))
     return SimpleNamespace(up=UP, boxes_at=lambda k: [(box, SIZE)], at_frame=lambda k: (cloud, None),
-                           near=lambda k, cs, rs: [np.flatnonzero(np.linalg.norm(shell - c, axis=1) <= r)
-                                                   for c, r in zip(cs, rs)])
+                           inside_boxes=lambda k, poses, halves: [shell[in_box((shell - T[:3, 3]) @ T[:3, :3], h)]
+                                                                  for T, h in zip(poses, halves)])
 
 
 def _pixel(camera, point):
@@ -149,20 +149,33 @@ def test_a_box_is_skipped_by_its_corners_only_where_no_point_of_it_could_be_draw
     rng = np.random.default_rng(3)
     camera = _camera(1.6)
     w2c, K = np.asarray(camera.world_to_camera, np.float64), np.asarray(camera.K, np.float64)
-    skipped = agree = 0
-    for _ in range(300):
-        T = np.eye(4)
+    poses, halves = np.tile(np.eye(4), (300, 1, 1)), rng.uniform(0.3, 3.0, (300, 3))
+    for T in poses:
         yaw = rng.uniform(0, 2 * np.pi)
         T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
         T[:3, 3] = [rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(0, 2)]
-        half = rng.uniform(0.3, 3.0, 3)
-        fast = _box_misses_view(T, half, w2c, K, camera.width, camera.height)
-        slow = _old_box_skip(T, half, w2c, K, camera.width, camera.height, rng)
-        assert not fast or slow, f"a box at {T[:3, 3]} that shows was skipped"
-        skipped += fast
-        agree += fast == slow
+    poses[:3, :3, 3] = [[0.0, 0.0, 1.6], [0.05, 0.0, 1.55], [-0.5, 0.2, 1.6]]  # around the camera itself
+    fast = _boxes_miss_view(poses, halves, w2c, K, camera.width, camera.height)  # every box at once
+    slow = np.array([_old_box_skip(T, half, w2c, K, camera.width, camera.height, rng)
+                     for T, half in zip(poses, halves)])
+    assert not np.any(fast & ~slow), f"boxes at {poses[fast & ~slow][:, :3, 3]} that show were skipped"
     # most boxes around a camera with a 56-degree view miss it, and the corners tell nearly all
-    assert skipped > 150 and agree > 280
+    assert fast.sum() > 150 and (fast == slow).sum() > 280
+
+
+def test_a_frames_rays_turned_from_the_cameras_are_its_view_directions():
+    # the slow twin: view_directions of the pose, normalised after the turn; equal to float32 rounding
+    camera = _camera(1.6)
+    for yaw in (0.0, 0.7, -2.9):
+        c2w = np.array(camera.camera_to_world, np.float64)
+        turn = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+        c2w[:3, :3] = turn @ c2w[:3, :3]
+        view = replace(camera, camera_to_world=c2w)
+        rays, z_per_m = _rays(view)
+        slow = view_directions(c2w, camera.K, camera.width, camera.height).astype(np.float64)
+        np.testing.assert_allclose(rays, slow, rtol=0, atol=1.2e-7)
+        np.testing.assert_allclose(z_per_m, slow @ c2w[:3, 2], rtol=0, atol=2e-7)
+        np.testing.assert_allclose(np.linalg.norm(rays, axis=-1), 1.0, atol=2e-7)
 
 
 def _old_mirrored_cloud(surfaces, index, ground_height):
@@ -198,12 +211,22 @@ def test_the_mirrored_cloud_with_its_static_orientations_made_once_is_the_per_fr
                            colors=rng.uniform(size=(n, 3)).astype(np.float32))
     frame = (GaussianCloud.concatenate([static, movers]), np.concatenate([static_attrs, attrs]))
     monkeypatch.setattr(surfaces, "at_frame", lambda k: frame)
+    keep = static_attrs[:, 3] < 0.5
+    up = np.asarray(surfaces.up, np.float64)
     for height in (0.0, 0.4, -0.2):
         fast, slow = _mirrored_cloud(surfaces, 3, height), _old_mirrored_cloud(surfaces, 3, height)
         assert len(slow) > len(static) // 10
-        for name in ("means", "quats", "scales", "opacities", "colors"):
-            # the same float operations on the same rows, in the same order: equal to the bit
-            np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=name)
+        assert len(fast) == len(slow)
+        # the cached static rows come sorted by height (a slice above the plane): the slow twin's
+        # static rows put in that order (a stable sort), its moving rows as they are
+        h = np.asarray(static.means, np.float64)[keep] @ up
+        n_static = int(np.sum(h - height > 0.05))
+        order = np.concatenate([np.argsort(h[h - height > 0.05], kind="stable"), np.arange(n_static, len(slow))])
+        for name in ("quats", "scales", "opacities", "colors"):
+            np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name)[order], err_msg=name)
+        # mirrored about the plane through the origin, then shifted by twice the plane's height: the
+        # same centres up to float32 rounding (1e-5 m at the scene's 100 m)
+        np.testing.assert_allclose(fast.means, slow.means[order], rtol=0, atol=1e-5)
 
 
 def test_a_hulls_pixels_drawn_in_its_rectangle_are_those_drawn_on_the_whole_frame():
@@ -243,7 +266,7 @@ def test_the_slab_interval_and_the_box_test_by_columns_are_the_row_reductions():
         np.testing.assert_array_equal(fast_out, slow_out)
     points = rng.uniform(-3.0, 3.0, (4000, 3))
     points[:10] = half  # on the box's corner: inside
-    np.testing.assert_array_equal(_in_box(points, half), np.all(np.abs(points) <= half, axis=1))
+    np.testing.assert_array_equal(in_box(points, half), np.all(np.abs(points) <= half, axis=1))
 
 
 def test_the_mirrors_distance_from_one_dummy_channel_is_the_coloured_renders(demo_scene):

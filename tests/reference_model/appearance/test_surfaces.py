@@ -14,6 +14,7 @@ from wcbench.reference_model.appearance.surfaces import (
     _box_parts,
     _principal_axes,
     build_surfaces,
+    in_box,
     lane_paths,
     object_sides,
     open_to_sky,
@@ -212,22 +213,29 @@ def test_a_parked_cars_sills_shelter_only_the_ground_under_it():
         open_to_sky(points, normals, up=up, shelters=body[:-1])
 
 
-def test_the_batched_neighbour_search_finds_what_a_brute_force_one_does(demo_scene, monkeypatch):
-    # the slow twin: distances to every Gaussian of the frame, static and moving alike
-    surfaces = build_surfaces(demo_scene)
+def _frames_with_movers(surfaces, rng, n, spread_m, monkeypatch):
+    """Frames 0 and 7 of ``surfaces`` with ``n`` movers each after the static Gaussians (as at_frame
+    appends them), scattered by ``spread_m`` around static ones; at_frame patched to give them.
+    Returns (the static cloud, {frame: (cloud, attributes)})."""
     static, static_attrs = surfaces.at_frame(0)
-    rng = np.random.default_rng(4)
     frames = {}
-    for index in (0, 7):  # each frame's own movers after the static Gaussians (as at_frame appends them)
-        n = 400
+    for index in (0, 7):
         means = (np.asarray(static.means)[rng.integers(0, len(static), n)]
-                 + rng.normal(0, 1.5, (n, 3))).astype(np.float32)
+                 + rng.normal(0, spread_m, (n, 3))).astype(np.float32)
         movers = GaussianCloud(means=means, quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
                                scales=np.full((n, 3), 0.05, np.float32), opacities=np.full(n, 0.9, np.float32),
                                colors=np.zeros((n, 3), np.float32))
         frames[index] = (GaussianCloud.concatenate([static, movers]),
                          np.concatenate([static_attrs, np.zeros((n, static_attrs.shape[1]), np.float32)]))
     monkeypatch.setattr(surfaces, "at_frame", lambda k: frames[k])
+    return static, frames
+
+
+def test_the_batched_neighbour_search_finds_what_a_brute_force_one_does(demo_scene, monkeypatch):
+    # the slow twin: distances to every Gaussian of the frame, static and moving alike
+    surfaces = build_surfaces(demo_scene)
+    rng = np.random.default_rng(4)
+    static, frames = _frames_with_movers(surfaces, rng, 400, 1.5, monkeypatch)
     balls = {}
     for index in (0, 7, 0, 7):  # each frame's balls asked again (the kept ones), frames in turn
         means = np.asarray(frames[index][0].means, np.float64)
@@ -242,3 +250,25 @@ def test_the_batched_neighbour_search_finds_what_a_brute_force_one_does(demo_sce
             np.testing.assert_array_equal(np.sort(idx), slow)
         assert any(np.any(i >= len(static)) for i in found), "a ball holds movers"
     assert surfaces.near(0, np.zeros((0, 3)), np.zeros(0)) == []
+
+
+def test_the_points_inside_boxes_kept_for_a_parked_car_are_those_a_brute_force_search_finds(demo_scene, monkeypatch):
+    # the slow twin: every Gaussian of the frame tested against the box; the same boxes asked for at
+    # two frames with other movers (a parked car's static points kept, the movers tested again)
+    surfaces = build_surfaces(demo_scene)
+    rng = np.random.default_rng(6)
+    static, frames = _frames_with_movers(surfaces, rng, 600, 1.0, monkeypatch)
+    poses = np.tile(np.eye(4), (8, 1, 1))
+    for T in poses:
+        yaw = rng.uniform(0, 2 * np.pi)
+        T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+        T[:3, 3] = np.asarray(static.means)[rng.integers(0, len(static))]
+    halves = rng.uniform(0.5, 3.0, (8, 3))
+    for index in (0, 7, 0):
+        means = np.asarray(frames[index][0].means, np.float64)
+        found = surfaces.inside_boxes(index, poses, halves)
+        for T, half, pts in zip(poses, halves, found):
+            slow = means[in_box((means - T[:3, 3]) @ T[:3, :3], half)]
+            np.testing.assert_array_equal(pts, slow)
+        assert any(np.any(np.isin(p[:, 0], means[len(static):, 0])) for p in found), "a box holds movers"
+    assert surfaces.inside_boxes(0, np.zeros((0, 4, 4)), np.zeros((0, 3))) == []
