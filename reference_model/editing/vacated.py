@@ -238,7 +238,8 @@ def vacated_background(model: WeatherCityModel, keys: Collection[str],
         A new model sharing every node but the background (its features copied) with ``model``;
         ``model`` itself when nothing is vacated.
     facts : dict
-        ``hidden_gaussians``: how many background Gaussians were filled.
+        ``hidden_gaussians``: how many background Gaussians were refilled; ``ground_tiles``: how
+        many flat Gaussians were laid on the ground (under the footprints and the see-through pixels).
 
     Raises
     ------
