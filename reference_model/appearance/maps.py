@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 import torch
 
-from wcbench.reference_model.appearance.surfaces import SurfaceScene, in_box
+from wcbench.reference_model.appearance.surfaces import UNDERBODY_M, SurfaceScene, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
@@ -55,6 +55,10 @@ _BELT_SHARE = 0.6
 #: The glasshouse above it: shares of the box's length and width (centred), and the share of the
 #: box's height along its top that is air (the roof's curve and the annotation's margin).
 _CABIN_SHARE, _ROOF_AIR_SHARE = np.array([0.6, 0.9, 1.0]), 0.1
+#: How far (pixels of a 270-row frame) an object's Gaussians may reach past the hull of their
+#: centres: three of their widths (~0.08 m) seen from 8 m. Past the hull by more than
+#: ``_EDGE_PX``, a surface on the object is its Gaussians' tails over what lies beside it.
+_SPILL_PX, _EDGE_PX = 12, 1
 
 
 @dataclass
@@ -188,7 +192,8 @@ def _hull_pixels(hull: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.
 def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
                 distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray) -> np.ndarray:
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
-    behind the object's box and its ray passes through the body (the box below the belt line, 0.6
+    behind the object's box and its ray passes through the body (the box from 0.3 m above its bottom,
+    :data:`~.surfaces.UNDERBODY_M`, below which the road under a car shows, to the belt line, 0.6
     of its height, or the glasshouse above it, the middle 0.6 of the length and 0.9 of the width up
     to 0.1 of the height short of the top: the lidar sampled the object sparsely or saw through
     its glass, and what lies behind or under it shows through), the box's face the ray enters stands for the object: its
@@ -200,8 +205,10 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     Returns the pixels changed.
 
     The silhouette is the convex hull of the projections of the surface Gaussians inside the box
-    (grown by 0.1 m), so the air around a car inside its box keeps what lies behind it; the ray's
-    entry into the box is found by the slab method in the box frame. A box the camera is beside (a
+    (grown by 0.1 m) above that band (not the road the box reaches down to), so the air around a car
+    inside its box keeps what lies behind it; the ray's entry into the box is found by the slab
+    method in the box frame. Beside the silhouette, a surface on the object is its Gaussians' tails
+    and takes the surface beside it (:func:`_object_tails`). A box the camera is beside (a
     corner behind its near plane, 0.1 m) with fewer than 100 returns in front of it has no shell:
     the lidar's blind zone and the frame's edge left a sliver of it in view.
     """
@@ -222,8 +229,13 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     shown = ~np.all(np.abs(origins) <= halves, axis=1) & ~_boxes_miss_view(poses, halves + 0.1, w2c, K, w, h)
     poses, halves, origins = poses[shown], halves[shown], origins[shown]
     not_sky = ~sky
+    tails, hulls = np.zeros((h, w), bool), np.zeros((h, w), bool)
     for T, half, o, pts in zip(poses, halves, origins, surfaces.inside_boxes(index, poses, halves + 0.1)):
         R, t = T[:3, :3], T[:3, 3]
+        vertical = int(np.argmax(np.abs(R.T @ up)))
+        floor = -half[vertical] + UNDERBODY_M
+        # the silhouette of the object, not of the road it stands on (its box reaches the road)
+        pts = np.compress((pts - t) @ R[:, vertical] >= floor, pts, axis=0)
         if len(pts) < 3:
             continue
         cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
@@ -238,6 +250,7 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         if uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
             continue
         hull = cv2.convexHull(np.clip(np.round(uv - 0.5), -4 * w, 4 * w).astype(np.int32))
+        _object_tails(hull, R, t, half, (vertical, floor), center, rays, distance, not_sky, tails, hulls)
         rr, cc = _hull_pixels(hull, not_sky)
         if rr.size == 0:
             continue
@@ -249,17 +262,17 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         # the ray passes through its body: the box below the belt line, or the glasshouse above it
         # (the middle of the length, most of the width, short of the box's top); a ray through the
         # box's air, over the bonnet or the boot or along the top of the roof, sees what it sees
-        vertical = int(np.argmax(np.abs(R.T @ up)))
         belt = -half[vertical] + 2.0 * _BELT_SHARE * half[vertical]
         lower, upper = -half.copy(), half.copy()
-        upper[vertical] = belt
+        lower[vertical], upper[vertical] = floor, belt  # under the body, air: the road shows
         cabin_lo, cabin_hi = -half * _CABIN_SHARE, half * _CABIN_SHARE
         cabin_lo[vertical], cabin_hi[vertical] = belt, half[vertical] - 2.0 * _ROOF_AIR_SHARE * half[vertical]
         through_body = _slab_hits(o, d, lower, upper) | _slab_hits(o, d, cabin_lo, cabin_hi)
         behind = enters & (near + _BOX_SLACK_M < seen) & through_body
         on = np.zeros_like(enters)  # the lidar's surface lies on the object
         finite = enters & np.isfinite(seen)
-        on[finite] = in_box(o + d[finite] * seen[finite, None], half + _BOX_SLACK_M)
+        point = o + d[finite] * seen[finite, None]
+        on[finite] = in_box(point, half + _BOX_SLACK_M) & (point[:, vertical] >= floor)
         on &= ~behind
         hit = behind | on
         if not hit.any():
@@ -281,7 +294,55 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         fields["puddle"][rr, cc] = 0.0
         fields["track"][rr, cc] = 0.0
         changed[rr, cc] = True
+    _replace_tails(tails & ~hulls, ~(tails | hulls) & not_sky & np.isfinite(distance), distance, normal, fields)
     return changed
+
+
+def _object_tails(hull: np.ndarray, R: np.ndarray, t: np.ndarray, half: np.ndarray, floor: tuple[int, float],
+                  center: np.ndarray, rays: np.ndarray, distance: np.ndarray, allowed: np.ndarray,
+                  tails: np.ndarray, hulls: np.ndarray) -> None:
+    """Mark (in place) in ``tails`` [H, W] the pixels beside an object's ``hull`` (its centres'
+    projections, grown by ``_EDGE_PX``; ``hulls`` gets that region) whose surface lies on the object
+    (inside its box, slack included, above ``floor``, a box-frame axis and the height on it): the tails of its Gaussians
+    over the road or the facade beside it (a car's roof's upward normals spread snow into the air
+    above it, its sides' a dark rim on the road). Only within ``_SPILL_PX`` of the hull."""
+    h, w = distance.shape
+    reach = max(1, round(_SPILL_PX * h / 270))
+    x0, y0, bw, bh = cv2.boundingRect(hull)
+    x1, y1 = min(w, x0 + bw + reach), min(h, y0 + bh + reach)
+    x0, y0 = max(0, x0 - reach), max(0, y0 - reach)
+    if x1 <= x0 or y1 <= y0:
+        return
+    inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillConvexPoly(inside, hull - np.array([x0, y0], np.int32), 1)
+    inside = cv2.dilate(inside, np.ones((2 * _EDGE_PX + 1, 2 * _EDGE_PX + 1), np.uint8)).astype(bool)
+    hulls[y0:y1, x0:x1] |= inside
+    seen = distance[y0:y1, x0:x1]
+    rr, cc = np.nonzero(~inside & allowed[y0:y1, x0:x1] & np.isfinite(seen))
+    if rr.size == 0:
+        return
+    point = (center - t + rays[rr + y0, cc + x0] * seen[rr, cc, None]) @ R  # in the box frame
+    on = in_box(point, half + _BOX_SLACK_M) & (point[:, floor[0]] >= floor[1])
+    tails[rr[on] + y0, cc[on] + x0] = True
+
+
+def _replace_tails(tails: np.ndarray, source: np.ndarray, distance: np.ndarray, normal: np.ndarray,
+                   fields: dict[str, np.ndarray]) -> None:
+    """Give each pixel of ``tails`` [H, W] the surface (distance, normal, attributes) of its nearest
+    ``source`` pixel (in place): what lies beside the object, continued under its Gaussians' tails."""
+    if not tails.any() or not source.any():
+        return
+    _, labels = cv2.distanceTransformWithLabels((~source).astype(np.uint8), cv2.DIST_L2, 5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    flat = np.flatnonzero(source)
+    of_label = np.zeros(int(labels.max()) + 1, np.int64)
+    of_label[labels.ravel()[flat]] = flat
+    rr, cc = np.nonzero(tails)
+    src = np.unravel_index(of_label[labels[rr, cc]], tails.shape)
+    distance[rr, cc] = distance[src]
+    normal[rr, cc] = normal[src]
+    for name in fields:
+        fields[name][rr, cc] = fields[name][src]
 
 
 def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,

@@ -49,8 +49,8 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["ATTRIBUTES", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths", "object_sides",
-           "open_to_sky", "pca_normals", "value_noise"]
+__all__ = ["ATTRIBUTES", "UNDERBODY_M", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths",
+           "object_sides", "open_to_sky", "pca_normals", "value_noise"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -102,6 +102,13 @@ _BALL_MEMO = 4096
 #: glasshouse's slope inward; the roof keeps its edges). There the surface is vertical or faces down,
 #: whatever the PCA normals of a few returns say (docs/design.md §7).
 _SIDE_SHARE, _SIDE_TOP_SHARE, _SIDE_BAND_M, _SIDE_MARGIN_M = 0.5, 0.85, 0.25, 0.1
+#: Height above a box's bottom (m) below which an object has no surface facing up and the space under
+#: it is air: a car's sills and bumpers lie higher, so an upward return there is the road it stands on
+#: (a moving car's node carried a patch of road, its normal turned outward, facing down, frame after
+#: frame), and a ray through that band alone passes under the body.
+UNDERBODY_M = 0.3
+#: Up-component (box frame) above which a return counts as facing up for :data:`UNDERBODY_M`.
+_FACING_UP = 0.8
 
 
 def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
@@ -649,6 +656,19 @@ class SurfaceScene:
         return cloud, attrs
 
 
+def _road_under(local: np.ndarray, box_size: np.ndarray) -> np.ndarray:
+    """[N] bool: which of a node's Gaussians (box-frame centres [N, 3], z up) are the road it stands on:
+    within :data:`UNDERBODY_M` of its box's bottom and facing up (their normals from those points alone
+    among the node's, unoriented)."""
+    local = np.asarray(local, np.float64)
+    bottom = -float(np.median(np.asarray(box_size, np.float64).reshape(-1, 3)[:, 2])) / 2.0
+    low = local[:, 2] < bottom + UNDERBODY_M
+    road = np.zeros(len(local), bool)
+    if np.count_nonzero(low) >= 3:
+        road[low] = np.abs(pca_normals(local[low])[:, 2]) > _FACING_UP
+    return road
+
+
 def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                    analysis: SceneAnalysis | None = None) -> SurfaceScene:
     """The scene's lidar Gaussians and their surface attributes (see the module docstring).
@@ -763,12 +783,14 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     node_attrs = []
     tracks = {str(t.id): t for t in scene.tracks}
     for node in gaussians.nodes:
+        track = tracks.get(node.track_id)
+        if track is not None and len(node.cloud):
+            node.cloud = node.cloud.subset(~_road_under(node.cloud.means, track.box_size))
         local = node.cloud.means.astype(np.float64)
         n_local = pca_normals(local)
         if len(local):  # a node with no lidar return inside its box has no Gaussian to orient
             out = np.einsum("ij,ij->i", local - local.mean(axis=0), n_local) < 0
             n_local[out] *= -1.0
-        track = tracks.get(node.track_id)
         if track is not None and len(local):  # its side faces no sky (as a parked one's, above)
             box_up = np.array([0.0, 0.0, 1.0])  # the box frame's z
             box = (np.eye(4), np.median(np.asarray(track.box_size, np.float64), axis=0))

@@ -91,6 +91,38 @@ def test_a_box_stands_for_a_sparse_car_only_where_the_ray_passes_through_its_bod
     assert np.all(normal[changed] @ UP.astype(np.float32) < 0.3)
 
 
+def test_the_road_just_before_and_under_a_cars_sills_stays_road():
+    camera = _camera(1.6)
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    # a ray that passes the box's near face 0.14 m above the road, under the sills, and meets the
+    # road under the car 8.5 m away: what the lidar saw there (the road) stays
+    pixel = _pixel(camera, [7.75, 0.0, 0.14])
+    distance[pixel] = 1.6 / -rays[pixel][2]
+    normal[pixel], fields["ground"][pixel] = UP, 1.0
+    changed = _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
+                          np.zeros(distance.shape, bool))
+    assert not changed[pixel] and fields["ground"][pixel] == 1.0
+    np.testing.assert_allclose(normal[pixel], UP, atol=1e-6)
+
+
+def test_a_cars_gaussians_tails_beside_its_silhouette_take_what_lies_beside_it():
+    camera = _camera(1.6)
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    # the lidar's maps put the car's roof (facing up) 0.1 m beside its box's side, 3 px from the
+    # hull of its returns: the tails of its Gaussians over the wall behind
+    pixel = _pixel(camera, [7.75, 1.0, 1.0])
+    distance[pixel] = float(np.linalg.norm(np.array([7.75, 1.0, 1.0 - 1.6])))
+    normal[pixel], fields["open"][pixel] = UP, 1.0
+    _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool))
+    assert distance[pixel] == 30.0 and fields["open"][pixel] == 0.0
+    np.testing.assert_allclose(normal[pixel], [-1.0, 0.0, 0.0], atol=1e-6)
+    # the pixels two hulls' widths away are no tails: nothing there lies on the car
+    far = _pixel(camera, [7.75, 3.0, 1.0])
+    assert distance[far] == 30.0
+
+
 def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_enters():
     camera = _camera(1.8)
     rays, _ = _rays(camera)

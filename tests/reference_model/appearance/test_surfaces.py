@@ -13,6 +13,7 @@ from wcbench.reference_model.appearance.surfaces import (
     _FOLIAGE_VARIATION,
     _box_parts,
     _principal_axes,
+    _road_under,
     build_surfaces,
     in_box,
     lane_paths,
@@ -185,6 +186,22 @@ def test_a_boxed_objects_sides_are_found_not_its_top_nor_the_road(yaw):
             assert not got.any(), name
 
 
+
+def test_the_road_a_moving_cars_box_takes_in_is_told_from_its_body(rng):
+    # a node's returns in its box frame (z up, 4.5 x 1.8 x 1.5 m): the road it stands on (a patch
+    # at the bottom, as the box's margin takes it in), its doors and wheels down to the road, its roof
+    size = np.array([[4.5, 1.8, 1.5]])
+    bottom = -0.75
+    road = np.stack([rng.uniform(-2.6, 2.6, 300), rng.uniform(-1.1, 1.1, 300), bottom + rng.normal(0, 0.02, 300)], 1)
+    door = np.stack([rng.uniform(-2.2, 2.2, 300), np.full(300, 0.9), rng.uniform(bottom + 0.05, 0.2, 300)], 1)
+    roof = np.stack([rng.uniform(-1.0, 1.0, 200), rng.uniform(-0.7, 0.7, 200), np.full(200, 0.75)], 1)
+    got = _road_under(np.concatenate([road, door, roof]), size)
+    # the road, but where its nearest returns mix with the door's foot (a tilted normal)
+    assert got[:300][np.abs(road[:, 1] - 0.9) > 0.3].all()
+    door_got, foot = got[300:600], door[:, 2] < bottom + 0.3
+    assert not door_got[~foot].any() and not got[600:].any()  # above the band: the body, the roof
+    # a door's foot faces sideways; where its few returns' nearest are the road's, one in ten tilts
+    assert door_got[foot].mean() < 0.15
 
 def test_a_parked_cars_sills_shelter_only_the_ground_under_it():
     # the road beside a parked car's doors: its sills and bumpers face down within 0.5 m sideways
