@@ -21,6 +21,7 @@ from wcbench.reference_model.appearance.maps import (
     _mirrored_cloud,
     _rasterize,
     _rays,
+    _replace_tails,
     _slab_interval,
     mirror_distance,
 )
@@ -343,3 +344,24 @@ def test_a_wide_blur_on_a_quarter_size_image_is_the_full_size_blur(sigma):
     ratio_fast = fast[..., :3][inner][ok] / fast[..., 3][inner][ok, None]
     ratio_slow = slow[..., :3][inner][ok] / slow[..., 3][inner][ok, None]
     assert np.abs(ratio_fast - ratio_slow).max() < 0.01
+
+
+def test_the_tails_take_a_source_pixel_as_near_as_the_brute_force_nearest(rng):
+    # the labelled distance transform (a 5x5 mask, not exact Euclidean) against every source pixel
+    # tried for every tail pixel: the pixel it picks lies at most 2 % plus half a pixel farther
+    h, w = 60, 80
+    source = rng.random((h, w)) < 0.05
+    tails = ~source & (rng.random((h, w)) < 0.3)
+    rows, cols = np.mgrid[0:h, 0:w]
+    distance = (rows * w + cols).astype(np.float64)  # a pixel's own index: which source it took
+    normal = np.zeros((h, w, 3), np.float32)
+    fields = {"ground": np.zeros((h, w), np.float32)}
+    _replace_tails(tails, source, distance, normal, fields)
+    sr, sc = np.nonzero(source)
+    for r, c in zip(*np.nonzero(tails)):
+        taken = np.divmod(int(distance[r, c]), w)
+        assert source[taken]
+        best = np.sqrt(((sr - r) ** 2 + (sc - c) ** 2).min())
+        assert np.hypot(taken[0] - r, taken[1] - c) <= 1.02 * best + 0.5
+    untouched = ~tails
+    assert np.array_equal(distance[untouched], (rows * w + cols)[untouched])
