@@ -111,15 +111,15 @@ def test_a_cars_gaussians_tails_beside_its_silhouette_take_what_lies_beside_it()
     camera = _camera(1.6)
     rays, _ = _rays(camera)
     distance, normal, fields = _maps(camera)
-    # the lidar's maps put the car's roof (facing up) 0.1 m beside its box's side, 3 px from the
-    # hull of its returns: the tails of its Gaussians over the wall behind
+    # the lidar's maps put the car's roof (facing up) 0.1 m beside its box's side, about 4 px from
+    # the hull of its returns: the tails of its Gaussians over the wall behind
     pixel = _pixel(camera, [7.75, 1.0, 1.0])
     distance[pixel] = float(np.linalg.norm(np.array([7.75, 1.0, 1.0 - 1.6])))
     normal[pixel], fields["open"][pixel] = UP, 1.0
     _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool))
     assert distance[pixel] == 30.0 and fields["open"][pixel] == 0.0
     np.testing.assert_allclose(normal[pixel], [-1.0, 0.0, 0.0], atol=1e-6)
-    # the pixels two hulls' widths away are no tails: nothing there lies on the car
+    # a pixel of the wall beside it keeps the wall (its surface is nowhere near the car)
     far = _pixel(camera, [7.75, 3.0, 1.0])
     assert distance[far] == 30.0
 
