@@ -28,7 +28,7 @@ __all__ = ["KERNEL_MODULES", "compile_kernels"]
 
 #: The kernel modules (inside ``wcbench.reference_model``).
 KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels", "training.ssim_kernels",
-                  "model.sky_kernels")
+                  "model.sky_kernels", "appearance.shell_kernels")
 
 
 @dataclass(frozen=True)
@@ -94,6 +94,27 @@ def _weather() -> None:
             WeatherRenderer(_tiny_wall(), weather, up=up, rasterizer=rasterizer).render(cam, 0.5)
 
 
+def _editor() -> None:
+    # one box's shell with the types and layouts maps._box_shells passes (its pose's rotation and
+    # centre and the camera's centre are views of 4x4s, the maps float64, the normals and fields
+    # float32)
+    kernels = load_numba_kernels("appearance.shell_kernels")
+    assert kernels is not None
+    h, w = 12, 16
+    pose = np.eye(4)
+    pose[:3, 3] = [0.0, 0.0, 6.0]
+    half = np.array([1.0, 0.8, 0.7])
+    rays = np.zeros((h, w, 3))
+    rays[..., 2] = 1.0
+    filled = np.zeros((h, w), np.uint8)
+    filled[3:9, 4:12] = 1
+    fields = [np.zeros((h, w), np.float32) for _ in range(4)]
+    flags = [np.zeros((h, w), bool) for _ in range(3)]
+    kernels.box_shell_kernel(filled, filled.copy(), 0, 0, rays, np.full((h, w), 9.0), np.zeros((h, w, 3), np.float32),
+                             *fields, np.ones((h, w), bool), *flags, pose[:3, :3], pose[:3, 3], -pose[:3, 3],
+                             half, 1, np.float64(-0.4), np.eye(4)[:3, 3], -half, half, -half, half, 0.3)
+
+
 def _training() -> None:
     render = torch.rand(8, 12, 3, requires_grad=True)
     training_ssim(render, torch.rand(8, 12, 3), backend="numba").sum().backward()
@@ -112,7 +133,7 @@ def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, f
     Returns
     -------
     dict of str to float
-        Seconds of each step (``raster``, ``weather``, ``training``).
+        Seconds of each step (``raster``, ``weather``, ``editor``, ``training``).
 
     Raises
     ------
@@ -123,7 +144,7 @@ def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, f
         if load_numba_kernels(name) is None:
             raise RuntimeError(f"numba kernels {name} unavailable: {numba_error(name)}")
     seconds = {}
-    for step, fn in (("raster", _raster), ("weather", _weather), ("training", _training)):
+    for step, fn in (("raster", _raster), ("weather", _weather), ("editor", _editor), ("training", _training)):
         t = time.perf_counter()
         fn()
         seconds[step] = time.perf_counter() - t

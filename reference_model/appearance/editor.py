@@ -488,10 +488,21 @@ def decontaminate(image: np.ndarray, alpha: np.ndarray, *, sigma_px: float | Non
     if not mixed.any():
         return img
     sigma = sigma_px if sigma_px is not None else 6.0 * img.shape[0] / 270.0
-    inside = (np.asarray(alpha) >= 0.99).astype(np.float32)
+    # the blur only where it is read: the mixed pixels' bounding rectangle grown by the kernel's
+    # radius (OpenCV's for float images, 4 sigma), so every pixel read sees the same neighbours
+    # and, at the frame's edges, the same reflected border as on the whole frame
+    radius = (round(float(sigma) * 8 + 1) | 1) // 2
+    rows, cols = np.flatnonzero(mixed.any(axis=1)), np.flatnonzero(mixed.any(axis=0))
+    y0, y1 = max(0, int(rows[0]) - radius), min(img.shape[0], int(rows[-1]) + 1 + radius)
+    x0, x1 = max(0, int(cols[0]) - radius), min(img.shape[1], int(cols[-1]) + 1 + radius)
+    crop = img[y0:y1, x0:x1]
+    inside = (np.asarray(alpha)[y0:y1, x0:x1] >= 0.99).astype(np.float32)
     # the numerator and the weight blurred as one four-channel image (OpenCV filters each alone)
-    blurred = cv2.GaussianBlur(np.dstack([img * inside[..., None], inside]), (0, 0), sigma)
-    num, den = blurred[..., :3], blurred[..., 3:]
-    behind = np.where(den > 1e-3, num / np.maximum(den, 1e-3), img)
-    fg = np.clip((img - a[..., None] * behind) / (1.0 - a[..., None]), 0.0, 1.0)
-    return np.where(mixed[..., None], fg, img).astype(np.float32)
+    blurred = cv2.GaussianBlur(np.dstack([crop * inside[..., None], inside]), (0, 0), sigma)
+    rr, cc = np.nonzero(mixed[y0:y1, x0:x1])
+    num, den, seen = blurred[rr, cc, :3], blurred[rr, cc, 3:], crop[rr, cc]
+    behind = np.where(den > 1e-3, num / np.maximum(den, 1e-3), seen)
+    share = a[rr + y0, cc + x0][:, None]
+    out = img.copy()
+    out[rr + y0, cc + x0] = np.clip((seen - share * behind) / (1.0 - share), 0.0, 1.0)
+    return out

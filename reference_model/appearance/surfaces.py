@@ -94,6 +94,9 @@ _DYNAMIC_PATCH_RETURNS_M2, _DYNAMIC_SHARE, _DYNAMIC_NEIGHBOURS = 6800.0, 0.1, (3
 _CELL_REACH_M = 4.0
 #: Static balls :meth:`SurfaceScene.near` keeps (a scene has about a thousand distinct box poses).
 _BALL_MEMO = 4096
+#: Queries of fewer points than this run on one thread: starting the k-d tree's threads costs more
+#: than they save (0.7 ms for 100 points, measured on the 2-core machine; docs/findings.md).
+_THREADED_QUERY = 10_000
 #: An object's side: inside its box (grown by ``_SIDE_MARGIN_M`` sideways, for the annotation's fit),
 #: from ``_SIDE_MARGIN_M`` above the box's bottom (the road under it, with a lidar return's range
 #: noise) up to ``_SIDE_SHARE`` of its height all round (a car's bonnet and boot lie higher, the
@@ -355,6 +358,12 @@ def lane_paths(scene: Any, *, up: np.ndarray, step_m: float = 0.1) -> np.ndarray
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
+def _workers(n: int) -> int:
+    """The k-d tree's ``workers`` for a query of ``n`` points: every core for a large one, one for a
+    small one (:data:`_THREADED_QUERY`)."""
+    return -1 if n >= _THREADED_QUERY else 1
+
+
 def in_box(local: np.ndarray, half: np.ndarray) -> np.ndarray:
     """[N] bool: whether each point of ``local`` [N, 3] (a box's frame) lies within ``half`` [3] of its
     centre on every axis (three column tests: ``np.all(..., axis=1)`` over three columns costs several
@@ -458,7 +467,7 @@ class SurfaceScene:
         within 4 m, else the fitted plane's."""
         tree, heights = self.ground_cells
         xy = np.asarray(points, np.float64) @ self.plane_axes.T
-        d, i = tree.query(xy, workers=-1)
+        d, i = tree.query(xy, workers=_workers(len(xy)))
         plane = self.ground_plane[0] + xy @ self.ground_plane[1:]
         return np.where(np.asarray(d) <= _CELL_REACH_M, np.asarray(heights[i]), plane)
 
@@ -473,7 +482,7 @@ class SurfaceScene:
         """[N] closeness to the nearest wheel path in [0, 1] (1 on it) at ``points`` [N, 3]."""
         if self.lanes is None:
             return np.zeros(len(points))
-        d, _ = self.lanes.query(np.asarray(points, np.float64) @ self.plane_axes.T, workers=-1)
+        d, _ = self.lanes.query(np.asarray(points, np.float64) @ self.plane_axes.T, workers=_workers(len(points)))
         return np.exp(-0.5 * (np.asarray(d) / _WHEEL_PATH_SIGMA_M) ** 2)
 
     def at_frame(self, index: int) -> tuple[GaussianCloud, np.ndarray]:
@@ -545,7 +554,7 @@ class SurfaceScene:
         keys = [c.tobytes() + r.tobytes() for c, r in zip(centers, radii)]
         todo = [i for i, key in enumerate(keys) if key not in memo]
         if todo:
-            for i, hits in zip(todo, tree.query_ball_point(centers[todo], radii[todo], workers=-1)):
+            for i, hits in zip(todo, tree.query_ball_point(centers[todo], radii[todo], workers=_workers(len(todo)))):
                 memo[keys[i]] = np.sort(np.asarray(hits, np.int64))
             while len(memo) > _BALL_MEMO:  # the oldest first (dicts keep insertion order)
                 memo.pop(next(iter(memo)))

@@ -1188,7 +1188,9 @@ def _make_render_forward(nf: int, render_depth: bool) -> Any:
 # in float32 (twice the lanes per vector, half the bytes) and writes only the image. Its pixels
 # stop at the same T_STOP, decided on the float32 transmittance, so a pixel whose float64
 # transmittance sits within rounding of 1e-4 may take one pair more or fewer: that pair weighs less
-# than 1e-4 (docs/design.md §8).
+# than 1e-4 (docs/design.md §8). A caller that reads only the front surface may stop sooner (the
+# ``stop`` of ``RenderJob.image``: the physical editor's surface maps, docs/design.md §7), after
+# the pair that takes the transmittance below it, so what it leaves out weighs less than the stop.
 
 #: Planes (TS * TS float32 each, pixel p = r * TS + j) of the per-tile buffer of the image kernel:
 #: transmittance, sum w (alpha: ``1 - T`` would lose its relative precision at low alpha, where
@@ -1244,11 +1246,13 @@ def _add_colors32_typed(buf: Any, u: Any, w: Any, cols: Any) -> Any:
 @njit(cache=True, inline="always", error_model="numpy")
 def _image_entry(
     nl: int, j0: int, gy0: int, gy1: int, ox: int, oy: int, colmask: np.int32, rec: np.ndarray, s: int,
-    rowbits: np.ndarray, buf: np.ndarray, colors: np.ndarray, nf: int, with_depth: bool,
+    rowbits: np.ndarray, buf: np.ndarray, colors: np.ndarray, nf: int, with_depth: bool, t_stop: np.float32,
 ) -> tuple:
     """:func:`_fwd_entry` for the image kernel: Gaussian ``s`` composited into rows gy0..gy1, lanes
     j0..j0+nl of a tile, with float32 state in ``buf`` (planes ``_IT`` ...) and the ``nf`` color
-    sums fused (``nf`` >= 1). Returns (pixels that stopped, pairs evaluated)."""
+    sums fused (``nf`` >= 1); a pixel stops before its transmittance falls below ``T_STOP`` (the
+    pair that would take it there dropped, as the training's forward) or once it has fallen below
+    ``t_stop`` (that pair kept). Returns (pixels that stopped, pairs evaluated)."""
     ax, hx, hy = np.int64(rec[s, _AX]), rec[s, _HX], rec[s, _HY]
     ay = np.int64(rec[s, _AY])
     ca, cb, cc, o = rec[s, _CA], rec[s, _CB], rec[s, _CC], rec[s, _OP]
@@ -1274,6 +1278,9 @@ def _image_entry(
             test = tj * (_ONE - alpha)
             stop = use & (test < _T_STOP32)
             use = use & (test >= _T_STOP32)
+            # a caller's sooner stop keeps the pair that takes T below it (what it drops weighs
+            # less than the stop); at T_STOP (the default) it never fires
+            stop = stop | (use & (test < t_stop))
             w = alpha * tj if use else _ZERO
             buf[u] = test if use else tj
             buf[np.uint64(_IW * TS * TS) + u] += w
@@ -1306,6 +1313,7 @@ def _make_render_image(nf: int, render_depth: bool) -> Any:
         alpha: np.ndarray,  # out [H, W] f32: sum w
         dnum: np.ndarray,  # out [H, W] f32: sum w z (untouched if not render_depth)
         tile_pairs: np.ndarray,  # out [n_tiles] i64: pairs evaluated
+        t_stop: np.float32,  # a pixel stops once its transmittance falls below this (that pair kept)
     ) -> None:
         n_ch = colors.shape[1]
         npx = TS * TS
@@ -1336,10 +1344,10 @@ def _make_render_image(nf: int, render_depth: bool) -> Any:
                 gy0, gy1, colmask, j0, nl = _entry_box(rec, s, ox, oy)
                 if nl == TS:
                     nd, pc = _image_entry(TS, 0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, buf, colors, nf,
-                                          render_depth)
+                                          render_depth, t_stop)
                 else:
                     nd, pc = _image_entry(TS // 2, j0, gy0, gy1, ox, oy, colmask, rec, s, rowbits, buf, colors,
-                                          nf, render_depth)
+                                          nf, render_depth, t_stop)
                 n_done += nd
                 pairs += pc
             tile_pairs[t] = pairs
@@ -1962,12 +1970,18 @@ class RenderJob:
         self.phase_ms["fwd_blend"] = 1e3 * (time.perf_counter() - t0)
         return color, alpha, dnum
 
-    def image(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def image(self, *, stop: float = T_STOP) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Composite for a render without gradients: the outputs of :meth:`forward` (color before
         background [H, W, C], alpha [H, W], sum(w z) [H, W], float32) from the image kernel, which
         keeps float32 state and nothing for a backward (``_make_render_image``). A job that ran
-        this has no :meth:`backward`. More than ``_MAX_FUSED`` channels take :meth:`forward`."""
+        this has no :meth:`backward`. More than ``_MAX_FUSED`` channels take :meth:`forward`.
+        Every pixel stops at ``T_STOP`` as the forward's do; a ``stop`` above it (a transmittance
+        below 1) stops a pixel sooner, once its transmittance has fallen below ``stop``, the pair
+        that took it there composited."""
         if not 0 < self.n_channels <= _MAX_FUSED:
+            if stop != T_STOP:
+                raise ValueError(f"a stop transmittance other than {T_STOP} needs at most {_MAX_FUSED} channels, "
+                                 f"got {self.n_channels}")
             return self.forward()
         self._bin()
         t0 = time.perf_counter()
@@ -1980,7 +1994,7 @@ class RenderJob:
         with numba.parallel_chunksize(_tile_chunk(n_tiles)):
             _kernel("image", c, self.render_depth)(
                 self.tile_start, self.tile_ids, self.tile_order, self._rec, self.colors, w, h, self.tiles_x,
-                color, alpha, dnum, tile_pairs)
+                color, alpha, dnum, tile_pairs, F32(stop))
         self.meta["n_pairs"] = int(tile_pairs.sum())
         self.phase_ms["fwd_blend"] = 1e3 * (time.perf_counter() - t0)
         return color, alpha, dnum

@@ -27,7 +27,7 @@ import torch
 
 from wcbench.core.progress import announce
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
-from wcbench.reference_model.raster.common import RenderOutput, check_inputs, expected_depth
+from wcbench.reference_model.raster.common import T_STOP, RenderOutput, check_inputs, expected_depth
 from wcbench.reference_model.raster.torch_twin import rasterize_torch
 
 __all__ = ["RenderOutput", "numba_available", "rasterize", "rasterize_image"]
@@ -247,6 +247,7 @@ def rasterize_image(
     render_depth: bool = True,
     absgrad: bool = False,
     backend: str = "auto",
+    stop_transmittance: float = T_STOP,
 ) -> RenderOutput:
     """:func:`rasterize` for a render without gradients (inference): same arguments, same outputs.
 
@@ -263,6 +264,11 @@ def rasterize_image(
         As :func:`rasterize` ([N, 3], [N, 4], [N, 3], [N], [N, C]; metres, pixels).
     absgrad : bool
         Accepted for ``rasterize``-compatibility and must be ``False``: no gradient is computed.
+    stop_transmittance : float
+        A pixel stops compositing before its transmittance would fall below this, in
+        [``T_STOP`` (1e-4, the default, :func:`rasterize`'s), 1). A render that reads only the
+        front surface (surface maps: normals, fields, depth, each divided by alpha) may stop
+        sooner: what it leaves out weighs less than the stop (up to 16 channels; more raise).
 
     Returns
     -------
@@ -272,13 +278,16 @@ def rasterize_image(
     Raises
     ------
     ValueError
-        As :func:`rasterize`; also when ``absgrad`` is ``True`` or gradients are enabled for an
-        input that requires them (use :func:`rasterize` there).
+        As :func:`rasterize`; also when ``absgrad`` is ``True``, gradients are enabled for an
+        input that requires them (use :func:`rasterize` there), or ``stop_transmittance`` is
+        outside [1e-4, 1).
     """
     if backend not in _BACKENDS:
         raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")
     if absgrad:
         raise ValueError("rasterize_image computes no gradients: absgrad must be False (use rasterize)")
+    if not T_STOP <= stop_transmittance < 1.0:
+        raise ValueError(f"stop_transmittance must be in [{T_STOP}, 1), got {stop_transmittance!r}")
     params = (means, quats, scales, opacities, colors, background)
     if torch.is_grad_enabled() and any(isinstance(t, torch.Tensor) and t.requires_grad for t in params):
         raise ValueError("rasterize_image computes no gradients, but an input requires grad: use rasterize, "
@@ -294,12 +303,13 @@ def rasterize_image(
             raise ValueError(f"backend='numba' requested but numba is unavailable ({numba_error('raster.kernels')})")
         with torch.no_grad():
             return rasterize_torch(means, quats, scales, opacities, colors, viewmat_t, K_t, width, height,
-                                   near=near, far=far, background=bg, render_depth=render_depth, absgrad=False)
+                                   near=near, far=far, background=bg, render_depth=render_depth, absgrad=False,
+                                   stop_transmittance=stop_transmittance)
 
     _announce_compile(mod)
     job = mod.RenderJob(means, quats, scales, opacities, colors, viewmat_t, K_t, int(width), int(height),
                         near=float(near), far=float(far), render_depth=render_depth)
-    color_np, alpha_np, dnum_np = job.image()
+    color_np, alpha_np, dnum_np = job.image(stop=float(stop_transmittance))
     color, alpha = torch.from_numpy(color_np), torch.from_numpy(alpha_np)
     if bg is not None:
         color = color + (1.0 - alpha)[..., None] * bg

@@ -294,6 +294,13 @@ def _segment_starts(pix: torch.Tensor) -> torch.Tensor:
     return torch.cummax(first, 0).values
 
 
+def _any_before(flags: torch.Tensor, start: torch.Tensor) -> torch.Tensor:
+    """[P] bool: whether an earlier pair of the same pixel has ``flags`` set (pairs grouped by pixel,
+    ``start`` [P] the index of each pair's pixel's first pair)."""
+    count = torch.cumsum(flags.to(torch.int64), 0) - flags.to(torch.int64)
+    return (count - count[start]) > 0
+
+
 def rasterize_torch(
     means: torch.Tensor,  # [N, 3] world (metres)
     quats: torch.Tensor,  # [N, 4] wxyz, any norm
@@ -311,6 +318,7 @@ def rasterize_torch(
     render_depth: bool = True,
     absgrad: bool = True,
     pairs: tuple[torch.Tensor, torch.Tensor] | None = None,
+    stop_transmittance: float = T_STOP,
 ) -> RenderOutput:
     """Rasterize Gaussians with plain PyTorch ops (the reference twin of :func:`rasterize`).
 
@@ -325,6 +333,10 @@ def rasterize_torch(
         pixel and in front-to-back order within a pixel. When given, the skip (alpha < 1/255) and
         stop (T < 1e-4) decisions are not re-made: exactly these pairs are composited. Used to run
         this twin in float64 on the decisions of a float32 run.
+    stop_transmittance : float
+        Above ``T_STOP`` (1e-4, the default), a pixel also stops once its transmittance has fallen
+        below this, the pair that took it there kept: the twin of
+        :func:`~wcbench.reference_model.raster.rasterizer.rasterize_image`'s.
 
     Returns
     -------
@@ -377,10 +389,11 @@ def rasterize_torch(
             t_incl = torch.exp(cs - base)
             # Stop before T would fall below T_STOP: the stopping pair and all after it are dropped.
             stop = ~skip & (t_incl < T_STOP)
-            stops_before = torch.cumsum(stop.to(torch.int64), 0) - stop.to(torch.int64)
-            stops_before = stops_before - stops_before[start]
-            meta["n_pairs"] = int((stops_before == 0).sum())
-            keep = ~skip & ~stop & (stops_before == 0)
+            # a sooner stop (rasterize_image's): the pair that takes T below it kept, those after dropped
+            sooner = ~skip & (t_incl < stop_transmittance)
+            stopped, ended = (_any_before(flags, start) for flags in (stop, sooner))
+            meta["n_pairs"] = int((~stopped & ~ended).sum())
+            keep = ~skip & ~stop & ~stopped & ~ended
         gid, pix = gid[keep], pix[keep]
     else:
         gid, pix = pairs[0].to(torch.int64), pairs[1].to(torch.int64)

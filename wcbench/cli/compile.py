@@ -1,4 +1,4 @@
-"""Compile the numba kernels of the rasterizer, the particles and the fog now, once.
+"""Compile the numba kernels of the rasterizer, the particles, the fog and the editor now, once.
 
 numba compiles each kernel on its first call and caches the machine code (beside the package, or
 under ``NUMBA_CACHE_DIR``); without this step the first render of a fresh install waits over a

@@ -46,3 +46,40 @@ def test_a_dark_edge_against_the_bright_overcast_sums_radiance_not_display_value
     # the ends: all sky, all surface
     assert over_sky(np.zeros((1, 1, 3)), np.ones((1, 1, 3)), np.ones((1, 1)))[0, 0, 0] == pytest.approx(1.0)
     assert over_sky(np.zeros((1, 1, 3)), np.ones((1, 1, 3)), np.zeros((1, 1)))[0, 0, 0] == pytest.approx(0.0)
+
+
+def _decontaminate_whole_frame(image, alpha, sigma):
+    """The slow twin: the clear sky behind every pixel blurred on the whole frame, the estimate
+    computed everywhere and kept where the matte is mixed."""
+    import cv2
+
+    img = np.asarray(image, np.float32)
+    a = np.clip(alpha, 0.0, 0.9)
+    inside = (alpha >= 0.99).astype(np.float32)
+    blurred = cv2.GaussianBlur(np.dstack([img * inside[..., None], inside]), (0, 0), sigma)
+    num, den = blurred[..., :3], blurred[..., 3:]
+    behind = np.where(den > 1e-3, num / np.maximum(den, 1e-3), img)
+    fg = np.clip((img - a[..., None] * behind) / (1.0 - a[..., None]), 0.0, 1.0)
+    mixed = (a > 0.0) & (a < 0.9)
+    return np.where(mixed[..., None], fg, img).astype(np.float32)
+
+
+@pytest.mark.parametrize("where", ["middle", "top edge", "corner", "everywhere", "one pixel"])
+def test_the_matting_blurred_around_the_mixed_pixels_is_the_whole_frames(rng, where):
+    # the blur of the clear sky computed only in the mixed pixels' rectangle grown by its kernel's
+    # radius: equal to the bit to the whole frame's, the reflected border at the frame's edges
+    # included (sigma 6 px: a 49-tap kernel; 2.5 px: 21 taps)
+    h, w = 135, 240
+    image = rng.random((h, w, 3)).astype(np.float32)
+    alpha = (rng.random((h, w)) > 0.5).astype(np.float32)
+    region = {"middle": np.s_[60:75, 100:140], "top edge": np.s_[0:6, 30:200], "corner": np.s_[120:, 220:],
+              "everywhere": np.s_[:, :], "one pixel": np.s_[70:71, 90:91]}[where]
+    edge = np.zeros((h, w), bool)
+    edge[region] = True
+    alpha[edge] = rng.uniform(0.05, 0.95, int(edge.sum())).astype(np.float32)
+    for sigma in (6.0, 2.5):
+        np.testing.assert_array_equal(decontaminate(image, alpha, sigma_px=sigma),
+                                      _decontaminate_whole_frame(image, alpha, sigma))
+    # no mixed pixel: the frame as it is
+    solid = (alpha > 0.5).astype(np.float32)
+    np.testing.assert_array_equal(decontaminate(image, solid), image)

@@ -17,12 +17,12 @@ from wcbench.reference_model.appearance.maps import (
     _box_shells,
     _boxes_miss_view,
     _gaussian_blur,
-    _hull_pixels,
     _mirrored_cloud,
     _rasterize,
     _rays,
     _replace_tails,
     _slab_interval,
+    _spill_region,
     mirror_distance,
 )
 from wcbench.reference_model.appearance.surfaces import build_surfaces, in_box
@@ -262,12 +262,11 @@ def test_the_mirrored_cloud_with_its_static_orientations_made_once_is_the_per_fr
         np.testing.assert_allclose(fast.means, slow.means[order], rtol=0, atol=1e-5)
 
 
-def test_a_hulls_pixels_drawn_in_its_rectangle_are_those_drawn_on_the_whole_frame():
+def test_a_hull_filled_in_its_spill_region_is_the_hull_filled_on_the_whole_frame():
     # the slow twin: the polygon filled on a frame of its own; hulls inside, across the edges and
     # corners, wholly outside, and degenerate (a point, a segment)
     rng = np.random.default_rng(11)
     h, w = 90, 160
-    allowed = rng.uniform(size=(h, w)) > 0.2
     for trial in range(300):
         n = int(rng.integers(1, 12))
         spread = rng.uniform(0.5, 120)
@@ -275,10 +274,71 @@ def test_a_hulls_pixels_drawn_in_its_rectangle_are_those_drawn_on_the_whole_fram
         hull = cv2.convexHull(np.round(pts).astype(np.int32))
         frame = np.zeros((h, w), np.uint8)
         cv2.fillConvexPoly(frame, hull, 1)
-        slow = set(zip(*np.nonzero(frame.astype(bool) & allowed)))
-        rr, cc = _hull_pixels(hull, allowed)
-        assert set(zip(rr.tolist(), cc.tolist())) == slow, f"trial {trial}: {hull.reshape(-1, 2).tolist()}"
-        assert len(rr) == len(slow)
+        region = _spill_region(hull, h, w)
+        if region is None:
+            assert not frame.any(), f"trial {trial}: {hull.reshape(-1, 2).tolist()}"
+            continue
+        x0, y0, x1, y1 = region
+        part = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.fillConvexPoly(part, hull - np.array([x0, y0], np.int32), 1)
+        drawn = np.zeros_like(frame)
+        drawn[y0:y1, x0:x1] = part
+        assert np.array_equal(drawn, frame), f"trial {trial}: {hull.reshape(-1, 2).tolist()}"
+
+
+def _random_street(rng, n_boxes):
+    """A camera, parked and turned boxes around it with returns over their surfaces, and lidar maps
+    that see through some of them, stop on others and miss the rest (inf)."""
+    camera = _camera(1.7)
+    rays, _ = _rays(camera)
+    boxes, clouds = [], []
+    for _ in range(n_boxes):
+        size = rng.uniform([3.5, 1.6, 1.3], [5.0, 2.0, 1.9])
+        yaw = rng.uniform(-np.pi, np.pi)
+        pose = np.eye(4)
+        pose[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
+        pose[:3, 3] = [rng.uniform(4.0, 30.0), rng.uniform(-8.0, 8.0), size[2] / 2]
+        g = rng.uniform(-1.0, 1.0, (400, 3))
+        g[np.arange(400), rng.integers(0, 3, 400)] = rng.choice([-1.0, 1.0], 400)  # on a face
+        clouds.append((g * size / 2) @ pose[:3, :3].T + pose[:3, 3])
+        boxes.append((pose, size))
+    pts = np.concatenate(clouds)
+    cloud = GaussianCloud(means=pts.astype(np.float32), quats=np.tile(np.float32([1, 0, 0, 0]), (len(pts), 1)),
+                          scales=np.full((len(pts), 3), 0.1, np.float32), opacities=np.ones(len(pts), np.float32),
+                          colors=np.zeros((len(pts), 3), np.float32))
+    surfaces = SimpleNamespace(up=UP, boxes_at=lambda k: boxes, at_frame=lambda k: (cloud, None),
+                               inside_boxes=lambda k, poses, halves: [pts[in_box((pts - T[:3, 3]) @ T[:3, :3], h)]
+                                                                      for T, h in zip(poses, halves)])
+    h, w = camera.height, camera.width
+    distance = rng.uniform(2.0, 40.0, (h, w))
+    distance[rng.random((h, w)) < 0.1] = np.inf
+    normal = rng.normal(size=(h, w, 3)).astype(np.float32)
+    fields = {k: rng.random((h, w)).astype(np.float32) for k in ("ground", "open", "puddle", "track")}
+    sky = rng.random((h, w)) < 0.05
+    return surfaces, camera, rays, distance, normal, fields, sky
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_shell_kernel_is_its_numpy_reference(seed):
+    # the fast twin against the slow one on streets of several overlapping boxes (each box reads the
+    # distances the boxes before it wrote): the same pixels changed, tails and all; the same
+    # values to float64 rounding (BLAS may fuse the reference's 3 x 3 products)
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(seed)
+    surfaces, camera, rays, distance, normal, fields, sky = _random_street(rng, 12)
+    out = {}
+    for fast in (True, False):
+        d, n, f = distance.copy(), normal.copy(), {k: v.copy() for k, v in fields.items()}
+        changed = _box_shells(surfaces, 0, camera, rays, camera.center, d, n, f, sky, fast=fast)
+        out[fast] = (changed, d, n, f)
+    (c1, d1, n1, f1), (c0, d0, n0, f0) = out[True], out[False]
+    assert c0.sum() > 500 and (d0 != distance).sum() > 500  # shells and tails were drawn
+    np.testing.assert_array_equal(c1, c0)
+    np.testing.assert_array_equal(np.isfinite(d1), np.isfinite(d0))
+    np.testing.assert_allclose(d1, d0, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(n1, n0, rtol=0, atol=1e-6)
+    for k in f0:
+        np.testing.assert_array_equal(f1[k], f0[k])
 
 
 def test_the_slab_interval_and_the_box_test_by_columns_are_the_row_reductions():

@@ -83,6 +83,36 @@ def test_image_against_float64_twin_on_the_composited_pairs() -> None:
     torch.testing.assert_close(img.depth.double(), ref.depth, rtol=DEPTH_RTOL, atol=0)
 
 
+@pytest.mark.parametrize("stop", [1e-2, 0.1, 0.5])
+def test_a_sooner_stop_matches_the_twins_and_drops_only_what_lies_past_it(stop: float) -> None:
+    # the numba image kernel and the torch twin stop each pixel at the same transmittance; against
+    # the full compositing (1e-4) the colour divided by alpha moves by at most the stop's share of
+    # the channels' range, and alpha by at most the stop (what is left behind weighs less)
+    params = _detached(random_scene(500, seed=13, channels=7))
+    img = rasterize_image(*params, V, K, W, H, stop_transmittance=stop)
+    with torch.no_grad():
+        twin = rasterize_torch(*params, V, K, W, H, stop_transmittance=stop)
+    full = rasterize_image(*params, V, K, W, H)
+    torch.testing.assert_close(img.color, twin.color, atol=TWIN_ATOL, rtol=0)
+    torch.testing.assert_close(img.alpha, twin.alpha, atol=TWIN_ATOL, rtol=0)
+    assert img.meta["n_pairs"] == twin.meta["n_pairs"] < full.meta["n_pairs"]
+    assert float((full.alpha - img.alpha).min()) >= -IMAGE_ATOL
+    assert float((full.alpha - img.alpha).max()) <= stop + IMAGE_ATOL
+    covered = img.alpha > 0.5
+    assert int(covered.sum()) > 100
+    mean_img = img.color[covered] / img.alpha[covered, None]
+    mean_full = full.color[covered] / full.alpha[covered, None]
+    spread = float(params[4].max() - params[4].min())
+    assert float((mean_img - mean_full).abs().max()) <= 2.0 * stop * spread + 1e-5
+
+
+def test_a_stop_outside_its_range_is_refused() -> None:
+    params = _detached(random_scene(20, seed=1, channels=3))
+    for bad in (0.0, 1e-5, 1.0, 2.0):
+        with pytest.raises(ValueError, match="stop_transmittance"):
+            rasterize_image(*params, V, K, W, H, stop_transmittance=bad)
+
+
 def _wall(n_side: int, *, opacity: float, z: float, x0: float = 0.0, y0: float = 0.0, size: float = 0.6,
           color: tuple[float, ...] = (0.2, 0.5, 0.8)) -> list:
     """A fronto-parallel square of n_side^2 round Gaussians at depth ``z``."""

@@ -1,0 +1,155 @@
+"""Numba kernel of :mod:`.maps`: one tracked object's shell and its Gaussians' tails, pixel by pixel.
+
+:func:`box_shell_kernel` mirrors the numpy reference :func:`wcbench.reference_model.appearance.maps.
+_box_shell_pixels` (same float64 operations in the same order, the same NaN rules of the slab
+method); a frame has dozens of boxes, each a few thousand pixels, where the reference's dozen numpy
+passes per box cost more in calls than in arithmetic (docs/design.md §7). Compiled on first use and
+cached on disk.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["box_shell_kernel"]
+
+
+@numba.njit(cache=True, inline="always")
+def _nan_min(a, b):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``np.minimum``: NaN if either is NaN."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@numba.njit(cache=True, inline="always")
+def _nan_max(a, b):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``np.maximum``: NaN if either is NaN."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@numba.njit(cache=True, inline="always")
+def _fmax(a, b):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``np.fmax``: the other where one is NaN."""
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return a if a >= b else b
+
+
+@numba.njit(cache=True, inline="always")
+def _fmin(a, b):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``np.fmin``: the other where one is NaN."""
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return a if a <= b else b
+
+
+@numba.njit(cache=True, inline="always")
+def _slab(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """(entry, exit) of the line ``o + t d`` through the box [lo, hi] (``maps._slab_interval``)."""
+    t1 = (lo[0] - o[0]) / d0
+    t2 = (hi[0] - o[0]) / d0
+    n0, f0 = _nan_min(t1, t2), _nan_max(t1, t2)
+    t1 = (lo[1] - o[1]) / d1
+    t2 = (hi[1] - o[1]) / d1
+    n1, f1 = _nan_min(t1, t2), _nan_max(t1, t2)
+    t1 = (lo[2] - o[2]) / d2
+    t2 = (hi[2] - o[2]) / d2
+    n2, f2 = _nan_min(t1, t2), _nan_max(t1, t2)
+    return _fmax(_fmax(n0, n1), n2), _fmin(_fmin(f0, f1), f2)
+
+
+@numba.njit(cache=True, inline="always")
+def _hits(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Whether the ray ``o + t d``, t > 0, meets the box [lo, hi] (``maps._slab_hits``)."""
+    t_in, t_out = _slab(o, d0, d1, d2, lo, hi)
+    return t_out >= _nan_max(t_in, 0.0) and t_out > 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open_, puddle, track,  # type: ignore[no-untyped-def]  # pragma: no cover
+                     allowed, tails, hulls, changed, R, t, o, half, vertical, floor, center, body_lo, body_hi,
+                     cabin_lo, cabin_hi, slack):
+    """One box of :func:`~wcbench.reference_model.appearance.maps._box_shells`, in place.
+
+    ``filled`` / ``grown`` [h, w] uint8: the hull of the object's returns and that hull grown by
+    the edge, over the frame region from column ``x0``, row ``y0``. First the tails (pixels of the
+    region outside ``grown`` whose surface lies on the object, marked in ``tails``; ``grown`` is
+    added to ``hulls``), then the shell of every ``filled`` pixel (``distance`` [H, W] float64,
+    ``normal`` [H, W, 3], the four fields [H, W], ``changed`` [H, W] bool). ``R``, ``t`` the box's
+    rotation and centre, ``o`` the camera centre in the box's frame, ``half`` its half-size,
+    ``floor`` the height on axis ``vertical`` below which the road shows, ``center`` the camera
+    centre (world), ``body_lo``/``body_hi`` and ``cabin_lo``/``cabin_hi`` the body's and the
+    glasshouse's boxes, ``slack`` the box's margin (m).
+    """
+    rh, rw = filled.shape
+    a0, a1, a2 = center[0] - t[0], center[1] - t[1], center[2] - t[2]
+    s0, s1, s2 = half[0] + slack, half[1] + slack, half[2] + slack
+    for r in range(rh):
+        y = y0 + r
+        for c in range(rw):
+            x = x0 + c
+            if grown[r, c]:
+                hulls[y, x] = True
+                continue
+            seen = distance[y, x]
+            if not allowed[y, x] or not math.isfinite(seen):
+                continue
+            b0 = a0 + rays[y, x, 0] * seen
+            b1 = a1 + rays[y, x, 1] * seen
+            b2 = a2 + rays[y, x, 2] * seen
+            p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
+            p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
+            p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
+            pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
+            if abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor:
+                tails[y, x] = True
+    lo = -half
+    for r in range(rh):
+        y = y0 + r
+        for c in range(rw):
+            x = x0 + c
+            if not filled[r, c] or not allowed[y, x]:
+                continue
+            r0, r1, r2 = rays[y, x, 0], rays[y, x, 1], rays[y, x, 2]
+            d0 = r0 * R[0, 0] + r1 * R[1, 0] + r2 * R[2, 0]
+            d1 = r0 * R[0, 1] + r1 * R[1, 1] + r2 * R[2, 1]
+            d2 = r0 * R[0, 2] + r1 * R[1, 2] + r2 * R[2, 2]
+            near, far = _slab(o, d0, d1, d2, lo, half)
+            if not (far >= near and near > 0.0):
+                continue
+            seen = distance[y, x]
+            through = _hits(o, d0, d1, d2, body_lo, body_hi) or _hits(o, d0, d1, d2, cabin_lo, cabin_hi)
+            behind = near + slack < seen and through
+            if behind:
+                e0, e1, e2 = o[0] + d0 * near, o[1] + d1 * near, o[2] + d2 * near
+                # the face entered: the first axis of the largest |entry| / half (np.argmax)
+                axis, sign, best = 0, np.sign(e0), abs(e0) / half[0]
+                if abs(e1) / half[1] > best:
+                    axis, sign, best = 1, np.sign(e1), abs(e1) / half[1]
+                if abs(e2) / half[2] > best:
+                    axis, sign = 2, np.sign(e2)
+                for i in range(3):
+                    normal[y, x, i] = sign * R[i, axis]
+                distance[y, x] = near
+            elif math.isfinite(seen):
+                p0, p1, p2 = o[0] + d0 * seen, o[1] + d1 * seen, o[2] + d2 * seen
+                pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
+                if not (abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor):
+                    continue
+            else:
+                continue
+            ground[y, x] = 0.0
+            open_[y, x] = 1.0
+            puddle[y, x] = 0.0
+            track[y, x] = 0.0
+            changed[y, x] = True
