@@ -1,10 +1,11 @@
 """Numba kernel of :mod:`.maps`: one tracked object's shell and its Gaussians' tails, pixel by pixel.
 
 :func:`box_shell_kernel` mirrors the numpy reference :func:`wcbench.reference_model.appearance.maps.
-_box_shell_pixels` (same float64 operations in the same order, the same NaN rules of the slab
-method); a frame has dozens of boxes, each a few thousand pixels, where the reference's dozen numpy
-passes per box cost more in calls than in arithmetic (docs/design.md §7). Compiled on first use and
-cached on disk.
+_box_shell_pixels` (the same float64 arithmetic and NaN rules of the slab method; the reference's
+3 x 3 products go through BLAS, which may round them differently, so the tests compare values to
+1e-12 and the pixels changed exactly); a frame has dozens of boxes, each a few thousand pixels,
+where the reference's dozen numpy passes per box cost more in calls than in arithmetic
+(docs/design.md §7). Compiled on first use and cached on disk.
 """
 
 from __future__ import annotations
