@@ -47,9 +47,9 @@ def test_a_lidar_hit_pixel_is_pulled_toward_opacity_one_lidar_weight_times_harde
                               lidar=torch.from_numpy(lidar), lidar_weight=0.0)) == pytest.approx(float(base))
 
 
-def test_the_lidar_pull_is_a_bounded_setting_off_by_default():
-    assert make_config("default").opacity_lidar == 0.0  # docs/findings.md: its PSNR cost is not yet measured
-    assert make_config("default", opacity_lidar=10.0).opacity_lidar == 10.0
+def test_the_lidar_pull_is_a_bounded_setting_on_by_default():
+    assert make_config("default").opacity_lidar == 10.0  # docs/findings.md, "The lidar's pull measured at full length"
+    assert make_config("default", opacity_lidar=0.0).opacity_lidar == 0.0
     with pytest.raises(ValueError, match="opacity_lidar"):
         make_config("default", opacity_lidar=-1.0)
 
