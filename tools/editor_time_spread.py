@@ -26,6 +26,8 @@ import sys
 import time
 from pathlib import Path
 
+from wcbench.core.environment import machine_info
+
 #: What one run executes in its own process: the bench's editor case, its times as JSON on stdout.
 _CHILD = """
 import json, sys
@@ -61,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"{folder}: a scene folder with images/ was expected")
     runs = []
     for i in range(args.runs):
-        load, mhz = os.getloadavg()[0], _clock_mhz()
+        load, mhz = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan"), _clock_mhz()
         start = time.perf_counter()
         done = subprocess.run([sys.executable, "-c", _CHILD, args.scene, str(folder)], capture_output=True, text=True,
                               env={**os.environ, "WCBENCH_PROGRESS": "0"})
@@ -75,12 +77,13 @@ def main(argv: list[str] | None = None) -> int:
               f"{times['ms_per_frame_median_rain']:.1f}, snow {times['ms_per_frame_median_snow']:.1f}, fog "
               f"{times['ms_per_frame_median_fog']:.1f}); load {load:.2f} before, CPU {mhz} MHz", flush=True)
     medians = [r["ms_per_frame_median"] for r in runs]
-    spread = {"runs": len(runs), "min_ms": min(medians), "median_ms": statistics.median(medians),
+    spread = {"runs": len(runs), "min_ms": min(medians), "median_ms": round(statistics.median(medians), 1),
               "max_ms": max(medians), "max_over_min": round(max(medians) / min(medians), 3)}
     print(f"{args.scene}: the median frame over {len(runs)} runs {spread['min_ms']:.1f} to {spread['max_ms']:.1f} ms "
           f"(median {spread['median_ms']:.1f}; slowest / fastest {spread['max_over_min']:.3f})")
     if args.out:
-        args.out.write_text(json.dumps({"scene": args.scene, "spread": spread, "runs": runs}, indent=2) + "\n")
+        args.out.write_text(json.dumps({"scene": args.scene, "machine": machine_info(), "spread": spread, "runs": runs},
+                                   indent=2) + "\n")
     return 0
 
 
