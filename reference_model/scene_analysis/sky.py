@@ -44,7 +44,7 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    wires) count as one, so the sky under an arm stays sky.
 6. **Thin occluders** (:func:`thin_occluders`): the returns of a structure a few px wide in front of
    the sky (a wire, a signal's mast arm, a pole's top: the hit set minus its morphological opening
-   by a 5 x 5 px square, with smooth, return-free pixels of the nearby seeds' colour 2-4 px past it
+   by a 7 x 7 px square, with smooth, return-free pixels of the nearby seeds' colour 2-4 px past it
    on both sides along a row, a column or a diagonal) cut the hazy sky under them off from the open
    sky and from the seeds, and their mixed pixels teach the classifiers that pale sky beside a
    structure is not sky. Found after a first pass of seeds, they are crossed on the way to the top
@@ -103,9 +103,11 @@ _BLUE_B, _BLUE_A = -12.0, (-20.0, 5.0)
 #: sky is smaller).
 _MIN_OPEN_SKY = 0.003
 #: Thin occluders: returns of a structure at most ``2 * _THIN_PX`` px wide (at 480 wide: a wire, a
-#: signal's mast arm, a pole's top), looked past ``_THIN_GAP_PX`` px on either side for the sky's
-#: colour nearby (CIELAB difference under ``_THIN_DE``).
-_THIN_PX, _THIN_GAP_PX, _THIN_DE = 2, (2, 3, 4), 10.0
+#: signal's mast arm with the heads that hang from it, a pole's top), looked past ``_THIN_GAP_PX`` px
+#: on either side for the sky's colour nearby (CIELAB difference under ``_THIN_DE``). 2 px left the
+#: haze under pandaset_002's far signal arm (5-9 rows of returns) walled off from every seed
+#: (docs/findings.md, "The sky under a signal's arm").
+_THIN_PX, _THIN_GAP_PX, _THIN_DE = 3, (2, 3, 4), 10.0
 #: How far (px, a Gaussian's sigma) the seeds give the sky's colour around a thin occluder.
 _THIN_REACH_PX = 12.0
 #: A patch of sky is kept when the neighbouring frames call at least this share of it sky (warped by
