@@ -4,18 +4,29 @@ The kernels are compiled on their first call and cached by numba beside their so
 ``NUMBA_CACHE_DIR``); a fresh install's first render otherwise waits for the compilation. Running
 each kernel once on a tiny input here moves that wait to set-up time, with a message, and a later
 process loads the cached machine code in a fraction of the time (``wcbench bench raster``
-measures both: ``start_cold`` and ``start_warm``).
+measures both: ``start_cold`` and ``start_warm``). Once every step has run, a stamp file in the
+wcbench cache says so (:func:`kernels_stamp`): ``wcbench run`` and ``wcbench train`` read it to
+decide whether to compile in a second process while they work (docs/design.md §8).
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
+import llvmlite.binding
+import numba
 import numpy as np
 import torch
 
+from wcbench.core.errors import OutputError
+from wcbench.core.paths import cache_dir
+from wcbench.core.storage import atomic_write_json
 from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error
 from wcbench.reference_model.model.sky import SkyModel
 from wcbench.reference_model.raster.rasterizer import rasterize, rasterize_image
@@ -24,7 +35,7 @@ from wcbench.reference_model.training.losses import training_ssim
 from wcbench.reference_model.weather.conditions import Weather
 from wcbench.reference_model.weather.renderer import WeatherRenderer
 
-__all__ = ["KERNEL_MODULES", "compile_kernels"]
+__all__ = ["KERNEL_MODULES", "compile_kernels", "kernels_compiled", "kernels_stamp"]
 
 #: The kernel modules (inside ``wcbench.reference_model``).
 KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels", "training.ssim_kernels",
@@ -122,8 +133,46 @@ def _training() -> None:
     sky(sky.grid(torch.nn.functional.normalize(torch.rand(6, 5, 3), dim=-1)), ("clear",)).sum().backward()
 
 
+#: The steps of :func:`compile_kernels` in their order: a process compiling beside a first run
+#: (``wcbench run``) does first what that run reaches last without having compiled it on the way (the
+#: training's SSIM and sky, the editor's shells, the backward passes), the weather's kernels (which
+#: generating a synthetic scene compiles for itself) last.
+_STEPS = ("raster", "training", "editor", "weather")
+
+
+def kernels_stamp() -> Path:
+    """The file :func:`compile_kernels` leaves once every kernel is in numba's cache.
+
+    Its name is a digest of what numba keys that cache on: each kernel module's path, modification
+    time and size (numba's source stamp), numba's and Python's versions, the host CPU and
+    ``NUMBA_CACHE_DIR``; so an edited or reinstalled kernel module, another interpreter or another
+    cache folder has no stamp until its kernels are compiled again.
+
+    Returns
+    -------
+    Path
+        ``<wcbench cache>/kernels/<digest>.json`` (it may not exist).
+    """
+    h = hashlib.sha256()
+    for part in (numba.__version__, sys.version, llvmlite.binding.get_host_cpu_name(),
+                 os.environ.get("NUMBA_CACHE_DIR", "")):
+        h.update(part.encode() + b"\0")
+    for name in KERNEL_MODULES:
+        module = load_numba_kernels(name)
+        path = Path(module.__file__ or name) if module is not None else Path(name)
+        st = path.stat() if path.is_file() else None
+        h.update(f"{path.resolve()}:{st.st_mtime if st else 0}:{st.st_size if st else 0}".encode() + b"\0")
+    return cache_dir() / "kernels" / f"{h.hexdigest()[:16]}.json"
+
+
+def kernels_compiled() -> bool:
+    """Whether :func:`compile_kernels` has run to its end for these kernel modules (:func:`kernels_stamp`)."""
+    return kernels_stamp().is_file()
+
+
 def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, float]:
-    """Run every kernel once on a tiny input (compiling it, or loading it from numba's cache).
+    """Run every kernel once on a tiny input (compiling it, or loading it from numba's cache), then
+    leave :func:`kernels_stamp`.
 
     Parameters
     ----------
@@ -143,11 +192,17 @@ def compile_kernels(*, echo: Callable[[str], None] | None = None) -> dict[str, f
     for name in KERNEL_MODULES:
         if load_numba_kernels(name) is None:
             raise RuntimeError(f"numba kernels {name} unavailable: {numba_error(name)}")
+    steps = {"raster": _raster, "weather": _weather, "editor": _editor, "training": _training}
     seconds = {}
-    for step, fn in (("raster", _raster), ("weather", _weather), ("editor", _editor), ("training", _training)):
+    for step in _STEPS:
         t = time.perf_counter()
-        fn()
+        steps[step]()
         seconds[step] = time.perf_counter() - t
         if echo is not None:
             echo(f"{step} kernels ready in {seconds[step]:.1f} s")
+    try:
+        atomic_write_json(kernels_stamp(), {"seconds": {k: round(v, 2) for k, v in seconds.items()},
+                                            "numba": numba.__version__})
+    except OutputError:
+        pass  # a read-only cache folder: the kernels are compiled all the same; a later run compiles beside
     return seconds

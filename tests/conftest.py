@@ -15,13 +15,16 @@ def _isolated_environment(tmp_path_factory: pytest.TempPathFactory) -> None:
     """A private cache (built-in scenes, models), no progress bars, and a working directory outside
     the source tree for the whole session: subprocesses (`python -c`, `python -m`) put the cwd first
     on sys.path, where the repository's `wcbench/` folder would shadow the installed package.
-    Offline: no test fetches weights unless it is about fetching (and sets its own store)."""
+    Offline: no test fetches weights unless it is about fetching (and sets its own store). No kernels
+    compiled in a second process beside a run (tests/execution/test_background_compile.py turns it on)."""
     cache = tmp_path_factory.mktemp("wcbench_cache")
     os.chdir(tmp_path_factory.mktemp("cwd"))
     os.environ.setdefault("WCBENCH_CACHE", str(cache))
     os.environ.setdefault("WCBENCH_MODELS", str(cache / "models"))
     os.environ["WCBENCH_PROGRESS"] = "0"
     os.environ["WCBENCH_OFFLINE"] = "1"
+    # the tests' kernels compile in the process that calls them; a child compiling beside would slow them
+    os.environ["WCBENCH_BACKGROUND_COMPILE"] = "0"
     os.environ.pop("WCBENCH_DATA", None)
 
 

@@ -15,6 +15,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+from contextlib import nullcontext
 
 from wcbench.cli.common import (
     add_frame_and_size_arguments,
@@ -50,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Render, then evaluate (one pass over the units of work)."""
     from wcbench.evaluation import EvaluateConfig, check_metrics, evaluate
+    from wcbench.execution.background_compile import kernels_compiled_aside
     from wcbench.methods import get_method, is_runnable
     from wcbench.units import RenderSettings
 
@@ -73,7 +75,11 @@ def run(args: argparse.Namespace) -> int:
                               show_progress=not args.no_progress),
     )
     check_metrics(cfg)  # before an executor starts (a Dask cluster); evaluate checks again
-    with executor_from(args) as executor:
+    # a method that renders with the reference model waits for its kernels on a fresh install: a second
+    # process compiles them while this one fetches, generates and edits
+    aside = kernels_compiled_aside() if is_runnable(method) and "torch" in method.info.requires \
+        else nullcontext()
+    with aside, executor_from(args) as executor:
         outcome = evaluate(cfg, method=method, executor=executor)
     report(outcome)
     if args.report:

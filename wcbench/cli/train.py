@@ -85,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     """Train every scene of the set; print and write what each training measured."""
     from wcbench.core.models.fetch import fetch_missing, is_offline
     from wcbench.core.storage import atomic_write_json, check_writable_folder
+    from wcbench.execution.background_compile import kernels_compiled_aside
     from wcbench.methods.scene_training import check_supervision, train_scene
     from wcbench.methods.weather_spec import OPTION, parse_physics, resolve_physics
     from wcbench.methods.weathercity import profile_physics
@@ -111,25 +112,26 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--checkpoint names one folder, but {args.scenes} has {len(refs)} scenes")
     # the content loss's VGG16, fetched before the first scene trains (skipped with the reason if it stays missing)
     models = fetch_missing(["vgg16"] if config.content_weight != 0 else [], offline=is_offline(args.offline))
-    for ref in refs:
-        scene = ref.load()
-        bad = [h for h in config.holdout if not 0 <= h < len(scene)]
-        if bad:
-            raise InputError(f"--holdout {bad}: {scene.id} has frames 0..{len(scene) - 1}")
-        # the physics `run --method weathercity` trains with (same physics option; seed 0 and no particle
-        # draw, as WeatherCityMethod.training_physics), so that it finds this model
-        _, _, facts = train_scene(scene, config, supervision=supervision, jitter=jitter,
-                                  physics=resolve_physics(scene, physics, seed=0, draws=False),
-                                  folder=args.checkpoint, device=device,
-                                  show_progress=not args.no_progress)
-        path = args.out / scene.id / "training.json"
-        atomic_write_json(path, {**facts, "models": {name: o.record() for name, o in models.items()}})
-        counts = facts["gaussians"]
-        line = (f"{scene.id}: {facts['iterations']} steps in {facts['train_seconds']:.1f} s, "
-                f"{counts['total']} Gaussians ({counts['background']} background, {counts['rigid']} in "
-                f"{counts['rigid_nodes']} rigid, {counts['nonrigid']} in {counts['nonrigid_nodes']} non-rigid)")
-        if "holdout" in facts:
-            line += f"; held-out PSNR {facts['holdout']['mean_psnr']:.2f} dB"
-        print(line)
-        print(f"  checkpoint {facts['checkpoint']}\n  facts {path}")
+    with kernels_compiled_aside():  # a fresh install's kernels compile beside the first scene's set-up
+        for ref in refs:
+            scene = ref.load()
+            bad = [h for h in config.holdout if not 0 <= h < len(scene)]
+            if bad:
+                raise InputError(f"--holdout {bad}: {scene.id} has frames 0..{len(scene) - 1}")
+            # the physics `run --method weathercity` trains with (same physics option; seed 0 and no particle
+            # draw, as WeatherCityMethod.training_physics), so that it finds this model
+            _, _, facts = train_scene(scene, config, supervision=supervision, jitter=jitter,
+                                      physics=resolve_physics(scene, physics, seed=0, draws=False),
+                                      folder=args.checkpoint, device=device,
+                                      show_progress=not args.no_progress)
+            path = args.out / scene.id / "training.json"
+            atomic_write_json(path, {**facts, "models": {name: o.record() for name, o in models.items()}})
+            counts = facts["gaussians"]
+            line = (f"{scene.id}: {facts['iterations']} steps in {facts['train_seconds']:.1f} s, "
+                    f"{counts['total']} Gaussians ({counts['background']} background, {counts['rigid']} in "
+                    f"{counts['rigid_nodes']} rigid, {counts['nonrigid']} in {counts['nonrigid_nodes']} non-rigid)")
+            if "holdout" in facts:
+                line += f"; held-out PSNR {facts['holdout']['mean_psnr']:.2f} dB"
+            print(line)
+            print(f"  checkpoint {facts['checkpoint']}\n  facts {path}")
     return 0
