@@ -77,3 +77,36 @@ def test_supervision_cases_compare_per_weather_and_in_the_mean(monkeypatch, tmp_
     # snow: |0.07 - 0.039| > |0.06 - 0.039|, the editor's flicker is nearer the truth's there
     assert x["closer_flicker_snow"] is False and x["closer_flicker_rain"] is True
     assert x["flicker_truth_fog"] == pytest.approx(0.025)
+
+
+def test_the_first_run_group_runs_the_first_runs_alone(monkeypatch) -> None:
+    import wcbench.bench.validity as validity
+    from wcbench.bench.schema import BenchCase
+
+    def no_entries(*args, **kwargs):
+        raise AssertionError("the scores group ran")
+
+    ran = []
+
+    def fake_first_run(scenes: str) -> BenchCase:
+        ran.append(scenes)
+        return BenchCase(name=f"first_run_{scenes}", knob="first_run", value=scenes, time_ms=1.0, error=None,
+                         error_unit="-")
+
+    monkeypatch.setattr(validity, "_run_entry", no_entries)
+    monkeypatch.setattr(validity, "_first_run_case", fake_first_run)
+    monkeypatch.setenv("WCBENCH_BENCH_VALIDITY_GROUPS", "first_run")
+    report = validity.run()
+    assert ran == list(validity.FIRST_RUN_LIMIT_S)
+    assert [c.name for c in report.cases] == [f"first_run_{s}" for s in validity.FIRST_RUN_LIMIT_S]
+    assert report.notes == []
+
+
+def test_an_unknown_group_is_refused_before_any_work(monkeypatch) -> None:
+    import wcbench.bench.validity as validity
+    from wcbench.core.errors import InputError
+
+    monkeypatch.setattr(validity, "_first_run_case", lambda scenes: (_ for _ in ()).throw(AssertionError("ran")))
+    monkeypatch.setenv("WCBENCH_BENCH_VALIDITY_GROUPS", "first_run,speed")
+    with pytest.raises(InputError, match=r"unknown groups \['speed'\]; known: scores, first_run"):
+        validity.run()
