@@ -133,10 +133,11 @@ def _training() -> None:
     sky(sky.grid(torch.nn.functional.normalize(torch.rand(6, 5, 3), dim=-1)), ("clear",)).sum().backward()
 
 
-#: The steps of :func:`compile_kernels` in their order: a process compiling beside a first run
-#: (``wcbench run``) does first what that run reaches last without having compiled it on the way (the
-#: training's SSIM and sky, the editor's shells, the backward passes), the weather's kernels (which
-#: generating a synthetic scene compiles for itself) last.
+#: The steps of :func:`compile_kernels` in their order. A process compiling beside a first run
+#: (``wcbench run``) starts with the rasterizer, whose training variants and backward passes are that
+#: run's longest wait, and ends with the weather's kernels, which generating a synthetic scene
+#: compiles for itself on the way (the README's main job was slower with the editor's and training's
+#: small steps first: docs/findings.md, "A first run's kernels compiled beside it").
 _STEPS = ("raster", "training", "editor", "weather")
 
 
