@@ -38,3 +38,8 @@ def test_compile_reports_a_missing_backend(monkeypatch: pytest.MonkeyPatch, caps
     assert main(["compile"]) == 2
     assert not kernels_compiled()
     assert "numba kernels weather.fog_kernels unavailable: ImportError: no numba" in capsys.readouterr().err
+
+
+def test_compile_refuses_a_niceness_out_of_range(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["compile", "--nice", "25"]) == 2
+    assert "--nice 25: a niceness increment from 0 to 19 was expected" in capsys.readouterr().err

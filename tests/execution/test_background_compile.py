@@ -28,7 +28,7 @@ def test_a_cold_cache_starts_a_compiling_child_that_the_block_end_stops(cold_cac
     assert not kernels_compiled()
     with kernels_compiled_aside(echo=said.append) as child:
         assert child is not None
-        assert child.args[-3:] == ["-m", "wcbench", "compile"]
+        assert child.args[-5:] == ["-m", "wcbench", "compile", "--nice", "10"]
     assert child.poll() is not None  # stopped (or done), never left running
     assert (cold_cache / "kernels" / "compile.log").is_file()
     assert len(said) == 1 and "second process" in said[0] and BACKGROUND_COMPILE_ENV in said[0]

@@ -8,23 +8,34 @@ again: cached kernels only load.
 Examples::
 
     wcbench compile
+    wcbench compile --nice 10    # at a lower CPU priority, as a first run starts it beside its own work
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 HELP = "compile the numba kernels now (first run only; cached for later processes)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """No options."""
+    """``--nice``."""
+    parser.add_argument("--nice", type=int, default=0, metavar="N",
+                        help="lower this process's CPU priority by N first (0-19; where the OS has it): a "
+                             "first `wcbench run` starts `compile --nice 10` beside its own work, which then "
+                             "never waits for it")
 
 
 def run(args: argparse.Namespace) -> int:
     """Compile (or load) every kernel, one line per step."""
     from wcbench.core.errors import InputError
+
+    if not 0 <= args.nice <= 19:
+        raise InputError(f"--nice {args.nice}: a niceness increment from 0 to 19 was expected")
+    if args.nice and hasattr(os, "nice"):
+        os.nice(args.nice)
 
     try:
         from wcbench.reference_model.kernel_warmup import compile_kernels

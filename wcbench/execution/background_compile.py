@@ -5,7 +5,7 @@ reference model's kernels, each on its first call and one after the other: the t
 step alone waits close to a minute, single-threaded, while the machine's other cores idle. When
 the kernels are not compiled yet (no stamp of
 :func:`~wcbench.reference_model.kernel_warmup.compile_kernels`), :func:`kernels_compiled_aside`
-starts ``wcbench compile`` in a child process on the spare core: the run's own work (fetching
+starts ``wcbench compile --nice 10`` in a child process on the spare core: the run's own work (fetching
 weights, generating or analysing the scene, editing its frames) goes on, and the kernels it
 reaches later load from numba's cache instead of compiling. A kernel the run reaches first is
 compiled by both (numba's cache files are written whole, so either copy serves). The child is
@@ -27,6 +27,8 @@ __all__ = ["BACKGROUND_COMPILE_ENV", "kernels_compiled_aside"]
 
 #: Set to ``0`` to compile every kernel in the process that first calls it, as numba does alone.
 BACKGROUND_COMPILE_ENV = "WCBENCH_BACKGROUND_COMPILE"
+#: The child's niceness increment (``wcbench compile --nice``).
+NICENESS = 10
 
 
 def _wanted() -> bool:
@@ -68,7 +70,9 @@ def kernels_compiled_aside(*, echo: Callable[[str], None] | None = None) -> Iter
         yield None  # an unwritable cache folder: the run compiles as it goes
         return
     with log:
-        child = subprocess.Popen([sys.executable, "-m", "wcbench", "compile"], stdin=subprocess.DEVNULL,
+        # at a lower priority: it takes the cycles the run leaves idle, and never slows the run's own work
+        child = subprocess.Popen([sys.executable, "-m", "wcbench", "compile", "--nice", str(NICENESS)],
+                                 stdin=subprocess.DEVNULL,
                                  stdout=log, stderr=subprocess.STDOUT)
         say = echo if echo is not None else (lambda line: print(line, file=sys.stderr, flush=True))
         say(f"compiling the numba kernels in a second process while this one works (first run only; "
