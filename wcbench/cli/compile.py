@@ -24,8 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``--nice``."""
     parser.add_argument("--nice", type=int, default=0, metavar="N",
                         help="lower this process's CPU priority by N first (0-19; where the OS has it): a "
-                             "first `wcbench run` starts `compile --nice 10` beside its own work, which then "
-                             "never waits for it")
+                             "first `wcbench run` starts `compile --nice 10` beside its own work, so that it "
+                             "takes only the cycles the run leaves idle")
 
 
 def run(args: argparse.Namespace) -> int:
