@@ -136,8 +136,10 @@ def _training() -> None:
 #: The steps of :func:`compile_kernels` in their order. A process compiling beside a first run
 #: (``wcbench run``) starts with the rasterizer, whose training variants and backward passes are that
 #: run's longest wait, and ends with the weather's kernels, which generating a synthetic scene
-#: compiles for itself on the way (the README's main job was slower with the editor's and training's
-#: small steps first: docs/findings.md, "A first run's kernels compiled beside it").
+#: compiles for itself on the way. One run of the README's main job each, 218 s in this order and
+#: 227 s with the editor's and training's small steps first, is within the machine's run-to-run
+#: tenth: the order is chosen by the run's timeline, not a measured win (docs/findings.md, "A
+#: first run's kernels compiled beside it").
 _STEPS = ("raster", "training", "editor", "weather")
 
 
