@@ -41,6 +41,7 @@ import numpy as np
 from wcbench.core.errors import InputError
 from wcbench.core.options import Option, Range, validate_options
 from wcbench.reference_model.appearance.maps import (
+    FIELDS,
     SurfaceMaps,
     glossy_blur,
     mirror_distance,
@@ -65,8 +66,12 @@ from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surf
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis, analyse_scene
 from wcbench.reference_model.weather.conditions import Weather, load_presets
 
-__all__ = ["APPEARANCE_KEYS", "AppearanceParams", "WeatherEditor", "appearance_options", "decontaminate",
-           "masked_ego", "over_sky"]
+__all__ = ["APPEARANCE_KEYS", "FIELDS_READ", "AppearanceParams", "WeatherEditor", "appearance_options",
+           "decontaminate", "masked_ego", "over_sky"]
+
+#: The surface attributes (:data:`~.maps.FIELDS`) each weather's edit reads: its frames' maps
+#: composite only these (fog and every other kind: none; the normal and the distance always).
+FIELDS_READ: dict[str, tuple[str, ...]] = {"rain": FIELDS, "snow": ("ground", "open", "track")}
 
 
 #: Bounds and meaning of every key of the presets' ``[appearance]`` tables (``TABLE.KEY``; sources of
@@ -245,17 +250,19 @@ class WeatherEditor:
         """[H, W] bool: pixels of frame ``index`` a lidar return lands in, at ``camera``'s size."""
         return self.analysis.solid_mask(index, (int(camera.width), int(camera.height)))
 
-    def maps(self, index: int, camera: Any, image: np.ndarray) -> SurfaceMaps:
-        """The completed surface maps of frame ``index`` at ``camera``'s size (the last view's are
-        kept: every weather of a frame shares them); ``image`` is the frame at that size (display
-        RGB), the guide of the sky's matte."""
+    def maps(self, index: int, camera: Any, image: np.ndarray, *, fields: tuple[str, ...] = FIELDS) -> SurfaceMaps:
+        """The completed surface maps of frame ``index`` at ``camera``'s size, with at least the
+        attributes ``fields`` of :data:`~.maps.FIELDS` (the last view's are kept: every weather of a
+        frame shares them when they hold what it reads); ``image`` is the frame at that size
+        (display RGB), the guide of the sky's matte."""
         key = (index, np.asarray(camera.K, np.float64).tobytes(), int(camera.width), int(camera.height),
                np.asarray(camera.camera_to_world, np.float64).tobytes())
-        if self._maps_memo is None or self._maps_memo[0] != key:
+        memo = self._maps_memo
+        if memo is None or memo[0] != key or not set(fields) <= set(memo[1].fields):
             sky, matte = self._sky(index, camera, image)
-            self._maps_memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte,
-                                                 solid=self._solid(index, camera)))
-        return self._maps_memo[1]
+            self._maps_memo = memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte,
+                                                        solid=self._solid(index, camera), fields=fields))
+        return memo[1]
 
     def sun_visibility(self, index: int, camera: Any, image: np.ndarray) -> np.ndarray:
         """[H, W] float32 the sun's visibility in frame ``index`` at ``camera``'s size: each pixel's
@@ -269,7 +276,7 @@ class WeatherEditor:
         key = (index, np.asarray(camera.K, np.float64).tobytes(), w, h)
         if self._sun_memo is not None and self._sun_memo[0] == key:
             return self._sun_memo[1]
-        m = self.maps(index, camera, image)
+        m = self.maps(index, camera, image, fields=())
         cloud, _ = self.surfaces.at_frame(index)
         moving = np.asarray(cloud.means[len(self.surfaces.gaussians.static):], np.float64)
         shadow = sun.shadow_map(moving)
@@ -314,7 +321,7 @@ class WeatherEditor:
         if weather.kind == "clear":
             return np.asarray(raw, np.float32), {}
         t0 = time.perf_counter()
-        m = self.maps(index, camera, raw)
+        m = self.maps(index, camera, raw, fields=FIELDS_READ.get(weather.kind, ()))
         t_maps = time.perf_counter()
         p, kind = self.params, weather.kind
         table = getattr(p, kind)

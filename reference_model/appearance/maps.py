@@ -37,7 +37,11 @@ from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["SurfaceMaps", "glossy_blur", "mirror_distance", "refine", "screen_reflection", "surface_maps"]
+__all__ = ["FIELDS", "SurfaceMaps", "glossy_blur", "mirror_distance", "refine", "screen_reflection", "surface_maps"]
+
+#: The surface attributes the maps can composite beside the normal (:data:`~.surfaces.ATTRIBUTES`
+#: after the normal's three), in the order of their channels.
+FIELDS = ("ground", "open", "puddle", "track")
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
@@ -80,7 +84,8 @@ class SurfaceMaps:
     distance : ndarray float32
         Distance along the ray (m); ``inf`` for the sky.
     ground, open, puddle, track : ndarray float32
-        The surface attributes (:data:`~.surfaces.ATTRIBUTES`), in [0, 1].
+        The surface attributes (:data:`~.surfaces.ATTRIBUTES`), in [0, 1]; NaN everywhere for one
+        that was not asked for (not in ``fields``).
     sky : ndarray bool
     sky_alpha : ndarray float32
         Soft sky matte in [0, 1] (1 inside the sky, fractional along its edges).
@@ -90,6 +95,8 @@ class SurfaceMaps:
         Unit world ray directions.
     ground_height : float
         Height of the ground plane under the camera (m along ``up``).
+    fields : tuple of str
+        The attributes of :data:`FIELDS` these maps hold (the others are NaN).
     """
 
     normal: np.ndarray
@@ -103,6 +110,7 @@ class SurfaceMaps:
     covered: np.ndarray
     rays: np.ndarray
     ground_height: float
+    fields: tuple[str, ...] = FIELDS
 
 
 @functools.lru_cache(maxsize=8)
@@ -365,7 +373,8 @@ def _replace_tails(tails: np.ndarray, source: np.ndarray, distance: np.ndarray, 
 
 
 def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,
-                 sky_alpha: np.ndarray | None = None, solid: np.ndarray | None = None) -> SurfaceMaps:
+                 sky_alpha: np.ndarray | None = None, solid: np.ndarray | None = None,
+                 fields: tuple[str, ...] = FIELDS) -> SurfaceMaps:
     """The completed surface maps of frame ``index`` seen by ``camera`` (see the module docstring).
 
     Parameters
@@ -381,12 +390,28 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         Its soft matte; default the mask itself.
     solid : ndarray [H, W] bool, optional
         Pixels a lidar return lands in: never shown as sky (their matte stays under one half).
+    fields : tuple of str
+        The attributes of :data:`FIELDS` to composite (default all); the others are left NaN. A
+        weather that reads fewer (fog reads none) leaves their channels out of the compositing,
+        whose time grows with the channels; the ones asked for are the same to the bit (each
+        channel's sums are its own, and where a pixel stops depends on its opacity alone).
 
     Returns
     -------
     SurfaceMaps
+
+    Raises
+    ------
+    ValueError
+        If ``fields`` names an attribute not in :data:`FIELDS`.
     """
+    unknown = [f for f in fields if f not in FIELDS]
+    if unknown:
+        raise ValueError(f"fields {unknown} unknown: expected names from {FIELDS}")
+    wanted = tuple(f for f in FIELDS if f in fields)
     cloud, attrs = surfaces.at_frame(index)
+    if len(wanted) < len(FIELDS):
+        attrs = attrs[:, [0, 1, 2, *(3 + FIELDS.index(f) for f in wanted)]]
     values, alpha, depth = _rasterize(cloud, attrs, camera)
     rays, z_per_m = _rays(camera)
     up = surfaces.up
@@ -399,9 +424,11 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     x, y, z = normal[..., 0], normal[..., 1], normal[..., 2]
     length = np.sqrt(x * x + y * y + z * z)
     normal = normal / np.maximum(length, 1e-6)[..., None]
-    fields = {name: np.clip(values[..., 3 + i], 0.0, 1.0)
-              for i, name in enumerate(("ground", "open", "puddle", "track"))}
-    boxed = _box_shells(surfaces, index, camera, rays, center, distance, normal, fields, sky)
+    planes = {name: np.clip(values[..., 3 + i], 0.0, 1.0) for i, name in enumerate(wanted)}
+    # the box shells write every attribute where they stand for an object: the unasked ones get
+    # scratch planes, NaN in the maps
+    shell_fields = {name: planes.get(name, np.full(distance.shape, np.nan, np.float32)) for name in FIELDS}
+    boxed = _box_shells(surfaces, index, camera, rays, center, distance, normal, shell_fields, sky)
     covered |= boxed
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
@@ -412,18 +439,21 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         hit = center + rays[fill_ground] * np.where(np.isfinite(distance[fill_ground]), distance[fill_ground],
                                                      1e4)[:, None]
         normal[fill_ground] = up
-        fields["ground"][fill_ground] = 1.0
-        fields["open"][fill_ground] = 1.0
-        fields["puddle"][fill_ground] = surfaces.puddle_field(hit)
-        fields["track"][fill_ground] = surfaces.track_field(hit)
+        for name in ("ground", "open"):
+            if name in planes:
+                planes[name][fill_ground] = 1.0
+        if "puddle" in planes:
+            planes["puddle"][fill_ground] = surfaces.puddle_field(hit)
+        if "track" in planes:
+            planes["track"][fill_ground] = surfaces.track_field(hit)
     wall = kind == FILL_WALL
     if np.any(wall):  # a vertical wall facing the camera across the surface it rises from
         rr, cc = np.nonzero(wall)
         flat = rays[rr, cc] - np.outer(rays[rr, cc] @ up, up)
         flat /= np.maximum(np.linalg.norm(flat, axis=1, keepdims=True), 1e-9)
         normal[rr, cc] = -flat
-        for name in fields:
-            fields[name][rr, cc] = 0.0
+        for name in planes:
+            planes[name][rr, cc] = 0.0
     matte = sky.astype(np.float32) if sky_alpha is None else np.asarray(sky_alpha, np.float32).copy()
     unreached = (kind == FILL_SKY) & ~sky  # nothing below to rise from: infinitely far, seen as sky
     matte[unreached] = 1.0
@@ -431,12 +461,13 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     if solid is not None:
         matte = np.where(solid, np.minimum(matte, 0.49), matte).astype(np.float32)
     normal[sky] = -rays[sky]
-    for name in fields:
-        fields[name][sky] = 0.0
+    for name in planes:
+        planes[name][sky] = 0.0
+    out = {name: planes.get(name, np.full(distance.shape, np.nan, np.float32)) for name in FIELDS}
     return SurfaceMaps(normal=normal.astype(np.float32), distance=distance.astype(np.float32),
-                       ground=fields["ground"], open=fields["open"], puddle=fields["puddle"], track=fields["track"],
+                       ground=out["ground"], open=out["open"], puddle=out["puddle"], track=out["track"],
                        sky=sky, sky_alpha=np.asarray(matte, np.float32), covered=covered, rays=rays.astype(np.float32),
-                       ground_height=ground_h)
+                       ground_height=ground_h, fields=wanted)
 
 
 def _mirrored_cloud(surfaces: SurfaceScene, index: int, ground_height: float) -> GaussianCloud:

@@ -211,7 +211,8 @@ def _editor_case(name: str, scene: Any) -> tuple[BenchCase, Any]:
             image, _ = editor.edit(raw, k, camera, physics[w])
             times[w].append(1e3 * (time.perf_counter() - t0))
             edits[w].append(image)
-    skies = [editor.maps(k, camera, raw).sky_alpha >= 0.5 for k, (raw, camera) in enumerate(zip(raws, cameras))]
+    skies = [editor.maps(k, camera, raw, fields=()).sky_alpha >= 0.5
+             for k, (raw, camera) in enumerate(zip(raws, cameras))]
     checks = _weather_checks(raws, edits, skies, analysis.solid, _every_sweep_hits(analysis),
                              _hand_sky(name, size, len(scene)))
     every = [t for w in EDITED for t in times[w]]

@@ -13,8 +13,8 @@ import pytest
 pytest.importorskip("torch")
 
 from wcbench.methods.weather_spec import resolve_physics
-from wcbench.reference_model.appearance.editor import AppearanceParams, WeatherEditor
-from wcbench.reference_model.appearance.maps import mirror_distance, screen_reflection
+from wcbench.reference_model.appearance.editor import FIELDS_READ, AppearanceParams, WeatherEditor
+from wcbench.reference_model.appearance.maps import FIELDS, mirror_distance, screen_reflection
 from wcbench.reference_model.appearance.shading import (
     clear_irradiance,
     linear_to_srgb,
@@ -293,3 +293,19 @@ def test_snow_covers_open_ground_evenly(demo_scene):
     # than 0.85 of the median (the cover itself leaned with the normals: 0.5-0.75 of it)
     holes = float(np.mean(luma < 0.85 * np.median(luma)))
     assert holes < 0.005, holes
+
+
+@pytest.mark.parametrize("kind", ["rain", "snow", "fog"])
+def test_a_weathers_edit_from_maps_of_its_fields_is_the_edit_from_maps_of_all(hard_editor, synth_hard, kind):
+    # the slow twin: the maps with every attribute composited (kept by the editor for the frame), then
+    # the edit; the fast path composites only what the weather reads (FIELDS_READ)
+    k = 7
+    cam, raw = synth_hard.frames[k].camera, _frame(synth_hard, k)
+    weather = resolve_physics(synth_hard, "auto")[kind]
+    full = WeatherEditor(synth_hard, analysis=hard_editor.analysis)
+    assert full.maps(k, cam, raw).fields == FIELDS
+    slow, _ = full.edit(raw, k, cam, weather)
+    fast_editor = WeatherEditor(synth_hard, analysis=hard_editor.analysis)
+    fast, _ = fast_editor.edit(raw, k, cam, weather)
+    assert fast_editor.maps(k, cam, raw, fields=()).fields == FIELDS_READ.get(kind, ())
+    np.testing.assert_array_equal(fast, slow)

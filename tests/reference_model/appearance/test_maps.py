@@ -14,6 +14,7 @@ pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.maps import (
     _COVERED,
+    FIELDS,
     _box_shells,
     _boxes_miss_view,
     _gaussian_blur,
@@ -24,6 +25,7 @@ from wcbench.reference_model.appearance.maps import (
     _slab_interval,
     _spill_region,
     mirror_distance,
+    surface_maps,
 )
 from wcbench.reference_model.appearance.surfaces import build_surfaces, in_box
 from wcbench.reference_model.model.sky import view_directions
@@ -425,3 +427,33 @@ def test_the_tails_take_a_source_pixel_as_near_as_the_brute_force_nearest(rng):
         assert np.hypot(taken[0] - r, taken[1] - c) <= 1.02 * best + 0.5
     untouched = ~tails
     assert np.array_equal(distance[untouched], (rows * w + cols)[untouched])
+
+
+@pytest.mark.parametrize("fields", [(), ("ground", "open", "track"), ("puddle",), FIELDS])
+def test_maps_of_some_fields_are_the_maps_of_all_to_the_bit_the_others_nan(demo_scene, fields):
+    # the slow twin: every attribute composited; the fewer channels change no sum of the others
+    surfaces = build_surfaces(demo_scene)
+    cam = demo_scene.frames[4].camera
+    sky = np.zeros((int(cam.height), int(cam.width)), bool)
+    sky[:10] = True
+    full = surface_maps(surfaces, 4, cam, sky)
+    part = surface_maps(surfaces, 4, cam, sky, fields=fields)
+    assert full.fields == FIELDS and part.fields == tuple(f for f in FIELDS if f in fields)
+    for name in ("normal", "distance", "sky", "sky_alpha", "covered", "rays"):
+        np.testing.assert_array_equal(getattr(part, name), getattr(full, name), err_msg=name)
+    assert part.ground_height == full.ground_height
+    for name in FIELDS:
+        if name in fields:
+            np.testing.assert_array_equal(getattr(part, name), getattr(full, name), err_msg=name)
+            assert np.isfinite(getattr(part, name)).all()
+        else:
+            assert np.isnan(getattr(part, name)).all(), name
+    # the demo street's maps hold ground and open ground somewhere: the comparison is not of zeros
+    assert full.ground.max() > 0.5 and full.open.max() > 0.5
+
+
+def test_maps_refuse_a_field_they_do_not_know(demo_scene):
+    surfaces = build_surfaces(demo_scene)
+    cam = demo_scene.frames[0].camera
+    with pytest.raises(ValueError, match="wetness"):
+        surface_maps(surfaces, 0, cam, np.zeros((int(cam.height), int(cam.width)), bool), fields=("wetness",))
