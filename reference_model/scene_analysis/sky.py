@@ -32,7 +32,10 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
 4. **Per frame, a minimum cut** (Boykov & Jolly 2001, "Interactive graph cuts", ICCV; PyMaxflow)
    with that probability as unary term, contrast-sensitive 4-neighbour smoothness
    4 exp(-beta |dLab|^2) (beta from the frame's mean squared neighbour difference, as in GrabCut),
-   and hard constraints: returns and the pixels below the horizon are not sky, sky seeds are.
+   and hard constraints: returns and the pixels below the horizon are not sky, sky seeds are. A
+   return of a structure a few px wide (:func:`thin_returns`) with the colour of the sky seeds
+   nearby (a wire's mixed pixel, another sweep's copy of it a px off) joins no neighbour by the
+   smoothness term: it stays non-sky, but does not pull a pocket of sky beside it to the wall.
 5. **The boundary placed by colour** (:func:`refine_boundary`): within 3 px of it, each pixel's
    share of sky from the colour line between the nearby sky and foreground colours (alpha
    matting's colour-line model), or, for a pixel far off that line (a third colour: a pale
@@ -83,7 +86,7 @@ import numpy as np
 from wcbench.reference_model.scene_analysis.views import AnalysisViews
 
 __all__ = ["SkySegmentation", "infinity_residual", "neighbour_support", "refine_boundary", "rotation_homography",
-           "segment_sky", "sky_features", "sky_matte", "thin_occluders"]
+           "segment_sky", "sky_features", "sky_matte", "thin_occluders", "thin_returns"]
 
 #: Trees and depth of the per-scene classifier; seeds drawn per class at most.
 _TREES, _DEPTH, _MAX_SEEDS = 20, 12, 15000
@@ -216,6 +219,14 @@ def _sky_colour_nearby(lab: np.ndarray, sky: np.ndarray, reach_px: float) -> tup
     return ref, den > 1e-2
 
 
+def thin_returns(solid: np.ndarray, *, width_px: int = _THIN_PX) -> np.ndarray:
+    """[H, W] bool: the returns of ``solid`` [H, W] bool no square of side ``2 width_px + 1`` fits
+    in (the hit set minus its morphological opening): a structure at most that wide, by its shape."""
+    side = 2 * width_px + 1
+    opened = cv2.morphologyEx(solid.astype(np.uint8), cv2.MORPH_OPEN, np.ones((side, side), np.uint8))
+    return solid & ~opened.astype(bool)
+
+
 def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky: np.ndarray, *,
                    width_px: int = _THIN_PX, gaps_px: tuple[int, ...] = _THIN_GAP_PX, max_de: float = _THIN_DE,
                    max_std: float = _SEED_MAX_STD, reach_px: float = _THIN_REACH_PX,
@@ -253,9 +264,7 @@ def thin_occluders(image: np.ndarray, solid: np.ndarray, above: np.ndarray, sky:
         raise ValueError(f"image {image.shape}, solid {solid.shape}, above {above.shape} and sky {sky.shape}: one "
                          "[H, W] size was expected")
     h, w = solid.shape
-    s8 = solid.astype(np.uint8)
-    side = 2 * width_px + 1
-    thin = solid & ~cv2.morphologyEx(s8, cv2.MORPH_OPEN, np.ones((side, side), np.uint8)).astype(bool)
+    thin = thin_returns(solid, width_px=width_px)
     if not thin.any() or not sky.any():
         return np.zeros_like(thin)
     lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
@@ -528,8 +537,10 @@ def _large(mask: np.ndarray, min_fraction: float) -> np.ndarray:
     return np.isin(labels, big[big > 0])
 
 
-def _cut(image: np.ndarray, p: np.ndarray, never: np.ndarray, always: np.ndarray) -> np.ndarray:
-    """[H, W] bool: the minimum cut of the sky/non-sky labelling (see the module docstring)."""
+def _cut(image: np.ndarray, p: np.ndarray, never: np.ndarray, always: np.ndarray, *,
+         loose: np.ndarray | None = None) -> np.ndarray:
+    """[H, W] bool: the minimum cut of the sky/non-sky labelling (see the module docstring); no
+    smoothness term joins a pixel of ``loose`` [H, W] bool to its neighbours."""
     h, w = p.shape
     lab = cv2.cvtColor(np.ascontiguousarray(image, np.float32), cv2.COLOR_RGB2Lab)
     dx = np.sum((lab[:, 1:] - lab[:, :-1]) ** 2, axis=-1)
@@ -537,10 +548,11 @@ def _cut(image: np.ndarray, p: np.ndarray, never: np.ndarray, always: np.ndarray
     beta = 1.0 / (2.0 * max(float(np.concatenate([dx.ravel(), dy.ravel()]).mean()), 1e-6))
     graph = maxflow.Graph[float]()
     ids = graph.add_grid_nodes((h, w))
-    for diff, structure in ((dx, np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]])),
-                            (dy, np.array([[0, 0, 0], [0, 0, 0], [0, 1, 0]]))):
+    free = np.ones((h, w), bool) if loose is None else ~loose
+    for diff, structure, joined in ((dx, np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]]), free[:, 1:] & free[:, :-1]),
+                                    (dy, np.array([[0, 0, 0], [0, 0, 0], [0, 1, 0]]), free[1:] & free[:-1])):
         weights = np.zeros((h, w), np.float64)
-        weights[:diff.shape[0], :diff.shape[1]] = _LAMBDA * np.exp(-beta * diff)
+        weights[:diff.shape[0], :diff.shape[1]] = _LAMBDA * np.exp(-beta * diff) * joined
         graph.add_grid_edges(ids, weights=weights, structure=structure, symmetric=True)
     pc = np.clip(p.astype(np.float64), _P_CLIP, 1.0 - _P_CLIP)
     cost_sky, cost_not = -np.log(pc), -np.log1p(-pc)
@@ -604,7 +616,7 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
     clearance = max(1, round(_SEED_CLEARANCE_PX * w / 480))
     kernel = np.ones((2 * clearance + 1, 2 * clearance + 1), np.uint8)
     line_px = max(1, round(_LINE_PX * w / 480)) if _LINE_PX else 0  # 0: no closing, at any size
-    feats, above, sky_seeds, not_seeds, links, corridors = [], [], [], [], [], []
+    feats, above, sky_seeds, not_seeds, links, corridors, loose = [], [], [], [], [], [], []
     for k in range(n):
         elev = views.elevation(k)
         feat = sky_features(views.images[k], infinity_residual(views, k), elev, line_px=line_px)
@@ -643,6 +655,15 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
             seeds = _large(candidates | (open_sky & corridor), _MIN_OPEN_SKY) & candidates
         if not solid[k].any():  # no lidar in view: nothing here is confirmed empty, and no seed is made
             seeds = np.zeros_like(seeds)
+        # a return of a structure a few px wide with the colour of the sky around it (a wire's mixed
+        # pixel, another sweep's copy of a wire or a mast a px off) stays non-sky but says nothing of
+        # its neighbours: no smoothness term joins it to them in the cut (the pockets of sky between
+        # a bundle of wires and a roof's corner on pandaset_002_right)
+        if sky_colour is not None:
+            ref, has_ref = sky_colour
+            loose.append(thin_returns(solid[k]) & has_ref & (np.linalg.norm(lab - ref, axis=-1) < _THIN_DE))
+        else:
+            loose.append(np.zeros((h, w), bool))
         feats.append(feat)
         above.append(elev > 0.0)
         sky_seeds.append(seeds)
@@ -698,7 +719,7 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         p = np.where(region, 1.0 / (1.0 + np.exp(-odds)), 0.0).astype(np.float32)
         probability[k] = p
         never = ~region | solid[k] | (untrusted[k] & corridors[k] if untrusted is not None else False)
-        cut = _cut(views.images[k], p, never, sky_seeds[k] & ~never) & ~never
+        cut = _cut(views.images[k], p, never, sky_seeds[k] & ~never, loose=loose[k]) & ~never
         mask, alpha = refine_boundary(views.images[k], cut, never)
         # the sky is one with the open sky: a patch enclosed by the scene, with no seed, is not
         labels[k], kept[k] = _sky_components(mask, sky_seeds[k], bridge_px=max(1, round(2 * w / 480)),

@@ -11,7 +11,14 @@ from paths import DATA, SHARED_DATA
 pytest.importorskip("torch")
 
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
-from wcbench.reference_model.scene_analysis.sky import infinity_residual, refine_boundary, segment_sky, sky_matte
+from wcbench.reference_model.scene_analysis.sky import (
+    _cut,
+    infinity_residual,
+    refine_boundary,
+    segment_sky,
+    sky_matte,
+    thin_returns,
+)
 from wcbench.reference_model.scene_analysis.views import AnalysisViews, resample_mask
 
 
@@ -347,3 +354,36 @@ def test_a_wire_across_a_roof_line_does_not_lead_the_sky_into_the_wall_below():
     for k in range(3):
         assert sky.masks[k][:50, 200:].all()  # the open sky
         assert not sky.masks[k][63:120].any()  # the wall, below its roof line's mixed rows
+
+
+def test_sky_coloured_thin_returns_pull_no_pocket_of_sky_to_the_wall_in_the_cut():
+    # a pocket of pale sky (weak evidence, p = 0.6) fenced by a 1 px line of returns of the sky's
+    # colour (a wire's copy a px off) beside a dark wall: joined to the returns by the smoothness
+    # term the pocket goes with them; with the returns loose it is sky
+    h, w = 40, 40
+    image = np.full((h, w, 3), (0.62, 0.74, 0.9), np.float32)
+    image[:, :10] = (0.3, 0.3, 0.3)  # the wall
+    p = np.full((h, w), 0.6, np.float32)
+    p[:, :10] = 0.05
+    never = np.zeros((h, w), bool)
+    never[:, :10] = True
+    never[12, 10:] = True  # the line of returns across the sky
+    never[12:30, 30] = True  # and down, closing the pocket to the right
+    never[30, 10:31] = True
+    always = np.zeros((h, w), bool)
+    always[:5, 20:] = True  # seeds above the line
+    pocket = np.zeros((h, w), bool)
+    pocket[13:30, 10:30] = True
+    fenced = _cut(image, p, never, always)
+    assert not fenced[pocket].any() and fenced[always].all()
+    loose = never & (np.arange(w) >= 10)[None, :]  # the line, not the wall
+    free = _cut(image, p, never, always, loose=loose)
+    assert free[pocket].all() and not free[never].any()
+
+
+def test_thin_returns_are_the_structures_no_square_fits_in():
+    solid = np.zeros((30, 30), bool)
+    solid[5, :] = True  # a wire, 1 px
+    solid[10:30, 10:20] = True  # a wall, 10 px wide
+    thin = thin_returns(solid, width_px=3)
+    assert thin[5].all() and not thin[15:25, 12:18].any()
