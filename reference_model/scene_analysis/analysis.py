@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,8 +36,9 @@ from wcbench.reference_model.scene_analysis.views import (
     build_analysis_views,
     resample_mask,
 )
+from wcbench.reference_model.transforms import lidar_depth
 
-__all__ = ["SceneAnalysis", "analyse_scene", "clear_analysis_cache", "shipped_sky", "solid_masks"]
+__all__ = ["SceneAnalysis", "analyse_scene", "anchor_depths", "clear_analysis_cache", "shipped_sky", "solid_masks"]
 
 #: How many analysed scenes this process keeps.
 _KEEP = 2
@@ -111,6 +113,26 @@ class SceneAnalysis:
 _NEAR_FRAMES, _FAR_M = 2, 20.0
 
 
+def _static_pool(returns: LidarReturns) -> tuple[dict[int, np.ndarray], np.ndarray]:
+    """Per sweep its static returns, and all of them together."""
+    static = {j: p[returns.static_mask(j)] for j, p in returns.points.items()}
+    everything = np.concatenate(list(static.values())) if static else np.zeros((0, 3))
+    return static, everything
+
+
+def _trusted_static(views: AnalysisViews, static: dict[int, np.ndarray], everything: np.ndarray,
+                    k: int) -> np.ndarray:
+    """[M, 3] the static returns :func:`solid_masks` trusts in frame ``k``: those of the sweeps within
+    ``_NEAR_FRAMES`` frames of k (twice that for a frame without its own sweep) and those of every
+    sweep farther than ``_FAR_M`` from frame k's camera."""
+    # a frame without its own sweep takes the static returns of the nearest sweeps on either side
+    reach = _NEAR_FRAMES if k in static else 2 * _NEAR_FRAMES
+    near = [static[j] for j in static if abs(j - k) <= reach]
+    far = everything[np.einsum("ij,ij->i", everything - views.center(k), everything - views.center(k))
+                     > _FAR_M ** 2] if len(everything) else everything
+    return np.concatenate([far, *near]) if (near or len(far)) else np.zeros((0, 3))
+
+
 def solid_masks(views: AnalysisViews, returns: LidarReturns) -> tuple[list[np.ndarray], list[int]]:
     """Per frame k, the pixels a lidar return lands in: every return of frame k's own sweep (of the
     nearest sweep within two frames without one), the static returns of the sweeps within
@@ -123,22 +145,30 @@ def solid_masks(views: AnalysisViews, returns: LidarReturns) -> tuple[list[np.nd
     solid : list of ndarray [H, W] bool
     without : list of int
     """
-    static = {j: p[returns.static_mask(j)] for j, p in returns.points.items()}
-    everything = np.concatenate(list(static.values())) if static else np.zeros((0, 3))
+    static, everything = _static_pool(returns)
     solid, without = [], []
     for k in range(len(views)):
-        # a frame without its own sweep takes the static returns of the nearest sweeps on either side
-        reach = _NEAR_FRAMES if k in static else 2 * _NEAR_FRAMES
-        near = [static[j] for j in static if abs(j - k) <= reach]
-        far = everything[np.einsum("ij,ij->i", everything - views.center(k), everything - views.center(k))
-                         > _FAR_M ** 2] if len(everything) else everything
-        own = returns.frame_dynamic(k)
-        pts = np.concatenate([far, own, *near]) if (near or len(own) or len(far)) else np.zeros((0, 3))
+        pts = np.concatenate([_trusted_static(views, static, everything, k), returns.frame_dynamic(k)])
         hits = views.hit_map(PointColumns.of(pts), k)
         solid.append(hits)
         if not hits.any():
             without.append(k)
     return solid, without
+
+
+def anchor_depths(views: AnalysisViews, returns: LidarReturns, size: tuple[int, int],
+                  frames: Sequence[int]) -> list[np.ndarray]:
+    """Per frame k of ``frames``, [H, W] float32 camera z (m) at ``size`` (width, height) of the
+    nearest static return :func:`solid_masks` trusts in k, 0 where none lands: where the scene holds
+    still structure for certain, and how far (the training's lidar fill places Gaussians there,
+    ``TrainConfig.lidar_fill``). A moving thing's returns are left out: a Gaussian of the static
+    scene at one would stay where the thing was.
+    """
+    static, everything = _static_pool(returns)
+    w, h = int(size[0]), int(size[1])
+    scale = np.diag([w / views.width, h / views.height, 1.0])  # pixel edges scale: centres stay at +0.5
+    return [lidar_depth(_trusted_static(views, static, everything, k), views.world_to_camera(k),
+                        scale @ np.asarray(views.K[k], np.float64), w, h) for k in frames]
 
 
 def any_sweep_masks(views: AnalysisViews, returns: LidarReturns) -> list[np.ndarray]:

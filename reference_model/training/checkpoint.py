@@ -55,6 +55,8 @@ def save_checkpoint(trainer: Trainer, folder: str | Path, *, extra: dict[str, An
         tensors[f"stats.{name}.grad"] = st.grad.contiguous()
         tensors[f"stats.{name}.count"] = st.count.contiguous()
     tensors["rng.split"] = trainer.generator.get_state().contiguous()
+    for frame, holes in trainer.holes.items():  # the lidar fill's input since the last densification
+        tensors[f"holes.{frame}"] = holes.to(torch.uint8).cpu().contiguous()
     target = folder / CHECKPOINT_TENSORS
     with atomic_path(target, suffix=".safetensors") as tmp:
         save_file(tensors, str(tmp))
@@ -185,6 +187,9 @@ def load_checkpoint(folder: str | Path, *, model: WeatherCityModel, views: Seque
     for name in trainer.stats:
         trainer.stats[name] = DensifyStats(tensors[f"stats.{name}.grad"], tensors[f"stats.{name}.count"])
     trainer.generator.set_state(tensors["rng.split"])
+    dev = torch.device(trainer.device)
+    trainer.holes = {int(k[len("holes."):]): v.to(dev).bool() for k, v in sorted(tensors.items())
+                     if k.startswith("holes.")}
     trainer.rng.bit_generator.state = info["view_rng"]
     trainer._order = [int(i) for i in info["view_order"]]
     trainer.step_index = int(info["step"])

@@ -53,9 +53,16 @@ class TrainConfig:
         Weight of the pull toward opacity 1 of the pixels a trusted lidar return lands in
         (``TrainingView.solid``), on top of ``opacity_solid``'s (1): a thin structure against the
         sky (a wire, a mast) is otherwise drawn by the sky map, not the Gaussians, and counts as sky.
-        Default 10: on ``pandaset_002``'s full ``default`` training it took the trusted pixels shown
-        as sky from 2,851 to 244 for 0.08 dB of held-out PSNR (docs/findings.md, "The lidar's pull
-        measured at full length"); ``settings.opacity_lidar=0`` turns it off.
+        Default 30: on ``pandaset_002``'s full ``default`` training, with ``lidar_fill``, it left 61
+        of the trusted pixels shown as sky against 201 at 10 (2,851 with neither) for 0.05 dB of
+        held-out PSNR (docs/findings.md, "Lidar fill"); ``settings.opacity_lidar=0`` turns it off.
+    lidar_fill : bool
+        At each densification, place a Gaussian at the nearest static trusted lidar return
+        (``TrainingView.anchor_depth``) of every pixel that its view's last render left below half
+        opacity, coloured as the raw frame there (:func:`~.densify.fill_from_lidar`): a structure
+        the lidar saw but no Gaussian covers (a wire no clone or split reaches, a return in a gap
+        the budget left) is drawn by the Gaussians, not the sky map. Up to 1 % of ``budget`` a
+        densification, beyond it if need be (docs/findings.md, "Lidar fill").
     weather_interval : int
         Every this many steps the edited weathers are rendered (in the same pass) and supervised;
         the other steps fit the raw frame only.
@@ -104,7 +111,8 @@ class TrainConfig:
         (:func:`~wcbench.reference_model.scene_graph.completion.fill_footprints`), so that a
         removed object leaves road, not a hole (issue 39).
     budget : int
-        Most Gaussians the densification may reach (the render speed depends on it).
+        Most Gaussians the clones and splits may reach (the render speed depends on it); the lidar
+        fill may add a few beyond.
     densify_from, densify_until, densify_interval : int
         Steps of the densification schedule.
     densify_grad : float
@@ -142,7 +150,8 @@ class TrainConfig:
     depth_weight: float = 0.01
     opacity_weight: float = 0.05
     opacity_solid: bool = True
-    opacity_lidar: float = 10.0
+    opacity_lidar: float = 30.0
+    lidar_fill: bool = True
     deform_weight: float = 1.0
     weather_interval: int = 8
     through_haze: bool = True

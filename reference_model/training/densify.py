@@ -13,19 +13,27 @@ accumulated per Gaussian over the steps where it is visible. Every ``densify_int
 The optimizer's moments follow every change (kept rows keep theirs, new rows start at zero), as
 in 3D Gaussian Splatting. Non-rigid nodes keep their Gaussians (their per-frame offsets are sized
 to them).
+
+The **lidar fill** (:func:`fill_from_lidar`, ``TrainConfig.lidar_fill``) adds Gaussians where the
+gradient cannot: a pixel a trusted static lidar return lands in that the render leaves below half
+opacity has no Gaussian worth cloning near it (a wire a pixel wide, a return in a gap), so one is
+placed at the return itself (docs/design.md §7, "Beyond the lidar").
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 from torch.optim.adam import adam
 
 from wcbench.reference_model.model.gaussians import PARAMETER_NAMES, GaussianParams
 from wcbench.reference_model.model.objects import quat_multiply_torch
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 
-__all__ = ["DensifyStats", "NodeOptimizer", "densify_and_prune"]
+__all__ = ["FILL_OPACITY", "DensifyStats", "NodeOptimizer", "append_gaussians", "densify_and_prune",
+           "fill_from_lidar"]
 
 
 class NodeOptimizer:
@@ -230,3 +238,63 @@ def densify_and_prune(
         optimizer.replace(f"{name}.{key}", getattr(params, key), index)
     stats.ensure(len(params), device=params.means.device)
     return {"cloned": len(clone_idx), "split": len(split_idx), "pruned": int(prune.sum())}
+
+
+#: Opacity of a lidar fill Gaussian: alone it takes its pixel past half (the sky threshold).
+FILL_OPACITY = 0.6
+
+
+def fill_from_lidar(holes: np.ndarray, anchor_depth: np.ndarray, K: np.ndarray, camera_to_world: np.ndarray,
+                    image: np.ndarray) -> GaussianCloud:
+    """Gaussians at the lidar returns of a view's uncovered pixels.
+
+    Each pixel of ``holes`` with an anchor (``anchor_depth`` > 0) gets an isotropic Gaussian at its
+    centre's ray at the anchor's depth (so it projects back to that pixel's centre), half a pixel's
+    footprint wide, of opacity :data:`FILL_OPACITY` and the image's colour there.
+
+    Parameters
+    ----------
+    holes : ndarray [H, W] bool
+        Pixels to fill (the trainer: a trusted return there, the render below half opacity).
+    anchor_depth : ndarray [H, W] float
+        Camera z (m) of the nearest static trusted return per pixel, 0 where none.
+    K : ndarray [3, 3]
+        Intrinsics at the view's size (pixel centres at +0.5).
+    camera_to_world : ndarray [4, 4]
+        OpenCV camera (x right, y down, z forward) to world.
+    image : ndarray [H, W, 3] float
+        The raw frame in [0, 1].
+
+    Returns
+    -------
+    GaussianCloud
+        World means [N, 3] (m), one per filled pixel in row-major order.
+    """
+    if holes.shape != anchor_depth.shape or image.shape[:2] != holes.shape:
+        raise ValueError(f"holes {holes.shape}, anchor_depth {anchor_depth.shape} and image {image.shape[:2]} "
+                         "must be the same [H, W]")
+    rows, cols = np.nonzero(holes & (anchor_depth > 0))
+    z = anchor_depth[rows, cols].astype(np.float64)
+    K = np.asarray(K, np.float64)
+    x = (cols + 0.5 - K[0, 2]) / K[0, 0] * z
+    y = (rows + 0.5 - K[1, 2]) / K[1, 1] * z
+    c2w = np.asarray(camera_to_world, np.float64)
+    means = np.stack([x, y, z], 1) @ c2w[:3, :3].T + c2w[:3, 3]
+    n = len(z)
+    scale = 0.5 * z / K[0, 0]
+    return GaussianCloud(means=means, quats=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+                         scales=np.repeat(scale[:, None], 3, 1), opacities=np.full(n, FILL_OPACITY),
+                         colors=np.clip(image[rows, cols], 0.0, 1.0))
+
+
+def append_gaussians(name: str, params: GaussianParams, optimizer: NodeOptimizer, new: GaussianParams) -> int:
+    """Append ``new``'s Gaussians to node ``name``'s ``params``, their Adam moments starting at zero;
+    returns how many."""
+    n = len(params)
+    dev = params.means.device
+    params.replace(**{k: torch.cat([getattr(params, k).detach(), getattr(new, k).detach().to(dev)])
+                      for k in PARAMETER_NAMES})
+    index = torch.cat([torch.arange(n, device=dev), torch.full((len(new),), -1, dtype=torch.long, device=dev)])
+    for key in PARAMETER_NAMES:
+        optimizer.replace(f"{name}.{key}", getattr(params, key), index)
+    return len(new)

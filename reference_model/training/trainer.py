@@ -28,13 +28,21 @@ import numpy as np
 import torch
 
 from wcbench.reference_model.devices import check_device, rasterizer_for
+from wcbench.reference_model.model.gaussians import GaussianParams
 from wcbench.reference_model.model.haze import Haze
 from wcbench.reference_model.model.scene_model import BACKGROUND, WeatherCityModel
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize
 from wcbench.reference_model.raster.threads import threads as thread_pools
+from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.training.config import TrainConfig
-from wcbench.reference_model.training.densify import DensifyStats, NodeOptimizer, densify_and_prune
+from wcbench.reference_model.training.densify import (
+    DensifyStats,
+    NodeOptimizer,
+    append_gaussians,
+    densify_and_prune,
+    fill_from_lidar,
+)
 from wcbench.reference_model.training.losses import (
     ContentLoss,
     depth_l1,
@@ -85,6 +93,7 @@ class _ViewTensors:
     grid: torch.Tensor
     ignore: torch.Tensor | None = None
     solid: torch.Tensor | None = None
+    anchored: torch.Tensor | None = None  # pixels with a static trusted return (the lidar fill's)
 
 
 @dataclass
@@ -154,6 +163,9 @@ class Trainer:
         self.rng = np.random.default_rng(cfg.seed)
         self.generator = torch.Generator().manual_seed(cfg.seed)
         self._order: list[int] = []
+        # per training frame, its anchored pixels its last full-resolution render left below half
+        # opacity (the lidar fill's input; reset by each densification that reads it)
+        self.holes: dict[int, torch.Tensor] = {}
 
     # -- set-up -------------------------------------------------------------------------------
 
@@ -180,6 +192,7 @@ class Trainer:
             grid=grid,
             ignore=ignore,
             solid=put(v.solid) if v.solid is not None and v.solid.any() else None,
+            anchored=put(v.anchor_depth > 0) if v.anchor_depth is not None and (v.anchor_depth > 0).any() else None,
         )
 
     def _view_at(self, v: TrainingView, divisor: int) -> tuple[TrainingView, _ViewTensors]:
@@ -298,6 +311,8 @@ class Trainer:
         marks.append(("render", time.perf_counter()))
         if tv.ignore is not None:  # the ego vehicle's body: the render is its own target there (no gradient)
             target = torch.where(tv.ignore[..., None], render.images.detach(), target)
+        if cfg.lidar_fill and tv.anchored is not None and tv is self._tensors.get(v.frame):
+            self.holes[v.frame] = (render.alpha.detach() < 0.5) & tv.anchored
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
         terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
         # the logged terms stay on the device until the step's end: one host transfer per step (on a GPU
@@ -389,9 +404,32 @@ class Trainer:
             self.stats[name] = DensifyStats()
             if any(counts.values()):
                 record[name] = counts
+        if cfg.lidar_fill and self.holes:
+            record["lidar_fill"] = self._fill_from_lidar(limit=max(cfg.budget // 100, 1))
         record["total"] = self.model.counts()["total"]
         self.densify_log.append(record)
         return record
+
+    def _fill_from_lidar(self, *, limit: int) -> int:
+        """Add to the background a Gaussian at the anchor of every hole of the training views (one per
+        2 cm cell, at most ``limit``, in frame and then row-major order); returns how many."""
+        views = {v.frame: v for v in self.train_views}
+        clouds = []
+        for frame in sorted(self.holes):
+            v = views[frame]
+            assert v.anchor_depth is not None  # holes are kept for anchored views only
+            clouds.append(fill_from_lidar(self.holes[frame].cpu().numpy(), v.anchor_depth, v.K, v.camera_to_world,
+                                          v.images["clear"]))
+        self.holes = {}
+        cloud = GaussianCloud.concatenate(clouds)
+        if len(cloud) == 0:
+            return 0
+        # several views see one structure: a return per 2 cm cell is enough
+        _, first = np.unique(np.floor(cloud.means / 0.02).astype(np.int64), axis=0, return_index=True)
+        cloud = cloud.subset(np.sort(first)[:limit])
+        new = GaussianParams.from_cloud(cloud, feature_dim=self.model.background.feature_dim,
+                                        seed=self.config.seed + self.step_index)
+        return append_gaussians(BACKGROUND, self.model.background, self.optimizer, new)
 
     # -- the loop ---------------------------------------------------------------------------
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from wcbench.core.errors import InputError
 from wcbench.core.image_io import read_rgb8, to_float
-from wcbench.reference_model.scene_analysis.analysis import analyse_scene
+from wcbench.reference_model.scene_analysis.analysis import analyse_scene, anchor_depths
 from wcbench.reference_model.scene_graph.lidar_init import moving_tracks
 from wcbench.reference_model.transforms import lidar_depth, project_points
 
@@ -58,6 +58,10 @@ class TrainingView:
         Pixels a lidar return the scene analysis trusts lands in
         (:func:`~wcbench.reference_model.scene_analysis.analysis.solid_masks`): never sky, the scene
         is opaque there (outside the ego vehicle's body); None when the scene was not analysed.
+    anchor_depth : ndarray [H, W] float32 or None
+        Camera z (m) of the nearest static trusted return in each ``solid`` pixel
+        (:func:`~wcbench.reference_model.scene_analysis.analysis.anchor_depths`), 0 elsewhere: where
+        the lidar fill may place a Gaussian (``TrainConfig.lidar_fill``); None without ``solid``.
     dynamic : ndarray [H, W] bool
         Pixels inside the projected boxes of moving objects.
     ignore : ndarray [H, W] bool
@@ -74,6 +78,7 @@ class TrainingView:
     depth: np.ndarray | None = None
     sky: np.ndarray | None = None
     solid: np.ndarray | None = None
+    anchor_depth: np.ndarray | None = None
     dynamic: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
     ignore: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
 
@@ -127,6 +132,7 @@ def scaled_view(view: TrainingView, divisor: int) -> TrainingView:
         depth=None if view.depth is None else nearest(view.depth),
         sky=None if view.sky is None else mask(view.sky),
         solid=None if view.solid is None else mask(view.solid),
+        anchor_depth=None if view.anchor_depth is None else nearest(view.anchor_depth),
         dynamic=mask(view.dynamic), ignore=mask(view.ignore),
     )
 
@@ -177,6 +183,7 @@ def build_views(
     derive_sky: bool = True,
     moving_threshold_m: float = 0.5,
     solid: bool = True,
+    anchors: bool = False,
 ) -> tuple[list[TrainingView], dict[str, Any]]:
     """The training views of a scene.
 
@@ -200,8 +207,12 @@ def build_views(
         Tracks moving more than this (m) make the ``dynamic`` masks.
     solid : bool
         Mark the pixels a trusted lidar return lands in (``TrainingView.solid``, from the scene
-        analysis); only the opacity loss's lidar term reads them (``TrainConfig.opacity_lidar``), so
-        a training without it leaves them ``None``.
+        analysis); only the opacity loss's lidar term and the lidar fill read them
+        (``TrainConfig.opacity_lidar``, ``TrainConfig.lidar_fill``), so a training without either
+        leaves them ``None``.
+    anchors : bool
+        With ``solid``, also the depth of the static returns there (``TrainingView.anchor_depth``,
+        read by the lidar fill alone: ``TrainConfig.lidar_fill``).
 
     Returns
     -------
@@ -221,6 +232,9 @@ def build_views(
     has_lidar = any(f.lidar_path is not None for f in scene.frames)
     analysis = analyse_scene(scene) if (derive_sky and has_lidar) else None
     ignore = analysis.ego_mask((width, height)) if analysis is not None else np.zeros((height, width), bool)
+    anchor_maps: dict[int, np.ndarray] = {}
+    if analysis is not None and solid and anchors:
+        anchor_maps = dict(zip(indices, anchor_depths(analysis.views, analysis.returns, (width, height), indices)))
     views = []
     for k in indices:
         f = scene.frames[k]
@@ -243,8 +257,9 @@ def build_views(
         hits = None if analysis is None or not solid else analysis.solid_mask(k, (width, height)) & ~ignore
         if hits is not None and sky is not None:
             hits &= ~sky  # a shipped mask has the last word
+        anchor = None if hits is None or k not in anchor_maps else np.where(hits, anchor_maps[k], np.float32(0))
         views.append(TrainingView(frame=k, time=float(f.timestamp) - t0, camera_to_world=c2w, K=K, width=width,
-                                  height=height, images=images, depth=depth, sky=sky, solid=hits,
+                                  height=height, images=images, depth=depth, sky=sky, solid=hits, anchor_depth=anchor,
                                   dynamic=dynamic, ignore=ignore.copy()))
     facts: dict[str, Any] = {
         "size": [width, height],

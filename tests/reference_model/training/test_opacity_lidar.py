@@ -48,7 +48,8 @@ def test_a_lidar_hit_pixel_is_pulled_toward_opacity_one_lidar_weight_times_harde
 
 
 def test_the_lidar_pull_is_a_bounded_setting_on_by_default():
-    assert make_config("default").opacity_lidar == 10.0  # docs/findings.md, "The lidar's pull measured at full length"
+    assert make_config("default").opacity_lidar == 30.0  # docs/findings.md, "Lidar fill"
+    assert make_config("default").lidar_fill
     assert make_config("default", opacity_lidar=0.0).opacity_lidar == 0.0
     with pytest.raises(ValueError, match="opacity_lidar"):
         make_config("default", opacity_lidar=-1.0)
@@ -77,10 +78,11 @@ def test_training_views_mark_the_trusted_lidar_pixels_solid_never_sky_nor_the_eg
         np.testing.assert_array_equal(a.images["clear"], b.images["clear"])
 
 
-@pytest.mark.parametrize("weight", [0.0, 10.0])
-def test_a_training_makes_the_solid_masks_only_when_the_lidar_term_is_on(demo_scene, weight):
+@pytest.mark.parametrize(("weight", "fill"), [(0.0, False), (10.0, False), (0.0, True), (10.0, True)])
+def test_a_training_makes_the_solid_masks_only_when_the_lidar_term_or_fill_reads_them(demo_scene, weight, fill):
     from wcbench.methods.scene_training import training_inputs
 
-    config = make_config("default", width=SIZE[0], opacity_lidar=weight)
+    config = make_config("default", width=SIZE[0], opacity_lidar=weight, lidar_fill=fill)
     inputs = training_inputs(demo_scene, config, supervision="filter2d", weathers=("fog",))
-    assert all((v.solid is not None) == (weight > 0) for v in inputs.views)
+    assert all((v.solid is not None) == (weight > 0 or fill) for v in inputs.views)
+    assert all((v.anchor_depth is not None) == fill for v in inputs.views)
