@@ -29,7 +29,11 @@ trails and blotches in every frame. :func:`classify_returns` labels every return
   sweeps (birds, spray droplets, multipath).
 
 The static scene is everything else; a frame's own dynamic returns are still what that frame
-shows (:meth:`LidarReturns.frame_points`).
+shows (:meth:`LidarReturns.frame_points`), except the *ghosts*: the transients by semantics that
+are no surface at all (smoke, exhaust, spray, and the returns labelled as reflections, which a
+lidar places behind a mirror-like surface, often in open sky). No frame shows a surface there: on
+``pandaset_002`` they were 28 of the 75 pixels where the trained model showed sky at a return its
+frame trusted (docs/findings.md, "Ghost returns").
 """
 
 from __future__ import annotations
@@ -69,14 +73,15 @@ _VOTE_K, _VOTE_RADIUS_M = 12, 0.3
 _NOISE_VOXEL_M, _NOISE_MIN_COUNT = 0.3, 3
 
 
-def transient_classes(class_names: dict[int, str]) -> np.ndarray:
-    """[256] bool lookup over semantic class ids: people, cyclists, animals and transients (smoke,
-    exhaust, spray, reflections), by the scene's class names (``Scene.class_names``)."""
+def transient_classes(class_names: dict[int, str], *, people: bool = True) -> np.ndarray:
+    """[256] bool lookup over semantic class ids: people, cyclists, animals (unless ``people`` is
+    false) and transients (smoke, exhaust, spray, reflections), by the scene's class names
+    (``Scene.class_names``)."""
     out = np.zeros(256, bool)
     for cid, name in class_names.items():
         low = str(name).strip().lower()
-        if 0 <= int(cid) < 256 and (canonical_class(low) in _MOVER_CLASSES or low in _TRANSIENT_NAMES
-                                     or low.startswith("animals")):
+        mover = canonical_class(low) in _MOVER_CLASSES or low.startswith("animals")
+        if 0 <= int(cid) < 256 and (low in _TRANSIENT_NAMES or (people and mover)):
             out[int(cid)] = True
     return out
 
@@ -97,6 +102,9 @@ class LidarReturns:
         Isolated static returns.
     facts : dict
         Counts per reason, for ``info.json``.
+    ghost : dict of int to ndarray [N] bool
+        Dynamic returns that are no surface (smoke, exhaust, spray, reflections' ghosts), left out
+        of what their frame shows; a sweep missing here has none.
     """
 
     points: dict[int, np.ndarray]
@@ -104,6 +112,7 @@ class LidarReturns:
     tracked: dict[int, np.ndarray]
     noise: dict[int, np.ndarray]
     facts: dict[str, Any] = field(default_factory=dict)
+    ghost: dict[int, np.ndarray] = field(default_factory=dict)
 
     def static_mask(self, k: int) -> np.ndarray:
         """[N] bool: the returns of frame ``k``'s sweep that belong to the static scene."""
@@ -122,12 +131,14 @@ class LidarReturns:
 
     def frame_dynamic(self, k: int, *, tracked: bool = True) -> np.ndarray:
         """[M, 3] the dynamic returns of frame ``k`` (of the nearest sweep within two frames when
-        ``k`` has none: things move little in 0.2 s), without noise and, unless ``tracked``, without
-        the tracked movers' returns; empty without a sweep."""
+        ``k`` has none: things move little in 0.2 s), without noise nor ghosts and, unless
+        ``tracked``, without the tracked movers' returns; empty without a sweep."""
         j = self.nearest_sweep(k)
         if j is None:
             return np.zeros((0, 3))
         keep = self.dynamic[j] & ~self.noise[j]
+        if j in self.ghost:
+            keep &= ~self.ghost[j]
         if not tracked:
             keep &= ~self.tracked[j]
         return self.points[j][keep]
@@ -260,13 +271,15 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
             points[k] = np.asarray(sweep.points, np.float64)
             labels[k] = None if sweep.labels is None else np.asarray(sweep.labels)
     tracks = moving_tracks(scene, moving_threshold_m)
-    lookup = transient_classes(dict(getattr(scene, "class_names", {}) or {}))
-    tracked, trailing, semantic = {}, {}, {}
+    class_names = dict(getattr(scene, "class_names", {}) or {})
+    lookup, no_surface = transient_classes(class_names), transient_classes(class_names, people=False)
+    tracked, trailing, semantic, ghost = {}, {}, {}, {}
     for k, p in points.items():
         tracked[k], trailing[k] = _tracked(p, k, tracks, box_margin_m)
         lab = labels[k]
-        semantic[k] = (lookup[np.clip(lab.astype(np.int64), 0, 255)] if lab is not None and lookup.any()
-                       else np.zeros(len(p), bool))
+        ids = np.clip(lab.astype(np.int64), 0, 255) if lab is not None else None
+        semantic[k] = lookup[ids] if ids is not None and lookup.any() else np.zeros(len(p), bool)
+        ghost[k] = no_surface[ids] if ids is not None and no_surface.any() else np.zeros(len(p), bool)
 
     # free space: the nearest return per pixel of every frame, at half the analysis size
     depth = {k: _nearest_depth(views, p, k, 0.5) for k, p in points.items()}
@@ -332,4 +345,5 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
                 noise[k][~dynamic[k]] = sparse[start:start + n]
                 start += n
     counts["noise"] = int(sum(v.sum() for v in noise.values()))
-    return LidarReturns(points=points, dynamic=dynamic, tracked=tracked, noise=noise, facts=counts)
+    counts["ghost"] = int(sum(v.sum() for v in ghost.values()))
+    return LidarReturns(points=points, dynamic=dynamic, tracked=tracked, noise=noise, facts=counts, ghost=ghost)
