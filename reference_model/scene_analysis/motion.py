@@ -24,11 +24,7 @@ trails and blotches in every frame. :func:`classify_returns` labels every return
   pedestrian stays in a voxel for a few frames, a wall for all. Each label is then put to the vote
   of the return's neighbours within 0.3 m (up to 12, at least 3) in its own sweep, so an object is
   dynamic as a whole (a parked car's silhouette edges, seen past by a moving camera, are not; a
-  pedestrian's returns are not outvoted by the pavement's). A return whose semantic class never
-  moves (a building, a road, vegetation, a sign, a pole, a wire: :data:`_FIXED_NAMES`) is not put
-  to this test: a ray passes a wire or through a crown's gaps without the structure having moved
-  (on ``pandaset_002`` such returns were 7 of the 50 pixels the trained model showed as sky at a
-  trusted return, docs/findings.md, "Ghost returns");
+  pedestrian's returns are not outvoted by the pavement's);
 * **noise**: returns of the static scene whose 0.3 m voxel holds fewer than 3 returns over all
   sweeps (birds, spray droplets, multipath).
 
@@ -60,10 +56,6 @@ __all__ = ["LidarReturns", "classify_returns", "transient_classes"]
 _MOVER_CLASSES = frozenset({"pedestrian", "cyclist", "animal"})
 #: Lidar semantic class names (lower case) of returns that are not surfaces at all.
 _TRANSIENT_NAMES = frozenset({"smoke", "exhaust", "spray or rain", "reflection"})
-#: Lidar semantic class names (lower case) of structure that never moves: no free-space test.
-_FIXED_NAMES = frozenset({"building", "vegetation", "ground", "road", "sidewalk", "driveway", "lane line marking",
-                          "stop line marking", "other road marking", "signs", "pylons", "road barriers",
-                          "other static object"})
 #: Free-space margin: max(_MARGIN_M, _MARGIN_REL * depth) (m).
 _MARGIN_M, _MARGIN_REL = 0.5, 0.05
 #: Frames closer than this to a return's own frame give no free-space vote (they see the same);
@@ -281,18 +273,13 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
     tracks = moving_tracks(scene, moving_threshold_m)
     class_names = dict(getattr(scene, "class_names", {}) or {})
     lookup, no_surface = transient_classes(class_names), transient_classes(class_names, people=False)
-    never_moves = np.zeros(256, bool)
-    for cid, cname in class_names.items():
-        if 0 <= int(cid) < 256 and str(cname).strip().lower() in _FIXED_NAMES:
-            never_moves[int(cid)] = True
-    tracked, trailing, semantic, ghost, fixed = {}, {}, {}, {}, {}
+    tracked, trailing, semantic, ghost = {}, {}, {}, {}
     for k, p in points.items():
         tracked[k], trailing[k] = _tracked(p, k, tracks, box_margin_m)
         lab = labels[k]
         ids = np.clip(lab.astype(np.int64), 0, 255) if lab is not None else None
         semantic[k] = lookup[ids] if ids is not None and lookup.any() else np.zeros(len(p), bool)
         ghost[k] = no_surface[ids] if ids is not None and no_surface.any() else np.zeros(len(p), bool)
-        fixed[k] = never_moves[ids] if ids is not None and never_moves.any() else np.zeros(len(p), bool)
 
     # free space: the nearest return per pixel of every frame, at half the analysis size
     depth = {k: _nearest_depth(views, p, k, 0.5) for k, p in points.items()}
@@ -300,7 +287,7 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
     seen_through = {}
     for j, p_all in points.items():
         # only what is not labelled yet, one test per 0.1 m voxel of the sweep (labels broadcast back)
-        todo = np.nonzero(~tracked[j] & ~trailing[j] & ~semantic[j] & ~fixed[j])[0]
+        todo = np.nonzero(~tracked[j] & ~trailing[j] & ~semantic[j])[0]
         key = np.floor(p_all[todo] / _TEST_VOXEL_M).astype(np.int64)
         _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
         p = p_all[todo[first]]
@@ -332,7 +319,7 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
             found = np.isfinite(dist)
             votes = np.where(found, raw[np.minimum(nb, len(p) - 1)], False).sum(axis=1)
             n = found.sum(axis=1)
-            raw = np.where(n >= 3, votes > 0.5 * n, raw) & ~fixed[k]
+            raw = np.where(n >= 3, votes > 0.5 * n, raw)
         dynamic[k] = tracked[k] | trailing[k] | semantic[k] | raw
         counts["tracked"] += int(tracked[k].sum())
         counts["trailing"] += int((trailing[k] & ~semantic[k]).sum())

@@ -6,7 +6,6 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
 from wcbench.reference_model.scene_analysis.analysis import solid_masks
 from wcbench.reference_model.scene_analysis.motion import classify_returns, transient_classes
@@ -70,19 +69,3 @@ def test_ghost_returns_are_in_no_frame_and_no_solid_pixel_while_a_pedestrian_is(
         assert ok.any()
         hit = solid[2][v[ok], u[ok]]
         assert hit.all() if present else not hit.any(), name
-
-
-@pytest.mark.parametrize(("name", "dynamic"), [("Other Static Object", False), ("Car", True)])
-def test_a_class_that_never_moves_is_not_put_to_the_free_space_test(name, dynamic):
-    # a blob 10 m ahead in frame 0's sweep only: every later sweep sees the wall through it
-    wall = _grid(-6.0, 6.0, -1.0, 2.0, 20.0, 0.2)
-    blob = _grid(-0.5, 0.5, 0.0, 1.0, 10.0)
-    classes = {1: "Building", 2: name}
-    sweeps = {k: SimpleNamespace(points=np.concatenate([wall, blob]) if k == 0 else wall,
-                                 labels=np.concatenate([np.ones(len(wall)), np.full(len(blob) if k == 0 else 0, 2)])
-                                 .astype(np.uint8)) for k in range(F)}
-    scene = SimpleNamespace(frames=list(range(F)), lidar=lambda f: sweeps[f], tracks=[], class_names=classes)
-    _, views, _ = _scene()
-    returns = classify_returns(scene, views)
-    assert not returns.dynamic[0][: len(wall)].any()
-    assert returns.dynamic[0][len(wall):].all() == dynamic and returns.dynamic[0][len(wall):].any() == dynamic
