@@ -137,9 +137,8 @@ def solid_masks(views: AnalysisViews, returns: LidarReturns) -> tuple[list[np.nd
     """Per frame k, the pixels a lidar return lands in: every return of frame k's own sweep (of the
     nearest sweep within two frames without one) but its ghosts (:meth:`LidarReturns.frame_dynamic`),
     the static returns of the sweeps within ``_NEAR_FRAMES`` frames of k (twice that for a frame
-    without its own sweep), and the static
-    returns of every sweep farther than ``_FAR_M`` from frame k's camera (isolated returns
-    excluded); and the frames none lands in.
+    without its own sweep), and the static returns of every sweep farther than ``_FAR_M`` from
+    frame k's camera (isolated returns excluded); and the frames none lands in.
 
     Returns
     -------
