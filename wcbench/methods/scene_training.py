@@ -365,15 +365,16 @@ def train_scene(
     Notes
     -----
     Two keys (docs/design.md §9, "One training per model"). The *model key* is over everything that
-    makes the model, the supervision's record included, so it is known only once the supervision is
-    made (a minute of editing on the quick profile). The *request key* is over what the caller asks
-    for, known at once: every file of the scene's folder, the settings, the supervision's spec, the
-    physics, the content loss and the code's source. The request is locked first, so a second
-    process asking for the same model waits before any work; a finished training leaves a record of
-    its request (model key, checkpoint, facts), and a request made again, by the waiting process or
-    a later run, loads that checkpoint without editing again. Only supervision the code makes from
-    the scene is taken from a record; a folder of frames (``READER:DIR``) can change under the
-    same spec, so its frames are read and the model key computed each time.
+    makes the model, the supervision's record and the code's source included, so it is known only
+    once the supervision is made (a minute of editing on the quick profile). The *request key* is
+    over what the caller asks for, known at once: every file of the scene's folder, the settings,
+    the supervision's spec, the physics, the content loss and the code's source. The request is
+    locked first, so a second process asking for the same model waits before any work; a finished
+    training leaves a record of its request (model key, checkpoint, facts), and a request made
+    again, by the waiting process or a later run, loads that checkpoint without editing again. Only
+    supervision the code makes from the scene is taken from a record; a folder of frames
+    (``READER:DIR``) can change under the same spec, so its frames are read and the model key
+    computed each time.
     """
     problem = device_problem(device)
     if problem is not None:
@@ -442,7 +443,8 @@ def _folder_digest(root: Path) -> list[list[str]]:
 @functools.cache
 def _source_digest() -> str:
     """sha256 over the source files of the harness and the reference model: a request made again by
-    other code may edit otherwise, so its record is not reused."""
+    other code may edit otherwise, and a model of other code trains otherwise, so neither its record
+    nor its checkpoint is reused."""
     roots = [Path(p) for pkg in (wcbench, wcbench.reference_model) for p in pkg.__path__]
     return sha256_json(sorted([r.name, p.relative_to(r).as_posix(), sha256_file(p)]
                               for r in roots for p in r.rglob("*.py")))
@@ -495,6 +497,9 @@ def _train(scene: Scene, config: TrainConfig, *, supervision: str, jitter: float
                        # by content, as the images: one scene reached by two spellings of its path trains once
                        "lidar": [sha256_file(f.lidar_path) if f.lidar_path is not None else None
                                  for f in scene.frames],
+                       # the code that builds and trains it: a checkpoint of other code is neither loaded nor
+                       # resumed, so a model trained before an update is never taken for today's
+                       "code": _source_digest(),
                        # only off the CPU, so that every CPU key stays what it was
                        **({"device": device} if device != "cpu" else {})})
     folder = folder or cache_dir() / "weathercity" / f"{data}-{key[:16]}"

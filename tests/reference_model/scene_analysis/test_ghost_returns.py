@@ -6,6 +6,10 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
+
+# The scene analysis needs the model extra (torch, PyMaxflow); the torch-free envs skip it.
+pytest.importorskip("torch")
 
 from wcbench.reference_model.scene_analysis.analysis import solid_masks
 from wcbench.reference_model.scene_analysis.motion import classify_returns, transient_classes
