@@ -656,10 +656,7 @@ class SurfaceScene:
         normals = pca_normals(means.astype(np.float64))
         to_cam = views.center(index) - means
         normals[np.einsum("ij,ij->i", to_cam, normals) < 0] *= -1.0
-        quats = np.zeros((n, 4), np.float32)
-        quats[:, 0] = 1.0
-        cloud = GaussianCloud(means=means, quats=quats, scales=np.full((n, 3), 0.6 * _DYNAMIC_VOXEL_M, np.float32),
-                              opacities=np.full(n, 0.9, np.float32), colors=np.clip(rgb, 0.0, 1.0))
+        cloud = GaussianCloud.isotropic(means, 0.6 * _DYNAMIC_VOXEL_M, rgb, 0.9)
         attrs = np.zeros((n, len(ATTRIBUTES)), np.float32)
         attrs[:, :3] = normals
         return cloud, attrs

@@ -51,6 +51,30 @@ class GaussianCloud:
     def __len__(self) -> int:
         return int(self.means.shape[0])
 
+    @classmethod
+    def isotropic(cls, means: np.ndarray, scales: np.ndarray | float, colors: np.ndarray,
+                  opacities: np.ndarray | float) -> GaussianCloud:
+        """Unrotated spheres: the shape the lidar's points start as (each as wide as its spacing).
+
+        Parameters
+        ----------
+        means : ndarray [N, 3]
+            Centres, world (m).
+        scales : ndarray [N] or float
+            Standard deviation of each, the same along every axis (m).
+        colors : ndarray [N, 3]
+            RGB, clipped to [0, 1].
+        opacities : ndarray [N] or float
+            In [0, 1].
+        """
+        n = np.asarray(means).shape[0]
+        quats = np.zeros((n, 4), np.float32)
+        quats[:, 0] = 1.0
+        s = np.broadcast_to(np.asarray(scales, np.float32), (n,))
+        return cls(means=means, quats=quats, scales=np.repeat(s[:, None], 3, 1),
+                   opacities=np.broadcast_to(np.asarray(opacities, np.float32), (n,)),
+                   colors=np.clip(colors, 0.0, 1.0))
+
     def subset(self, keep: np.ndarray) -> GaussianCloud:
         """The Gaussians selected by a boolean mask or an index array."""
         return GaussianCloud(**{f.name: getattr(self, f.name)[keep] for f in fields(self)})

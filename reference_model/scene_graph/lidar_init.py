@@ -210,16 +210,7 @@ def _cloud(opts: LidarInitOptions, points: np.ndarray, colors: np.ndarray, range
     upper = np.minimum(opts.max_scale_m, opts.max_angular_scale * rng)
     scales = np.clip(opts.scale_factor * spacing, min(opts.min_scale, voxel / 5.0), None)
     scales = np.maximum(np.minimum(scales, upper), min(opts.min_scale, voxel / 5.0))
-    n = len(means)
-    quats = np.zeros((n, 4), np.float32)
-    quats[:, 0] = 1.0
-    return GaussianCloud(
-        means=means,
-        quats=quats,
-        scales=np.repeat(scales[:, None], 3, axis=1),
-        opacities=np.full(n, opts.opacity, np.float32),
-        colors=np.clip(rgb, 0.0, 1.0),
-    )
+    return GaussianCloud.isotropic(means, scales, rgb, opts.opacity)
 
 
 def _ranges(scene: Any, points: np.ndarray, frame: np.ndarray) -> np.ndarray:

@@ -87,11 +87,7 @@ def _isotropic_cloud(means: list[np.ndarray], colors: list[np.ndarray], scales: 
     """Isotropic Gaussians from per-view lists of centres [n, 3], colours [n, 3] and scales [n]."""
     if not means:
         return GaussianCloud(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
-    m, c, s = np.concatenate(means), np.concatenate(colors), np.concatenate(scales)
-    quats = np.zeros((len(m), 4), np.float32)
-    quats[:, 0] = 1
-    return GaussianCloud(means=m, quats=quats, scales=np.repeat(s[:, None], 3, 1),
-                         opacities=np.full(len(m), opacity, np.float32), colors=np.clip(c, 0, 1))
+    return GaussianCloud.isotropic(np.concatenate(means), np.concatenate(scales), np.concatenate(colors), opacity)
 
 
 def far_cloud(views: Sequence[TrainingView], *, stride_px: int = 8, every: int = 3,

@@ -280,11 +280,7 @@ def fill_from_lidar(holes: np.ndarray, anchor_depth: np.ndarray, K: np.ndarray, 
     y = (rows + 0.5 - K[1, 2]) / K[1, 1] * z
     c2w = np.asarray(camera_to_world, np.float64)
     means = np.stack([x, y, z], 1) @ c2w[:3, :3].T + c2w[:3, 3]
-    n = len(z)
-    scale = 0.5 * z / K[0, 0]
-    return GaussianCloud(means=means, quats=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
-                         scales=np.repeat(scale[:, None], 3, 1), opacities=np.full(n, FILL_OPACITY),
-                         colors=np.clip(image[rows, cols], 0.0, 1.0))
+    return GaussianCloud.isotropic(means, 0.5 * z / K[0, 0], image[rows, cols], FILL_OPACITY)
 
 
 def append_gaussians(name: str, params: GaussianParams, optimizer: NodeOptimizer, new: GaussianParams) -> int:

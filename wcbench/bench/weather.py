@@ -78,13 +78,8 @@ def _synthetic_scene(n: int, seed: int = 0) -> tuple[Any, Any, np.ndarray]:
         ]
     )
     colors = np.clip(base + rng.normal(0, 0.05, base.shape), 0, 1).astype(np.float32)
-    quats = np.zeros((n, 4), np.float32)
-    quats[:, 0] = 1
     # Spacing of n points over these areas, as the 3DGS k-NN scale would give.
-    scales = np.full((n, 3), 0.12 * math.sqrt(100_000 / max(n, 1)), np.float32)
-    cloud = GaussianCloud(
-        means=means, quats=quats, scales=scales, opacities=np.full(n, 0.9, np.float32), colors=colors
-    )
+    cloud = GaussianCloud.isotropic(means, 0.12 * math.sqrt(100_000 / max(n, 1)), colors, 0.9)
     # OpenCV camera: x right (-y world), y down (-z world), z forward (+x world).
     c2w = np.eye(4)
     c2w[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])

@@ -133,6 +133,19 @@ def test_gaussian_cloud_checks_shapes_and_round_trips(tmp_path: Path) -> None:
         GaussianCloud(np.zeros((n, 3)), np.zeros((n, 4)), np.ones((n, 3)), np.ones(n), np.zeros((n, 4)))
 
 
+def test_isotropic_clouds_are_unrotated_spheres_with_clipped_colours() -> None:
+    means = np.arange(9.0).reshape(3, 3)
+    cloud = GaussianCloud.isotropic(means, np.array([0.1, 0.2, 0.3]), np.array([[1.5, 0.5, -0.2]] * 3), 0.7)
+    np.testing.assert_array_equal(cloud.quats, np.tile(np.float32([1, 0, 0, 0]), (3, 1)))
+    np.testing.assert_array_equal(cloud.scales, np.float32([[0.1] * 3, [0.2] * 3, [0.3] * 3]))
+    np.testing.assert_array_equal(cloud.colors, np.tile(np.float32([1.0, 0.5, 0.0]), (3, 1)))
+    np.testing.assert_array_equal(cloud.opacities, np.float32([0.7] * 3))
+    one = GaussianCloud.isotropic(means, 0.25, np.zeros((3, 3)), np.array([0.1, 0.2, 0.3]))
+    assert one.scales.shape == (3, 3) and np.all(one.scales == np.float32(0.25))
+    np.testing.assert_array_equal(one.opacities, np.float32([0.1, 0.2, 0.3]))
+    assert len(GaussianCloud.isotropic(np.zeros((0, 3)), 0.1, np.zeros((0, 3)), 0.5)) == 0
+
+
 def test_static_gaussians_take_the_image_colors_and_drop_moving_objects(tmp_path: Path) -> None:
     scene = make_scene(tmp_path)
     cloud = init_from_lidar(scene, LidarInitOptions(voxel_m=0.1))
