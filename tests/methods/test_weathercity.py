@@ -318,15 +318,16 @@ def test_a_model_of_other_code_is_trained_anew_not_loaded_or_resumed(tmp_path, d
     from wcbench.methods import scene_training
     from wcbench.reference_model.training.config import make_config
 
-    scene = demo_scene
     config = make_config("quick", **json.loads(TINY))
     folder = tmp_path / "ckpt"
-    _, _, facts = scene_training.train_scene(scene, config, folder=folder, show_progress=False, log=lambda m: None)
+    _, _, facts = scene_training.train_scene(demo_scene, config, folder=folder, show_progress=False,
+                                             log=lambda m: None)
     assert facts["resumed_at"] == 0
     # the same request by other code (an update of the package): the finished checkpoint in the same
     # folder is of another model key, so it is trained over, from the first step
     monkeypatch.setattr(scene_training, "_source_digest", lambda: "0" * 64)
-    _, _, again = scene_training.train_scene(scene, config, folder=folder, show_progress=False, log=lambda m: None)
+    _, _, again = scene_training.train_scene(demo_scene, config, folder=folder, show_progress=False,
+                                             log=lambda m: None)
     assert again["resumed_at"] == 0 and again["key"] != facts["key"] and again["request"] != facts["request"]
     assert json.loads((folder / "checkpoint.json").read_text())["key"] == again["key"]
 
