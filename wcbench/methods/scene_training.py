@@ -25,8 +25,7 @@ from typing import Any
 
 import numpy as np
 
-import wcbench
-import wcbench.reference_model
+from wcbench.core.code_digest import source_digest
 from wcbench.core.errors import InputError
 from wcbench.core.locking import EntryLock
 from wcbench.core.models.store import ModelStore
@@ -442,12 +441,11 @@ def _folder_digest(root: Path) -> list[list[str]]:
 
 @functools.cache
 def _source_digest() -> str:
-    """sha256 over the source files of the harness and the reference model: a request made again by
-    other code may edit otherwise, and a model of other code trains otherwise, so neither its record
-    nor its checkpoint is reused."""
-    roots = [Path(p) for pkg in (wcbench, wcbench.reference_model) for p in pkg.__path__]
-    return sha256_json(sorted([r.name, p.relative_to(r).as_posix(), sha256_file(p)]
-                              for r in roots for p in r.rglob("*.py")))
+    """sha256 over the code of the harness and the reference model (not its comments or docstrings,
+    :func:`~wcbench.core.code_digest.source_digest`): a request made again by other code may edit
+    otherwise, and a model of other code trains otherwise, so neither its record nor its checkpoint
+    is reused; a change of prose alone reuses both."""
+    return sha256_json({pkg: source_digest(pkg) for pkg in ("wcbench", "wcbench.reference_model")})
 
 
 def _load_requested(scene: Scene, config: TrainConfig, record_path: Path
