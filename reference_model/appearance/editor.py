@@ -254,14 +254,15 @@ class WeatherEditor:
         """The completed surface maps of frame ``index`` at ``camera``'s size, with at least the
         attributes ``fields`` of :data:`~.maps.FIELDS` (the last view's are kept: every weather of a
         frame shares them when they hold what it reads); ``image`` is the frame at that size
-        (display RGB), the guide of the sky's matte."""
+        (display RGB), the guide of the sky's matte and of the walls' distances."""
         key = (index, np.asarray(camera.K, np.float64).tobytes(), int(camera.width), int(camera.height),
                np.asarray(camera.camera_to_world, np.float64).tobytes())
         memo = self._maps_memo
         if memo is None or memo[0] != key or not set(fields) <= set(memo[1].fields):
             sky, matte = self._sky(index, camera, image)
             self._maps_memo = memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte,
-                                                        solid=self._solid(index, camera), fields=fields))
+                                                        solid=self._solid(index, camera), fields=fields,
+                                                        image=image))
         return memo[1]
 
     def sun_visibility(self, index: int, camera: Any, image: np.ndarray) -> np.ndarray:

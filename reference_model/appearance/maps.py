@@ -10,8 +10,8 @@ reach (docs/design.md §7):
   horizon the **fitted ground** (the 2 m cells' heights, continued by their plane), its
   attributes evaluated at the ray's intersection (so they stay anchored in the world); above it a
   **vertical wall** rising from the surface below (the scene's facade plane behind it where one
-  is fitted, else the closing's depth), facing the camera horizontally: structure above
-  the lidar's reach keeps its appearance, nothing settles on it.
+  is fitted, else the closing's depth), facing the camera horizontally, its distance smoothed
+  along the frame: structure above the lidar's reach keeps its appearance, nothing settles on it.
 
 :func:`mirror_distance` renders the non-ground surfaces mirrored about that ground plane: how far
 the reflected ray of each pixel travels to the scene; :func:`screen_reflection` takes the colour of
@@ -374,7 +374,7 @@ def _replace_tails(tails: np.ndarray, source: np.ndarray, distance: np.ndarray, 
 
 def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,
                  sky_alpha: np.ndarray | None = None, solid: np.ndarray | None = None,
-                 fields: tuple[str, ...] = FIELDS) -> SurfaceMaps:
+                 fields: tuple[str, ...] = FIELDS, image: np.ndarray | None = None) -> SurfaceMaps:
     """The completed surface maps of frame ``index`` seen by ``camera`` (see the module docstring).
 
     Parameters
@@ -395,6 +395,10 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         weather that reads fewer (fog reads none) leaves their channels out of the compositing,
         whose time grows with the channels; the ones asked for are the same to the bit (each
         channel's sums are its own, and where a pixel stops depends on its opacity alone).
+    image : ndarray [H, W, 3] float32, optional
+        The frame (display RGB): the walls' distances are smoothed along it
+        (:func:`~wcbench.reference_model.scene_graph.completion.smooth_walls`); without it, each
+        column's guess stays.
 
     Returns
     -------
@@ -433,7 +437,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
                                           forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2],
-                                          ground_at=surfaces.ground_height, facades=surfaces.facades)
+                                          ground_at=surfaces.ground_height, facades=surfaces.facades, guide=image)
     fill_ground = kind == FILL_GROUND
     if np.any(fill_ground):  # attributes evaluated where the ray meets the ground: anchored in the world
         hit = center + rays[fill_ground] * np.where(np.isfinite(distance[fill_ground]), distance[fill_ground],

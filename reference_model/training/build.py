@@ -163,7 +163,7 @@ def completion_cloud(views: Sequence[TrainingView], *, up: np.ndarray, stride_px
         sky = v.sky if v.sky is not None else np.zeros((h, w), bool)
         filled, kind, _ = complete_distance(distance, known, sky, rays, center, up,
                                             ground_height_below(points, center, up),
-                                            forward=v.camera_to_world[:3, 2])
+                                            forward=v.camera_to_world[:3, 2], guide=v.images["clear"])
         ys_, xs_ = np.mgrid[r:h:stride_px, r:w:stride_px]
         ys_, xs_ = ys_.ravel(), xs_.ravel()
         d = filled[ys_, xs_]

@@ -16,6 +16,7 @@ from wcbench.reference_model.scene_graph.completion import (
     fill_footprints,
     fit_facades,
     ground_height_below,
+    smooth_walls,
 )
 
 #: The level camera's optical axis (world +x).
@@ -327,3 +328,78 @@ def test_a_tile_takes_the_colour_of_the_road_nearest_it_and_seen_ground_is_not_t
     assert len(fill_footprints(road[:0], colors[:0], [(T, size)], np.array([0.0, 0.0, 1.0]))) == 0
     with pytest.raises(ValueError, match="colors"):
         fill_footprints(road, colors[:5], [(T, size)], np.array([0.0, 0.0, 1.0]))
+
+
+def _band(h: int = 40, w: int = 80) -> tuple[np.ndarray, np.ndarray]:
+    """A wall band (rows 5-24) whose column guesses alternate 40 m / 80 m every 6 columns, over a
+    row of returns (25-29) and the ground (30-39), under the sky (0-4): distances and kinds."""
+    kind = np.full((h, w), FILL_WALL, np.int8)
+    kind[:5] = FILL_SKY
+    kind[25:30] = FILL_KNOWN
+    kind[30:] = FILL_GROUND
+    distance = np.where((np.arange(w) // 6) % 2 == 0, 40.0, 80.0)[None, :].repeat(h, 0)
+    distance[:5] = np.inf
+    distance[25:30] = 60.0
+    distance[30:] = 20.0
+    return distance, kind
+
+
+def test_a_band_of_one_colour_gets_one_distance_not_a_block_per_column():
+    distance, kind = _band()
+    guide = np.full((*kind.shape, 3), 0.2, np.float32)
+    guide[:5] = (0.7, 0.75, 0.8)  # the sky
+    guide[30:] = 0.35  # the road
+    out = smooth_walls(distance, kind, guide, radius=12)
+    wall = kind == FILL_WALL
+    # the columns' jumps (40 <-> 80 m) are gone inside the band, and nothing leaves their range
+    inner = out[8:22, 14:66]
+    assert np.abs(np.diff(np.log(inner), axis=1)).max() < 0.05
+    assert np.abs(np.diff(np.log(distance[8:22, 14:66]), axis=1)).max() > 0.6  # as it was
+    assert out[wall].min() >= 20.0 - 1e-9 and out[wall].max() <= 80.0 + 1e-9
+    # returns, ground and sky keep theirs
+    np.testing.assert_array_equal(out[~wall], distance[~wall])
+
+
+def test_a_wall_is_not_smoothed_across_an_edge_of_the_frame():
+    distance, kind = _band()
+    distance[5:25, :40], distance[5:25, 40:] = 30.0, 90.0  # two facades meeting at column 40
+    guide = np.full((*kind.shape, 3), 0.15, np.float32)
+    guide[:5], guide[25:30], guide[30:] = (0.7, 0.75, 0.8), (0.6, 0.2, 0.2), (0.3, 0.35, 0.4)  # sky, shops, road
+    guide[5:25, 40:] = (0.8, 0.75, 0.6)  # a dark and a pale facade
+    out = smooth_walls(distance, kind, guide, radius=12)
+    np.testing.assert_allclose(out[5:16, :37], 30.0, rtol=0.03)
+    np.testing.assert_allclose(out[5:16, 43:], 90.0, rtol=0.03)
+    # where four colours meet within a window (the facades' corner with the shops' row) the
+    # filter's local linear model of the colours holds less well
+    np.testing.assert_allclose(out[16:25, :37], 30.0, rtol=0.15)
+    np.testing.assert_allclose(out[16:25, 43:], 90.0, rtol=0.15)
+    # without the frame's edge the two would mix across the seam
+    flat = guide.copy()
+    flat[5:25] = 0.15
+    mixed = smooth_walls(distance, kind, flat, radius=12)
+    assert mixed[15, 38] > 40.0 and mixed[15, 42] < 80.0
+
+
+def test_complete_distance_smooths_its_walls_only_when_given_the_frame():
+    rays, z_per_m = _level_camera()
+    h, w = z_per_m.shape
+    up, center = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.6])
+    known = np.zeros((h, w), bool)
+    distance = np.zeros((h, w))
+    known[18:20, :] = True  # a row of returns at 12 m and 24 m, alternating every 5 columns
+    depth = np.where((np.arange(w) // 5) % 2 == 0, 12.0, 24.0)[None, :]
+    distance[18:20] = depth / z_per_m[18:20]
+    sky = np.zeros((h, w), bool)
+    sky[:2] = True
+    opts = {"forward": FORWARD, "thin_fraction": 0.0}  # each column continues its own return
+    plain, kind, _ = complete_distance(distance, known, sky, rays, center, up, 0.0, **opts)
+    guide = np.full((h, w, 3), 0.3, np.float32)
+    guided, kind2, _ = complete_distance(distance, known, sky, rays, center, up, 0.0, guide=guide,
+                                         guide_radius=0.3, **opts)  # a 12 px window on 40 rows
+    np.testing.assert_array_equal(kind, kind2)
+    wall = kind == FILL_WALL
+    assert np.abs(np.diff(np.log(plain[5:15, 10:50]), axis=1)).max() > 0.6
+    assert np.abs(np.diff(np.log(guided[5:15, 10:50]), axis=1)).max() < 0.1
+    np.testing.assert_array_equal(guided[~wall], plain[~wall])
+    with pytest.raises(ValueError, match="radius >= 1"):
+        smooth_walls(plain, kind, guide[:10], radius=3)
