@@ -412,11 +412,11 @@ def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, r
     and far columns, blocks of haze in fog (docs/findings.md). The frame shows one surface there.
     Each wall pixel takes the normalised guided filter
     (:func:`~wcbench.reference_model.guided_filter.guided_filter`; normalised convolution,
-    Knutsson & Westin 1993) of the log distances of the
-    pixels with a finite distance (returns, ground, walls), the frame as guide, clamped to their
-    range in the window: the guesses are averaged within what the frame shows as one region and
-    not across its edges. Lidar returns and the ground keep their own distance (smoothing them as
-    well lowered the editor's PSNR against the synthetic truth).
+    Knutsson & Westin 1993) of the log distances of the pixels with a finite distance (returns,
+    ground, walls), the frame as guide, clamped to their range in the window: the guesses are
+    averaged within what the frame shows as one region and not across its edges. Lidar returns
+    and the ground keep their own distance (smoothing them as well lowered the editor's PSNR
+    against the synthetic truth).
 
     Parameters
     ----------
