@@ -70,7 +70,7 @@ def test_the_digest_follows_the_code_not_its_prose(package: Path) -> None:
         source_digest("digestpkg.absent")
 
 
-def test_a_model_key_holds_the_code_of_both_packages_not_their_prose(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_models_key_digests_both_packages_by_the_prose_free_digest(monkeypatch: pytest.MonkeyPatch) -> None:
     """The model cache's key (wcbench.methods.scene_training) digests ``wcbench`` and its reference
     model through :func:`source_digest`: a documenting edit trains nothing again, a code edit does."""
     pytest.importorskip("torch")
