@@ -8,7 +8,8 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 * a **normal** (the smallest principal axis of its 16 nearest neighbours, turned toward the
   cameras' path; a node's in its box frame, turned outward; on a boxed object's side,
   :func:`object_sides`, never facing up);
-* **ground** (1 where the normal points up and the Gaussian lies on the local ground height);
+* **ground** (1 where the normal points up, more than sideways, and the Gaussian lies on the local
+  ground height);
 * **open** (1 where no return that overhangs it, facing up or down, lies half a metre higher within
   half a metre sideways, nor any return within 0.15 m: open to the sky, so snow settles and rain
   falls; 0 under a car or a roof, half under a tree's crown, which holds part of the fall and
@@ -112,6 +113,12 @@ _SIDE_SHARE, _SIDE_TOP_SHARE, _SIDE_BAND_M, _SIDE_MARGIN_M = 0.5, 0.85, 0.25, 0.
 UNDERBODY_M = 0.3
 #: Up-component (box frame) above which a return counts as facing up for :data:`UNDERBODY_M`.
 _FACING_UP = 0.8
+#: A static Gaussian is ground when it lies within ``_GROUND_WITHIN_M`` of the local ground height
+#: and its normal's up-component exceeds ``_GROUND_UP``: at a kerb the normals of the road, the face
+#: and the sidewalk blend into a slope of 0.5-0.6, which at 0.8 left a bare dark band between two
+#: snowed surfaces (the PandaSet right camera, docs/findings.md); a wheel or a wall's foot faces
+#: sideways.
+_GROUND_UP, _GROUND_WITHIN_M = 0.3, 0.3
 
 
 def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
@@ -745,7 +752,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                         noise_seed=int(noise_seed), facts={}, ground_plane=plane, analysis=analysis,
                         boxes=[(np.asarray(t.frames, np.int64), np.asarray(t.object_to_world, np.float64),
                                 np.asarray(t.box_size, np.float64)) for t in scene.tracks])
-    ground = (normals @ up > 0.8) & (height - surf.ground_height(means) < 0.3)
+    ground = (normals @ up > _GROUND_UP) & (height - surf.ground_height(means) < _GROUND_WITHIN_M)
 
     # a parked object's returns are static (a moving one's are its node's, below); its body shelters
     # the ground under it, its box's footprint, not the ground beside it: the downward normals of
