@@ -56,10 +56,13 @@ def test_surfaces_of_the_demo_street(demo_scene):
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
     ground = attrs[:, 3] > 0.5
     assert 0.2 < ground.mean() < 0.95
-    # ground faces up, towards the cameras (the stored normals are averaged over neighbours, so a
-    # ground Gaussian beside a curb or a wall leans a little)
+    # ground faces up, towards the cameras, more than sideways (the stored normals are averaged over
+    # neighbours, so a ground Gaussian beside a curb or a wall leans a little)
     up_component = normals[ground] @ surf.up
-    assert np.median(up_component) > 0.98 and np.quantile(up_component, 0.01) > 0.6
+    assert np.median(up_component) > 0.98 and up_component.min() > 0.2
+    # a curb's step is ground too: the normals of road, face and sidewalk blend there into a slope
+    # (at 0.8 up, the snow left a bare band along the PandaSet kerbs), a few per cent of the ground
+    assert 0.01 < np.mean(up_component < 0.8) < 0.1
     # the ground lies at the ground height, everything else above it or beside
     heights = surf.gaussians.static.means.astype(np.float64) @ surf.up
     np.testing.assert_array_less(heights[ground] - surf.ground_height(surf.gaussians.static.means[ground]), 0.3)
