@@ -344,13 +344,6 @@ class WeatherEditor:
         else:
             clear = clear_irradiance(n_up, model=p.light)[..., None]
         albedo = lin / np.maximum(clear, 1e-3)
-        if sun.direction is not None:
-            # an albedo above 1 is light the model missed. With a sun, the sun's (a shadow or a facing
-            # the fit got wrong), which the overcast sky does not bring: capped at 1 in its brightest
-            # channel, the pixel keeps its colour. Without one, the sky's share on a normal the lidar
-            # got wrong, which the overcast sky brings alike: it keeps its brightness too (wet_albedo
-            # wets it as its colour at 1; clipped channel by channel it was a grey smudge)
-            albedo = albedo / np.maximum(albedo.max(axis=-1, keepdims=True), 1.0)
         light = exposure * overcast_irradiance(n_up, model=p.light)[..., None]
         beta, haze_color, offset = weather.haze()
         # the sky: at infinity, the haze's airlight; without haze, the overcast sky

@@ -235,8 +235,7 @@ def wet_albedo(albedo: np.ndarray, wetness: np.ndarray | float, *, water_index: 
     Parameters
     ----------
     albedo : ndarray [..., 3]
-        Linear albedo (or linear pixel values standing for it), at least 0; a pixel above 1 in a
-        channel is wetted as the same colour at 1 in its brightest channel, then scaled back.
+        Linear albedo (or linear pixel values standing for it) in [0, 1].
     wetness : ndarray [...] or float
         0 dry, 1 a full film.
     water_index : float
@@ -246,19 +245,14 @@ def wet_albedo(albedo: np.ndarray, wetness: np.ndarray | float, *, water_index: 
     -------
     ndarray [..., 3] float32
     """
-    a = np.clip(np.asarray(albedo, np.float32), 0.0, None)
-    # an albedo above 1 is the light model's miss, not the surface's (a normal the lidar got wrong, a
-    # light the model lacks): scaled to 1 in its brightest channel, wetted and scaled back, the pixel
-    # keeps its colour; clipped channel by channel it turned neutral grey (docs/findings.md)
-    excess = np.maximum(a.max(axis=-1, keepdims=True), 1.0)
-    a = a / excess
+    a = np.clip(np.asarray(albedo, np.float32), 0.0, 1.0)
     r_e = _diffuse_fresnel(water_index)
     r_i = 1.0 - (1.0 - r_e) / water_index ** 2
     film = (1.0 - r_e) * (1.0 - r_i) * a / (1.0 - r_i * a)
     w = np.clip(np.asarray(wetness, np.float32), 0.0, 1.0)
     if w.ndim == a.ndim - 1:
         w = w[..., None]
-    return ((a + w * (film - a)) * excess).astype(np.float32)
+    return (a + w * (film - a)).astype(np.float32)
 
 
 def fresnel_schlick(cos_theta: np.ndarray, f0: float) -> np.ndarray:

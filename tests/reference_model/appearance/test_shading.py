@@ -71,22 +71,6 @@ def test_diffuse_fresnel_of_water_and_the_lekner_dorf_film_against_its_series():
     np.testing.assert_array_equal(wet_albedo(np.full((2, 3), 0.3, np.float32), 0.0), np.full((2, 3), 0.3, np.float32))
 
 
-def test_an_albedo_above_one_is_wetted_as_its_colour_not_clipped_grey():
-    # a bright wall under a normal the lidar got facing down reads albedo ~2: the light model's
-    # miss. Each channel clipped to 1 made it neutral grey; it keeps its colour and brightness
-    over = np.array([[1.9, 2.06, 1.71]], np.float32)
-    np.testing.assert_allclose(wet_albedo(over, 0.0), over, rtol=1e-6)
-    scale = 2.06
-    for w in (0.3, 1.0):
-        np.testing.assert_allclose(wet_albedo(over, w), wet_albedo(over / scale, w) * scale, rtol=1e-6)
-    out = wet_albedo(over, 1.0)[0]
-    assert out[1] > out[0] > out[2]  # green over red over blue, as it came
-    # at or below 1 nothing changes: the film of each channel on its own
-    a = np.array([[0.2, 0.5, 1.0]], np.float32)
-    np.testing.assert_allclose(wet_albedo(a, 1.0)[0], [wet_albedo(np.full((1, 3), v), 1.0)[0, 0] for v in a[0]],
-                               rtol=1e-6)
-
-
 def test_schlick_snow_cover_and_smoothstep_limits():
     assert float(fresnel_schlick(np.float32(1.0), 0.02)) == pytest.approx(0.02)
     assert float(fresnel_schlick(np.float32(0.0), 0.02)) == pytest.approx(1.0)
