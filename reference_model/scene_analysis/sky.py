@@ -36,6 +36,10 @@ them from the image, for every frame of a scene at once (docs/design.md §7, "Sk
    return of a structure a few px wide (:func:`thin_returns`) with the colour of the sky seeds
    nearby (a wire's mixed pixel, another sweep's copy of it a px off) joins no neighbour by the
    smoothness term: it stays non-sky, but does not pull a pocket of sky beside it to the wall.
+   After the cut, pixels of the clear sky's blue and of the colour of the sky nearby (CIELAB
+   difference under 10), joined to the cut's sky through such pixels, with no return of any sweep in
+   them, are sky too (:func:`_blue_pockets`: a narrow pocket between wires and a wall's corner,
+   where the evidence is weak, goes to the structures around it otherwise).
 5. **The boundary placed by colour** (:func:`refine_boundary`): within 3 px of it, each pixel's
    share of sky from the colour line between the nearby sky and foreground colours (alpha
    matting's colour-line model), or, for a pixel far off that line (a third colour: a pale
@@ -442,6 +446,29 @@ def _column_colour_probability(lab: np.ndarray, sky: np.ndarray, not_sky: np.nda
     return np.where(has, p, 0.5).astype(np.float32)
 
 
+def _blue_pockets(lab: np.ndarray, sky: np.ndarray, free: np.ndarray, *, max_de: float = _THIN_DE,
+                  reach_px: float = _THIN_REACH_PX) -> np.ndarray:
+    """[H, W] bool: the pixels of ``free`` (above the horizon, no return in them) of the clear sky's
+    blue (b* < -12, -20 < a* < 5) and of the colour of the ``sky`` nearby (CIELAB difference under
+    ``max_de`` to its mean within a Gaussian of ``reach_px``) that are joined to ``sky`` through such
+    pixels (8-connected); ``lab`` [H, W, 3] is the frame in CIELAB.
+
+    The minimum cut's smoothness term takes a narrow pocket of sky between structures to them when
+    the evidence there is weak (between two guy wires and a wall's corner, under a bar over a roof, on
+    pandaset_002_right: docs/findings.md, "Pockets of blue sky"). A pixel of the sky's own blue,
+    joined to it, with nothing the lidar saw in it, is sky by the argument that makes blue pixels
+    seeds (Rayleigh scattering); a blue sign or glass differs from the sky beside it by more."""
+    if not sky.any():
+        return np.zeros_like(sky)
+    ref, has_ref = _sky_colour_nearby(lab, sky, reach_px)
+    blue = (lab[..., 2] < _BLUE_B) & (lab[..., 1] > _BLUE_A[0]) & (lab[..., 1] < _BLUE_A[1])
+    like = free & blue & has_ref & (np.linalg.norm(lab - ref, axis=-1) < max_de) & ~sky
+    if not like.any():
+        return like
+    _, labels = cv2.connectedComponents((like | sky).astype(np.uint8), connectivity=8)
+    return like & np.isin(labels, np.unique(labels[sky]))
+
+
 def _sky_components(mask: np.ndarray, seeds: np.ndarray, *, bridge_px: int = 0,
                     link: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The components of ``mask`` (8-connected: a sky crossed by a wire stays one) that hold a seed
@@ -720,6 +747,9 @@ def segment_sky(views: AnalysisViews, solid: list[np.ndarray], *, seed: int = 0,
         probability[k] = p
         never = ~region | solid[k] | (untrusted[k] & corridors[k] if untrusted is not None else False)
         cut = _cut(views.images[k], p, never, sky_seeds[k] & ~never, loose=loose[k]) & ~never
+        # a pocket of the sky's own blue the cut gave to the structures around it is sky (no return of
+        # any sweep in it: another sweep's copy of a wire stays out)
+        cut |= _blue_pockets(lab, cut, ~never & (~untrusted[k] if untrusted is not None else True))
         mask, alpha = refine_boundary(views.images[k], cut, never)
         # the sky is one with the open sky: a patch enclosed by the scene, with no seed, is not
         labels[k], kept[k] = _sky_components(mask, sky_seeds[k], bridge_px=max(1, round(2 * w / 480)),
