@@ -162,6 +162,13 @@ def test_the_stale_list_allows_a_stale_json_and_must_stay_current(tmp_path: Path
     assert problems == [] and len(stale) == 1
     assert "listed since 2026-11-29 (not re-run)" in stale[0] and "--data-root D" in stale[0]
 
+    # the list's command names the run that writes the right file, over one the JSON recorded
+    obj = json.loads((bench / "streets.json").read_text())
+    obj["command"] = "wcbench bench streets --data-root D --out /tmp/scratch/streets.json"
+    (bench / "streets.json").write_text(json.dumps(obj))
+    _, stale = check_freshness(bench, root=root, digests=_DIGESTS)
+    assert "--out docs/bench/streets.json" in stale[0] and "/tmp/scratch" not in stale[0]
+
     # re-run: the entry must go
     BenchReport("streets", code=streets_code).write(bench / "streets.json")
     problems, stale = check_freshness(bench, root=root, digests=_DIGESTS)

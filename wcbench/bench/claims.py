@@ -361,9 +361,9 @@ class StaleEntry:
 def read_stale_list(path: Path) -> dict[str, StaleEntry]:
     """The allow-list of stale benchmark JSONs: file name (in its folder) -> entry.
 
-    The file is TOML, ``[[stale]]`` tables of ``file``, ``since`` (a date), ``reason`` and, for a
-    JSON that records no command, optionally ``rerun`` (the command that re-runs it); a missing
-    file is an empty list.
+    The file is TOML, ``[[stale]]`` tables of ``file``, ``since`` (a date), ``reason`` and
+    optionally ``rerun`` (the command that re-runs it, for a JSON that records none or whose recorded
+    command wrote elsewhere: it is named instead); a missing file is an empty list.
 
     Raises
     ------
@@ -422,7 +422,8 @@ def check_freshness(bench_dir: Path, *, root: Path, digests: dict[str, str] | No
                 problems.append(f"{shown} is up to date with its code: remove it from {allow_list}")
             continue
         entry = listed.get(path.name)
-        recorded = doc.get("command") or (entry.rerun if entry else None)
+        # the list's command corrects a recorded one (a run written to a scratch folder, then copied)
+        recorded = (entry.rerun if entry else None) or doc.get("command")
         command = (f"`{recorded}`" if recorded else
                    f"`wcbench bench {suite} --out {shown}` with the options its docs/findings.md section gives")
         if entry is not None:
