@@ -9,7 +9,9 @@ nothing: the sky shows through. So:
 
 * :func:`hidden_by_objects` finds the background that a vacated object covered in some view and
   that most views saw only through an object (:func:`object_cover`: the hull of a node's
-  Gaussians, from its box's nearest corner);
+  Gaussians, from its box's nearest corner), and :func:`inside_boxes` the background within a
+  vacated box's margin above the ground (what the object painted there: its reflections, its blur
+  at the box's edge, seen from the front too);
 * :func:`fill_from_surroundings` gives each the inverse-squared-distance mean of the features of
   its nearest seen neighbours (Shepard 1968), heights stretched so the ground continues the
   ground: the road, kerb and wall around the object continued into where it stood, as street-scene
@@ -43,8 +45,8 @@ from wcbench.reference_model.scene_graph.completion import fill_footprints
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["fill_from_surroundings", "ground_under_holes", "hidden_by_objects", "object_boxes", "object_cover",
-           "vacated_background"]
+__all__ = ["fill_from_surroundings", "ground_under_holes", "hidden_by_objects", "inside_boxes", "object_boxes",
+           "object_cover", "vacated_background"]
 
 #: The unit cube's corners, scaled by a box's half-size.
 _CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
@@ -214,7 +216,7 @@ def fill_from_surroundings(features: np.ndarray, means: np.ndarray, hidden: np.n
 def vacated_background(model: WeatherCityModel, keys: Collection[str],
                        cameras: Sequence[tuple[int, np.ndarray, np.ndarray, int, int]], *,
                        up: np.ndarray, neighbours: int = 8, vertical_weight: float = 4.0,
-                       tile_margin_m: float = 0.3,
+                       tile_margin_m: float = 0.3, box_margin_m: float = 0.3, box_floor_m: float = 0.2,
                        tile_opacity: float = 0.95) -> tuple[WeatherCityModel, dict[str, Any]]:
     """``model`` with the background that the objects ``keys`` hid given the features of what was
     seen around it (the module docstring).
@@ -231,6 +233,10 @@ def vacated_background(model: WeatherCityModel, keys: Collection[str],
     neighbours, vertical_weight
         As :func:`fill_from_surroundings`: 4 keeps the ground under a car to the ground around it,
         not the crown of a tree beside it (pandaset_002, docs/findings.md).
+    box_margin_m, box_floor_m : float
+        As :func:`inside_boxes`: the background within a vacated box grown by ``box_margin_m`` (m),
+        from ``box_floor_m`` (m) above its bottom face, is refilled too (on pandaset_002 a removed
+        queue of cars left a red smear on the road, docs/findings.md).
 
     Returns
     -------
@@ -260,11 +266,13 @@ def vacated_background(model: WeatherCityModel, keys: Collection[str],
     bg = model.background
     means = bg.means.detach().cpu().numpy().astype(np.float64)
     features = bg.features.detach().cpu().numpy()
-    hidden = hidden_by_objects(means, views, covers, vacated)
+    boxes = object_boxes(gone)
+    hidden = hidden_by_objects(means, views, covers, vacated) | inside_boxes(
+        means, boxes, up=up, margin_m=box_margin_m, floor_m=box_floor_m)
     # the ground under each vacated box, where no seen background Gaussian lies (what was hidden
     # there may have been trained transparent behind the object: the sky would show through)
     seen = ~hidden
-    tiles = fill_footprints(means[seen], np.zeros((int(seen.sum()), 3)), object_boxes(gone), up,
+    tiles = fill_footprints(means[seen], np.zeros((int(seen.sum()), 3)), boxes, up,
                             margin_m=tile_margin_m, opacity=tile_opacity)
     if len(tiles):  # what the footprints leave see-through (the ground behind an object, from far)
         under = GaussianParams.from_cloud(tiles, feature_dim=bg.feature_dim)
@@ -389,6 +397,37 @@ def ground_under_holes(background: GaussianParams, objects: Sequence[RigidObject
                          quats=np.tile(quat_from_axis_to(u[None]).astype(np.float32), (n, 1)),
                          scales=scales.astype(np.float32), opacities=np.full(n, opacity, np.float32),
                          colors=np.zeros((n, 3), np.float32))
+
+
+def inside_boxes(points: np.ndarray, boxes: Sequence[tuple[np.ndarray, np.ndarray]], *, up: np.ndarray,
+                 margin_m: float = 0.3, floor_m: float = 0.2) -> np.ndarray:
+    """[N] bool: the ``points`` inside any of ``boxes`` grown by ``margin_m`` on every side, above the
+    height ``floor_m`` over the box's lowest corner (along ``up``): the ground under and beside the box
+    is left out, what stands on it is in.
+
+    Parameters
+    ----------
+    points : ndarray [N, 3]
+        World points (m).
+    boxes : sequence of (ndarray [4, 4], ndarray [3])
+        Object-to-world pose and size along the box's own axes (m), as :func:`object_boxes` lists them.
+    up : ndarray [3]
+        The scene's up.
+    margin_m, floor_m : float
+        Both at least 0 (m).
+    """
+    if margin_m < 0 or floor_m < 0:
+        raise ValueError(f"margin_m {margin_m} and floor_m {floor_m}: both at least 0 (m) were expected")
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    u = np.asarray(up, np.float64) / np.linalg.norm(up)
+    out = np.zeros(len(p), bool)
+    for T, size in boxes:
+        T, half = np.asarray(T, np.float64), np.asarray(size, np.float64) / 2.0
+        local = (p - T[:3, 3]) @ T[:3, :3]
+        inside = np.all(np.abs(local) <= half + margin_m, axis=1)
+        lowest = float((((_CORNERS * half) @ T[:3, :3].T + T[:3, 3]) @ u).min())
+        out |= inside & (p @ u >= lowest + floor_m)
+    return out
 
 
 def object_boxes(objects: Sequence[RigidObject], *, tolerance_m: float = 0.05) -> list[tuple[np.ndarray, np.ndarray]]:
