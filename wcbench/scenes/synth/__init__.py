@@ -21,7 +21,7 @@ Each scene is written in drivestudio's Waymo layout, exactly as
 :func:`wcbench.scenes.loaders.load_waymo_layout` reads it, with the truth beside it
 (``truth/{weather}/{t:03d}_0.png`` and ``truth/weather.json``). Scenes are generated on first use
 into the cache folder of their profile (``scenes/synth-v1/synth_{k:03d}``,
-``scenes/synth-hard-v1/synth_hard_000``), built in a temporary folder and renamed into place;
+``scenes/synth-hard-v2/synth_hard_000``), built in a temporary folder and renamed into place;
 generation is seeded and byte-for-byte deterministic (PNG images, fixed text formats).
 
 Rendering needs the reference model (torch and numba, the ``[model]`` extra); a scene already in the

@@ -16,7 +16,9 @@ particles and fog), so an edited frame differs from the plain one only where the
 is seen, and through its shadow on profiles with a sun. The mask is the union of the object's
 silhouette before and after the edit: pixels where its Gaussians' composited weight is at least
 :data:`SILHOUETTE_WEIGHT`, plus (with a sun) pixels whose composited sun visibility changes by at
-least as much (its cast shadow, penumbra included; the truth weathers are overcast, shadowless).
+least as much (its cast shadow, penumbra included; the truth weathers are overcast, shadowless),
+plus (with traced mirrors) pixels whose wet ground mirrors the object under rain, before or after
+the edit, by as much: its reflection.
 """
 
 from __future__ import annotations
@@ -206,6 +208,10 @@ def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: 
                                               weight=SILHOUETTE_WEIGHT)
             if content.spec.profile.sun is not None:  # the object's cast shadow (penumbra included) is edited too
                 region |= np.abs(plain.sun_visibility(k) - renderer.sun_visibility(k)) >= SILHOUETTE_WEIGHT
+            if content.spec.profile.traced_mirrors:  # and its reflection in the wet ground, before and after
+                region |= plain.mirrored_object(k, plan.mover) >= SILHOUETTE_WEIGHT
+                if plan.op == "translate":
+                    region |= renderer.mirrored_object(k, plan.mover) >= SILHOUETTE_WEIGHT
             _write_mask(folder / plan.name / "mask" / f"{k:03d}_0.png", region)
             pixels.append(int(region.sum()))
         m = content.movers[plan.mover]
@@ -224,7 +230,9 @@ def write_edit_truth(folder: Path, content: Content, cameras: list[Any], times: 
         "layout": "<name>/{clear,rain,snow,fog}/{t:03d}_0.png: the edited truth; <name>/mask/{t:03d}_0.png: 255 in "
                   "the edited region (union of the object's silhouette before and after: composited weight "
                   f">= {SILHOUETTE_WEIGHT:.6f}; with a sun, also where the composited sun visibility changes "
-                  "by as much: the cast shadow)",
+                  "by as much: the cast shadow"
+                  + ("; with traced mirrors, also where the wet ground's reflected rays meet the object before "
+                     "or after by as much: its reflection)" if content.spec.profile.traced_mirrors else ")"),
         "frames": n_frames,
         "edits": records,
     }

@@ -181,6 +181,10 @@ class Profile:
         Arc length (m) where the block on the right is painted white.
     mirror_windows : bool
         Window glass mirrors the sky (a Fresnel term).
+    traced_mirrors : bool
+        Under rain the wet ground mirrors what its reflected view ray meets in the street (the cars,
+        trunks, canopies and facades; :mod:`.mirrors`), the sky only where it meets nothing;
+        otherwise it mirrors the sky through them.
     """
 
     name: str
@@ -194,6 +198,7 @@ class Profile:
     road_patches: int = 0
     white_facade_s: float | None = None
     mirror_windows: bool = False
+    traced_mirrors: bool = False
 
 
 #: The v1 scenes (``synth_1``, ``synth_3``): a 32-beam roof lidar over the front half (the camera sees
@@ -213,15 +218,17 @@ V1 = Profile(
 #: scoring; dark road patches, a white facade and mirroring windows. The blocks on the sun's side
 #: (left) are 8-14 m: their shadows reach 0.8 of their height across the street, 6.6-11.5 m from
 #: the facades, so they cover the left sidewalk and lane and, behind the taller ones, part of the
-#: camera's lane, not the whole street.
+#: camera's lane, not the whole street. Under rain its wet ground mirrors the street it faces, traced
+#: (version 2; version 1 mirrored the sky through every car and tree, docs/findings.md).
 HARD = Profile(
-    name="synth_hard", cache="synth-hard-v1", version=1,
+    name="synth_hard", cache="synth-hard-v2", version=2,
     lidar=LidarSpec(mount_m=(1.2, 0.0, 1.9), beams=64, elevation_deg=(-25.0, 15.0), columns=500, azimuth_deg=50.0,
                     range_m=120.0, range_noise_m=0.02),
     building_height_m=((12.0, 30.0), (8.0, 14.0)),
     sun=Sun(elevation_deg=28.0, azimuth_deg=155.0, sun_rgb=(1.50, 1.36, 1.16), sky_rgb=(0.28, 0.34, 0.44),
             ground_albedo=0.15, lit_ground_fraction=0.5),
     sky_masks=False, truth_masks=True, road_patches=6, white_facade_s=42.0, mirror_windows=True,
+    traced_mirrors=True,
 )
 
 

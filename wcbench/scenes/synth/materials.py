@@ -129,9 +129,10 @@ def shade_physical(weather: str, surfaces: Surfaces, *, sun: Sun, visibility: np
         The clear frames' sun and sky.
     visibility : ndarray [N] or None
         Share of the sun each Gaussian sees (clear only).
-    sky : callable or ndarray [3]
-        The sRGB sky a mirror reflects: ``sky(rays_up [N]) -> [N, 3]`` by the sine of the reflected
-        ray's elevation (the clear or the overcast sky), or one colour (the haze's).
+    sky : callable or ndarray [3] or [N, 3]
+        The sRGB a mirror reflects: ``sky(rays_up [N]) -> [N, 3]`` by the sine of the reflected
+        ray's elevation (the clear or the overcast sky), one colour (the haze's), or one per
+        Gaussian (what each mirror sees, :mod:`.mirrors`).
     materials : dict
         :func:`physical_materials`.
     mirror_windows : bool

@@ -16,11 +16,12 @@ from typing import Any
 import numpy as np
 
 from wcbench.core.errors import InputError
-from wcbench.scenes.synth.content import Content, cloud_at
+from wcbench.scenes.synth.content import Content, boxes_at, cloud_at
 from wcbench.scenes.synth.geometry import Cloud, gaussian_normals
 from wcbench.scenes.synth.layout import FOCAL, HEIGHT, MATERIALS_V1, TRUTH_WEATHERS, WIDTH
 from wcbench.scenes.synth.light import clear_sky, overcast_sky, srgb_to_linear
 from wcbench.scenes.synth.materials import GLASS_F0, Surfaces, physical_materials, shade_physical
+from wcbench.scenes.synth.mirrors import mirrored_colors, mirrors_meeting
 from wcbench.scenes.synth.shadows import ShadowCaster
 
 __all__ = ["TruthFrame", "TruthRenderer", "reference_model", "shade_gaussians", "sky_colors"]
@@ -172,6 +173,21 @@ class TruthRenderer:
             return self.reflected[weather]
         return clear_sky if weather == "clear" else overcast_sky
 
+    def _traced_mirrors(self, k: int, cloud: Cloud, surfaces: Surfaces, sky: Any, renderer: Any) -> np.ndarray:
+        """[N, 3] sRGB what each Gaussian of frame ``k`` mirrors under rain: for the wet ones
+        (``sheen`` > 0) what their reflected view ray meets in the street (:mod:`.mirrors`), in the
+        colours the street has under rain, hazed over the reflected path; ``sky`` (the sky a mirror
+        sees: a function of the reflected ray's elevation, or one colour) elsewhere. Window glass
+        keeps the sky: a material the editors are not to read (docs/design.md §3)."""
+        assert self.profile.sun is not None
+        bare = shade_physical("rain", surfaces, sun=self.profile.sun, visibility=None, sky=np.zeros(3),
+                              materials=self.materials, mirror_windows=self.profile.mirror_windows)
+        everywhere = sky(surfaces.mirror_up) if callable(sky) else np.asarray(sky, np.float64)
+        seen, _ = mirrored_colors(cloud.means, surfaces.normals, self.cameras[k].center + self.shift, cloud.sheen > 0,
+                                  bare, everywhere, boxes_at(self.content, k), self.content.spheres,
+                                  beta=float(renderer.beta), haze=np.asarray(renderer.fog_color, np.float64))
+        return seen
+
     def frame(self, k: int) -> TruthFrame:
         """Frame ``k`` clear and under every truth weather (and, with the profile's ``truth_masks``,
         the clear frame's sky, shadow and movers masks)."""
@@ -195,8 +211,11 @@ class TruthRenderer:
                 colors = shade_gaussians(w, cloud, normals, cam.center + self.shift, self.reflected[w])
             else:
                 assert surfaces is not None
+                sky_seen = self._mirrored_sky(w)
+                if w == "rain" and self.profile.traced_mirrors:
+                    sky_seen = self._traced_mirrors(k, cloud, surfaces, sky_seen, r)
                 colors = shade_physical(w, surfaces, sun=sun, visibility=visibility if w == "clear" else None,
-                                        sky=self._mirrored_sky(w), materials=self.materials,
+                                        sky=sky_seen, materials=self.materials,
                                         mirror_windows=self.profile.mirror_windows)
             splats = self._arrays(*(np.asarray(a, np.float32) for a in (
                 means, cloud.quats, cloud.scales, cloud.opacities, np.clip(colors, 0.0, 1.0))))
@@ -273,6 +292,18 @@ class TruthRenderer:
         result: np.ndarray = self._composite(k, cloud, marks) >= weight
         return result
 
+    def mirrored_object(self, k: int, mover: int) -> np.ndarray:
+        """[H, W] where frame ``k``'s wet ground mirrors moving object ``mover`` under rain, composited
+        like a colour (the share of the pixel's Gaussians whose reflected view ray meets the object's
+        boxes first; :mod:`.mirrors`); zero without traced mirrors."""
+        cloud = cloud_at(self.content, k)
+        if not self.profile.traced_mirrors:
+            return np.zeros((HEIGHT, WIDTH))
+        normals = gaussian_normals(cloud.quats, cloud.scales)
+        sees = mirrors_meeting(cloud.means, normals, self.cameras[k].center + self.shift, cloud.sheen > 0,
+                               boxes_at(self.content, k), self.content.spheres, mover)
+        return self._composite(k, cloud, sees.astype(np.float64))
+
     def sun_visibility(self, k: int) -> np.ndarray:
         """[H, W] the share of the sun each pixel's Gaussians see in frame ``k``, composited
         (premultiplied by alpha; profiles with a sun only)."""
@@ -299,6 +330,12 @@ class TruthRenderer:
                                      "horizontal surface (linear)")
                 truth[w]["sky_mirrored"] = (self.reflected[w] if w in self.reflected else
                                             "CIE overcast gradation from the horizon colour")
+                if w == "rain" and self.profile.traced_mirrors:
+                    truth[w]["wet_ground_mirrors"] = (
+                        "what the view ray reflected at each wet Gaussian meets first (the lidar's boxes, the "
+                        "canopy spheres, the ground plane), in that Gaussian's rain colour without its own "
+                        "mirror, hazed over the reflected path; 'sky_mirrored' where it meets none; window "
+                        "glass mirrors 'sky_mirrored'")
         if sun is None:
             truth["clear"] = {"materials": MATERIALS_V1["clear"], "sky": "per-pixel gradient by ray elevation"}
             return truth

@@ -314,6 +314,6 @@ def ensure_synth_3() -> Path:
 
 
 def ensure_synth_hard_1() -> Path:
-    """Generator of the ``synth_hard_1`` set: ``<cache>/scenes/synth-hard-v1``, holding ``synth_hard_000``
+    """Generator of the ``synth_hard_1`` set: ``<cache>/scenes/synth-hard-v2``, holding ``synth_hard_000``
     (see :func:`_ensure`)."""
     return _ensure(HARD_SCENES[:1])
