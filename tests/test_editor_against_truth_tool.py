@@ -4,22 +4,19 @@ that runs, names what it measured, and measures the editor above the raw frames 
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
+from tool_runs import run_tool
 
 pytest.importorskip("torch")
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "editor_against_truth.py"
+TOOL = "editor_against_truth.py"
 
 
 @pytest.mark.slow
 @pytest.mark.model
 def test_the_tool_scores_the_editor_above_the_raw_frames_in_fog():
-    run = subprocess.run([sys.executable, str(TOOL), "--scenes", "synth_1", "--weathers", "fog", "--every", "10"],
-                         capture_output=True, text=True, timeout=600)
+    run = run_tool(TOOL, "--scenes", "synth_1", "--weathers", "fog", "--every", "10", timeout=600)
     assert run.returncode == 0, run.stderr
     assert "synth_1 (3 frames, every 10):" in run.stdout
     scores = {m[0]: float(m[1]) for m in re.findall(r"^\s+(\w+ fog)\s+([\d.]+) dB$", run.stdout, re.M)}
@@ -28,5 +25,5 @@ def test_the_tool_scores_the_editor_above_the_raw_frames_in_fog():
 
 
 def test_a_step_below_one_is_refused():
-    run = subprocess.run([sys.executable, str(TOOL), "--every", "0"], capture_output=True, text=True, timeout=120)
+    run = run_tool(TOOL, "--every", "0")
     assert run.returncode == 2 and "--every: a positive frame step was expected" in run.stderr

@@ -58,8 +58,9 @@ def main() -> None:
         for k in range(0, len(scene), args.every):
             raw = raw_frame(scene, k, size)
             camera = scale_camera(scene.frames[k].camera, *size)
-            shadow = cv2.imread(str(Path(scene.root) / "truth" / "masks" / "shadow" / f"{k:03d}_0.png"),
-                                cv2.IMREAD_GRAYSCALE)
+            shadow_path = Path(scene.root) / "truth" / "masks" / "shadow" / f"{k:03d}_0.png"
+            # only scenes with a sun ship the mask (reading an absent file makes OpenCV warn)
+            shadow = cv2.imread(str(shadow_path), cv2.IMREAD_GRAYSCALE) if shadow_path.exists() else None
             for w in args.weathers:
                 truth = cv2.cvtColor(cv2.imread(str(scene.references[w][k])), cv2.COLOR_BGR2RGB)
                 truth = truth.astype(np.float32) / 255
