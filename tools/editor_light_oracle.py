@@ -43,9 +43,9 @@ from wcbench.scenes.loaders import OPENCV_TO_WAYMO
 from wcbench.scenes.sets import get_scene_set
 from wcbench.scenes.synth.content import build_content, cloud_at
 from wcbench.scenes.synth.geometry import gaussian_normals
-from wcbench.scenes.synth.layout import FPS, HARD_SCENES
+from wcbench.scenes.synth.layout import HARD_SCENES
 from wcbench.scenes.synth.light import clear_irradiance
-from wcbench.scenes.synth.truth import TruthRenderer
+from wcbench.scenes.synth.shadows import ShadowCaster
 
 PARTS = ("sun", "visibility", "normals", "direct", "irradiance")
 #: The truth's scenes by set name (the first scene of each harder set).
@@ -101,7 +101,7 @@ def main() -> None:
         raise SystemExit(f"{args.scene}: a scene whose clear frames have a sun was expected")
     cameras = [f.camera for f in scene.frames]  # the loaders' frame: the truth's cameras, its origin shifted
     shift = (content.ego[0] @ content.camera_to_vehicle @ OPENCV_TO_WAYMO)[:3, 3]
-    truth = TruthRenderer(content, cameras, np.arange(len(cameras)) / FPS, shift)
+    shadows = ShadowCaster(content)  # the truth's own shadow rays, without its weather renderers
     lit_horizontal = clear_irradiance(sun, np.array([[0.0, 0.0, 1.0]]), np.ones(1))[0]
     truth_d2d = np.asarray(sun.sun_rgb) * sun.direction()[2] / np.asarray(sun.sky_rgb)
     # the street's axes are the loaders' (only the origin moves), so a street direction is a world one
@@ -139,7 +139,7 @@ def main() -> None:
         camera = cameras[k]
         cloud = cloud_at(content, k)
         normals = gaussian_normals(cloud.quats, cloud.scales)
-        visibility = truth.shadows.visibility(k, cloud)
+        visibility = shadows.visibility(k, cloud)
         values = np.concatenate([normals, visibility[:, None], clear_irradiance(sun, normals, visibility)], 1)
         mixed, here["alpha"] = composite(cloud, values, camera, shift)
         n = mixed[..., :3]
