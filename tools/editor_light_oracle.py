@@ -9,7 +9,8 @@ truth knows every one of those inputs. Each ``--swap`` set gives the editor the 
 the parts it names, on the pixels the truth's Gaussians cover (accumulated opacity over 0.95), in
 the light only (the maps for water, snow and haze stay the editor's):
 
-* ``sun``: the truth's sun direction, in the irradiance and in the editor's own shadow map;
+* ``sun``: the truth's sun direction, in the irradiance and in the editor's own shadow maps (the
+  ground's too);
 * ``visibility``: the truth's sun visibility (its shadow rays against its own shapes), composited;
 * ``normals``: the truth's Gaussians' normals, composited;
 * ``direct``: the truth's direct-to-diffuse ratio of the sun;
@@ -113,7 +114,8 @@ def main() -> None:
         ed = WeatherEditor(scene)
         if "sun" in parts:
             fitted = ed.analysis.sun
-            ed.analysis = dataclasses.replace(ed.analysis, sun=dataclasses.replace(fitted, direction=truth_sun))
+            ed.analysis = dataclasses.replace(ed.analysis, sun=dataclasses.replace(fitted, direction=truth_sun,
+                                                                               ground_direction=None))
         editors[parts] = ed
     original = editor_module.sunlit_irradiance
     here: dict[str, np.ndarray] = {}

@@ -109,6 +109,8 @@ APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
 #: Guided filter regularisation of the snow cover: edges of the frame weaker than sqrt(eps) = 0.1
 #: (display RGB) are smoothed over.
 _SNOW_EDGE_EPS = 1e-2
+#: Up-component of a pixel's normal above which its surface faces up and takes the ground's shadows.
+_FACING_UP = 0.7
 
 
 def appearance_options() -> dict[str, Option]:
@@ -269,7 +271,12 @@ class WeatherEditor:
         """[H, W] float32 the sun's visibility in frame ``index`` at ``camera``'s size: each pixel's
         surface point against the shadow map of the scene's occluders and the frame's moving
         objects, snapped to the frame's edges by a guided filter (radius 3 px at 270 rows; the
-        shadow's edge in the image is sharper than the map's 0.25 m cells); 1 without a sun."""
+        shadow's edge in the image is sharper than the map's 0.25 m cells); 1 without a sun.
+
+        A surface facing up (the ground, a roof) takes the map of the ground's shadows
+        (:attr:`~.sun.SunEstimate.ground_direction`), every other one the sun's, tested off its
+        surface (:meth:`~.sun.ShadowMap.lit_off_surface`: a facade the sun grazes, a pole, does not
+        shadow itself through the map's cells)."""
         sun = self.analysis.sun
         h, w = int(camera.height), int(camera.width)
         if sun.direction is None:
@@ -281,11 +288,17 @@ class WeatherEditor:
         cloud, _ = self.surfaces.at_frame(index)
         moving = np.asarray(cloud.means[len(self.surfaces.gaussians.static):], np.float64)
         shadow = sun.shadow_map(moving)
-        assert shadow is not None
+        ground_shadow = shadow if sun.ground_direction is None else sun.shadow_map(moving, ground=True)
+        assert shadow is not None and ground_shadow is not None
         finite = np.isfinite(m.distance)
         points = np.asarray(camera.center, np.float64) + m.rays[finite] * m.distance[finite, None]
+        normals = m.normal[finite].astype(np.float64)
+        upward = normals @ self.surfaces.up > _FACING_UP
+        lit = np.empty(len(points), bool)
+        lit[upward] = ground_shadow.lit(points[upward])
+        lit[~upward] = shadow.lit_off_surface(points[~upward], normals[~upward])
         vis = np.ones((h, w), np.float32)
-        vis[finite] = shadow.lit(points).astype(np.float32)
+        vis[finite] = lit.astype(np.float32)
         vis = refine(vis, image, radius=max(1, round(3 * h / 270)))
         self._sun_memo = (key, vis)
         return vis

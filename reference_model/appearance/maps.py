@@ -37,7 +37,8 @@ from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["FIELDS", "SurfaceMaps", "glossy_blur", "mirror_distance", "refine", "screen_reflection", "surface_maps"]
+__all__ = ["FIELDS", "SurfaceMaps", "facing_view", "glossy_blur", "mirror_distance", "refine", "screen_reflection",
+           "surface_maps"]
 
 #: The surface attributes the maps can composite beside the normal (:data:`~.surfaces.ATTRIBUTES`
 #: after the normal's three), in the order of their channels.
@@ -372,6 +373,34 @@ def _replace_tails(tails: np.ndarray, source: np.ndarray, distance: np.ndarray, 
         fields[name][rr, cc] = fields[name][src]
 
 
+def facing_view(means: np.ndarray, normals: np.ndarray, turnable: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """[N, 3] float32 the surfels' ``normals`` turned toward a view from ``center`` [3] (world, m)
+    where ``turnable``.
+
+    A static surfel's normal is turned toward the sequence's nearest camera, which lies below the
+    top of a crown or an overhang: there it points into the surface for a camera that sees it from
+    afar (the sun's cosine of a crown fell to 0 in a ragged patch, synth_hard_1, docs/findings.md).
+    What a view sees of a surface faces it, so a turnable surfel facing away from ``center`` is
+    turned (:attr:`~.surfaces.SurfaceScene.view_turned`: not the ground, whose normal, up within
+    the lidar's noise, tips past a ray that grazes it and turned would face down; not foliage,
+    which has no side).
+
+    Parameters
+    ----------
+    means : ndarray [N, 3]
+        Surfel centres (world, m).
+    normals : ndarray [N, 3]
+        Their unit normals (world).
+    turnable : ndarray [N] bool
+    center : ndarray [3]
+        The view's centre (world, m).
+    """
+    normals = np.asarray(normals, np.float32)
+    to_view = np.asarray(center, np.float32) - np.asarray(means, np.float32)
+    away = np.asarray(turnable, bool) & (np.einsum("ij,ij->i", to_view, normals) < 0)
+    return np.where(away[:, None], -normals, normals)
+
+
 def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,
                  sky_alpha: np.ndarray | None = None, solid: np.ndarray | None = None,
                  fields: tuple[str, ...] = FIELDS, image: np.ndarray | None = None) -> SurfaceMaps:
@@ -414,12 +443,15 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         raise ValueError(f"fields {unknown} unknown: expected names from {FIELDS}")
     wanted = tuple(f for f in FIELDS if f in fields)
     cloud, attrs = surfaces.at_frame(index)
-    if len(wanted) < len(FIELDS):
-        attrs = attrs[:, [0, 1, 2, *(3 + FIELDS.index(f) for f in wanted)]]
+    center = np.asarray(camera.center, np.float64)
+    turnable = np.zeros(len(attrs), bool)
+    if surfaces.view_turned is not None:  # the static surfels come first
+        turnable[:len(surfaces.view_turned)] = surfaces.view_turned
+    attrs = np.concatenate([facing_view(cloud.means, attrs[:, :3], turnable, center),
+                            attrs[:, [3 + FIELDS.index(f) for f in wanted]]], axis=1)
     values, alpha, depth = _rasterize(cloud, attrs, camera)
     rays, z_per_m = _rays(camera)
     up = surfaces.up
-    center = np.asarray(camera.center, np.float64)
     sky = np.asarray(sky, bool)
     covered = (alpha > _COVERED) & ~sky
     distance = np.where(covered, depth / np.maximum(z_per_m, 1e-9), np.inf)

@@ -39,6 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis
+from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_axes
 from wcbench.reference_model.scene_graph.completion import Facades, fit_facades
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import (
@@ -51,7 +52,7 @@ from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
 __all__ = ["ATTRIBUTES", "UNDERBODY_M", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths",
-           "object_sides", "open_to_sky", "pca_normals", "value_noise"]
+           "object_sides", "open_to_sky", "value_noise"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -77,6 +78,9 @@ _OVERHANG_UP = 0.3
 #: ``_CROWN_INTERCEPTION`` of the fall (a share of the snowfall a canopy holds, growing with its
 #: leaf area; Hedstrom & Pomeroy 1998).
 _FOLIAGE_VARIATION, _CROWN_INTERCEPTION = 0.1, 0.5
+#: A static surfel off the ground is turned toward each view unless this share of its this many
+#: nearest returns is foliage (:attr:`SurfaceScene.view_turned`).
+_TURN_NEIGHBOURS, _TURN_MAX_FOLIAGE = 16, 0.1
 #: A static surfel's thickness (standard deviation along its normal) over its width: a few cm at
 #: the 0.1 m voxel, the noise of a lidar return's range.
 _SURFEL_THICKNESS = 0.25
@@ -119,37 +123,6 @@ _FACING_UP = 0.8
 #: snowed surfaces (the PandaSet right camera, docs/findings.md); a wheel or a wall's foot faces
 #: sideways.
 _GROUND_UP, _GROUND_WITHIN_M = 0.3, 0.3
-
-
-def pca_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
-    """Unit normals: the smallest principal axis of the ``k`` nearest points (unoriented).
-
-    Parameters
-    ----------
-    points : ndarray [N, 3]
-    k : int
-
-    Returns
-    -------
-    ndarray [N, 3] float64
-        +z for fewer than 3 points.
-    """
-    return _principal_axes(points, k)[0]
-
-
-def _principal_axes(points: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """(:func:`pca_normals`, the surface variation [N]: the smallest eigenvalue of the ``k``
-    nearest points' covariance over their sum, 0 on a plane, 1/3 for points scattered through a
-    volume; Pauly, Gross & Kobbelt 2002)."""
-    n = len(points)
-    if n < 3:
-        out = np.zeros((n, 3))
-        out[:, 2] = 1.0
-        return out, np.zeros(n)
-    _, idx = cKDTree(points).query(points, k=min(k, n), workers=-1)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
-    return v[:, :, 0], w[:, 0] / np.maximum(w.sum(axis=1), 1e-12)
 
 
 def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
@@ -444,6 +417,9 @@ class SurfaceScene:
         Vertical planes fitted to the static returns above a car's height
         (:func:`~wcbench.reference_model.scene_graph.completion.fit_facades`): what a wall above
         the lidar's reach continues.
+    view_turned : ndarray [N] bool, optional
+        The static surfels whose normal each view turns toward itself
+        (:func:`~.maps.facing_view`): surfaces off the ground, not foliage. Default none.
     """
 
     gaussians: SceneGaussians
@@ -459,6 +435,7 @@ class SurfaceScene:
     analysis: SceneAnalysis | None = None
     boxes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
     facades: Facades | None = None
+    view_turned: np.ndarray | None = None
 
     def boxes_at(self, index: int) -> list[tuple[np.ndarray, np.ndarray]]:
         """The (object-to-world [4, 4], size [3]) of every box annotated at frame ``index``."""
@@ -720,7 +697,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     up = up / np.linalg.norm(up)
     axes = _plane_axes(up)
     means = gaussians.static.means.astype(np.float64)
-    normals, variation = _principal_axes(means)
+    normals, variation = principal_axes(means)
     cams = np.stack([np.asarray(f.camera.center, np.float64) for f in scene.frames])
     _, near_cam = cKDTree(cams).query(means, workers=-1)
     flip = np.einsum("ij,ij->i", cams[near_cam] - means, normals) < 0
@@ -790,6 +767,13 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     static = np.zeros((len(means), len(ATTRIBUTES)), np.float32)
     static[:, :3] = normals
     static[:, 3] = ground
+    # a surface's seen side faces the view, which may not be the nearest camera's side (the top of a
+    # crown); the ground's noisy normals would turn face down where a ray grazes them, and foliage
+    # has no side: nor has a return among foliage that happens to lie on a local plane (a bush's
+    # outer leaves; turned, the PandaSet bushes' tops took snow in grey tufts, docs/findings.md)
+    _, near16 = cKDTree(means).query(means, k=min(_TURN_NEIGHBOURS, len(means)), workers=-1)
+    foliage_near = (variation > _FOLIAGE_VARIATION)[np.asarray(near16).reshape(len(means), -1)].mean(axis=1)
+    surf.view_turned = ~ground & (foliage_near < _TURN_MAX_FOLIAGE)
     static[:, 4] = open_[near].mean(axis=1)
     static[:, 5] = surf.puddle_field(means)
     static[:, 6] = np.where(ground, surf.track_field(means), 0.0)

@@ -28,7 +28,18 @@ sun from the sequence (docs/design.md §7, "Cast shadows"):
   "On the removal of shadows from images", TPAMI). Otherwise the frames show no cast shadow to
   remove (an overcast source, or a street all in shade: a darker patch that is as blue as its
   surroundings is shade or a darker material, not a shadow of the sun), and the direction the
-  best fit found is recorded with the reason it was refused.
+  best fit found is recorded with the reason it was refused;
+* **the faces choose the sun or its mirror image**: the ground's shadows can be explained as well
+  by the sun's mirror image front to back (same elevation, azimuth 180 - a), whose occluders
+  (walls behind the cameras, above the lidar) the cameras never saw: on ``synth_hard_1`` the ground
+  fits (32, 31) degrees, the truth's sun is (28, 155) (docs/findings.md). The static returns more
+  than 0.5 m above the ground (facades, poles, crowns; PCA normals turned toward the camera that
+  saw them) are lit only where they face the sun: with the same t statistic, a face counts as lit
+  when its normal is turned toward the direction (cosine over 0.2) and the map has no occluder
+  over it, tested 0.5 m off its surface (it is an occluder too: at a grazing sun a wall shadows
+  itself through the map's cells). When the mirror image scores at least 8 higher (and at least
+  8), it is the sun that lights the surfaces, and the ground fit's direction, whose occluders the
+  map holds, keeps casting the ground's shadows (:attr:`SunEstimate.ground_direction`).
 
 The per-channel ratio of the lit to the shadowed receivers' median linear colour gives the sun's
 direct light over the sky's on the ground (Guo, Dai & Hoiem 2013, "Paired regions for shadow
@@ -44,8 +55,10 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from wcbench.reference_model.scene_analysis.motion import LidarReturns
+from wcbench.reference_model.scene_analysis.normals import pca_normals
 from wcbench.reference_model.scene_analysis.views import AnalysisViews, pixel_indices
 from wcbench.reference_model.scene_graph.completion import FILL_WALL, complete_distance, ground_height_below
 
@@ -66,6 +79,13 @@ _ELEVATIONS = (4.0, 76.0)
 _COARSE_DEG, _FINE_DEG = 6.0, 5.0
 #: Receivers and occluders used by the search (subsampled, seeded).
 _MAX_RECEIVERS, _MAX_OCCLUDERS = 20000, 150000
+#: Faces: static returns this high above the local ground (m), their normals from the returns in
+#: voxels of this size (m); lit when their normal's cosine with the sun is over this and the map
+#: has no occluder over them tested this far off their surface (m, times the sine of the sun's
+#: incidence: normal-offset shadows).
+_FACE_ABOVE_M, _FACE_VOXEL_M, _FACE_MIN_COS, _FACE_OFFSET_M = 0.5, 0.1, 0.2, 0.5
+#: How much higher the faces' t must be at the mirror image for it to light the surfaces.
+_MIRROR_MARGIN_T = 8.0
 
 
 def sun_direction(up: np.ndarray, heading: np.ndarray, elevation_deg: float, azimuth_deg: float) -> np.ndarray:
@@ -160,6 +180,16 @@ class ShadowMap:
         # the gaps between returns closed: a 3 x 3 maximum
         self.grid = cv2.dilate(depth.reshape(shape).astype(np.float32), np.ones((3, 3), np.uint8))
 
+    def lit_off_surface(self, points: np.ndarray, normals: np.ndarray, *, offset_m: float = _FACE_OFFSET_M
+                        ) -> np.ndarray:
+        """[N] bool: :meth:`lit` of ``points`` [N, 3] moved off their surface along their unit
+        ``normals`` [N, 3] by ``offset_m`` times the sine of the sun's incidence (normal-offset
+        shadows: a surface the sun grazes does not shadow itself through the map's cells)."""
+        n = np.asarray(normals, np.float64).reshape(-1, 3)
+        cos = np.clip(n @ self.direction, 0.0, 1.0)
+        moved = np.asarray(points, np.float64).reshape(-1, 3) + n * (offset_m * np.sqrt(1.0 - cos * cos))[:, None]
+        return self.lit(moved)
+
     def lit(self, points: np.ndarray, *, margin_m: float = _MARGIN_M) -> np.ndarray:
         """[N] bool: whether the sun reaches ``points`` [N, 3] (no occluder more than ``margin_m``
         nearer the sun in their cell)."""
@@ -187,6 +217,9 @@ class SunEstimate:
     occluders : ndarray [M, 3]
         What casts the shadows (voxel centres, m).
     facts : dict
+    ground_direction : ndarray [3] or None
+        The direction whose shadow map casts the ground's shadows where the faces found the sun at
+        the ground fit's mirror image (see the module docstring); ``None``: ``direction``.
     """
 
     direction: np.ndarray | None
@@ -195,14 +228,16 @@ class SunEstimate:
     direct_to_diffuse: np.ndarray
     occluders: np.ndarray
     facts: dict[str, Any] = field(default_factory=dict)
+    ground_direction: np.ndarray | None = None
 
-    def shadow_map(self, extra: np.ndarray | None = None) -> ShadowMap | None:
-        """The shadow map of the occluders (and ``extra`` ones, e.g. a frame's movers), or ``None``
-        without a sun."""
+    def shadow_map(self, extra: np.ndarray | None = None, *, ground: bool = False) -> ShadowMap | None:
+        """The shadow map of the occluders (and ``extra`` ones, e.g. a frame's movers) along the sun,
+        or with ``ground`` along :attr:`ground_direction` where there is one; ``None`` without a sun."""
         if self.direction is None:
             return None
         occ = self.occluders if extra is None or not len(extra) else np.concatenate([self.occluders, extra])
-        return ShadowMap(occ, self.direction)
+        return ShadowMap(occ, self.ground_direction if ground and self.ground_direction is not None
+                         else self.direction)
 
 
 def completed_structure(views: AnalysisViews, returns: LidarReturns, sky: np.ndarray, *, every: int = 3,
@@ -255,17 +290,70 @@ def _voxels(points: np.ndarray, cell: float) -> np.ndarray:
     return points[np.sort(first)]
 
 
+def _t_statistic(lit: np.ndarray, log_lum: np.ndarray) -> float:
+    """Pooled-variance t statistic of the lit minus the shadowed ``log_lum``; -inf when either side
+    holds under :data:`_MIN_SIDE` of them or under two."""
+    n1, n0 = int(lit.sum()), int((~lit).sum())
+    if min(n1, n0) < max(_MIN_SIDE * len(lit), 2):
+        return -np.inf
+    a, b = log_lum[lit], log_lum[~lit]
+    pooled = ((n1 - 1) * a.var() + (n0 - 1) * b.var()) / max(n1 + n0 - 2, 1)
+    return float((a.mean() - b.mean()) / math.sqrt(max(pooled, 1e-12) * (1.0 / n1 + 1.0 / n0)))
+
+
 def _score(occluders: np.ndarray, receivers: np.ndarray, log_lum: np.ndarray, s: np.ndarray
            ) -> tuple[float, np.ndarray]:
     """(t statistic of lit minus shadowed log luminance, lit mask) for sun direction ``s``."""
     lit = ShadowMap(occluders, s).lit(receivers)
-    n1, n0 = int(lit.sum()), int((~lit).sum())
-    if min(n1, n0) < _MIN_SIDE * len(lit):
-        return -np.inf, lit
-    a, b = log_lum[lit], log_lum[~lit]
-    pooled = ((n1 - 1) * a.var() + (n0 - 1) * b.var()) / max(n1 + n0 - 2, 1)
-    t = (a.mean() - b.mean()) / math.sqrt(max(pooled, 1e-12) * (1.0 / n1 + 1.0 / n0))
-    return float(t), lit
+    return _t_statistic(lit, log_lum), lit
+
+
+def _face_score(occluders: np.ndarray, faces: np.ndarray, normals: np.ndarray, log_lum: np.ndarray,
+                s: np.ndarray) -> float:
+    """The t statistic of the faces (points [N, 3], unit ``normals`` [N, 3]) lit by a sun along
+    ``s``: turned toward it and unshadowed off their surface (see the module docstring)."""
+    lit = (normals @ s > _FACE_MIN_COS) & ShadowMap(occluders, s).lit_off_surface(faces, normals)
+    return _t_statistic(lit, log_lum)
+
+
+def _log_luminance(colors: np.ndarray) -> np.ndarray:
+    """[N] log of the linear luminance of display-RGB ``colors`` [N, 3] (floored at 1e-4)."""
+    lin = np.where(colors <= 0.04045, colors / 12.92, ((colors + 0.055) / 1.055) ** 2.4)
+    return np.log(np.maximum(lin @ np.array([0.2126, 0.7152, 0.0722]), 1e-4))
+
+
+def _faces(views: AnalysisViews, returns: LidarReturns, ground: GroundGrid, static: np.ndarray,
+           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points [N, 3], unit normals [N, 3], log luminance [N]) of the static returns more than
+    :data:`_FACE_ABOVE_M` above the ground within :data:`_RECEIVER_RANGE_M` of their frame's camera,
+    their normals those of the static returns' voxels nearest them, turned toward that camera
+    (at most :data:`_MAX_RECEIVERS`, seeded)."""
+    vox = _voxels(static, _FACE_VOXEL_M)
+    if len(vox) < 3:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    tree = cKDTree(vox)
+    vox_normals = pca_normals(vox)
+    pts, nrm, col = [], [], []
+    for k, p in sorted(returns.points.items()):
+        p = p[returns.static_mask(k)]
+        center = views.center(k)
+        p = p[(np.linalg.norm(p - center, axis=1) < _RECEIVER_RANGE_M) &
+              (p @ ground.up - ground.height(p) > _FACE_ABOVE_M)]
+        ij, _, inside = views.project(p, k)
+        p, ij = p[inside], ij[inside]
+        _, near = tree.query(p, workers=-1)
+        n = vox_normals[near]
+        n[np.einsum("ij,ij->i", center - p, n) < 0] *= -1.0
+        pts.append(p)
+        nrm.append(n)
+        col.append(views.images[k][ij[:, 1], ij[:, 0]])
+    points = np.concatenate(pts) if pts else np.zeros((0, 3))
+    normals = np.concatenate(nrm) if nrm else np.zeros((0, 3))
+    colors = np.concatenate(col) if col else np.zeros((0, 3), np.float32)
+    if len(points) > _MAX_RECEIVERS:
+        pick = rng.choice(len(points), _MAX_RECEIVERS, replace=False)
+        points, normals, colors = points[pick], normals[pick], colors[pick]
+    return points, normals, _log_luminance(colors)
 
 
 def fit_sun(views: AnalysisViews, returns: LidarReturns, sky: np.ndarray, *, seed: int = 0) -> SunEstimate:
@@ -321,7 +409,7 @@ def fit_sun(views: AnalysisViews, returns: LidarReturns, sky: np.ndarray, *, see
         return empty
     lin = np.where(colors <= 0.04045, colors / 12.92, ((colors + 0.055) / 1.055) ** 2.4)
     lum = lin @ np.array([0.2126, 0.7152, 0.0722])
-    log_lum = np.log(np.maximum(lum, 1e-4))
+    log_lum = _log_luminance(colors)
     heading = views.camera_to_world[0][:3, 2]
 
     def search(elevations: np.ndarray, azimuths: np.ndarray) -> tuple[float, float, float]:
@@ -359,6 +447,20 @@ def fit_sun(views: AnalysisViews, returns: LidarReturns, sky: np.ndarray, *, see
                                       f"red >= {_MIN_WARMTH:g}x blue, lit >= {100 * _MIN_LIT:.0f} %)")
         return empty
     direct = np.clip(gain - 1.0, 0.0, None)
-    facts.update(sun=f"elevation {el:.0f} deg, azimuth {az % 360:.0f} deg from the first heading",
-                 direct_to_diffuse=[round(float(x), 3) for x in direct])
-    return SunEstimate(s, el, az % 360.0, direct, occluders, facts)
+    # the faces above the ground choose between the ground's direction and its mirror image
+    mirror_az = (180.0 - az) % 360.0
+    mirror = sun_direction(up, heading, el, mirror_az)
+    faces, normals, face_log_lum = _faces(views, returns, ground, static, rng)
+    t_fit, t_mirror = (_face_score(occ_search, faces, normals, face_log_lum, d) for d in (s, mirror))
+    facts.update(faces=len(faces), faces_t={name: round(t, 2) if np.isfinite(t) else None
+                                            for name, t in (("fit", t_fit), ("mirror", t_mirror))})
+    ground_direction = None
+    if t_mirror >= max(t_fit + _MIRROR_MARGIN_T, _MIN_T):
+        ground_direction, s, az = s, mirror, mirror_az
+        where = (f"elevation {el:.0f} deg, azimuth {az % 360:.0f} deg from the first heading (the faces' "
+                 f"choice: t {t_mirror:.1f} against {t_fit:.1f} at the ground's mirror image; the ground's "
+                 f"shadows along azimuth {facts['azimuth_deg']:.0f} deg)")
+    else:
+        where = f"elevation {el:.0f} deg, azimuth {az % 360:.0f} deg from the first heading"
+    facts.update(sun=where, direct_to_diffuse=[round(float(x), 3) for x in direct])
+    return SunEstimate(s, el, az % 360.0, direct, occluders, facts, ground_direction)

@@ -24,6 +24,7 @@ from wcbench.reference_model.appearance.maps import (
     _replace_tails,
     _slab_interval,
     _spill_region,
+    facing_view,
     mirror_distance,
     surface_maps,
 )
@@ -450,6 +451,41 @@ def test_maps_of_some_fields_are_the_maps_of_all_to_the_bit_the_others_nan(demo_
             assert np.isnan(getattr(part, name)).all(), name
     # the demo street's maps hold ground and open ground somewhere: the comparison is not of zeros
     assert full.ground.max() > 0.5 and full.open.max() > 0.5
+
+
+def test_a_turnable_surfel_is_turned_toward_the_view_that_sees_it_and_no_other():
+    center = np.array([0.0, 0.0, 1.5])
+    # the top of a crown 20 m ahead, 6 m up, its normal turned down toward a camera below it; a
+    # wall facing the camera; a ground surfel tipped 20 degrees away from a ray that grazes it (not
+    # turnable), and the crown's surfel again, not turnable (foliage)
+    means = np.array([[20.0, 0.0, 6.0], [15.0, 0.0, 2.0], [25.0, 0.0, 0.0], [20.0, 0.0, 6.0]])
+    normals = np.array([[0.6, 0.0, -0.8], [-1.0, 0.0, 0.0], [np.sin(np.radians(20)), 0.0, np.cos(np.radians(20))],
+                        [0.6, 0.0, -0.8]])
+    turned = facing_view(means, normals, np.array([True, True, False, False]), center)
+    np.testing.assert_allclose(turned, [[-0.6, 0.0, 0.8], normals[1], normals[2], normals[3]], atol=1e-7)
+    assert turned.dtype == np.float32
+
+
+def test_the_maps_are_the_same_whichever_way_the_turnable_surfels_were_turned(demo_scene, monkeypatch):
+    # the slow twin of facing_view in the maps: every turnable surfel reversed changes no pixel
+    surfaces = build_surfaces(demo_scene)
+    assert surfaces.view_turned is not None and surfaces.view_turned.mean() > 0.1
+    cam = demo_scene.frames[4].camera
+    sky = np.zeros((int(cam.height), int(cam.width)), bool)
+    sky[:10] = True
+    maps = surface_maps(surfaces, 4, cam, sky)
+    at_frame = surfaces.at_frame
+
+    def reversed_normals(index):
+        cloud, attrs = at_frame(index)
+        attrs = attrs.copy()
+        attrs[:len(surfaces.view_turned)][surfaces.view_turned, :3] *= -1.0
+        return cloud, attrs
+
+    monkeypatch.setattr(surfaces, "at_frame", reversed_normals)
+    turned = surface_maps(surfaces, 4, cam, sky)
+    np.testing.assert_array_equal(turned.normal, maps.normal)
+    assert not np.array_equal(reversed_normals(4)[1], at_frame(4)[1])
 
 
 def test_maps_refuse_a_field_they_do_not_know(demo_scene):

@@ -12,16 +12,15 @@ pytest.importorskip("torch")
 from wcbench.reference_model.appearance.surfaces import (
     _FOLIAGE_VARIATION,
     _box_parts,
-    _principal_axes,
     _road_under,
     build_surfaces,
     in_box,
     lane_paths,
     object_sides,
     open_to_sky,
-    pca_normals,
     value_noise,
 )
+from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_axes
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.scenes.scene import ObjectTrack
 
@@ -120,7 +119,7 @@ def test_a_trees_crown_lets_half_the_snow_through_a_roof_none():
     roof = np.column_stack([c, np.full(len(c), 3.0)])
     crown = np.column_stack([rng.uniform(4.0, 6.0, 4000), rng.uniform(0.0, 4.0, 4000), rng.uniform(2.5, 4.5, 4000)])
     points = np.concatenate([ground, roof, crown])
-    normals, variation = _principal_axes(points)
+    normals, variation = principal_axes(points)
     porous = variation > _FOLIAGE_VARIATION
     assert not porous[:len(ground) + len(roof)].any() and porous[len(ground) + len(roof):].mean() > 0.9
     up = np.array([0.0, 0.0, 1.0])

@@ -171,6 +171,37 @@ def test_the_sun_of_the_harder_street_is_found_and_its_shadows_agree_with_the_tr
         ground = m.ground > 0.5
         agree.append(float((~vis == truth)[ground].mean()))
     assert np.mean(agree) > 0.8
+    # the ground's shadows fit the sun's mirror image front to back (the walls that cast the truth's
+    # shadows stand behind the cameras, above the lidar): the faces above the ground choose the truth's
+    from wcbench.scenes.synth.layout import HARD_SCENES
+
+    truth = HARD_SCENES[0].profile.sun
+    assert truth is not None and sun.ground_direction is not None, sun.facts
+    angle = np.degrees(np.arccos(np.clip(sun.direction @ truth.direction(), -1.0, 1.0)))
+    assert angle < 10.0, (angle, sun.facts)
+    assert sun.facts["faces_t"]["mirror"] >= sun.facts["faces_t"]["fit"] + 8.0
+
+
+def test_a_wall_the_sun_grazes_is_lit_off_its_surface_and_a_pole_still_shadows_it():
+    # a wall of returns 0.1 m apart (x = 0, facing +x) and the sun 72 degrees from its normal: tested
+    # on the surface, the wall's own returns nearer the sun shadow it through the map's cells
+    g = np.stack(np.meshgrid(np.arange(-5.0, 5.0, 0.1), np.arange(0.0, 5.0, 0.1)), -1).reshape(-1, 2)
+    wall = np.column_stack([np.zeros(len(g)), g])
+    normals = np.tile([1.0, 0.0, 0.0], (len(wall), 1))
+    s = np.array([0.3, 0.6, 0.7]) / np.linalg.norm([0.3, 0.6, 0.7])
+    alone = ShadowMap(wall, s)
+    assert alone.lit(wall).mean() < 0.1
+    assert alone.lit_off_surface(wall, normals).all()
+    # a pole 1.5 m in front of it (x = 1.5, y = 0, 8 m tall) casts a line of shadow, which stays, moved
+    # as the receivers are: where the ray from each return moved off the wall meets the pole
+    pole = np.column_stack([np.full(80, 1.5), np.zeros(80), np.arange(80) * 0.1])
+    lit = ShadowMap(np.concatenate([wall, pole]), s).lit_off_surface(wall, normals)
+    off = 0.5 * np.sqrt(1.0 - s[0] ** 2)
+    y_at_pole = wall[:, 1] + s[1] * (1.5 - off) / s[0]
+    z_at_pole = wall[:, 2] + s[2] * (1.5 - off) / s[0]
+    on_line = (np.abs(y_at_pole) < 0.1) & (z_at_pole > 0.5) & (z_at_pole < 7.5)
+    assert on_line.sum() > 50 and (~lit[on_line]).mean() > 0.9
+    assert lit[np.abs(y_at_pole) > 1.0].mean() > 0.95
 
 
 @pytest.mark.model
