@@ -4,7 +4,8 @@
 ``synth_1`` / ``synth_3`` among every method; to see what a change to the editor does, this edits
 every ``--every``-th frame of each scene in each weather and prints the mean PSNR (dB, display RGB,
 whole frame) of the editor and of the raw clear frame against the truth, and the editor's inside the
-clear frame's cast shadows where the scene ships ``truth/masks/shadow`` (``synth_hard_*``). The
+clear frame's cast shadows where the scene ships ``truth/masks/shadow`` (``synth_hard_*``), also split
+by the editor's own surfaces there: facing up (the ground's shadow map) and not (the sun's). The
 weathers are the scene's requested ones (``weathers=auto``: rate, visibility, wind, never the
 truth's random draw), as every method gets them. Run it at two commits to compare them.
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from wcbench.methods.physical_editor import raw_frame
 from wcbench.methods.weather_spec import resolve_physics
-from wcbench.reference_model.appearance.editor import WeatherEditor
+from wcbench.reference_model.appearance.editor import _FACING_UP, WeatherEditor
 from wcbench.reference_model.weather.renderer import scale_camera
 from wcbench.scenes.sets import get_scene_set
 
@@ -66,16 +67,22 @@ def main() -> None:
                 truth = truth.astype(np.float32) / 255
                 edited, _ = editor.edit(raw, k, camera, physics[w])
                 everywhere = np.ones(raw.shape[:2], bool)
-                for key, value in ((f"editor {w}", psnr(edited, truth, everywhere)),
-                                   (f"raw {w}", psnr(raw, truth, everywhere)),
-                                   (f"editor {w} in shadow", psnr(edited, truth, shadow > 127) if shadow is not None
-                                    else None)):
+                rows: list[tuple[str, float | None]] = [(f"editor {w}", psnr(edited, truth, everywhere)),
+                                                        (f"raw {w}", psnr(raw, truth, everywhere))]
+                if shadow is not None:
+                    # the editor's split: a surface facing up is tested against the ground's shadows
+                    facing_up = editor.maps(k, camera, raw, fields=()).normal @ editor.surfaces.up > _FACING_UP
+                    in_shadow = shadow > 127
+                    rows += [(f"editor {w} in shadow", psnr(edited, truth, in_shadow)),
+                             (f"editor {w} in shadow, facing up", psnr(edited, truth, in_shadow & facing_up)),
+                             (f"editor {w} in shadow, not facing up", psnr(edited, truth, in_shadow & ~facing_up))]
+                for key, value in rows:
                     if value is not None:
                         scores.setdefault(key, []).append(value)
         frames = len(range(0, len(scene), args.every))
         print(f"{name} ({frames} frames, every {args.every}):")
         for key, values in scores.items():
-            print(f"  {key:24s} {np.mean(values):6.2f} dB")
+            print(f"  {key:40s} {np.mean(values):6.2f} dB")
 
 
 if __name__ == "__main__":
