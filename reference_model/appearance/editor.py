@@ -63,11 +63,12 @@ from wcbench.reference_model.appearance.shading import (
     wet_albedo,
 )
 from wcbench.reference_model.appearance.surfaces import SurfaceScene, build_surfaces
+from wcbench.reference_model.guided_filter import guided_filter
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis, analyse_scene
 from wcbench.reference_model.weather.conditions import Weather, load_presets
 
 __all__ = ["APPEARANCE_KEYS", "FIELDS_READ", "AppearanceParams", "WeatherEditor", "appearance_options",
-           "decontaminate", "masked_ego", "over_sky"]
+           "decontaminate", "masked_ego", "over_sky", "shadow_edges"]
 
 #: The surface attributes (:data:`~.maps.FIELDS`) each weather's edit reads: its frames' maps
 #: composite only these (fog and every other kind: none; the normal and the distance always).
@@ -111,6 +112,13 @@ APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
 _SNOW_EDGE_EPS = 1e-2
 #: Up-component of a pixel's normal above which its surface faces up and takes the ground's shadows.
 _FACING_UP = 0.7
+#: Window radius (px at 270 rows) of the guided filter that lays the shadow map's visibility onto
+#: the frame's shadows: the map (0.25 m cells, occluders only where the lidar reached) misplaces a
+#: far occluder's shadow edge by many pixels (docs/findings.md, thirty-second session).
+_SHADOW_EDGE_PX = 20
+#: Its regularisation on the log of linear light: steps under 0.4 (a ratio of 1.5: texture) are
+#: smoothed over; a cast shadow in sunlight is a ratio of 2 or more, the same step on any albedo.
+_SHADOW_EDGE_EPS = 0.4 ** 2
 
 
 def appearance_options() -> dict[str, Option]:
@@ -270,8 +278,8 @@ class WeatherEditor:
     def sun_visibility(self, index: int, camera: Any, image: np.ndarray) -> np.ndarray:
         """[H, W] float32 the sun's visibility in frame ``index`` at ``camera``'s size: each pixel's
         surface point against the shadow map of the scene's occluders and the frame's moving
-        objects, snapped to the frame's edges by a guided filter (radius 3 px at 270 rows; the
-        shadow's edge in the image is sharper than the map's 0.25 m cells); 1 without a sun.
+        objects, laid onto the frame's own shadows by :func:`shadow_edges` (radius 20 px at 270
+        rows); 1 without a sun.
 
         A surface facing up (the ground, a roof) takes the map of the ground's shadows
         (:attr:`~.sun.SunEstimate.ground_direction`), every other one the sun's, tested off its
@@ -299,7 +307,7 @@ class WeatherEditor:
         lit[~upward] = shadow.lit_off_surface(points[~upward], normals[~upward])
         vis = np.ones((h, w), np.float32)
         vis[finite] = lit.astype(np.float32)
-        vis = refine(vis, image, radius=max(1, round(3 * h / 270)))
+        vis = shadow_edges(vis, image, radius=max(1, round(_SHADOW_EDGE_PX * h / 270)))
         self._sun_memo = (key, vis)
         return vis
 
@@ -433,6 +441,42 @@ class WeatherEditor:
         info["timings_ms"] = {"maps": round(1e3 * (t_maps - t0), 2), "shade": round(1e3 * (t_end - t_maps), 2)}
         info["haze"] = {"beta_per_m": beta, "color": np.asarray(haze_color).tolist(), "offset_m": offset}
         return np.clip(out, 0.0, 1.0).astype(np.float32), info
+
+
+def shadow_edges(visibility: np.ndarray, image: np.ndarray, *, radius: int,
+                 eps: float = _SHADOW_EDGE_EPS) -> np.ndarray:
+    """The sun's visibility of a shadow map laid onto the frame's own shadows: a guided filter (He
+    et al. 2013) guided by the log of the frame's linear light, the soft shadow matte of shadow
+    removal (Guo, Dai & Hoiem 2013 mat the detected shadow's boundary the same way).
+
+    A cast shadow divides the light of whatever it falls on by the same ratio, so in log light it
+    is one step on every albedo, and the filter's local linear model carries the map's edge to
+    where the frame's step is, within ``radius``; a window where the map does not change returns
+    it unchanged whatever the frame shows there (a dark patch of asphalt the map calls lit stays
+    lit), and steps under ``sqrt(eps)`` in log light (texture) are smoothed over.
+
+    Parameters
+    ----------
+    visibility : ndarray [H, W] float
+        The map's visibility in [0, 1].
+    image : ndarray [H, W, 3] float32
+        The frame, display RGB in [0, 1].
+    radius : int
+        Window radius (px); 0 returns ``visibility``.
+    eps : float
+        Regularisation, in squared log light.
+
+    Returns
+    -------
+    ndarray [H, W] float32 in [0, 1]
+    """
+    if radius <= 0:
+        return np.asarray(visibility, np.float32)
+    # log light from 1e-3 (the darkest level an 8-bit frame tells apart) to 1, scaled to [0, 1]
+    span = float(np.log(1e3))
+    guide = 1.0 + np.log(np.maximum(srgb_to_linear(np.asarray(image, np.float32)), 1e-3)) / span
+    out = guided_filter(np.clip(guide, 0.0, 1.0), visibility, radius=int(radius), eps=float(eps) / span ** 2)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
 def masked_ego(raw: np.ndarray, kind: str, params: AppearanceParams) -> np.ndarray:
