@@ -450,10 +450,13 @@ def shadow_edges(visibility: np.ndarray, image: np.ndarray, *, radius: int,
     removal (Guo, Dai & Hoiem 2013 mat the detected shadow's boundary the same way).
 
     A cast shadow divides the light of whatever it falls on by the same ratio, so in log light it
-    is one step on every albedo, and the filter's local linear model carries the map's edge to
-    where the frame's step is, within ``radius``; a window where the map does not change returns
-    it unchanged whatever the frame shows there (a dark patch of asphalt the map calls lit stays
-    lit), and steps under ``sqrt(eps)`` in log light (texture) are smoothed over.
+    is one step on every albedo, and the filter's local linear model puts a step in the
+    visibility where the frame's is, within ``radius`` of the map's edge, spreading what is left
+    of the map's edge over its window (a map edge 12 px off: a step of about 0.3 at the frame's
+    edge, then a ramp; tests/reference_model/appearance/test_editor_shadow_edges.py); a window
+    where the map does not change returns it unchanged whatever the frame shows there (a dark
+    patch of asphalt the map calls lit stays lit), and steps under ``sqrt(eps)`` in log light
+    (texture) are smoothed over.
 
     Parameters
     ----------
@@ -472,7 +475,7 @@ def shadow_edges(visibility: np.ndarray, image: np.ndarray, *, radius: int,
     """
     if radius <= 0:
         return np.asarray(visibility, np.float32)
-    # log light from 1e-3 (the darkest level an 8-bit frame tells apart) to 1, scaled to [0, 1]
+    # log light from 1e-3 (about 3 of 255 levels in sRGB: below it, noise) to 1, scaled to [0, 1]
     span = float(np.log(1e3))
     guide = 1.0 + np.log(np.maximum(srgb_to_linear(np.asarray(image, np.float32)), 1e-3)) / span
     out = guided_filter(np.clip(guide, 0.0, 1.0), visibility, radius=int(radius), eps=float(eps) / span ** 2)
