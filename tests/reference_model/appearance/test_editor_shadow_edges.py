@@ -6,6 +6,9 @@ shadow."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
+
+pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.editor import shadow_edges
 from wcbench.reference_model.appearance.shading import linear_to_srgb
