@@ -270,9 +270,10 @@ class WeatherEditor:
         memo = self._maps_memo
         if memo is None or memo[0] != key or not set(fields) <= set(memo[1].fields):
             sky, matte = self._sky(index, camera, image)
-            self._maps_memo = memo = (key, surface_maps(self.surfaces, index, camera, sky, sky_alpha=matte,
-                                                        solid=self._solid(index, camera), fields=fields,
-                                                        image=image))
+            reach = self.analysis.reach
+            self._maps_memo = memo = (key, surface_maps(
+                self.surfaces, index, camera, sky, sky_alpha=matte, solid=self._solid(index, camera), fields=fields,
+                image=image, reach=None if reach is None else (reach.range_m, reach.elevation_deg)))
         return memo[1]
 
     def sun_visibility(self, index: int, camera: Any, image: np.ndarray) -> np.ndarray:

@@ -403,7 +403,8 @@ def facing_view(means: np.ndarray, normals: np.ndarray, turnable: np.ndarray, ce
 
 def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,
                  sky_alpha: np.ndarray | None = None, solid: np.ndarray | None = None,
-                 fields: tuple[str, ...] = FIELDS, image: np.ndarray | None = None) -> SurfaceMaps:
+                 fields: tuple[str, ...] = FIELDS, image: np.ndarray | None = None,
+                 reach: tuple[float, tuple[float, float]] | None = None) -> SurfaceMaps:
     """The completed surface maps of frame ``index`` seen by ``camera`` (see the module docstring).
 
     Parameters
@@ -428,6 +429,10 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         The frame (display RGB): the walls' distances are smoothed along it
         (:func:`~wcbench.reference_model.scene_graph.completion.smooth_walls`); without it, each
         column's guess stays.
+    reach : (float, (float, float)), optional
+        The lidar's reach (m) and elevation band (degrees): with ``solid``, a wall pixel inside the
+        lidar's field that no return lands near lies at least that far
+        (:func:`~wcbench.reference_model.scene_graph.completion.beyond_reach`).
 
     Returns
     -------
@@ -469,7 +474,8 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
                                           forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2],
-                                          ground_at=surfaces.ground_height, facades=surfaces.facades, guide=image)
+                                          ground_at=surfaces.ground_height, facades=surfaces.facades, guide=image,
+                                          hits=None if solid is None else np.asarray(solid, bool), reach=reach)
     fill_ground = kind == FILL_GROUND
     if np.any(fill_ground):  # attributes evaluated where the ray meets the ground: anchored in the world
         hit = center + rays[fill_ground] * np.where(np.isfinite(distance[fill_ground]), distance[fill_ground],

@@ -25,6 +25,7 @@ from wcbench.core.errors import InputError
 from wcbench.core.progress import announce
 from wcbench.reference_model.scene_analysis.ego import ego_mask
 from wcbench.reference_model.scene_analysis.motion import LidarReturns, classify_returns
+from wcbench.reference_model.scene_analysis.reach import LidarReach, lidar_reach
 from wcbench.reference_model.scene_analysis.register import LidarTimeOffset, fit_time_offset
 from wcbench.reference_model.scene_analysis.sky import SkySegmentation, segment_sky, sky_matte
 from wcbench.reference_model.scene_analysis.sun import SunEstimate, fit_sun
@@ -63,6 +64,9 @@ class SceneAnalysis:
         The clear frames' sun and what casts shadows (no direction when none is seen).
     lidar_offset : LidarTimeOffset
         The lidar's time offset to the camera that ``returns`` are moved by (0 s without support).
+    reach : LidarReach or None
+        How far and how high the lidar sees (:func:`~.reach.lidar_reach`; ``None``: too few far
+        returns to tell).
     facts : dict
         For ``info.json``: counts, the registration, the sky's and the ego mask's facts, timings.
     """
@@ -74,6 +78,7 @@ class SceneAnalysis:
     ego: np.ndarray
     sun: SunEstimate
     lidar_offset: LidarTimeOffset = field(default_factory=lambda: LidarTimeOffset(0.0))
+    reach: LidarReach | None = None
     facts: dict[str, Any] = field(default_factory=dict)
 
     def record(self) -> dict[str, Any]:
@@ -266,15 +271,16 @@ def analyse_scene(scene: Any, *, width: int = ANALYSIS_WIDTH, log: Any = announc
     ego, ego_facts = ego_mask(views, static)
     t5 = time.perf_counter()
     sun = fit_sun(views, returns, sky.masks)
+    reach = lidar_reach(views, returns)
     t6 = time.perf_counter()
     facts = {"size": list(size), "returns": returns.facts, "lidar_time_offset": offset.facts, "sky": sky.facts,
-             **ego_facts, "sun": sun.facts,
+             **ego_facts, "sun": sun.facts, "lidar_reach": None if reach is None else reach.facts(),
              "frames_without_lidar_in_view": without,
              "seconds": {"views": round(t1 - t0, 2), "returns": round(t_reg - t1, 2),
                          "register": round(t2 - t_reg, 2), "solid": round(t3 - t2, 2),
                          "sky": round(t4 - t3, 2), "ego": round(t5 - t4, 2), "sun": round(t6 - t5, 2)}}
     out = SceneAnalysis(views=views, returns=returns, solid=solid, sky=sky, ego=ego, sun=sun, lidar_offset=offset,
-                        facts=facts)
+                        reach=reach, facts=facts)
     _CACHE[key] = out
     while len(_CACHE) > _KEEP:
         _CACHE.popitem(last=False)

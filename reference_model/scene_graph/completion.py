@@ -23,6 +23,10 @@ fills those pixels with the two surfaces a street is made of (docs/design.md §7
   what a range sensor misses with the planar, mostly vertical structure of a built scene is the
   Manhattan-world prior (Coughlan & Yuille 1999) as used for depth completion of urban scans
   (e.g. Furukawa et al. 2009, "Manhattan-world stereo").
+* where the lidar's **reach** is given, a wall pixel inside the lidar's field that no return lands
+  near, between returns in its row and above one in its column, lies at least as far as the
+  lidar reaches (:func:`beyond_reach`: the ray came back empty; a building closing the street
+  beyond the returns is not the car in front of it).
 * given the frame, the walls' column-by-column guesses are **smoothed along the image**
   (:func:`smooth_walls`): a guided filter of their log distances, so that one surface in the frame
   gets one distance and not a block per column.
@@ -45,7 +49,8 @@ from wcbench.reference_model.guided_filter import guided_filter
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.transforms import quat_from_matrix
 
-__all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "Facades", "closing_among", "complete_distance",
+__all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "Facades", "beyond_reach", "closing_among",
+           "complete_distance",
            "fill_footprints", "fit_facades", "ground_height_below", "smooth_walls"]
 
 #: What each pixel of a completed map is.
@@ -288,6 +293,7 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
                       thin_fraction: float = 1.0 / 40.0, facades: Facades | None = None,
                       facade_slack: tuple[float, float] = (0.5, 0.05), guide: np.ndarray | None = None,
                       guide_radius: float = 12.0 / 270.0, guide_eps: float = 1e-3,
+                      hits: np.ndarray | None = None, reach: tuple[float, tuple[float, float]] | None = None,
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the unknown pixels of a distance map (see the module docstring).
 
@@ -331,6 +337,12 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         The smoothing's window radius as a share of the height (12 px at 270 rows).
     guide_eps : float
         The guided filter's regularisation (edges weaker than its square root are smoothed over).
+    hits : ndarray [H, W] bool, optional
+        Pixels a lidar return of any sweep lands in; with ``reach``, the evidence of
+        :func:`beyond_reach`, applied to the walls before they are smoothed.
+    reach : (float, (float, float)), optional
+        The lidar's reach (m) and elevation band (degrees above the horizontal), as
+        :class:`~wcbench.reference_model.scene_analysis.reach.LidarReach` reads them.
 
     Returns
     -------
@@ -396,9 +408,89 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         out[rr, cc] = value
         kind[rr, cc] = np.where(np.isfinite(value), FILL_WALL, FILL_SKY)
         source[rr, cc] = np.where(np.isfinite(value), src, -1)
+    if hits is not None and reach is not None:
+        out = beyond_reach(out, kind, hits, rays, up, range_m=reach[0], elevation_deg=reach[1], guide=guide)
     if guide is not None:
         out = smooth_walls(out, kind, guide, radius=max(1, round(guide_radius * h)), eps=guide_eps)
     return out, kind, source
+
+
+#: How near (a share of the image width: 3 px at 480) a return may land and still leave a wall
+#: pixel to :func:`beyond_reach` (a return's pixel is where its beam's footprint centre falls).
+REACH_CLEARANCE = 3.0 / 480.0
+#: The frame-guided vote of :func:`beyond_reach`: window radius (a share of the height), the
+#: guided filter's regularisation, and the share of candidates a pixel's surroundings must hold.
+REACH_GUIDE_RADIUS, REACH_GUIDE_EPS, REACH_SHARE = 20.0 / 270.0, 1e-3, 0.8
+
+
+def beyond_reach(distance: np.ndarray, kind: np.ndarray, hits: np.ndarray, rays: np.ndarray, up: np.ndarray, *,
+                 range_m: float, elevation_deg: tuple[float, float],
+                 clearance: float = REACH_CLEARANCE, guide: np.ndarray | None = None,
+                 guide_radius: float = REACH_GUIDE_RADIUS) -> np.ndarray:
+    """[H, W] ``distance`` with each wall pixel the lidar would have seen, had anything stood nearer
+    than its reach, put at least as far as that reach.
+
+    A wall pixel (``kind`` :data:`FILL_WALL`) is such a pixel when its ray's elevation lies inside
+    the lidar's band, no return lands within ``clearance`` of it, and returns land on both sides
+    of it in its row and below it in its column (the lidar swept across it: outside its azimuth
+    there are none on one side). A window or dark paint that returns nothing inside a surface that
+    does is within the clearance of that surface's returns only when it is a few pixels wide; the
+    band and the row's returns leave out what lies above the highest beam or beside the sweep.
+
+    Parameters
+    ----------
+    distance : ndarray [H, W] float64
+        Completed distances (m).
+    kind : ndarray [H, W] int8
+        :data:`FILL_KNOWN`, :data:`FILL_GROUND`, :data:`FILL_WALL` or :data:`FILL_SKY` per pixel.
+    hits : ndarray [H, W] bool
+        Pixels a lidar return of any sweep lands in.
+    rays : ndarray [H, W, 3]
+        Unit world ray of each pixel.
+    up : ndarray [3]
+        Unit up vector.
+    range_m : float
+        The lidar's reach (m), > 0.
+    elevation_deg : (float, float)
+        Its field's lowest and highest elevation above the horizontal (degrees).
+    clearance : float
+        How near a return may land (a share of the width; at least 1 px).
+
+    Returns
+    -------
+    ndarray [H, W] float64
+
+    Raises
+    ------
+    ValueError
+        If the shapes disagree, ``range_m`` is not > 0 or the band is empty.
+    """
+    h, w = kind.shape
+    lo, hi = float(elevation_deg[0]), float(elevation_deg[1])
+    if distance.shape != (h, w) or hits.shape != (h, w) or np.shape(rays) != (h, w, 3):
+        raise ValueError(f"distance, kind and hits [H, W] and rays [H, W, 3] were expected, got {distance.shape}, "
+                         f"{kind.shape}, {hits.shape} and {np.shape(rays)}")
+    if not (np.isfinite(range_m) and range_m > 0 and lo < hi):
+        raise ValueError(f"range_m > 0 and a band low < high were expected, got {range_m} and {elevation_deg}")
+    hits = np.asarray(hits, bool)
+    r = max(1, round(clearance * w))
+    near = cv2.dilate(hits.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+    left = np.maximum.accumulate(hits, axis=1)
+    right = np.maximum.accumulate(hits[:, ::-1], axis=1)[:, ::-1]
+    below = np.maximum.accumulate(hits[::-1], axis=0)[::-1]
+    sine = np.asarray(rays, np.float64) @ np.asarray(up, np.float64)
+    inside = (sine > np.sin(np.radians(lo))) & (sine < np.sin(np.radians(hi)))
+    empty = (kind == FILL_WALL) & inside & ~near & left & right & below & (distance < range_m)
+    if guide is not None and np.any(empty):
+        # one surface in the frame, one verdict: a candidate whose surroundings of the same look
+        # hold more returns than candidates is a part of a surface the lidar did see
+        gr = max(1, round(guide_radius * h))
+        votes = guided_filter(guide, np.stack([empty, hits], -1).astype(np.float32), radius=gr, eps=REACH_GUIDE_EPS)
+        ev, hv = np.maximum(votes[..., 0], 0.0), np.maximum(votes[..., 1], 0.0)
+        empty &= ev > REACH_SHARE * (ev + hv)
+    out = np.array(distance, np.float64, copy=True)
+    out[empty] = range_m
+    return out
 
 
 def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, radius: int,

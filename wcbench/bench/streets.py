@@ -41,7 +41,7 @@ docs/findings.md):
 * ``synth_hard``: on the harder truth, the editor's and the raw frames' PSNR against the truth per
   weather, over all pixels and inside the clear frames' cast shadows (``truth/masks/shadow``);
   outside ``--quick`` also WeatherCity's main job (``quick`` profile) there, PSNR and LPIPS per
-  weather next to the raw frames'.
+  weather next to the raw frames'; with the analysis' sun and lidar reach.
 
 Times are from the machine it runs on; they move with its load (the report records it).
 """
@@ -382,6 +382,7 @@ def _synth_hard_case(quick: bool) -> BenchCase:
     extra: dict[str, Any] = {f"psnr_{k}": round(float(np.mean(v)), 3) for k, v in psnr.items()}
     extra.update({f"psnr_in_shadow_{k}": round(float(np.mean(v)), 3) for k, v in shadow.items()})
     extra["sun"] = analysis.sun.facts
+    extra["lidar_reach"] = analysis.facts.get("lidar_reach")
     if not quick:
         with tempfile.TemporaryDirectory(prefix="wcbench-streets-") as tmp:
             for label, name, options in (("identity", "identity", {}), ("weathercity", "weathercity",
