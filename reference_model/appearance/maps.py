@@ -10,8 +10,10 @@ reach (docs/design.md §7):
   horizon the **fitted ground** (the 2 m cells' heights, continued by their plane), its
   attributes evaluated at the ray's intersection (so they stay anchored in the world); above it a
   **vertical wall** rising from the surface below (the scene's facade plane behind it where one
-  is fitted, else the closing's depth), facing the camera horizontally, its distance smoothed
-  along the frame: structure above the lidar's reach keeps its appearance, nothing settles on it.
+  is fitted, else the closing's depth), facing the camera horizontally, at least as far as the
+  lidar reaches where the lidar swept across it and heard nothing (``reach``), its distance
+  smoothed along the frame: structure above the lidar's reach keeps its appearance, nothing
+  settles on it.
 
 :func:`mirror_distance` renders the non-ground surfaces mirrored about that ground plane: how far
 the reflected ray of each pixel travels to the scene; :func:`screen_reflection` takes the colour of

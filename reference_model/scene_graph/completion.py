@@ -428,7 +428,7 @@ def beyond_reach(distance: np.ndarray, kind: np.ndarray, hits: np.ndarray, rays:
                  clearance: float = REACH_CLEARANCE, guide: np.ndarray | None = None,
                  guide_radius: float = REACH_GUIDE_RADIUS) -> np.ndarray:
     """[H, W] ``distance`` with each wall pixel the lidar would have seen, had anything stood nearer
-    than its reach, put at least as far as that reach.
+    than its reach, put at least as far as that reach (see the module docstring).
 
     A wall pixel (``kind`` :data:`FILL_WALL`) is such a pixel when its ray's elevation lies inside
     the lidar's band, no return lands within ``clearance`` of it, and returns land on both sides
@@ -455,6 +455,13 @@ def beyond_reach(distance: np.ndarray, kind: np.ndarray, hits: np.ndarray, rays:
         Its field's lowest and highest elevation above the horizontal (degrees).
     clearance : float
         How near a return may land (a share of the width; at least 1 px).
+    guide : ndarray [H, W, 3] float, optional
+        The frame (display RGB in [0, 1]). Given, the verdict is put to the frame's vote: a
+        candidate stands only where the guided filter of the candidates is at least
+        :data:`REACH_SHARE` of that of candidates and returns together (the top floors of a facade
+        between a spinning lidar's sparse upper beams, whose lower floors returned, stay).
+    guide_radius : float
+        The vote's window radius, a share of the height (20 px at 270 rows).
 
     Returns
     -------
