@@ -50,7 +50,7 @@ from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.transforms import quat_from_matrix
 
 __all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "Facades", "beyond_reach", "closing_among",
-           "complete_distance",
+           "complete_distance", "reach_vote",
            "fill_footprints", "fit_facades", "ground_height_below", "smooth_walls"]
 
 #: What each pixel of a completed map is.
@@ -456,10 +456,10 @@ def beyond_reach(distance: np.ndarray, kind: np.ndarray, hits: np.ndarray, rays:
     clearance : float
         How near a return may land (a share of the width; at least 1 px).
     guide : ndarray [H, W, 3] float, optional
-        The frame (display RGB in [0, 1]). Given, the verdict is put to the frame's vote: a
-        candidate stands only where the guided filter of the candidates is at least
-        :data:`REACH_SHARE` of that of candidates and returns together (the top floors of a facade
-        between a spinning lidar's sparse upper beams, whose lower floors returned, stay).
+        The frame (display RGB in [0, 1]). Given, the verdict is put to the frame's vote
+        (:func:`reach_vote`): a candidate stands only where the guided filter of the candidates is
+        at least :data:`REACH_SHARE` of that of candidates and returns together (the top floors of
+        a facade between a spinning lidar's sparse upper beams, whose lower floors returned, stay).
     guide_radius : float
         The vote's window radius, a share of the height (20 px at 270 rows).
 
@@ -480,23 +480,66 @@ def beyond_reach(distance: np.ndarray, kind: np.ndarray, hits: np.ndarray, rays:
     if not (np.isfinite(range_m) and range_m > 0 and lo < hi):
         raise ValueError(f"range_m > 0 and a band low < high were expected, got {range_m} and {elevation_deg}")
     hits = np.asarray(hits, bool)
+    out = np.array(distance, np.float64, copy=True)
+    empty = (kind == FILL_WALL) & (out < range_m)
+    rr, cc = np.nonzero(empty)
+    if not len(rr):
+        return out
+    # the elevation of the few walls short of the reach, not of every ray
+    sine = np.asarray(rays, np.float64)[rr, cc] @ np.asarray(up, np.float64)
+    inside = (sine > np.sin(np.radians(lo))) & (sine < np.sin(np.radians(hi)))
     r = max(1, round(clearance * w))
     near = cv2.dilate(hits.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
     left = np.maximum.accumulate(hits, axis=1)
     right = np.maximum.accumulate(hits[:, ::-1], axis=1)[:, ::-1]
     below = np.maximum.accumulate(hits[::-1], axis=0)[::-1]
-    sine = np.asarray(rays, np.float64) @ np.asarray(up, np.float64)
-    inside = (sine > np.sin(np.radians(lo))) & (sine < np.sin(np.radians(hi)))
-    empty = (kind == FILL_WALL) & inside & ~near & left & right & below & (distance < range_m)
+    keep = inside & ~near[rr, cc] & left[rr, cc] & right[rr, cc] & below[rr, cc]
+    empty[rr[~keep], cc[~keep]] = False
     if guide is not None and np.any(empty):
-        # one surface in the frame, one verdict: a candidate whose surroundings of the same look
-        # hold more returns than candidates is a part of a surface the lidar did see
-        gr = max(1, round(guide_radius * h))
-        votes = guided_filter(guide, np.stack([empty, hits], -1).astype(np.float32), radius=gr, eps=REACH_GUIDE_EPS)
-        ev, hv = np.maximum(votes[..., 0], 0.0), np.maximum(votes[..., 1], 0.0)
-        empty &= ev > REACH_SHARE * (ev + hv)
-    out = np.array(distance, np.float64, copy=True)
+        empty &= reach_vote(empty, hits, guide, radius=max(1, round(guide_radius * h)))
     out[empty] = range_m
+    return out
+
+
+def reach_vote(candidates: np.ndarray, hits: np.ndarray, guide: np.ndarray, *, radius: int,
+               crop: bool = True) -> np.ndarray:
+    """[H, W] bool: where the frame-guided filter of ``candidates`` is at least
+    :data:`REACH_SHARE` of that of ``candidates`` and ``hits`` together (:func:`beyond_reach`'s
+    vote: one surface in the frame, one verdict); read it at the candidates.
+
+    The filter's output at a pixel reads the frame within twice the window radius of it, so with
+    ``crop`` it runs on the candidates' bounding box grown by that much (a wall short of the reach
+    is a band about the horizon, not the frame; half the time on the PandaSet cameras): at every
+    candidate the same verdict as the whole frame's (``crop=False``, its twin in the tests);
+    elsewhere in the box the filter meets the box's edge, and outside it the answer is False.
+
+    Parameters
+    ----------
+    candidates, hits : ndarray [H, W] bool
+    guide : ndarray [H, W, 3] float
+        The frame, display RGB in [0, 1].
+    radius : int
+        The window radius (px), >= 1.
+    crop : bool
+        Filter the candidates' surroundings only.
+
+    Returns
+    -------
+    ndarray [H, W] bool
+    """
+    h, w = candidates.shape
+    y0, y1, x0, x1 = 0, h, 0, w
+    if crop and np.any(candidates):
+        ys, xs = np.nonzero(candidates.any(axis=1))[0], np.nonzero(candidates.any(axis=0))[0]
+        m = 2 * radius + 1
+        y0, y1 = max(0, int(ys[0]) - m), min(h, int(ys[-1]) + 1 + m)
+        x0, x1 = max(0, int(xs[0]) - m), min(w, int(xs[-1]) + 1 + m)
+    window = (slice(y0, y1), slice(x0, x1))
+    src = np.stack([candidates[window], hits[window]], -1).astype(np.float32)
+    votes = guided_filter(np.asarray(guide)[window], src, radius=radius, eps=REACH_GUIDE_EPS)
+    ev, hv = np.maximum(votes[..., 0], 0.0), np.maximum(votes[..., 1], 0.0)
+    out = np.zeros((h, w), bool)
+    out[window] = ev > REACH_SHARE * (ev + hv)
     return out
 
 

@@ -12,7 +12,14 @@ import pytest
 from wcbench.reference_model.scene_analysis.motion import LidarReturns
 from wcbench.reference_model.scene_analysis.reach import LidarReach, lidar_reach
 from wcbench.reference_model.scene_analysis.views import AnalysisViews
-from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_KNOWN, FILL_SKY, FILL_WALL, beyond_reach
+from wcbench.reference_model.scene_graph.completion import (
+    FILL_GROUND,
+    FILL_KNOWN,
+    FILL_SKY,
+    FILL_WALL,
+    beyond_reach,
+    reach_vote,
+)
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -159,3 +166,21 @@ def test_given_the_frame_a_surface_the_lidar_saw_in_part_is_not_put_beyond_the_r
     assert np.all(voted[70:80, 50:190] == 30.0)  # with it, the facade stays one surface
     assert np.all(voted[104:132, 266:334] == 150.0)  # the brick building goes to the reach
     assert np.all(voted[hits] == 30.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_vote_on_the_candidates_surroundings_is_the_whole_frames_at_every_candidate(seed):
+    rng = np.random.default_rng(seed)
+    h, w = 135, 240
+    # a frame of a few flat regions with noise, candidates in a band about the horizon
+    guide = np.repeat(np.repeat(rng.random((9, 16, 3)), 15, axis=0), 15, axis=1).astype(np.float32)
+    guide += rng.normal(0.0, 0.02, guide.shape).astype(np.float32)
+    candidates = np.zeros((h, w), bool)
+    candidates[50:80, 60:200] = rng.random((30, 140)) < 0.5
+    hits = rng.random((h, w)) < 0.3
+    hits[candidates] = False
+    fast = reach_vote(candidates, hits, guide, radius=10)
+    slow = reach_vote(candidates, hits, guide, radius=10, crop=False)
+    np.testing.assert_array_equal(fast[candidates], slow[candidates])
+    assert fast[candidates].any() and not fast[candidates].all()  # both verdicts are exercised
+    assert not fast[:20].any() and not fast[110:].any()  # outside the grown box: False
