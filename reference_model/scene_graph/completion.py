@@ -50,8 +50,7 @@ from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.transforms import quat_from_matrix
 
 __all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "Facades", "beyond_reach", "closing_among",
-           "complete_distance", "reach_vote",
-           "fill_footprints", "fit_facades", "ground_height_below", "smooth_walls"]
+           "complete_distance", "fill_footprints", "fit_facades", "ground_height_below", "reach_vote", "smooth_walls"]
 
 #: What each pixel of a completed map is.
 FILL_KNOWN, FILL_GROUND, FILL_WALL, FILL_SKY = 0, 1, 2, 3
