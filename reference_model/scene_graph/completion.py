@@ -337,8 +337,9 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
     guide_eps : float
         The guided filter's regularisation (edges weaker than its square root are smoothed over).
     hits : ndarray [H, W] bool, optional
-        Pixels a lidar return of any sweep lands in; with ``reach``, the evidence of
-        :func:`beyond_reach`, applied to the walls before they are smoothed.
+        Pixels a lidar return lands in (the editor passes the analysis' solid masks); with
+        ``reach``, the evidence of :func:`beyond_reach`, applied to the walls before they are
+        smoothed.
     reach : (float, (float, float)), optional
         The lidar's reach (m) and elevation band (degrees above the horizontal), as
         :class:`~wcbench.reference_model.scene_analysis.reach.LidarReach` reads them.
@@ -443,7 +444,8 @@ def beyond_reach(distance: np.ndarray, kind: np.ndarray, hits: np.ndarray, rays:
     kind : ndarray [H, W] int8
         :data:`FILL_KNOWN`, :data:`FILL_GROUND`, :data:`FILL_WALL` or :data:`FILL_SKY` per pixel.
     hits : ndarray [H, W] bool
-        Pixels a lidar return of any sweep lands in.
+        Pixels a lidar return lands in (the editor passes the analysis' solid masks: the returns of
+        every sweep it trusts in this frame).
     rays : ndarray [H, W, 3]
         Unit world ray of each pixel.
     up : ndarray [3]
