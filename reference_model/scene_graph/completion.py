@@ -510,7 +510,7 @@ def reach_vote(candidates: np.ndarray, hits: np.ndarray, guide: np.ndarray, *, r
 
     The filter's output at a pixel reads the frame within twice the window radius of it, so with
     ``crop`` it runs on the candidates' bounding box grown by that much (a wall short of the reach
-    is a band about the horizon, not the frame; half the time on the PandaSet cameras): at every
+    is a band about the horizon, not the frame; half the time on `pandaset_002`): at every
     candidate the same verdict as the whole frame's (``crop=False``, its twin in the tests);
     elsewhere in the box the filter meets the box's edge, and outside it the answer is False.
 
