@@ -39,7 +39,7 @@ __all__ = ["KERNEL_MODULES", "compile_kernels", "kernels_compiled", "kernels_sta
 
 #: The kernel modules (inside ``wcbench.reference_model``).
 KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels", "training.ssim_kernels",
-                  "model.sky_kernels", "appearance.shell_kernels")
+                  "model.sky_kernels", "appearance.shell_kernels", "appearance.reflection_kernels")
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,16 @@ def _editor() -> None:
     kernels.box_shell_kernel(filled, filled.copy(), 0, 0, rays, np.full((h, w), 9.0), np.zeros((h, w, 3), np.float32),
                              *fields, np.ones((h, w), bool), *flags, pose[:3, :3], pose[:3, 3], -pose[:3, 3],
                              half, 1, np.float64(-0.4), np.eye(4)[:3, 3], -half, half, -half, half, 0.3)
+    # the rain's reflection lookup with the types maps._reflection_lookup_fast passes
+    reflection = load_numba_kernels("appearance.reflection_kernels")
+    assert reflection is not None
+    rays32 = rays.astype(np.float32)
+    rays32[..., 1] = 0.5  # some rays meet the plane below the camera
+    reflection.reflection_lookup_kernel(
+        rays32, np.full((h, w), 9.0, np.float32), np.full((h, w), 20.0, np.float32), np.array([0.0, -1.5, 0.0]),
+        np.array([0.0, -1.0, 0.0]), 0.0, np.ascontiguousarray(np.eye(4)[:3]), np.array([[20.0, 0, 8], [0, 20.0, 6],
+                                                                                             [0, 0, 1]]),
+        0.1, 0.5, 1e5, np.empty((h, w), np.float32), np.empty((h, w), np.float32), np.empty((h, w), np.uint8))
 
 
 def _training() -> None:

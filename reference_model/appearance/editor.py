@@ -374,8 +374,9 @@ class WeatherEditor:
         if kind == "rain":
             rate = weather.precipitation_rate()
             fraction = p.puddle_fraction(rate)
-            ground = refine(m.ground, raw, radius=radius)
-            openness = refine(m.open, raw, radius=radius)
+            # both snapped in one guided filter: its statistics of the frame are shared
+            snapped = refine(np.dstack([m.ground, m.open]), raw, radius=radius)
+            ground, openness = snapped[..., 0], snapped[..., 1]
             if fraction > 0:
                 threshold = float(np.quantile(self._puddle_values, 1.0 - fraction))
                 # a puddle's edge fades over a band of the noise (the water thins out at its rim)
@@ -401,7 +402,9 @@ class WeatherEditor:
             refl, _ = screen_reflection(seen, camera, m, refl_dist, up=up, sky=sky_mirrored)
             blur = float(table["rough_blur_px"]) * h / 270.0
             rough = glossy_blur(refl, ground, m.rays, up=up, sigma_px=blur)
-            cos = np.abs(np.sum(m.rays * m.normal, axis=-1))
+            # the three products summed in np.sum's order, without its reduction over a last axis of 3
+            r, n = m.rays, m.normal
+            cos = np.abs(r[..., 0] * n[..., 0] + r[..., 1] * n[..., 1] + r[..., 2] * n[..., 2])
             fresnel = fresnel_schlick(cos, float(table["fresnel_f0"]))
             road = ground * (1.0 - puddle) * float(table["sheen_road"]) * wet
             still = puddle * float(table["sheen_puddle"])

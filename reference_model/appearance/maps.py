@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from wcbench.reference_model._numba_backend import load_numba_kernels
+from wcbench.reference_model.appearance.reflection_kernels import HIT_FILLED, HIT_SEEN, HIT_SKY, NO_HIT
 from wcbench.reference_model.appearance.surfaces import UNDERBODY_M, SurfaceScene, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
@@ -57,6 +58,9 @@ _SURFACE_STOP = 1e-2
 #: The reflected point counts as what the camera sees at its pixel unless the camera's surface there
 #: lies nearer than its distance by more than this fraction of it plus ``_SEEN_SLACK_M`` (occluded).
 _SEEN_FRACTION, _SEEN_SLACK_M = 0.1, 0.5
+#: Where a reflected ray that meets no surface is put (m along it): far enough that the camera's
+#: offset from the plane does not move it in the image.
+_AT_INFINITY_M = 1e5
 #: Camera depth (m) of the near plane; a box with a corner nearer (the camera beside the object)
 #: gets a shell only from this many returns in front of it (a parked car 3 m off the front-right
 #: camera of pandaset_002 has 11, one beside the rear camera 370).
@@ -397,10 +401,12 @@ def facing_view(means: np.ndarray, normals: np.ndarray, turnable: np.ndarray, ce
     center : ndarray [3]
         The view's centre (world, m).
     """
-    normals = np.asarray(normals, np.float32)
+    out = np.array(normals, np.float32)
     to_view = np.asarray(center, np.float32) - np.asarray(means, np.float32)
-    away = np.asarray(turnable, bool) & (np.einsum("ij,ij->i", to_view, normals) < 0)
-    return np.where(away[:, None], -normals, normals)
+    away = np.asarray(turnable, bool) & (np.einsum("ij,ij->i", to_view, out) < 0)
+    # negated in place where turned (a sign flip is exact): np.where would build both signs first
+    np.negative(out, out=out, where=away[:, None])
+    return out
 
 
 def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarray, *,
@@ -454,8 +460,9 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     turnable = np.zeros(len(attrs), bool)
     if surfaces.view_turned is not None:  # the static surfels come first
         turnable[:len(surfaces.view_turned)] = surfaces.view_turned
-    attrs = np.concatenate([facing_view(cloud.means, attrs[:, :3], turnable, center),
-                            attrs[:, [3 + FIELDS.index(f) for f in wanted]]], axis=1)
+    # the normals and the wanted attributes gathered in one copy, the normals turned in it
+    attrs = attrs[:, [0, 1, 2] + [3 + FIELDS.index(f) for f in wanted]]
+    attrs[:, :3] = facing_view(cloud.means, attrs[:, :3], turnable, center)
     values, alpha, depth = _rasterize(cloud, attrs, camera)
     rays, z_per_m = _rays(camera)
     up = surfaces.up
@@ -530,8 +537,13 @@ def _mirrored_cloud(surfaces: SurfaceScene, index: int, ground_height: float) ->
     moving = cloud.means[moving_keep].astype(np.float64)
     h_moving = moving @ up - ground_height
     above_moving = h_moving > 0.05
-    mirrored = np.concatenate([st.means[first:] + 2.0 * ground_height * np.asarray(up, np.float64),
-                               moving[above_moving] - 2.0 * np.outer(h_moving[above_moving], up)]).astype(np.float32)
+    # shifted in float64 and written as float32 straight into the cloud's rows (one pass, no copy)
+    n_above = len(st.means) - first
+    mirrored = np.empty((n_above + int(above_moving.sum()), 3), np.float32)
+    np.add(st.means[first:], 2.0 * ground_height * np.asarray(up, np.float64), out=mirrored[:n_above],
+           casting="unsafe")
+    np.subtract(moving[above_moving], 2.0 * np.outer(h_moving[above_moving], up), out=mirrored[n_above:],
+                casting="unsafe")
     # a surfel's normal is mirrored with it (the isotropic ones do not turn)
     normals = attrs[moving_keep[above_moving], :3].astype(np.float64)
     moving_quats = quat_from_axis_to(normals - 2.0 * np.outer(normals @ up, up)).astype(np.float32)
@@ -583,7 +595,7 @@ def mirror_distance(surfaces: SurfaceScene, index: int, camera: Any, ground_heig
 
 def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray, *,
                       up: np.ndarray, sky: np.ndarray | None = None,
-                      fill_sigma_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      fill_sigma_px: float | None = None, fast: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """What the ground plane mirrors at each pixel, in the frame's own colours (screen-space reflection).
 
     A wet road reflects what stands above it, and what stands above it the camera mostly sees: the
@@ -618,6 +630,10 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
         the mirrored direction); without it, such rays out of the frame are filled too.
     fill_sigma_px : float, optional
         Default 6 px at 270 rows.
+    fast : bool
+        Look the reflected points up with the numba kernel
+        (:func:`~.reflection_kernels.reflection_lookup_kernel`, where numba imports), else with
+        the numpy reference (:func:`_reflection_lookup`).
 
     Returns
     -------
@@ -633,40 +649,19 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
                          f"and mirror_distance {np.shape(mirror_distance)}")
     if sky is not None and np.shape(sky) != (h, w, 3):
         raise ValueError(f"sky is {np.shape(sky)}; expected the source's shape {(h, w, 3)}")
-    up = np.asarray(up, np.float64)
-    center = np.asarray(camera.center, np.float64)
-    rays = maps.rays.astype(np.float64)
-    down = rays @ up
-    height = center @ up - maps.ground_height
-    hits = (down < -1e-3) & (height > 0)
-    rr, cc = np.nonzero(hits)
-    r = rays[rr, cc]
-    t_plane = height / -down[rr, cc]
-    ground = center + r * t_plane[:, None]
-    mirrored = r - 2.0 * np.outer(r @ up, up)
-    rest = np.asarray(mirror_distance, np.float64)[rr, cc] - t_plane
-    finite = np.isfinite(rest) & (rest > 0)
-    # at infinity: far enough that the camera's offset from the plane does not move it in the image
-    points = ground + mirrored * np.where(finite, rest, 1e5)[:, None]
-    uv, z = camera.project(points)
-    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5  # pixel centres at +0.5
-    inside = (z > 0) & (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
-    far = np.linalg.norm(points - center, axis=1)
-    xi, yi = np.clip(np.round(x), 0, w - 1).astype(int), np.clip(np.round(y), 0, h - 1).astype(int)
-    there = np.asarray(maps.distance, np.float64)[yi, xi]
-    seen_at = inside & (~finite | (there >= far * (1.0 - _SEEN_FRACTION) - _SEEN_SLACK_M))
-    map_x = np.tile(np.arange(w, dtype=np.float32), (h, 1))
-    map_y = np.tile(np.arange(h, dtype=np.float32)[:, None], (1, w))
-    map_x[rr, cc] = np.clip(x, 0, w - 1)
-    map_y[rr, cc] = np.clip(y, 0, h - 1)
+    lookup = _reflection_lookup
+    if fast:
+        kernels = load_numba_kernels("appearance.reflection_kernels")
+        lookup = _reflection_lookup if kernels is None else functools.partial(_reflection_lookup_fast, kernels)
+    map_x, map_y, state = lookup(camera, maps, np.asarray(mirror_distance, np.float32), np.asarray(up, np.float64))
     image = cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    seen = np.zeros((h, w), bool)
-    seen[rr[seen_at], cc[seen_at]] = True
+    hits = state != NO_HIT
+    seen = state == HIT_SEEN
     if sky is not None:
         # a reflected ray that meets no surface sees the sky, in the frame or past its edge
-        open_sky = ~finite & ~seen_at
-        image[rr[open_sky], cc[open_sky]] = np.asarray(sky, np.float32)[rr[open_sky], cc[open_sky]]
-        seen[rr[open_sky], cc[open_sky]] = True
+        open_sky = state == HIT_SKY
+        image[open_sky] = np.asarray(sky, np.float32)[open_sky]
+        seen |= open_sky
     missing = hits & ~seen
     if missing.any():
         sigma = fill_sigma_px if fill_sigma_px is not None else 6.0 * h / 270.0
@@ -685,6 +680,64 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
         # no seen reflection within reach: what the frame shows where the ray points
         image = filled
     return image.astype(np.float32), seen
+
+
+def _reflection_lookup(camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray,
+                       up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each pixel's reflected ray meets the scene (the numpy reference of
+    :func:`~.reflection_kernels.reflection_lookup_kernel`, see :func:`screen_reflection`).
+
+    Returns
+    -------
+    map_x, map_y : ndarray [H, W] float32
+        The pixel (centres at integers) whose colour is the reflection, clipped to the frame; the
+        pixel's own where its ray does not meet the plane.
+    state : ndarray [H, W] uint8
+        :data:`~.reflection_kernels.NO_HIT`, ``HIT_SEEN``, ``HIT_SKY`` or ``HIT_FILLED``.
+    """
+    h, w = maps.distance.shape
+    center = np.asarray(camera.center, np.float64)
+    rays = maps.rays.astype(np.float64)
+    down = rays @ up
+    height = center @ up - maps.ground_height
+    hits = (down < -1e-3) & (height > 0)
+    rr, cc = np.nonzero(hits)
+    r = rays[rr, cc]
+    t_plane = height / -down[rr, cc]
+    ground = center + r * t_plane[:, None]
+    mirrored = r - 2.0 * np.outer(r @ up, up)
+    rest = np.asarray(mirror_distance, np.float64)[rr, cc] - t_plane
+    finite = np.isfinite(rest) & (rest > 0)
+    points = ground + mirrored * np.where(finite, rest, _AT_INFINITY_M)[:, None]
+    uv, z = camera.project(points)
+    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5  # pixel centres at +0.5
+    inside = (z > 0) & (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+    far = np.linalg.norm(points - center, axis=1)
+    xi, yi = np.clip(np.round(x), 0, w - 1).astype(int), np.clip(np.round(y), 0, h - 1).astype(int)
+    there = np.asarray(maps.distance, np.float64)[yi, xi]
+    seen_at = inside & (~finite | (there >= far * (1.0 - _SEEN_FRACTION) - _SEEN_SLACK_M))
+    map_x = np.tile(np.arange(w, dtype=np.float32), (h, 1))
+    map_y = np.tile(np.arange(h, dtype=np.float32)[:, None], (1, w))
+    map_x[rr, cc] = np.clip(x, 0, w - 1)
+    map_y[rr, cc] = np.clip(y, 0, h - 1)
+    state = np.full((h, w), NO_HIT, np.uint8)
+    state[rr, cc] = np.where(seen_at, HIT_SEEN, np.where(finite, HIT_FILLED, HIT_SKY))
+    return map_x, map_y, state
+
+
+def _reflection_lookup_fast(kernels: Any, camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray,
+                            up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_reflection_lookup` by the numba kernel of ``kernels``."""
+    h, w = maps.distance.shape
+    map_x, map_y = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
+    state = np.empty((h, w), np.uint8)
+    kernels.reflection_lookup_kernel(
+        np.ascontiguousarray(maps.rays, np.float32), np.ascontiguousarray(maps.distance, np.float32),
+        np.ascontiguousarray(mirror_distance, np.float32), np.ascontiguousarray(camera.center, np.float64),
+        np.ascontiguousarray(up, np.float64),
+        float(maps.ground_height), np.ascontiguousarray(np.asarray(camera.world_to_camera, np.float64)[:3]),
+        np.ascontiguousarray(camera.K, np.float64), _SEEN_FRACTION, _SEEN_SLACK_M, _AT_INFINITY_M, map_x, map_y, state)
+    return map_x, map_y, state
 
 
 #: Blurs wider than this (px) are taken on an image a quarter the size (:func:`_gaussian_blur`).
@@ -767,10 +820,14 @@ def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: 
         nd = cv2.GaussianBlur(cv2.resize(across, small, interpolation=cv2.INTER_AREA), (0, 0), sigmaX=1e-3,
                               sigmaY=sigma_px)
         nd = cv2.resize(nd, (num.shape[1], num.shape[0]), interpolation=cv2.INTER_LINEAR)
-        acc += nd * share[..., None]
+        nd *= share[..., None]
+        acc += nd
     out, den_out = acc[..., :3], acc[..., 3]
-    blurred = out / np.maximum(den_out, 1e-6)[..., None]
-    return np.where(den_out[..., None] > 1e-4, blurred, image).astype(np.float32)
+    # divided in place, and the sharp reflection kept where no ground is near (a copy of it only)
+    np.divide(out, np.maximum(den_out, 1e-6)[..., None], out=out)
+    blurred = np.array(image, np.float32)
+    np.copyto(blurred, out, where=den_out[..., None] > 1e-4)
+    return blurred
 
 
 def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-3) -> np.ndarray:
@@ -778,7 +835,10 @@ def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-
 
     Parameters
     ----------
-    mask : ndarray [H, W] float
+    mask : ndarray [H, W] or [H, W, C] float
+        One map, or a stack of up to 4 snapped at once: the filter's statistics of the guide are
+        shared and each channel comes out as its own call would give it, in about half the time
+        of two calls.
     guide : ndarray [H, W, 3] float32
         The raw frame, display RGB in [0, 1].
     radius : int
@@ -788,7 +848,7 @@ def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-
 
     Returns
     -------
-    ndarray [H, W] float32 in [0, 1]
+    ndarray of ``mask``'s shape, float32 in [0, 1]
     """
     if radius <= 0:
         return np.asarray(mask, np.float32)

@@ -547,7 +547,7 @@ class SurfaceScene:
         if moving is None or moving[0] != index:
             cloud, _ = self.at_frame(index)
             pts = np.asarray(cloud.means[n:], np.float64)
-            order = np.argsort(pts[:, 0], kind="stable")
+            order = np.argsort(pts[:, 0])  # any order of ties: each ball sorts what it keeps
             moving = (index, pts[order], order)
             self._moving_by_x = moving
         _, by_x, order = moving

@@ -21,13 +21,19 @@ from wcbench.reference_model.appearance.maps import (
     _mirrored_cloud,
     _rasterize,
     _rays,
+    _reflection_lookup,
+    _reflection_lookup_fast,
     _replace_tails,
     _slab_interval,
     _spill_region,
     facing_view,
+    glossy_blur,
     mirror_distance,
+    refine,
+    screen_reflection,
     surface_maps,
 )
+from wcbench.reference_model.appearance.reflection_kernels import HIT_FILLED, HIT_SEEN, HIT_SKY, NO_HIT
 from wcbench.reference_model.appearance.surfaces import build_surfaces, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
@@ -493,3 +499,102 @@ def test_maps_refuse_a_field_they_do_not_know(demo_scene):
     cam = demo_scene.frames[0].camera
     with pytest.raises(ValueError, match="wetness"):
         surface_maps(surfaces, 0, cam, np.zeros((int(cam.height), int(cam.width)), bool), fields=("wetness",))
+
+
+def _pitched_camera(degrees):
+    """:func:`_camera` 1.7 m up, pitched down by ``degrees``: the frame spans 16.7 degrees above and
+    below its axis, so the sky's reflection of the steeper road leaves the frame."""
+    s, c = np.sin(np.radians(degrees)), np.cos(np.radians(degrees))
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.array([[0.0, -s, c], [-1.0, 0.0, 0.0], [0.0, -c, -s]])
+    c2w[:3, 3] = [0.0, 0.0, 1.7]
+    return replace(_camera(1.7), camera_to_world=c2w)
+
+
+def _reflecting_street(rng, camera):
+    """Maps of a view over a ground plane near z = 0: the camera's distances (some sky, inf) and the
+    reflected paths' lengths, past the plane's point (a surface met), short of it, or none (inf)."""
+    rays, _ = _rays(camera)
+    h, w = camera.height, camera.width
+    distance = rng.uniform(2.0, 60.0, (h, w))
+    distance[rng.random((h, w)) < 0.1] = np.inf
+    mirror = rng.uniform(1.0, 80.0, (h, w)).astype(np.float32)
+    mirror[rng.random((h, w)) < 0.2] = np.inf
+    maps = SimpleNamespace(rays=rays.astype(np.float32), distance=distance.astype(np.float32),
+                           ground_height=float(rng.uniform(-0.2, 0.2)))
+    return maps, mirror
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_reflection_lookup_kernel_is_its_numpy_reference(seed):
+    # the fast twin against the slow one, pixel by pixel: the same state everywhere (each of the
+    # four drawn), the same looked-up positions to float32 rounding, and screen_reflection's
+    # image and known pixels the same whichever looked them up
+    pytest.importorskip("numba")
+    from wcbench.reference_model._numba_backend import load_numba_kernels
+
+    rng = np.random.default_rng(seed)
+    camera = _pitched_camera(10.0)
+    maps, mirror = _reflecting_street(rng, camera)
+    x0, y0, s0 = _reflection_lookup(camera, maps, mirror, UP)
+    x1, y1, s1 = _reflection_lookup_fast(load_numba_kernels("appearance.reflection_kernels"), camera, maps,
+                                         mirror, UP)
+    for state in (NO_HIT, HIT_SEEN, HIT_SKY, HIT_FILLED):
+        assert (s0 == state).sum() > 100, state
+    np.testing.assert_array_equal(s1, s0)
+    np.testing.assert_allclose(x1, x0, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(y1, y0, rtol=0, atol=1e-4)
+    source = rng.random((camera.height, camera.width, 3)).astype(np.float32)
+    sky = np.broadcast_to(np.float32([0.7, 0.75, 0.8]), source.shape)
+    (a, seen_a), (b, seen_b) = (screen_reflection(source, camera, maps, mirror, up=UP, sky=sky, fast=fast)
+                                for fast in (True, False))
+    np.testing.assert_array_equal(seen_a, seen_b)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-5)
+
+
+def test_a_reflected_ray_that_meets_no_surface_sees_the_sky_and_one_that_meets_a_hidden_one_is_filled():
+    # the reference's states by their definitions: above the horizon no hit; a reflected ray
+    # toward the sky (inf) that leaves the frame takes the sky; one meeting a surface the camera's
+    # own map hides (the camera sees 1 m everywhere) is filled
+    camera = _pitched_camera(10.0)
+    rays, _ = _rays(camera)
+    h, w = camera.height, camera.width
+    maps = SimpleNamespace(rays=rays.astype(np.float32), distance=np.full((h, w), 1.0, np.float32),
+                           ground_height=0.0)
+    _, _, state = _reflection_lookup(camera, maps, np.full((h, w), np.inf, np.float32), UP)
+    below = rays @ UP < -1e-3
+    assert np.all(state[~below] == NO_HIT)
+    # steeper than the frame's top (6.7 degrees up): the mirrored ray looks up past it
+    near_road = below & (rays @ UP < -np.sin(np.radians(8.0)))
+    assert near_road.sum() > 100 and np.all(state[near_road] == HIT_SKY)
+    _, _, state = _reflection_lookup(camera, maps, np.full((h, w), 50.0, np.float32), UP)
+    far_enough = below & (1.7 / np.maximum(-(rays @ UP), 1e-9) < 40.0)  # the plane's point short of 50 m
+    assert far_enough.sum() > 100 and np.all(state[far_enough] == HIT_FILLED)
+
+
+def test_a_stack_of_maps_is_refined_as_each_alone():
+    rng = np.random.default_rng(0)
+    guide = rng.random((60, 90, 3)).astype(np.float32)
+    a, b = rng.random((60, 90)).astype(np.float32), (rng.random((60, 90)) > 0.5).astype(np.float32)
+    both = refine(np.dstack([a, b]), guide, radius=2)
+    assert both.shape == (60, 90, 2) and both.dtype == np.float32
+    np.testing.assert_array_equal(both[..., 0], refine(a, guide, radius=2))
+    np.testing.assert_array_equal(both[..., 1], refine(b, guide, radius=2))
+
+
+def test_the_glossy_blur_keeps_a_uniform_reflection_and_leaves_what_no_ground_is_near():
+    # a normalised convolution: a uniform reflection over the ground stays uniform, and rows far
+    # above the ground (beyond the longest blur) keep the sharp image to the bit
+    camera = _camera(1.7)
+    rays, _ = _rays(camera)
+    h, w = camera.height, camera.width
+    rng = np.random.default_rng(1)
+    weight = np.zeros((h, w), np.float32)
+    weight[h // 2 + 10:] = 1.0
+    image = rng.random((h, w, 3)).astype(np.float32)
+    image[h // 2 + 10:] = [0.2, 0.4, 0.6]
+    out = glossy_blur(image, weight, rays.astype(np.float32), up=UP, sigma_px=2.0)
+    np.testing.assert_allclose(out[h // 2 + 10:], image[h // 2 + 10:], rtol=0, atol=1e-5)
+    # the longest blur (8 times 2 px on rows averaged 8 at a time) reaches 4 of its sigmas and a
+    # coarse row above the ground's first row (100): 72 rows, so rows 0-27 never see the ground
+    np.testing.assert_array_equal(out[:h // 2 + 10 - 72], image[:h // 2 + 10 - 72])
