@@ -632,8 +632,8 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
         Default 6 px at 270 rows.
     fast : bool
         Look the reflected points up with the numba kernel
-        (:func:`~.reflection_kernels.reflection_lookup_kernel`, where numba imports), else with
-        the numpy reference (:func:`_reflection_lookup`).
+        (:func:`~.reflection_kernels.reflection_lookup_kernel`, where it compiles and loads), else
+        with the numpy reference (:func:`_reflection_lookup`).
 
     Returns
     -------
