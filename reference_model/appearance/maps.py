@@ -32,7 +32,6 @@ import numpy as np
 import torch
 
 from wcbench.reference_model._numba_backend import load_numba_kernels
-from wcbench.reference_model.appearance.reflection_kernels import HIT_FILLED, HIT_SEEN, HIT_SKY, NO_HIT
 from wcbench.reference_model.appearance.surfaces import UNDERBODY_M, SurfaceScene, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
@@ -40,12 +39,25 @@ from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["FIELDS", "SurfaceMaps", "facing_view", "glossy_blur", "mirror_distance", "refine", "screen_reflection",
-           "surface_maps"]
+__all__ = ["FIELDS", "HIT_FILLED", "HIT_SEEN", "HIT_SKY", "NO_HIT", "SurfaceMaps", "facing_view", "glossy_blur",
+           "mirror_distance", "refine", "screen_reflection", "surface_maps"]
 
 #: The surface attributes the maps can composite beside the normal (:data:`~.surfaces.ATTRIBUTES`
 #: after the normal's three), in the order of their channels.
 FIELDS = ("ground", "open", "puddle", "track")
+
+# A pixel's state in the rain's reflection lookup (:func:`_reflection_lookup` and its kernel,
+# :mod:`.reflection_kernels`, which reads them from here: they live beside the numpy reference so
+# that the editor imports without numba and falls back to it).
+#: The pixel's ray does not meet the ground plane.
+NO_HIT = 0
+#: The reflected ray meets a surface the camera sees at the looked-up pixel (or leaves to infinity
+#: inside the frame).
+HIT_SEEN = 1
+#: The reflected ray meets no surface and leaves the frame: the sky in the mirrored direction.
+HIT_SKY = 2
+#: The reflected point is hidden or out of the frame: its colour is filled from around it.
+HIT_FILLED = 3
 
 #: Accumulated opacity above which a pixel counts as covered by the lidar surfaces.
 _COVERED = 0.5
@@ -693,7 +705,7 @@ def _reflection_lookup(camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarr
         The pixel (centres at integers) whose colour is the reflection, clipped to the frame; the
         pixel's own where its ray does not meet the plane.
     state : ndarray [H, W] uint8
-        :data:`~.reflection_kernels.NO_HIT`, ``HIT_SEEN``, ``HIT_SKY`` or ``HIT_FILLED``.
+        :data:`NO_HIT`, ``HIT_SEEN``, ``HIT_SKY`` or ``HIT_FILLED``.
     """
     h, w = maps.distance.shape
     center = np.asarray(camera.center, np.float64)

@@ -17,25 +17,17 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["HIT_FILLED", "HIT_SEEN", "HIT_SKY", "NO_HIT", "reflection_lookup_kernel"]
+from wcbench.reference_model.appearance.maps import HIT_FILLED, HIT_SEEN, HIT_SKY, NO_HIT
 
-#: A pixel's state: its ray does not meet the ground plane.
-NO_HIT = 0
-#: The reflected ray meets a surface the camera sees at the looked-up pixel (or leaves to infinity
-#: inside the frame).
-HIT_SEEN = 1
-#: The reflected ray meets no surface and leaves the frame: the sky in the mirrored direction.
-HIT_SKY = 2
-#: The reflected point is hidden or out of the frame: its colour is filled from around it.
-HIT_FILLED = 3
+__all__ = ["reflection_lookup_kernel"]
 
 
 @numba.njit(cache=True, parallel=True)
 def reflection_lookup_kernel(rays, distance, mirror, center, up, ground_height, w2c, K, seen_fraction,
                              slack_m, far_m, map_x, map_y, state):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Fill ``map_x``, ``map_y`` [H, W] float32 (the pixel whose colour is the reflection; the
-    pixel's own where its ray does not meet the plane) and ``state`` [H, W] uint8 (:data:`NO_HIT`,
-    :data:`HIT_SEEN`, :data:`HIT_SKY`, :data:`HIT_FILLED`).
+    pixel's own where its ray does not meet the plane) and ``state`` [H, W] uint8 (:data:`~.maps.NO_HIT`,
+    :data:`~.maps.HIT_SEEN`, :data:`~.maps.HIT_SKY`, :data:`~.maps.HIT_FILLED`).
 
     ``rays`` [H, W, 3] float32 unit world rays; ``distance`` [H, W] the camera's distance map and
     ``mirror`` [H, W] the unfolded reflected path lengths (m, ``inf`` where none); ``center`` [3],

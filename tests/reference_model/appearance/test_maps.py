@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -15,6 +17,10 @@ pytest.importorskip("torch")
 from wcbench.reference_model.appearance.maps import (
     _COVERED,
     FIELDS,
+    HIT_FILLED,
+    HIT_SEEN,
+    HIT_SKY,
+    NO_HIT,
     _box_shells,
     _boxes_miss_view,
     _gaussian_blur,
@@ -33,7 +39,6 @@ from wcbench.reference_model.appearance.maps import (
     screen_reflection,
     surface_maps,
 )
-from wcbench.reference_model.appearance.reflection_kernels import HIT_FILLED, HIT_SEEN, HIT_SKY, NO_HIT
 from wcbench.reference_model.appearance.surfaces import build_surfaces, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
@@ -550,6 +555,40 @@ def test_the_reflection_lookup_kernel_is_its_numpy_reference(seed):
                                 for fast in (True, False))
     np.testing.assert_array_equal(seen_a, seen_b)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-5)
+
+
+def test_the_reflection_falls_back_to_the_numpy_reference_when_its_kernel_cannot_be_imported(monkeypatch):
+    # a broken numba must cost speed, not the editor: screen_reflection's fast path looks up with
+    # the reference, to the bit, and the failure is remembered
+    from wcbench.reference_model import _numba_backend
+
+    rng = np.random.default_rng(0)
+    camera = _pitched_camera(10.0)
+    maps, mirror = _reflecting_street(rng, camera)
+    source = rng.random((camera.height, camera.width, 3)).astype(np.float32)
+    expected = screen_reflection(source, camera, maps, mirror, up=UP, fast=False)
+    monkeypatch.setattr(_numba_backend, "_loaded", {})
+    monkeypatch.setattr(_numba_backend, "_failed", {})
+    monkeypatch.setitem(sys.modules, "wcbench.reference_model.appearance.reflection_kernels", None)
+    got = screen_reflection(source, camera, maps, mirror, up=UP, fast=True)
+    np.testing.assert_array_equal(got[0], expected[0])
+    np.testing.assert_array_equal(got[1], expected[1])
+    assert "halted" in str(_numba_backend.numba_error("appearance.reflection_kernels"))
+
+
+def test_the_editor_imports_without_numba():
+    # numba hidden in a fresh interpreter: the editor's modules import (every kernel is loaded
+    # lazily), and the reflection kernel reports why it did not load
+    code = (
+        "import sys; sys.modules['numba'] = None\n"
+        "import wcbench.reference_model.appearance.editor\n"
+        "from wcbench.reference_model._numba_backend import load_numba_kernels, numba_error\n"
+        "assert load_numba_kernels('appearance.reflection_kernels') is None\n"
+        "print(numba_error('appearance.reflection_kernels'))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "numba" in done.stdout
 
 
 def test_a_reflected_ray_that_meets_no_surface_sees_the_sky_and_one_that_meets_a_hidden_one_is_filled():
