@@ -33,6 +33,7 @@ import torch
 
 from wcbench.reference_model._numba_backend import load_numba_kernels
 from wcbench.reference_model.appearance.surfaces import UNDERBODY_M, SurfaceScene, in_box
+from wcbench.reference_model.guided_filter import guided_filter
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
 from wcbench.reference_model.scene_graph.completion import FILL_GROUND, FILL_SKY, FILL_WALL, complete_distance
@@ -843,7 +844,8 @@ def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: 
 
 
 def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-3) -> np.ndarray:
-    """A map snapped to the image's edges: OpenCV's guided filter (He et al. 2013) with the frame as guide.
+    """A map snapped to the image's edges: the guided filter (He et al. 2013,
+    :func:`~wcbench.reference_model.guided_filter.guided_filter`) with the frame as guide.
 
     Parameters
     ----------
@@ -864,6 +866,4 @@ def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-
     """
     if radius <= 0:
         return np.asarray(mask, np.float32)
-    out = cv2.ximgproc.guidedFilter(np.ascontiguousarray(guide, np.float32), np.ascontiguousarray(mask, np.float32),
-                                    radius, eps)
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
+    return np.clip(guided_filter(guide, mask, radius=radius, eps=eps), 0.0, 1.0).astype(np.float32)

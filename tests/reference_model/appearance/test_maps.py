@@ -611,6 +611,17 @@ def test_a_reflected_ray_that_meets_no_surface_sees_the_sky_and_one_that_meets_a
     assert far_enough.sum() > 100 and np.all(state[far_enough] == HIT_FILLED)
 
 
+def test_a_map_refined_on_a_sharp_edge_of_the_frame_keeps_its_values():
+    # a car's dark side against the bright road: a ground map that is an affine map of the two
+    # colours comes back within the filter's regularisation, at any eps up to the snow's 1e-2
+    guide = np.empty((24, 24, 3), np.float32)
+    guide[:] = [0.6, 0.6, 0.62]
+    guide[:, 10:] = [0.12, 0.12, 0.14]
+    ground = np.where(np.arange(24) < 10, 1.0, 0.0)[None].repeat(24, 0).astype(np.float32)
+    for eps in (1e-3, 1e-2):
+        np.testing.assert_allclose(refine(ground, guide, radius=2, eps=eps), ground, atol=0.05)
+
+
 def test_a_stack_of_maps_is_refined_as_each_alone():
     rng = np.random.default_rng(0)
     guide = rng.random((60, 90, 3)).astype(np.float32)
