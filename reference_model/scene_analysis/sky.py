@@ -87,7 +87,6 @@ import cv2
 import maxflow
 import numpy as np
 
-from wcbench.reference_model.guided_filter import guided_filter
 from wcbench.reference_model.scene_analysis.views import AnalysisViews
 
 __all__ = ["SkySegmentation", "infinity_residual", "neighbour_support", "refine_boundary", "rotation_homography",
@@ -794,9 +793,12 @@ def sky_matte(mask: np.ndarray, image: np.ndarray, solid: np.ndarray | None = No
     m = np.asarray(mask, np.float32)
     if radius <= 0:
         return m
-    # the filter's definition (OpenCV's own on a [0, 1] guide at this eps smooths across the frame's
-    # edges as a box would: reference_model/guided_filter.py)
-    alpha = np.clip(guided_filter(image, m, radius=radius, eps=eps), 0.0, 1.0)
+    # OpenCV's filter on the [0, 1] frame, which smooths across the sky's edges as a box would
+    # (reference_model/guided_filter.py): the definition kept a pole's crossarms whole under the
+    # overcast sky but left more of the clear sky's blue at the edges and raised the rear camera's
+    # snow flicker over the raw frames' (docs/findings.md, thirty-fifth session)
+    alpha = cv2.ximgproc.guidedFilter(np.ascontiguousarray(image, np.float32), m, radius, eps)
+    alpha = np.clip(alpha, 0.0, 1.0)
     # only the boundary band is feathered: a pixel whose whole window has one label keeps it
     band = cv2.dilate(m, np.ones((2 * radius + 1,) * 2, np.uint8)) != cv2.erode(m, np.ones((2 * radius + 1,) * 2,
                                                                                           np.uint8))
