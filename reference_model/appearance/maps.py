@@ -851,8 +851,8 @@ def refine(mask: np.ndarray, guide: np.ndarray, *, radius: int, eps: float = 1e-
     ----------
     mask : ndarray [H, W] or [H, W, C] float
         One map, or a stack of up to 4 snapped at once: the filter's statistics of the guide are
-        shared and each channel comes out as its own call would give it, in about half the time
-        of two calls.
+        shared and each channel comes out as its own call would give it; two maps stacked take
+        about 0.7 of the time of two calls (a random 480x270 frame, docs/findings.md).
     guide : ndarray [H, W, 3] float32
         The raw frame, display RGB in [0, 1].
     radius : int
