@@ -21,6 +21,9 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
 * **track**: closeness to the wheel paths of the traffic (the ego vehicle's path and every moving
   vehicle's, extended along the lane; people and cyclists leave none), where snow is compacted and water splashed away.
 
+The static Gaussians are drawn as surfels, flat on their surface; one whose returns lie on a line
+in the air (a wire) is as wide across that line as its returns spread (:func:`line_surfels`).
+
 Only the static scene becomes surfaces: returns of things that move without a box, people and
 noise (:mod:`wcbench.reference_model.scene_analysis.motion`) are left out of the static cloud, and
 a frame's own dynamic returns are drawn at that frame only (no normal facing the sky, nothing
@@ -39,7 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis
-from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_axes
+from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_frames
 from wcbench.reference_model.scene_graph.completion import Facades, fit_facades
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import (
@@ -49,6 +52,7 @@ from wcbench.reference_model.scene_graph.lidar_init import (
     voxel_downsample,
 )
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
+from wcbench.reference_model.transforms import quat_from_matrices
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
 __all__ = ["ATTRIBUTES", "UNDERBODY_M", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths",
@@ -84,6 +88,14 @@ _TURN_NEIGHBOURS, _TURN_MAX_FOLIAGE = 16, 0.1
 #: A static surfel's thickness (standard deviation along its normal) over its width: a few cm at
 #: the 0.1 m voxel, the noise of a lidar return's range.
 _SURFEL_THICKNESS = 0.25
+#: A static Gaussian is a wire's (or a thin bar's) when its neighbourhood's second principal spread
+#: is under this share of its first (a street's surfaces: over half); its surfel is then as wide
+#: across the line as the returns spread across it, ``_LINE_WIDTH_SIGMAS`` of their standard
+#: deviation, and never wider than it was.
+_LINE_SHARE, _LINE_WIDTH_SIGMAS = 0.2, 1.0
+#: ... and when no return within ``_LINE_CLEAR_M`` of it lies more than ``_LINE_OFF_M`` off that
+#: line (m): a wire in the air, not one ring of the lidar across a wall, whose next ring lies beside it.
+_LINE_CLEAR_M, _LINE_OFF_M = 0.6, 0.15
 #: Voxel (m) of a frame's own dynamic returns.
 _DYNAMIC_VOXEL_M = 0.1
 #: A frame's dynamic return is drawn only if it stands this far above the ground (m; lower it is
@@ -659,6 +671,76 @@ def _road_under(local: np.ndarray, box_size: np.ndarray) -> np.ndarray:
     return road
 
 
+def _alone_across(means: np.ndarray, rows: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """[len(rows)] bool: no other point within ``_LINE_CLEAR_M`` of ``means[rows]`` lies more than
+    ``_LINE_OFF_M`` off the line through it along ``direction`` (a wire in the air, not one ring of a
+    spinning lidar across a wall or the road, whose neighbouring rings lie beside it)."""
+    tree = cKDTree(means)
+    near = tree.query_ball_point(means[rows], r=_LINE_CLEAR_M, workers=-1)
+    out = np.ones(len(rows), bool)
+    for i, (p, nb) in enumerate(zip(means[rows], near)):
+        off = means[nb] - p
+        across = off - np.outer(off @ direction[i], direction[i])
+        out[i] = not np.any(np.einsum("ij,ij->i", across, across) > _LINE_OFF_M ** 2)
+    return out
+
+
+def line_surfels(normals: np.ndarray, spread: np.ndarray, direction: np.ndarray,
+                 width: np.ndarray, means: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Surfel orientations and widths across a line, for returns that sample a wire or a thin bar.
+
+    A surfel is a disc of ``width`` in its plane. An overhead power line's returns, a few
+    centimetres across, were discs as wide as the returns' spacing along it (tens of centimetres):
+    dark blobs in the sky and over the facades behind, in every weather, where the wire is a thin
+    line in the frame. A Gaussian whose neighbourhood is a line (the second principal spread under
+    :data:`_LINE_SHARE` of the first) gets its disc's first axis along the line and its second as
+    wide as the returns spread across it (:data:`_LINE_WIDTH_SIGMAS` standard deviations), never
+    wider than ``width``: the elongated splat of the anisotropic Gaussians of 3D Gaussian
+    splatting (Kerbl et al. 2023) drawn from the returns' own covariance.
+
+    Parameters
+    ----------
+    normals : ndarray [N, 3]
+        Unit surfel normals (its third axis).
+    spread : ndarray [N, 3]
+        The neighbourhood's principal variances (m^2), ascending
+        (:func:`~wcbench.reference_model.scene_analysis.normals.principal_frames`).
+    direction : ndarray [N, 3]
+        The principal axis of the largest variance (the line's direction where it is one).
+    width : ndarray [N]
+        The surfel's width (standard deviation in its plane, m).
+
+    Returns
+    -------
+    quats : ndarray [N, 4] float32
+        (w, x, y, z): local z along the normal, local x along the line projected into the
+        surfel's plane (where it is no line, the orientation :func:`quat_from_axis_to` gives).
+    across : ndarray [N] float32
+        Width along local y (m): ``width``, narrowed on a line.
+    """
+    normals = np.asarray(normals, np.float64)
+    width = np.asarray(width, np.float32)
+    quats = quat_from_axis_to(normals).astype(np.float32)
+    across = width.copy()
+    line = spread[:, 1] < _LINE_SHARE ** 2 * spread[:, 2]
+    if means is not None and np.any(line):
+        line[line] = _alone_across(np.asarray(means, np.float64), np.flatnonzero(line), direction[line])
+    if not np.any(line):
+        return quats, across
+    n = normals[line]
+    x = direction[line] - np.einsum("ij,ij->i", direction[line], n)[:, None] * n
+    length = np.linalg.norm(x, axis=1)
+    # a line along the normal (seen end-on in its own plane) has no direction in the plane to keep
+    ok = length > 1e-6
+    x = x[ok] / length[ok, None]
+    n = n[ok]
+    rot = np.stack([x, np.cross(n, x), n], axis=-1)  # columns: the surfel's local axes in the world
+    rows = np.flatnonzero(line)[ok]
+    quats[rows] = quat_from_matrices(rot).astype(np.float32)
+    across[rows] = np.minimum(width[rows], _LINE_WIDTH_SIGMAS * np.sqrt(spread[rows, 1])).astype(np.float32)
+    return quats, across
+
+
 def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                    analysis: SceneAnalysis | None = None) -> SurfaceScene:
     """The scene's lidar Gaussians and their surface attributes (see the module docstring).
@@ -697,7 +779,9 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     up = up / np.linalg.norm(up)
     axes = _plane_axes(up)
     means = gaussians.static.means.astype(np.float64)
-    normals, variation = principal_axes(means)
+    spread, frames = principal_frames(means)
+    normals = frames[:, :, 0]
+    variation = spread[:, 0] / np.maximum(spread.sum(axis=1), 1e-12)
     cams = np.stack([np.asarray(f.camera.center, np.float64) for f in scene.frames])
     _, near_cam = cKDTree(cams).query(means, workers=-1)
     flip = np.einsum("ij,ij->i", cams[near_cam] - means, normals) < 0
@@ -761,8 +845,9 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     st = gaussians.static
     scales = np.asarray(st.scales, np.float32).copy()
     scales[:, 2] = _SURFEL_THICKNESS * scales[:, 0]
-    gaussians.static = GaussianCloud(means=st.means, quats=quat_from_axis_to(normals).astype(np.float32),
-                                     scales=scales, opacities=st.opacities, colors=st.colors)
+    quats, scales[:, 1] = line_surfels(normals, spread, frames[:, :, 2], scales[:, 0], means)
+    gaussians.static = GaussianCloud(means=st.means, quats=quats, scales=scales, opacities=st.opacities,
+                                     colors=st.colors)
 
     static = np.zeros((len(means), len(ATTRIBUTES)), np.float32)
     static[:, :3] = normals

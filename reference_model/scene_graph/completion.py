@@ -14,6 +14,12 @@ fills those pixels with the two surfaces a street is made of (docs/design.md §7
   running minimum, over a square window, among the known pixels only) of the known pixels', so a
   near thing thinner than the window lends the facade behind it its depth, not its own. The known
   pixels keep their own distance.
+* a wall pixel **between two returns of one surface** in its column (at most ``ring_gap`` of the
+  height apart, their camera depths within ``ring_agree`` of each other, no sky between) lies on
+  that surface, its inverse depth interpolated between theirs (:func:`bridge_rings`): the rows a
+  spinning lidar's rings leave between them on a far facade are that facade, not the nearer one
+  below whose plane a far return can seem to be seen through, and the smoothing below leaves them
+  (they alternated with the rings, near and far, as stripes of haze in fog).
 * where a **facade plane** is known (:func:`fit_facades`: vertical planes fitted to the scene's
   static returns above a car's height by sequential RANSAC, Fischler & Bolles 1981, each refined
   by least squares), a wall pixel is the ray's intersection with the first facade behind the
@@ -49,8 +55,22 @@ from wcbench.reference_model.guided_filter import guided_filter
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.transforms import quat_from_matrix
 
-__all__ = ["FILL_GROUND", "FILL_KNOWN", "FILL_SKY", "FILL_WALL", "Facades", "beyond_reach", "closing_among",
-           "complete_distance", "fill_footprints", "fit_facades", "ground_height_below", "reach_vote", "smooth_walls"]
+__all__ = [
+    "FILL_GROUND",
+    "FILL_KNOWN",
+    "FILL_SKY",
+    "FILL_WALL",
+    "Facades",
+    "beyond_reach",
+    "bridge_rings",
+    "closing_among",
+    "complete_distance",
+    "fill_footprints",
+    "fit_facades",
+    "ground_height_below",
+    "reach_vote",
+    "smooth_walls",
+]
 
 #: What each pixel of a completed map is.
 FILL_KNOWN, FILL_GROUND, FILL_WALL, FILL_SKY = 0, 1, 2, 3
@@ -293,6 +313,7 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
                       facade_slack: tuple[float, float] = (0.5, 0.05), guide: np.ndarray | None = None,
                       guide_radius: float = 12.0 / 270.0, guide_eps: float = 1e-3,
                       hits: np.ndarray | None = None, reach: tuple[float, tuple[float, float]] | None = None,
+                      ring_gap: float = 12.0 / 270.0, ring_agree: float = 0.05,
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the unknown pixels of a distance map (see the module docstring).
 
@@ -336,6 +357,11 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         The smoothing's window radius as a share of the height (12 px at 270 rows).
     guide_eps : float
         The guided filter's regularisation (edges weaker than its square root are smoothed over).
+    ring_gap : float
+        The most rows (a share of the height: 12 px at 270 rows) between two returns in a column
+        that a wall pixel between them is put on (:func:`bridge_rings`); 0 bridges nothing.
+    ring_agree : float
+        How far the two returns' camera depths may differ, a share of the nearer.
     hits : ndarray [H, W] bool, optional
         Pixels a lidar return lands in (the editor passes the analysis' solid masks); with
         ``reach``, the evidence of :func:`beyond_reach`, applied to the walls before they are
@@ -379,6 +405,7 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         out[ground] = np.where(met, t, np.where(level > 0, level, np.inf))
         kind[ground] = np.where(met, FILL_GROUND, FILL_WALL)
     source = np.full((h, w), -1, np.int64)
+    fixed = np.zeros((h, w), bool)
     wall = todo & ~ground
     if np.any(wall):
         # the nearest known (or ground) pixel below each pixel in its column at a finite distance:
@@ -394,6 +421,7 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         axis = np.asarray(forward, np.float64) / np.linalg.norm(forward)
         cos_dst = unit[rr, cc] @ axis
         camera_depth = out * (unit @ axis)
+        raw_depth = camera_depth
         half = round(w * thin_fraction)
         if half > 0:
             camera_depth = closing_among(camera_depth, drawn & np.isfinite(camera_depth), half)
@@ -402,16 +430,25 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         # only a lidar return stands on a facade: the completed ground (and the far wall below the
         # horizon) is a guess whose distance, far down the street, would pick any facade before it
         measured = has & known[src_c, cc] & ~sky[src_c, cc]
-        if facades is not None and len(facades) and np.any(measured):
-            value = _on_facades(value, facades, np.asarray(center, np.float64), unit, out, rr, cc, src, measured,
-                                facade_slack)
+        # a wall pixel between two returns of one surface in its column lies on that surface (the
+        # rows a spinning lidar's rings leave between them on a far facade): their camera depths
+        # interpolated, before any facade or smoothing is consulted
+        gap = round(ring_gap * h)
+        between = (bridge_rings(np.where(known & ~sky, raw_depth, np.inf), sky, rr, cc, max_gap=gap,
+                                agree=ring_agree) if gap > 0 else np.full(len(rr), np.inf))
+        bridged = np.isfinite(between)
+        if facades is not None and len(facades) and np.any(measured & ~bridged):
+            value = _on_facades(value, facades, np.asarray(center, np.float64), unit, out, rr, cc, src,
+                                measured & ~bridged, facade_slack)
+        value = np.where(bridged, between / np.maximum(cos_dst, 1e-6), value)
+        fixed[rr[bridged], cc[bridged]] = True
         out[rr, cc] = value
         kind[rr, cc] = np.where(np.isfinite(value), FILL_WALL, FILL_SKY)
         source[rr, cc] = np.where(np.isfinite(value), src, -1)
     if hits is not None and reach is not None:
         out = beyond_reach(out, kind, hits, rays, up, range_m=reach[0], elevation_deg=reach[1], guide=guide)
     if guide is not None:
-        out = smooth_walls(out, kind, guide, radius=max(1, round(guide_radius * h)), eps=guide_eps)
+        out = smooth_walls(out, kind, guide, radius=max(1, round(guide_radius * h)), eps=guide_eps, keep=fixed)
     return out, kind, source
 
 
@@ -545,7 +582,7 @@ def reach_vote(candidates: np.ndarray, hits: np.ndarray, guide: np.ndarray, *, r
 
 
 def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, radius: int,
-                 eps: float = 1e-3) -> np.ndarray:
+                 eps: float = 1e-3, keep: np.ndarray | None = None) -> np.ndarray:
     """[H, W] ``distance`` with each wall pixel's replaced by the frame-guided mean of the log
     distances of the drawn pixels around it.
 
@@ -573,6 +610,9 @@ def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, r
         Window radius (px), >= 1.
     eps : float
         Regularisation of the guided filter.
+    keep : ndarray [H, W] bool, optional
+        Wall pixels whose distance is not a guess (:func:`bridge_rings`): they count in the
+        means around them and keep their own.
 
     Returns
     -------
@@ -584,9 +624,11 @@ def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, r
         If the shapes disagree or ``radius`` < 1.
     """
     h, w = kind.shape
-    if distance.shape != (h, w) or np.shape(guide)[:2] != (h, w) or radius < 1:
-        raise ValueError(f"distance and kind [H, W], guide [H, W, 3] and radius >= 1 were expected, got "
-                         f"{distance.shape}, {kind.shape}, {np.shape(guide)} and {radius}")
+    if distance.shape != (h, w) or np.shape(guide)[:2] != (h, w) or radius < 1 or \
+            (keep is not None and np.shape(keep) != (h, w)):
+        raise ValueError(f"distance, kind and keep [H, W], guide [H, W, 3] and radius >= 1 were expected, got "
+                         f"{distance.shape}, {kind.shape}, {None if keep is None else np.shape(keep)}, "
+                         f"{np.shape(guide)} and {radius}")
     wall = kind == FILL_WALL
     drawn = np.isfinite(distance) & (kind != FILL_SKY)
     if not np.any(wall & drawn):
@@ -600,10 +642,54 @@ def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, r
     high = cv2.dilate(np.where(drawn, log_d, -big), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float(-big))
     # a weight this low is a window mostly of sky, whose edge the filter's local model crosses
     ok = wall & drawn & (sums[..., 1] > 0.2)
+    if keep is not None:
+        ok &= ~np.asarray(keep, bool)
     mean = np.clip(sums[..., 0][ok] / sums[..., 1][ok], low[ok], high[ok])
     out = np.array(distance, np.float64, copy=True)
     out[ok] = np.exp(mean.astype(np.float64))
     return out
+
+
+def bridge_rings(depth: np.ndarray, sky: np.ndarray, rr: np.ndarray, cc: np.ndarray, *, max_gap: int,
+                 agree: float) -> np.ndarray:
+    """[N] camera depth (m) of pixels (``rr``, ``cc``) that lie between two returns of one surface in
+    their column; ``inf`` for the others.
+
+    Such a pixel has a return above it and one below it in its column, at most ``max_gap`` rows
+    apart with no sky between, whose camera depths differ by at most ``agree`` of the nearer: the
+    rows a spinning lidar's rings leave between them on a far facade. It takes their inverse depths
+    interpolated linearly in the row (a plane's inverse depth is affine in the image).
+
+    Parameters
+    ----------
+    depth : ndarray [H, W] float64
+        Camera depth (m) of the returns; ``inf`` elsewhere.
+    sky : ndarray [H, W] bool
+        Sky pixels (nothing is bridged across them).
+    rr, cc : ndarray [N] int
+        The pixels asked about (rows, columns).
+    max_gap : int
+        The most rows between the two returns (px).
+    agree : float
+        Their depths' largest difference, a share of the nearer.
+
+    Returns
+    -------
+    ndarray [N] float64
+    """
+    h = depth.shape[0]
+    event = np.isfinite(depth) | np.asarray(sky, bool)
+    idx = np.arange(h)[:, None]
+    above = np.maximum.accumulate(np.where(event, idx, -1), axis=0)[rr, cc]
+    below = np.minimum.accumulate(np.where(event, idx, h)[::-1], axis=0)[::-1][rr, cc]
+    ok = (above >= 0) & (below < h) & (below - above - 1 <= max_gap)
+    za = np.where(ok, depth[np.clip(above, 0, h - 1), cc], np.inf)
+    zb = np.where(ok, depth[np.clip(below, 0, h - 1), cc], np.inf)
+    ok &= np.isfinite(za) & np.isfinite(zb) & (za > 0) & (zb > 0)  # a sky pixel is no return
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ok &= np.abs(za - zb) <= agree * np.minimum(za, zb)
+        t = (rr - above) / np.maximum(below - above, 1)
+        return np.where(ok, 1.0 / ((1.0 - t) / za + t / zb), np.inf)
 
 
 def _on_facades(value: np.ndarray, facades: Facades, center: np.ndarray, unit: np.ndarray, out: np.ndarray,

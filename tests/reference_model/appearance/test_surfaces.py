@@ -16,12 +16,14 @@ from wcbench.reference_model.appearance.surfaces import (
     build_surfaces,
     in_box,
     lane_paths,
+    line_surfels,
     object_sides,
     open_to_sky,
     value_noise,
 )
-from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_axes
+from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_axes, principal_frames
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
+from wcbench.reference_model.transforms import quat_to_matrix
 from wcbench.scenes.scene import ObjectTrack
 
 
@@ -291,3 +293,45 @@ def test_the_points_inside_boxes_kept_for_a_parked_car_are_those_a_brute_force_s
             np.testing.assert_array_equal(pts, slow)
         assert any(np.any(np.isin(p[:, 0], means[len(static):, 0])) for p in found), "a box holds movers"
     assert surfaces.inside_boxes(0, np.zeros((0, 4, 4)), np.zeros((0, 3))) == []
+
+
+def test_principal_frames_are_the_neighbourhoods_covariance_and_principal_axes_read_them(rng):
+    points = rng.normal(size=(300, 3)) * [2.0, 0.5, 0.05]
+    values, axes = principal_frames(points, k=300)
+    cov = np.cov(points.T, bias=True)  # every point's neighbourhood is the whole cloud
+    np.testing.assert_allclose(values[0], np.linalg.eigvalsh(cov), rtol=1e-9)
+    np.testing.assert_allclose(axes[0] @ np.diag(values[0]) @ axes[0].T, cov, atol=1e-12)
+    normals, variation = principal_axes(points, k=300)
+    np.testing.assert_array_equal(normals, axes[:, :, 0])
+    np.testing.assert_allclose(variation, values[:, 0] / values.sum(axis=1), rtol=1e-12)
+
+
+def _covariances(quats: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    rot = np.stack([quat_to_matrix(q.astype(np.float64)) for q in quats])
+    return np.einsum("nij,nj,nkj->nik", rot, scales.astype(np.float64) ** 2, rot)
+
+
+def test_a_wire_is_a_thin_line_and_a_lidar_ring_on_a_wall_stays_a_disc(rng):
+    direction = np.array([0.6, 0.8, 0.0])
+    t = np.arange(-60, 61) * 0.05
+    wire = np.array([3.0, -2.0, 8.0]) + t[:, None] * direction + rng.normal(scale=0.01, size=(len(t), 3))
+    # one ring across a wall with the next ring 0.5 m above it: 16 neighbours lie on the ring alone
+    ring = np.stack([t, np.full_like(t, 20.0), np.full_like(t, 1.0)], 1)
+    wall = np.concatenate([ring, ring + np.array([0.0, 0.0, 0.5])])
+    for points, is_wire in ((wire, True), (wall, False)):
+        spread, frames = principal_frames(points)
+        normals = frames[:, :, 0]
+        width = np.full(len(points), 0.2, np.float32)
+        quats, across = line_surfels(normals, spread, frames[:, :, 2], width, points)
+        scales = np.stack([width, across, 0.25 * width], 1)
+        cov = _covariances(quats, scales)
+        rot = np.stack([quat_to_matrix(q.astype(np.float64)) for q in quats])
+        np.testing.assert_allclose(np.abs(np.einsum("nij,nj->ni", rot, [[0, 0, 1.0]] * len(points))),
+                                   np.abs(normals), atol=1e-5)  # the surfel's third axis is its normal
+        inner = slice(10, len(t) - 10)
+        if is_wire:
+            # along the wire as wide as before, across it as the returns spread (0.01 m noise)
+            np.testing.assert_allclose(direction @ cov[inner] @ direction, 0.04, rtol=5e-3)
+            assert np.all(across[inner] < 0.03) and np.all(across[inner] > 0.003)
+        else:
+            np.testing.assert_array_equal(across, width)

@@ -11,6 +11,7 @@ from wcbench.reference_model.scene_graph.completion import (
     FILL_SKY,
     FILL_WALL,
     Facades,
+    bridge_rings,
     closing_among,
     complete_distance,
     fill_footprints,
@@ -403,3 +404,45 @@ def test_complete_distance_smooths_its_walls_only_when_given_the_frame():
     np.testing.assert_array_equal(guided[~wall], plain[~wall])
     with pytest.raises(ValueError, match="radius >= 1"):
         smooth_walls(plain, kind, guide[:10], radius=3)
+
+
+def test_a_pixel_between_two_returns_of_one_surface_takes_their_interpolated_inverse_depth():
+    h, w = 30, 4
+    depth = np.full((h, w), np.inf)
+    sky = np.zeros((h, w), bool)
+    depth[5, :], depth[11, :] = 80.0, 84.0  # two rings of one far facade, 6 rows apart
+    depth[11, 1] = 40.0  # column 1: the lower return is a nearer thing
+    sky[8, 2] = True  # column 2: sky between them
+    depth[11, 3], depth[20, 3] = np.inf, 81.0  # column 3: 15 rows apart
+    rr, cc = np.array([7, 7, 7, 7, 9]), np.array([0, 1, 2, 3, 0])
+    out = bridge_rings(depth, sky, rr, cc, max_gap=12, agree=0.05)
+    # a plane's inverse depth is affine in the row: 2 of 6 rows from 80 m toward 84 m
+    assert out[0] == pytest.approx(1.0 / ((4 / 6) / 80.0 + (2 / 6) / 84.0), rel=1e-12)
+    assert out[4] == pytest.approx(1.0 / ((2 / 6) / 80.0 + (4 / 6) / 84.0), rel=1e-12)
+    assert np.all(np.isinf(out[1:4]))  # disagreeing, across the sky, too far apart
+    assert np.isfinite(bridge_rings(depth, sky, rr[3:4], cc[3:4], max_gap=14, agree=0.05)[0])
+
+
+def test_the_rows_between_a_far_facades_rings_stay_on_it_and_out_of_the_smoothing():
+    rays, z_per_m = _level_camera()
+    h, w = z_per_m.shape
+    up, center = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.6])
+    known = np.zeros((h, w), bool)
+    depth = np.full((h, w), np.inf)
+    for row in (6, 10, 14):  # a far facade's rings, 80 m ahead
+        known[row], depth[row] = True, 80.0
+    known[15:20], depth[15:20] = True, 20.0  # a near low building below it, in the same colour
+    distance = np.where(known, depth / z_per_m, 0.0)
+    sky = np.zeros((h, w), bool)
+    sky[:3] = True
+    guide = np.full((h, w, 3), 0.3, np.float32)
+    opts = {"forward": FORWARD, "guide": guide, "guide_radius": 0.3}
+    # rings 4 rows apart on 40 rows (at 270 rows the default bridges up to 12)
+    out, kind, _ = complete_distance(distance, known, sky, rays, center, up, 0.0, ring_gap=0.1, **opts)
+    between = np.zeros((h, w), bool)
+    between[[7, 8, 9, 11, 12, 13]] = True
+    assert np.all(kind[between] == FILL_WALL)
+    np.testing.assert_allclose((out * z_per_m)[between], 80.0, rtol=1e-9)
+    # without the bridge the frame's smoothing pulls them toward the near building's 20 m
+    old, _, _ = complete_distance(distance, known, sky, rays, center, up, 0.0, ring_gap=0.0, **opts)
+    assert (old * z_per_m)[between].min() < 60.0
