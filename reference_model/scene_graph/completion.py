@@ -14,12 +14,8 @@ fills those pixels with the two surfaces a street is made of (docs/design.md §7
   running minimum, over a square window, among the known pixels only) of the known pixels', so a
   near thing thinner than the window lends the facade behind it its depth, not its own. The known
   pixels keep their own distance.
-* a wall pixel **between two returns of one surface** in its column (at most ``ring_gap`` of the
-  height apart, their camera depths within ``ring_agree`` of each other, no sky between) lies on
-  that surface, its inverse depth interpolated between theirs (:func:`bridge_rings`): the rows a
-  spinning lidar's rings leave between them on a far facade are that facade, not the nearer one
-  below whose plane a far return can seem to be seen through, and the smoothing below leaves them
-  (they alternated with the rings, near and far, as stripes of haze in fog).
+* a wall pixel **between two returns of one surface** in its column lies on it (:func:`bridge_rings`:
+  a far facade's rows between the lidar's rings), given no facade plane and not smoothed.
 * where a **facade plane** is known (:func:`fit_facades`: vertical planes fitted to the scene's
   static returns above a car's height by sequential RANSAC, Fischler & Bolles 1981, each refined
   by least squares), a wall pixel is the ray's intersection with the first facade behind the
@@ -655,10 +651,9 @@ def bridge_rings(depth: np.ndarray, sky: np.ndarray, rr: np.ndarray, cc: np.ndar
     """[N] camera depth (m) of pixels (``rr``, ``cc``) that lie between two returns of one surface in
     their column; ``inf`` for the others.
 
-    Such a pixel has a return above it and one below it in its column, at most ``max_gap`` rows
-    apart with no sky between, whose camera depths differ by at most ``agree`` of the nearer: the
-    rows a spinning lidar's rings leave between them on a far facade. It takes their inverse depths
-    interpolated linearly in the row (a plane's inverse depth is affine in the image).
+    Returns above and below it in its column, at most ``max_gap`` rows apart, no sky between, camera
+    depths within ``agree`` of the nearer (a far facade between a spinning lidar's rings); it takes
+    their inverse depths interpolated in the row (a plane's inverse depth is affine in the image).
 
     Parameters
     ----------
