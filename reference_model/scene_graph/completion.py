@@ -353,11 +353,9 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         The smoothing's window radius as a share of the height (12 px at 270 rows).
     guide_eps : float
         The guided filter's regularisation (edges weaker than its square root are smoothed over).
-    ring_gap : float
-        The most rows (a share of the height: 12 px at 270 rows) between two returns in a column
-        that a wall pixel between them is put on (:func:`bridge_rings`); 0 bridges nothing.
-    ring_agree : float
-        How far the two returns' camera depths may differ, a share of the nearer.
+    ring_gap, ring_agree : float
+        :func:`bridge_rings`' most rows between two returns (a share of the height; 0 bridges
+        nothing) and their depths' largest difference (a share of the nearer).
     hits : ndarray [H, W] bool, optional
         Pixels a lidar return lands in (the editor passes the analysis' solid masks); with
         ``reach``, the evidence of :func:`beyond_reach`, applied to the walls before they are
