@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch")
 
 from parked_car import CAMERAS, HEIGHT, UP, WIDTH, K, scene  # noqa: E402
 
-from wcbench.bench.streets import _remove_case, clear_sky_blue  # noqa: E402
+from wcbench.bench.streets import _remove_case, clear_sky_blue, hits_as_sky_apart  # noqa: E402
 from wcbench.scenes.scene import Camera  # noqa: E402
 
 
@@ -23,6 +23,21 @@ def test_clear_sky_blue_is_the_blue_of_a_clear_sky_not_of_a_car_or_an_overcast_s
                         [0.08, 0.12, 0.40],   # a dark blue car: too dark
                         [0.55, 0.70, 0.60]]], np.float32)  # a green facade
     np.testing.assert_array_equal(clear_sky_blue(colors)[0], [True, False, False, False])
+
+
+def test_hits_as_sky_apart_are_returns_with_no_structure_drawn_within_a_pixel():
+    sky = np.ones((7, 9), bool)
+    sky[:, 2] = False  # a wire drawn one column wide
+    hits = np.zeros_like(sky)
+    hits[1, 3] = True  # its return a pixel beside it: an edge a pixel off
+    hits[1, 4] = True  # two pixels beside it: the structure lost
+    hits[5, 2] = True  # on it: not sky at all
+    hits[6, 8] = True  # alone in the sky, at the frame's corner
+    apart = hits_as_sky_apart(sky, hits)
+    np.testing.assert_array_equal(np.argwhere(apart), [[1, 4], [6, 8]])
+    # every hit shown as sky with nothing else around is apart; none where the sky is empty
+    assert hits_as_sky_apart(np.ones_like(sky), hits).sum() == hits.sum()
+    assert not hits_as_sky_apart(np.zeros_like(sky), hits).any()
 
 
 @pytest.mark.slow
