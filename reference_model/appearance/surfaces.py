@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from wcbench.reference_model.appearance.ground_cells import CELL_M, cell_heights, connected_ground
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis
 from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_frames
 from wcbench.reference_model.scene_graph.completion import Facades, fit_facades
@@ -789,17 +790,18 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     height = means @ up
     xy = means @ axes.T
 
-    # ground height per 2 m cell: a low percentile of the upward-facing returns there
+    # ground height per 2 m cell, kept where the cells join the ground under the camera path (a
+    # parked car's roof or a ghost below the road is a step off it: ground_cells.py)
     flat = normals @ up > 0.9
-    cells: dict[tuple[int, int], list[float]] = {}
-    keys = np.floor(xy[flat] / 2.0).astype(np.int64)
-    for key, h in zip(map(tuple, keys), height[flat]):
-        cells.setdefault(key, []).append(float(h))
-    if not cells:  # no flat return at all: the ground lies below the cameras at a car's height
-        cam_xy = cams @ axes.T
-        cells = {tuple(np.floor(c / 2.0).astype(np.int64)): [float(h) - 1.6] for c, h in zip(cam_xy, cams @ up)}
-    centers = np.array([(k[0] + 0.5, k[1] + 0.5) for k in cells]) * 2.0
-    heights = np.array([np.percentile(v, 10) for v in cells.values()])
+    cam_xy = cams @ axes.T
+    keys, heights = cell_heights(xy[flat], height[flat], cell_m=CELL_M)
+    kept = connected_ground(keys, heights, cam_xy, cell_m=CELL_M)
+    dropped = int((~kept).sum())
+    keys, heights = keys[kept], heights[kept]
+    if not len(keys):  # no flat return at all: the ground lies below the cameras at a car's height
+        keys, first = np.unique(np.floor(cam_xy / CELL_M).astype(np.int64), axis=0, return_index=True)
+        heights = (cams @ up)[first] - 1.6
+    centers = (keys + 0.5) * CELL_M
     ground_tree = cKDTree(centers)
     # the ground beyond the cells continues their least-squares plane (a street is not level)
     design = np.concatenate([np.ones((len(centers), 1)), centers], axis=1)
@@ -888,5 +890,6 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                   "ground_fraction": round(float(ground.mean()), 4), "open_fraction": round(float(open_.mean()), 4),
                   "wheel_path_points": len(lanes_pts),
                   "ground_slope": round(float(np.hypot(plane[1], plane[2])), 4),
+                  "ground_cells": len(heights), "ground_cells_off_the_ground": dropped,
                   "facades": len(surf.facades)}
     return surf
