@@ -89,3 +89,25 @@ def test_the_ground_is_the_one_under_the_cameras_not_the_largest_elsewhere():
 def test_connected_ground_of_no_cells_or_one():
     assert connected_ground(np.zeros((0, 2), np.int64), np.zeros(0), _path()).shape == (0,)
     assert connected_ground(np.array([[0, 0]]), np.array([-1.8]), _path()).tolist() == [True]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("camera", ["pandaset_002_right", "pandaset_002_front_right"])
+def test_the_ground_under_a_real_side_camera_is_the_road_not_a_parked_car(pandaset_root, camera):
+    # beside PandaSet's side cameras the road under the parked cars is hidden from the lidar and the
+    # cells on their roofs and bonnets put "the ground" 0.2-1.3 m under the camera (the rain's mirror
+    # plane and the wheel paths followed it: docs/findings.md); the camera rides about 1.9 m up
+    pytest.importorskip("torch")
+    from wcbench.reference_model.appearance.surfaces import build_surfaces
+    from wcbench.reference_model.scene_analysis.analysis import analyse_scene
+    from wcbench.scenes.loaders import load_scene
+
+    folder = pandaset_root.parent / camera
+    if not (folder / "images").is_dir():
+        pytest.skip(f"real scene not present at {folder}")
+    scene = load_scene(folder)
+    surfaces = build_surfaces(scene, voxel_m=0.1, analysis=analyse_scene(scene))
+    centers = np.stack([np.asarray(f.camera.center, np.float64) for f in scene.frames])
+    over = centers @ surfaces.up - surfaces.ground_height(centers)
+    assert over.min() > 1.6 and over.max() < 2.3, over.round(2)
+    assert surfaces.facts["ground_cells_off_the_ground"] > 0
