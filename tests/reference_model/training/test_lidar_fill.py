@@ -202,3 +202,63 @@ def test_resuming_with_holes_pending_gives_the_same_next_steps(demo_scene, ancho
     np.testing.assert_allclose(got, expected, rtol=1e-5)
     assert len(resumed.model.background) == len(whole.model.background)
     assert any("lidar_fill" in r for r in resumed.densify_log)
+
+
+def _alphas(model, views) -> dict[int, np.ndarray]:
+    out = {}
+    with torch.no_grad():
+        for v in views:
+            grid = model.sky.grid(torch.from_numpy(view_directions(v.camera_to_world, v.K, v.width, v.height)))
+            out[v.frame] = model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, ["clear"], sky_grid=grid,
+                                        depth=False).alpha.numpy()
+    return out
+
+
+def test_the_closure_leaves_no_anchored_pixel_as_sky_with_the_nearest_most_opaque_gaussians_feature(
+        demo_scene, anchored_views):
+    trainer = _trainer(demo_scene, anchored_views, holdout=(1,))
+    bg = trainer.model.background
+    rng = np.random.default_rng(3)
+    with torch.no_grad():  # faint everywhere (opacity 0.002-0.05) and every Gaussian's feature its own
+        bg.opacity_logits.copy_(torch.from_numpy(rng.uniform(-6.0, -3.0, len(bg)).astype(np.float32)))
+        bg.features.copy_(torch.from_numpy(rng.normal(size=tuple(bg.features.shape)).astype(np.float32)))
+    means = bg.means.detach().numpy().astype(np.float64).copy()
+    opacity = torch.sigmoid(bg.opacity_logits.detach()).numpy().copy()
+    features = bg.features.detach().numpy().copy()
+    n = len(bg)
+    before = _alphas(trainer.model, trainer.train_views)
+    holes = {v.frame: (before[v.frame] <= 0.5) & (v.anchor_depth > 0) for v in trainer.train_views}
+    expected = sum(int(h.sum()) for h in holes.values())
+    assert expected >= 20
+    record = trainer.close_lidar_holes()
+    assert record == {"holes": expected, "added": expected, "left": 0}
+    bg = trainer.model.background
+    assert len(bg) == n + expected
+    # the old rows are untouched; each new one has the feature of the most opaque of the 8 background
+    # Gaussians nearest its mean (a loop over every Gaussian's distance)
+    np.testing.assert_array_equal(bg.features[:n].detach().numpy(), features)
+    new_means = bg.means[n:].detach().numpy().astype(np.float64)
+    for mean, feature in zip(new_means, bg.features[n:].detach().numpy()):
+        order = np.argsort(np.linalg.norm(means - mean, axis=1), kind="stable")[:8]
+        np.testing.assert_array_equal(feature, features[order[np.argmax(opacity[order])]])
+    after = _alphas(trainer.model, trainer.train_views)
+    for v in trainer.train_views:
+        assert (after[v.frame][v.anchor_depth > 0] > 0.5).all()
+    # a held-out view is no training view: none of its pixels is read
+    assert 1 not in {v.frame for v in trainer.train_views}
+    assert trainer.close_lidar_holes() == {"holes": 0, "added": 0, "left": 0}
+
+
+def test_the_last_step_closes_the_holes_once_and_off_it_does_not(demo_scene, anchored_views):
+    on = _trainer(demo_scene, anchored_views, iterations=10, densify_from=10**6)
+    on.train()
+    closes = [r for r in on.densify_log if "lidar_close" in r]
+    assert len(closes) == 1 and closes[0]["step"] == 10
+    assert closes[0]["lidar_close"]["left"] == 0 and closes[0]["lidar_close"]["added"] >= 1
+    alphas = _alphas(on.model, on.train_views)
+    assert all((alphas[v.frame][v.anchor_depth > 0] > 0.5).all() for v in on.train_views)
+    off = _trainer(demo_scene, anchored_views, iterations=10, densify_from=10**6, lidar_close=False)
+    off.train()
+    assert not any("lidar_close" in r for r in off.densify_log)
+    alphas = _alphas(off.model, off.train_views)
+    assert any((alphas[v.frame][v.anchor_depth > 0] <= 0.5).any() for v in off.train_views)
