@@ -63,15 +63,6 @@ class TrainConfig:
         the lidar saw but no Gaussian covers (a wire no clone or split reaches, a return in a gap
         the budget left) is drawn by the Gaussians, not the sky map. Up to 1 % of ``budget`` a
         densification, beyond it if need be (docs/findings.md, "Lidar fill").
-    lidar_close : bool
-        After the last step, render every training view at the training size and give each pixel
-        still shown as sky (opacity at most one half) where a static trusted return lands a
-        :func:`~.densify.fill_from_lidar` Gaussian at that return, with the feature of the most
-        opaque of its 8 nearest background Gaussians (meant as the structure the return hit; on
-        ``pandaset_002_right`` half of them took a sky-blue halo Gaussian's, docs/findings.md); not trained
-        further, since the colour loss is what held such pixels below half (a wire a pixel wide
-        covers a fraction of it). A lidar return is solid: the training views show none as sky
-        (docs/design.md §7, "Beyond the lidar"; docs/findings.md, "The lidar closure").
     weather_interval : int
         Every this many steps the edited weathers are rendered (in the same pass) and supervised;
         the other steps fit the raw frame only.
@@ -161,7 +152,6 @@ class TrainConfig:
     opacity_solid: bool = True
     opacity_lidar: float = 30.0
     lidar_fill: bool = True
-    lidar_close: bool = True
     deform_weight: float = 1.0
     weather_interval: int = 8
     through_haze: bool = True

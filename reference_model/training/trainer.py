@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from wcbench.reference_model.devices import check_device, rasterizer_for
 from wcbench.reference_model.model.gaussians import GaussianParams
@@ -350,8 +349,6 @@ class Trainer:
         marks.append(("optimizer", time.perf_counter()))
         if self._densify_after(self.step_index):
             self.densify()
-        if cfg.lidar_close and self.step_index == cfg.iterations:
-            self.densify_log.append({"step": self.step_index, "lidar_close": self.close_lidar_holes()})
         marks.append(("densify", time.perf_counter()))
         with torch.no_grad():
             mse = (render.image("clear").detach() - tv.targets["clear"]).double().square().mean()
@@ -433,62 +430,6 @@ class Trainer:
         new = GaussianParams.from_cloud(cloud, feature_dim=self.model.background.feature_dim,
                                         seed=self.config.seed + self.step_index)
         return append_gaussians(BACKGROUND, self.model.background, self.optimizer, new)
-
-    def _holes_at_training_size(self) -> dict[int, torch.Tensor]:
-        """Per anchored training view, its anchored pixels the full-size clear render shows as sky
-        (opacity at most one half, as ``bench streets`` counts them)."""
-        holes = {}
-        for v in self.train_views:
-            tv = self._tensors[v.frame]
-            if tv.anchored is None:
-                continue
-            render = self.model.render(v.frame, v.world_to_camera, v.K, v.width, v.height, ("clear",),
-                                       sky_grid=tv.grid, depth=False, rasterizer=self.rasterizer)
-            found = (render.alpha <= 0.5) & tv.anchored
-            if bool(found.any()):
-                holes[v.frame] = found
-        return holes
-
-    @torch.no_grad()
-    def close_lidar_holes(self) -> dict[str, int]:
-        """Give every anchored pixel a training view still shows as sky a Gaussian at its return
-        (``TrainConfig.lidar_close``).
-
-        Each one is :func:`fill_from_lidar`'s (on its pixel's ray, half a pixel wide, of an opacity
-        that alone takes the pixel past half: a Gaussian added never lowers a pixel's opacity), with
-        the feature of the most opaque of the 8 nearest background Gaussians, meant as the structure
-        the return hit (at a pole's edge often a halo Gaussian of the sky's colour: docs/findings.md,
-        "The lidar closure"). Its Adam moments start at zero (a training that goes on trains it).
-
-        Returns
-        -------
-        dict
-            ``holes``: pixels found over the training views; ``added``: Gaussians added (one per
-            hole); ``left``: pixels still shown as sky at a render after (0 unless the rasterizer
-            drops a Gaussian).
-        """
-        views = {v.frame: v for v in self.train_views}
-        holes = self._holes_at_training_size()
-        # the filter below keeps anchored views only (mypy does not narrow an attribute in a comprehension)
-        clouds = [fill_from_lidar(h.cpu().numpy(), views[f].anchor_depth, views[f].K, views[f].camera_to_world,  # type: ignore[arg-type]
-                                  views[f].images["clear"]) for f, h in sorted(holes.items())
-                  if views[f].anchor_depth is not None]
-        found = int(sum(int(h.sum()) for h in holes.values()))
-        bg = self.model.background
-        if not found or len(bg) == 0:
-            return {"holes": found, "added": 0, "left": found}
-        cloud = GaussianCloud.concatenate(clouds)
-        new = GaussianParams.from_cloud(cloud, feature_dim=bg.feature_dim, seed=self.config.seed + self.step_index)
-        means = bg.means.detach().cpu().numpy()
-        k = min(8, len(bg))
-        _, near = cKDTree(means).query(cloud.means, k=k)
-        near = near.reshape(len(cloud), k)
-        opacity = torch.sigmoid(bg.opacity_logits.detach()).cpu().numpy()
-        pick = near[np.arange(len(cloud)), np.argmax(opacity[near], axis=1)]
-        new.replace(**{**new.tensors(), "features": bg.features.detach().cpu()[torch.from_numpy(pick)]})
-        added = append_gaussians(BACKGROUND, bg, self.optimizer, new)
-        left = int(sum(int(h.sum()) for h in self._holes_at_training_size().values()))
-        return {"holes": found, "added": added, "left": left}
 
     # -- the loop ---------------------------------------------------------------------------
 

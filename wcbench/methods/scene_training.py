@@ -284,8 +284,8 @@ def training_inputs(scene: Scene, config: TrainConfig, *, supervision: str = PHY
                                              size=size, show_progress=show_progress)
     trained = ("clear", *[w for w in weathers if w in frames])
     views, view_facts = build_views(scene, size=size, supervision={w: frames[w] for w in trained if w != "clear"},
-                                    solid=config.opacity_lidar > 0 or config.lidar_fill or config.lidar_close,
-                                    anchors=config.lidar_fill or config.lidar_close)
+                                    solid=config.opacity_lidar > 0 or config.lidar_fill,
+                                    anchors=config.lidar_fill)
     return TrainingInputs(views=views, trained=trained, supervision=sup_record, view_facts=view_facts,
                           sources=[sha256_file(f.image_path) for f in scene.frames],
                           hazes=training_hazes(config, physics, trained))

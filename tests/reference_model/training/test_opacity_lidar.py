@@ -78,14 +78,11 @@ def test_training_views_mark_the_trusted_lidar_pixels_solid_never_sky_nor_the_eg
         np.testing.assert_array_equal(a.images["clear"], b.images["clear"])
 
 
-@pytest.mark.parametrize(("weight", "fill", "close"), [(0.0, False, False), (10.0, False, False),
-                                                     (0.0, True, False), (10.0, True, False),
-                                                     (0.0, False, True)])
-def test_a_training_makes_the_solid_masks_only_when_the_lidar_term_fill_or_closure_reads_them(
-        demo_scene, weight, fill, close):
+@pytest.mark.parametrize(("weight", "fill"), [(0.0, False), (10.0, False), (0.0, True), (10.0, True)])
+def test_a_training_makes_the_solid_masks_only_when_the_lidar_term_or_fill_reads_them(demo_scene, weight, fill):
     from wcbench.methods.scene_training import training_inputs
 
-    config = make_config("default", width=SIZE[0], opacity_lidar=weight, lidar_fill=fill, lidar_close=close)
+    config = make_config("default", width=SIZE[0], opacity_lidar=weight, lidar_fill=fill)
     inputs = training_inputs(demo_scene, config, supervision="filter2d", weathers=("fog",))
-    assert all((v.solid is not None) == (weight > 0 or fill or close) for v in inputs.views)
-    assert all((v.anchor_depth is not None) == (fill or close) for v in inputs.views)
+    assert all((v.solid is not None) == (weight > 0 or fill) for v in inputs.views)
+    assert all((v.anchor_depth is not None) == fill for v in inputs.views)
