@@ -86,6 +86,11 @@ _BELT_SHARE = 0.6
 #: The glasshouse above it: shares of the box's length and width (centred), and the share of the
 #: box's height along its top that is air (the roof's curve and the annotation's margin).
 _CABIN_SHARE, _ROOF_AIR_SHARE = np.array([0.6, 0.9, 1.0]), 0.1
+#: A car beside the camera that the lidar barely saw stands by its box alone; its body there rises
+#: to this share of the box's height (a bonnet's, ~0.7 m of a 1.5 m sedan), the glasshouse from it:
+#: the belt line's share left a band of bare pavement over the bonnet of a car parked 3 m off the
+#: front-right camera of pandaset_002 in the snow, this share a narrower one (docs/findings.md).
+_BONNET_SHARE = 0.45
 #: How far (pixels of a 270-row frame) an object's Gaussians may reach past the hull of their
 #: centres: three of their widths (~0.08 m, a moving car's node on pandaset_002) seen from 10 m
 #: with a 480-px-wide PandaSet camera's focal length (~490 px). Past the hull by more than
@@ -262,18 +267,24 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         floor = -half[vertical] + UNDERBODY_M
         # the silhouette of the object, not of the road it stands on (its box reaches the road)
         pts = np.compress((pts - t) @ R[:, vertical] >= floor, pts, axis=0)
-        if len(pts) < 3:
+        corners = (_CUBE * half) @ R.T + t
+        beside = np.any(corners @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
+        if len(pts) < 3 and not beside:
             continue
         cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
         cam = np.compress(cam[:, 2] > _NEAR_M, cam, axis=0)
-        beside = np.any(((_CUBE * half) @ R.T + t) @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
-        if len(cam) < (_MIN_BESIDE_RETURNS if beside else 3):
-            # the camera beside the object (a corner of its box behind the near plane), the lidar's
+        blind = beside and len(cam) < _MIN_BESIDE_RETURNS
+        if blind:
+            # the camera beside the object (a corner of its box behind the near plane): the lidar's
             # blind zone and the frame's edge may leave a sliver of its returns in view, whose hull
-            # would cut the object in two: its lidar surfaces are left as they are
+            # would cut the object in two (a bare triangle of bonnet in the snow); the box clipped
+            # at the near plane outlines it instead
+            uv = _clipped_box_outline(corners, w2c, K)
+        elif len(cam) < 3:
             continue
-        uv = np.stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], 1)
-        if uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
+        else:
+            uv = np.stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], 1)
+        if len(uv) < 3 or uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
             continue
         hull = cv2.convexHull(np.clip(np.round(uv - 0.5), -4 * w, 4 * w).astype(np.int32))
         region = _spill_region(hull, h, w)
@@ -292,11 +303,61 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
         body_lo[vertical], body_hi[vertical] = floor, belt  # under the body, air: the road shows
         cabin_lo, cabin_hi = -half * _CABIN_SHARE, half * _CABIN_SHARE
         cabin_lo[vertical], cabin_hi[vertical] = belt, half[vertical] - 2.0 * _ROOF_AIR_SHARE * half[vertical]
+        allowed, mine = not_sky, changed
+        if blind:
+            bonnet = -half[vertical] + 2.0 * _BONNET_SHARE * half[vertical]
+            body_hi[vertical], cabin_lo[vertical] = bonnet, bonnet
+            # the box outlines the car it stands for loosely (it also holds air over the bonnet and
+            # beside the cabin): where the lidar saw a surface off the object through it, nothing
+            # stood in between, and that surface stays
+            allowed = not_sky & ~np.isfinite(distance)
+            allowed[y0:y1, x0:x1] |= not_sky[y0:y1, x0:x1] & _on_box(
+                rays[y0:y1, x0:x1], distance[y0:y1, x0:x1], center, R, t, half + _BOX_SLACK_M)
+            mine = np.zeros_like(changed)
         shell(filled, grown, x0, y0, rays, distance, normal, fields["ground"], fields["open"], fields["puddle"],
-              fields["track"], not_sky, tails, hulls, changed, R, t, o, half, vertical, floor, center, body_lo,
+              fields["track"], allowed, tails, hulls, mine, R, t, o, half, vertical, floor, center, body_lo,
               body_hi, cabin_lo, cabin_hi, _BOX_SLACK_M)
+        if blind:
+            # which face of a loose box a ray enters, or the normal of one of a few returns, says
+            # little of the surface there: what the box stands for faces the camera upright, as a
+            # wall does (no snow settles on it; the rain wets it as it wets a door)
+            rr, cc = np.nonzero(mine)
+            flat = rays[rr, cc] - np.outer(rays[rr, cc] @ up, up)
+            normal[rr, cc] = -flat / np.maximum(np.linalg.norm(flat, axis=1, keepdims=True), 1e-9)
+            changed |= mine
     _replace_tails(tails & ~hulls, ~(tails | hulls) & not_sky & np.isfinite(distance), distance, normal, fields)
     return changed
+
+
+def _on_box(rays: np.ndarray, distance: np.ndarray, center: np.ndarray, R: np.ndarray, t: np.ndarray,
+            reach: np.ndarray) -> np.ndarray:
+    """[h, w] bool: whether the surface each pixel sees (``rays`` [h, w, 3] from ``center``,
+    ``distance`` [h, w] m, ``inf`` where none) lies inside the box of rotation ``R``, centre ``t`` and
+    half-size ``reach`` [3] (m)."""
+    finite = np.isfinite(distance)
+    local = (center - t + rays * np.where(finite, distance, 0.0)[..., None]) @ R
+    return finite & np.all(np.abs(local) <= reach, axis=-1)
+
+
+#: The 12 edges of the unit cube of :data:`_CUBE`: the pairs of corners that differ on one axis.
+_CUBE_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+                        if np.count_nonzero(_CUBE[i] != _CUBE[j]) == 1])
+
+
+def _clipped_box_outline(corners: np.ndarray, w2c: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """[V, 2] pixel positions (u, v) whose convex hull is the image of the box with ``corners`` [8, 3]
+    (world, in :data:`_CUBE`'s order) cut at the near plane (camera depth ``_NEAR_M``): its corners in
+    front of it and the points where its edges cross it. The cut box is convex, and so is its image:
+    the hull of its vertices' images. Empty [0, 2] where no corner lies in front."""
+    cam = corners @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2] - _NEAR_M
+    a, b = cam[_CUBE_EDGES[:, 0]], cam[_CUBE_EDGES[:, 1]]
+    za, zb = z[_CUBE_EDGES[:, 0]], z[_CUBE_EDGES[:, 1]]
+    cross = (za > 0) != (zb > 0)
+    share = za[cross] / (za[cross] - zb[cross])
+    points = np.concatenate([cam[z > 0], a[cross] + share[:, None] * (b[cross] - a[cross])])
+    depth = np.maximum(points[:, 2], _NEAR_M)  # on the plane: exactly _NEAR_M up to rounding
+    return np.stack([K[0, 0] * points[:, 0] / depth + K[0, 2], K[1, 1] * points[:, 1] / depth + K[1, 2]], 1)
 
 
 def _spill_region(hull: np.ndarray, h: int, w: int) -> tuple[int, int, int, int] | None:

@@ -16,6 +16,7 @@ pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.maps import (
     _COVERED,
+    _CUBE,
     FIELDS,
     HIT_FILLED,
     HIT_SEEN,
@@ -23,6 +24,7 @@ from wcbench.reference_model.appearance.maps import (
     NO_HIT,
     _box_shells,
     _boxes_miss_view,
+    _clipped_box_outline,
     _gaussian_blur,
     _mirrored_cloud,
     _rasterize,
@@ -156,26 +158,82 @@ def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_ente
     assert distance[pixel] == pytest.approx(entry + 0.2)
 
 
-@pytest.mark.parametrize("grid, shell", [((4, 3, 3), False), ((13, 7, 7), True)])
-def test_a_car_beside_the_camera_gets_a_shell_only_from_enough_returns_in_view(grid, shell):
-    # a parked car beside the camera, its rear half behind the image plane: the lidar's blind zone
-    # leaves a few of its returns in front of it, whose hull is a sliver of the car (no shell, the
-    # lidar's surfaces stay), or many, whose hull outlines it (a shell)
+def _beside_camera():
+    """A camera 1.8 m up and a parked car's box beside it, its rear half behind the image plane."""
     camera = _camera(1.8)
-    rays, _ = _rays(camera)
     box = np.eye(4)
     box[:3, 3] = [1.5, -2.0, 0.75]
-    surfaces = _surfaces(box, grid)
+    return camera, box
+
+
+def test_a_car_beside_the_camera_seen_by_enough_returns_gets_its_hulls_shell():
+    camera, box = _beside_camera()
+    rays, _ = _rays(camera)
+    surfaces = _surfaces(box, (13, 7, 7))
     cloud, _ = surfaces.at_frame(0)
-    in_front = int(np.count_nonzero(cloud.means[:, 0] > 0.1))  # camera depth is world x here
-    assert (in_front >= 100) == shell
+    assert np.count_nonzero(cloud.means[:, 0] > 0.1) >= 100  # camera depth is world x here
     distance, normal, fields = _maps(camera)
     changed = _box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields,
                           np.zeros(distance.shape, bool))
     pixel = _pixel(camera, [2.5, -1.15, 1.2])  # the near side, the ray then through the glasshouse
-    assert changed[pixel] == shell and changed.any() == shell
-    if not shell:
-        assert np.all(distance == 30.0)
+    assert changed[pixel] and distance[pixel] < 30.0
+
+
+def test_a_car_in_the_lidars_blind_zone_is_its_box_only_where_the_lidar_saw_nothing():
+    # the lidar's blind zone leaves a few returns of a car beside the camera in front of it: their
+    # hull would be a sliver of the car, so the box (cut at the near plane) outlines it, and stands
+    # for it only where the lidar saw no surface off the car through it
+    camera, box = _beside_camera()
+    rays, _ = _rays(camera)
+    surfaces = _surfaces(box, (4, 3, 3))
+    cloud, _ = surfaces.at_frame(0)
+    assert 3 <= np.count_nonzero(cloud.means[:, 0] > 0.1) < 100
+    distance, normal, fields = _maps(camera)
+    side = _pixel(camera, [2.5, -1.1, 1.2])  # the near side, the ray then through the glasshouse
+    wall = _pixel(camera, [2.5, -1.1, 1.45])  # the same side near the roof, where the lidar saw the wall
+    assert wall[0] < side[0]
+    distance[side[0] - 10:] = np.inf  # the rows the lidar did not reach
+    fields["ground"][:] = 1.0
+    changed = _box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields,
+                          np.zeros(distance.shape, bool))
+    assert changed[side] and fields["ground"][side] == 0.0
+    ray = rays[side]
+    entry = (-1.1 - 0.0) / ray[1]  # the box's near side face, y = -1.1 m
+    assert distance[side] == pytest.approx(entry, rel=1e-6)
+    # the face stands for the car upright, facing the camera: no snow settles on it
+    assert normal[side] @ UP == pytest.approx(0.0, abs=1e-6) and normal[side] @ ray < 0.0
+    np.testing.assert_allclose(np.linalg.norm(normal[changed], axis=1), 1.0, atol=1e-5)
+    assert np.all(np.abs(normal[changed] @ UP.astype(np.float32)) < 1e-5)
+    assert not changed[wall] and distance[wall] == 30.0
+    # nothing the lidar saw beyond the box is taken
+    assert not np.any(changed & np.isfinite(distance) & (distance >= 30.0))
+
+
+def test_the_outline_of_a_box_cut_at_the_near_plane_is_the_hull_of_its_points_in_front():
+    # the slow twin: points filling the box, those more than 0.1 m in front of the camera projected;
+    # their hull, inside a window of the image, against the hull of the outline's vertices
+    rng = np.random.default_rng(5)
+    camera, box = _beside_camera()
+    w2c, K = np.asarray(camera.world_to_camera, np.float64), np.asarray(camera.K, np.float64)
+    window = np.float32([[-320, -180], [640, -180], [640, 360], [-320, 360]])
+    for yaw in (0.0, 0.4, -1.1):
+        T = box.copy()
+        T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+        corners = (_CUBE * SIZE / 2) @ T[:3, :3].T + T[:3, 3]
+        assert np.any(corners[:, 0] <= 0.1) and np.any(corners[:, 0] > 0.1)  # it straddles the plane
+        outline = _clipped_box_outline(corners, w2c, K)
+        local = rng.uniform(-1, 1, (400_000, 3))
+        local[np.arange(len(local)), rng.integers(0, 3, len(local))] = rng.choice([-1.0, 1.0], len(local))  # faces
+        cam = (local * SIZE / 2 @ T[:3, :3].T + T[:3, 3]) @ w2c[:3, :3].T + w2c[:3, 3]
+        cam = cam[cam[:, 2] > 0.1]
+        uv = np.stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], 1)
+        areas = []
+        for points in (outline, uv):
+            hull = cv2.convexHull(np.clip(points, -1e5, 1e5).astype(np.float32))
+            area, _ = cv2.intersectConvexConvex(hull, window)
+            areas.append(area)
+        assert areas[1] > 1000.0 and areas[1] <= areas[0] * (1 + 1e-6)
+        assert areas[1] == pytest.approx(areas[0], rel=0.01)
 
 
 def _old_box_skip(T, half, w2c, K, width, height, rng):
