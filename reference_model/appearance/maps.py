@@ -75,8 +75,9 @@ _SEEN_FRACTION, _SEEN_SLACK_M = 0.1, 0.5
 #: offset from the plane does not move it in the image.
 _AT_INFINITY_M = 1e5
 #: Camera depth (m) of the near plane; a box with a corner nearer (the camera beside the object)
-#: gets a shell only from this many returns in front of it (a parked car 3 m off the front-right
-#: camera of pandaset_002 has 11, one beside the rear camera 370).
+#: gets the hull of its returns' shell only from this many returns in front of it, its box's
+#: outline with fewer (a parked car 3 m off the front-right camera of pandaset_002 has 11, one
+#: beside the rear camera 370).
 _NEAR_M, _MIN_BESIDE_RETURNS = 0.1, 100
 #: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
 _BOX_SLACK_M = 0.3
@@ -237,9 +238,12 @@ def _box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarra
     method in the box frame. Beside the silhouette, a surface on the object is its Gaussians' tails
     and takes the surface beside it (:func:`_box_shell_pixels`, :func:`_replace_tails`). A box the
     camera is beside (a corner behind its near plane, 0.1 m) with fewer than 100 returns in front
-    of it has no shell: the lidar's blind zone and the frame's edge left a sliver of it in view.
-    Each box's pixels are the numba kernel's (``fast``, where numba imports) or the numpy
-    reference's.
+    of it (the lidar's blind zone and the frame's edge left a sliver of it in view, whose hull would
+    cut the object in two) is outlined by the box itself cut at the near plane
+    (:func:`_clipped_box_outline`), its body rising to ``_BONNET_SHARE`` of its height, and stands
+    for the object only where the lidar saw nothing through it or saw the object itself
+    (:func:`_on_box`), facing the camera upright. Each box's pixels are the numba kernel's
+    (``fast``, where numba imports) or the numpy reference's.
     """
     changed = np.zeros(distance.shape, bool)
     up = np.asarray(surfaces.up, np.float64)
