@@ -106,7 +106,7 @@ def _weather() -> None:
 
 
 def _editor() -> None:
-    # one box's shell with the types and layouts maps._box_shells passes (its pose's rotation and
+    # one box's shell with the types and layouts box_shells.box_shells passes (its pose's rotation and
     # centre and the camera's centre are views of 4x4s, the maps float64, the normals and fields
     # float32)
     kernels = load_numba_kernels("appearance.shell_kernels")

@@ -1,6 +1,6 @@
-"""Numba kernel of :mod:`.maps`: one tracked object's shell and its Gaussians' tails, pixel by pixel.
+"""Numba kernel of :mod:`.box_shells`: one tracked object's shell and its Gaussians' tails, pixel by pixel.
 
-:func:`box_shell_kernel` mirrors the numpy reference :func:`wcbench.reference_model.appearance.maps.
+:func:`box_shell_kernel` mirrors the numpy reference :func:`wcbench.reference_model.appearance.box_shells.
 _box_shell_pixels` (the same float64 arithmetic and NaN rules of the slab method; the reference's
 3 x 3 products go through BLAS, which may round them differently, so the tests compare values to
 1e-12 and the pixels changed exactly); a frame has dozens of boxes, each a few thousand pixels,
@@ -56,7 +56,7 @@ def _fmin(a, b):  # type: ignore[no-untyped-def]  # pragma: no cover
 
 @numba.njit(cache=True, inline="always")
 def _slab(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """(entry, exit) of the line ``o + t d`` through the box [lo, hi] (``maps._slab_interval``)."""
+    """(entry, exit) of the line ``o + t d`` through the box [lo, hi] (``box_shells._slab_interval``)."""
     t1 = (lo[0] - o[0]) / d0
     t2 = (hi[0] - o[0]) / d0
     n0, f0 = _nan_min(t1, t2), _nan_max(t1, t2)
@@ -71,7 +71,7 @@ def _slab(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no 
 
 @numba.njit(cache=True, inline="always")
 def _hits(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Whether the ray ``o + t d``, t > 0, meets the box [lo, hi] (``maps._slab_hits``)."""
+    """Whether the ray ``o + t d``, t > 0, meets the box [lo, hi] (``box_shells._slab_hits``)."""
     t_in, t_out = _slab(o, d0, d1, d2, lo, hi)
     return t_out >= _nan_max(t_in, 0.0) and t_out > 0.0
 
@@ -80,7 +80,7 @@ def _hits(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no 
 def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open_, puddle, track,  # type: ignore[no-untyped-def]  # pragma: no cover
                      allowed, tails, hulls, changed, R, t, o, half, vertical, floor, center, body_lo, body_hi,
                      cabin_lo, cabin_hi, slack):
-    """One box of :func:`~wcbench.reference_model.appearance.maps._box_shells`, in place.
+    """One box of :func:`~wcbench.reference_model.appearance.box_shells.box_shells`, in place.
 
     ``filled`` / ``grown`` [h, w] uint8: the hull of the object's returns and that hull grown by
     the edge, over the frame region from column ``x0``, row ``y0``. First the tails (pixels of the

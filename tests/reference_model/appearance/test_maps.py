@@ -14,26 +14,28 @@ import pytest
 
 pytest.importorskip("torch")
 
+from wcbench.reference_model.appearance.box_shells import (
+    _CUBE,
+    _boxes_miss_view,
+    _clipped_box_outline,
+    _replace_tails,
+    _slab_interval,
+    _spill_region,
+    box_shells,
+)
 from wcbench.reference_model.appearance.maps import (
     _COVERED,
-    _CUBE,
     FIELDS,
     HIT_FILLED,
     HIT_SEEN,
     HIT_SKY,
     NO_HIT,
-    _box_shells,
-    _boxes_miss_view,
-    _clipped_box_outline,
     _gaussian_blur,
     _mirrored_cloud,
     _rasterize,
     _rays,
     _reflection_lookup,
     _reflection_lookup_fast,
-    _replace_tails,
-    _slab_interval,
-    _spill_region,
     facing_view,
     glossy_blur,
     mirror_distance,
@@ -94,7 +96,7 @@ def test_a_box_stands_for_a_sparse_car_only_where_the_ray_passes_through_its_bod
     camera = _camera(1.6)
     rays, _ = _rays(camera)
     distance, normal, fields = _maps(camera)
-    changed = _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
+    changed = box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
                           np.zeros(distance.shape, bool))
     # through the lower body: the box's near face, 7.75 m away, vertical (it takes no snow)
     body = _pixel(camera, [7.75, 0.0, 0.4])
@@ -117,7 +119,7 @@ def test_the_road_just_before_and_under_a_cars_sills_stays_road():
     pixel = _pixel(camera, [7.75, 0.0, 0.14])
     distance[pixel] = 1.6 / -rays[pixel][2]
     normal[pixel], fields["ground"][pixel] = UP, 1.0
-    changed = _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
+    changed = box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
                           np.zeros(distance.shape, bool))
     assert not changed[pixel] and fields["ground"][pixel] == 1.0
     np.testing.assert_allclose(normal[pixel], UP, atol=1e-6)
@@ -132,7 +134,7 @@ def test_a_cars_gaussians_tails_beside_its_silhouette_take_what_lies_beside_it()
     pixel = _pixel(camera, [7.75, 1.0, 1.0])
     distance[pixel] = float(np.linalg.norm(np.array([7.75, 1.0, 1.0 - 1.6])))
     normal[pixel], fields["open"][pixel] = UP, 1.0
-    _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool))
+    box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool))
     assert distance[pixel] == 30.0 and fields["open"][pixel] == 0.0
     np.testing.assert_allclose(normal[pixel], [-1.0, 0.0, 0.0], atol=1e-6)
     # a pixel of the wall beside it keeps the wall (its surface is nowhere near the car)
@@ -151,7 +153,7 @@ def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_ente
     entry = (1.5 - 1.8) / ray[2]
     distance[pixel] = entry + 0.2
     normal[pixel] = [0.0, -0.94, 0.34]
-    changed = _box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
+    changed = box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields,
                           np.zeros(distance.shape, bool))
     assert changed[pixel] and fields["open"][pixel] == 1.0 and fields["ground"][pixel] == 0.0
     np.testing.assert_allclose(normal[pixel], [0.0, -0.94, 0.34], atol=1e-6)
@@ -173,7 +175,7 @@ def test_a_car_beside_the_camera_seen_by_enough_returns_gets_its_hulls_shell():
     cloud, _ = surfaces.at_frame(0)
     assert np.count_nonzero(cloud.means[:, 0] > 0.1) >= 100  # camera depth is world x here
     distance, normal, fields = _maps(camera)
-    changed = _box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields,
+    changed = box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields,
                           np.zeros(distance.shape, bool))
     pixel = _pixel(camera, [2.5, -1.15, 1.2])  # the near side, the ray then through the glasshouse
     assert changed[pixel] and distance[pixel] < 30.0
@@ -194,7 +196,7 @@ def test_a_car_in_the_lidars_blind_zone_is_its_box_only_where_the_lidar_saw_noth
     assert wall[0] < side[0]
     distance[side[0] - 10:] = np.inf  # the rows the lidar did not reach
     fields["ground"][:] = 1.0
-    changed = _box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields,
+    changed = box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields,
                           np.zeros(distance.shape, bool))
     assert changed[side] and fields["ground"][side] == 0.0
     ray = rays[side]
@@ -401,7 +403,7 @@ def test_the_shell_kernel_is_its_numpy_reference(seed):
     out = {}
     for fast in (True, False):
         d, n, f = distance.copy(), normal.copy(), {k: v.copy() for k, v in fields.items()}
-        changed = _box_shells(surfaces, 0, camera, rays, camera.center, d, n, f, sky, fast=fast)
+        changed = box_shells(surfaces, 0, camera, rays, camera.center, d, n, f, sky, fast=fast)
         out[fast] = (changed, d, n, f)
     (c1, d1, n1, f1), (c0, d0, n0, f0) = out[True], out[False]
     assert c0.sum() > 500 and (d0 != distance).sum() > 500  # shells and tails were drawn

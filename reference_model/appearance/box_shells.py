@@ -1,0 +1,330 @@
+"""The box shells of the surface maps: where a tracked object's box stands for the object the
+lidar sampled sparsely or saw through (docs/design.md §7, "Weather appearance").
+
+:func:`box_shells` runs inside :func:`~.maps.surface_maps`, after its rasterization: inside each
+tracked object's silhouette (the hull of its returns, or for a car in the lidar's blind zone its box
+cut at the near plane), a ray that passes through the body takes the face of the box it enters; a
+surface on the object beside its silhouette is its Gaussians' tails and takes the surface beside
+it. :mod:`.shell_kernels` holds the numba kernel of one box; :func:`_box_shell_pixels` is its numpy
+reference.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+
+from wcbench.reference_model._numba_backend import load_numba_kernels
+from wcbench.reference_model.appearance.surfaces import UNDERBODY_M, SurfaceScene, in_box
+
+__all__ = ["box_shells"]
+
+#: Camera depth (m) of the near plane; a box with a corner nearer (the camera beside the object)
+#: gets the hull of its returns' shell only from this many returns in front of it, its box's
+#: outline with fewer (a parked car 3 m off the front-right camera of pandaset_002 has 11, one
+#: beside the rear camera 370).
+_NEAR_M, _MIN_BESIDE_RETURNS = 0.1, 100
+#: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
+_BOX_SLACK_M = 0.3
+#: Share of a box's height below which the body fills it (a car's belt line, ~0.9 m of a 1.45 m
+#: sedan: above it the glasshouse narrows and the box holds air over the bonnet and beside the roof).
+_BELT_SHARE = 0.6
+#: The glasshouse above it: shares of the box's length and width (centred), and the share of the
+#: box's height along its top that is air (the roof's curve and the annotation's margin).
+_CABIN_SHARE, _ROOF_AIR_SHARE = np.array([0.6, 0.9, 1.0]), 0.1
+#: A car beside the camera that the lidar barely saw stands by its box alone; its body there rises
+#: to this share of the box's height (a bonnet's, ~0.7 m of a 1.5 m sedan), the glasshouse from it:
+#: the belt line's share left a band of bare pavement over the bonnet of a car parked 3 m off the
+#: front-right camera of pandaset_002 in the snow, this share a narrower one (docs/findings.md).
+_BONNET_SHARE = 0.45
+#: How far (pixels of a 270-row frame) an object's Gaussians may reach past the hull of their
+#: centres: three of their widths (~0.08 m, a moving car's node on pandaset_002) seen from 10 m
+#: with a 480-px-wide PandaSet camera's focal length (~490 px). Past the hull by more than
+#: ``_EDGE_PX``, a surface on the object is its Gaussians' tails over what lies beside it.
+_SPILL_PX, _EDGE_PX = 12, 1
+
+
+def _slab_interval(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """([N] entry, [N] exit) ray parameters of the lines ``origin + t dirs[i]`` through the
+    axis-aligned box [lo, hi] (the slab method; ``origin`` [3], ``dirs`` [N, 3], all in the box's
+    frame); a line parallel to a slab's planes leaves that slab out (NaN, skipped: ``np.fmax``
+    is ``np.nanmax`` of two, without its per-row reduction), so entry > exit means a miss."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - origin) / dirs, (hi - origin) / dirs
+    near, far = np.minimum(t1, t2), np.maximum(t1, t2)
+    return (np.fmax(np.fmax(near[:, 0], near[:, 1]), near[:, 2]),
+            np.fmin(np.fmin(far[:, 0], far[:, 1]), far[:, 2]))
+
+
+def _slab_hits(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """[N] bool: whether each ray ``origin + t dirs[i]`` (t > 0) meets the axis-aligned box [lo, hi]
+    (:func:`_slab_interval`)."""
+    t_in, t_out = _slab_interval(origin, dirs, lo, hi)
+    return (t_out >= np.maximum(t_in, 0.0)) & (t_out > 0.0)
+
+
+#: The 8 corners of the unit cube [-1, 1]^3.
+_CUBE = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+
+
+def _boxes_miss_view(poses: np.ndarray, halves: np.ndarray, w2c: np.ndarray, K: np.ndarray, width: int,
+                     height: int) -> np.ndarray:
+    """[B] bool: whether no point of each box (object-to-world ``poses`` [B, 4, 4], half-sizes
+    ``halves`` [B, 3], m) with a camera depth over 0.1 m projects into the ``width`` x ``height``
+    image, judged by its corners: the depth is linear, so all corners at most 0.1 m deep put every
+    point there; a box wholly in front projects into the convex hull of its corners' projections,
+    so all corners past one edge of the image put every point past it. Otherwise ``False`` (it may
+    be seen)."""
+    corners = np.einsum("bij,bcj->bci", poses[:, :3, :3], _CUBE[None] * halves[:, None]) + poses[:, None, :3, 3]
+    cam = corners @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[..., 2]
+    behind, front = np.all(z <= 0.1, axis=1), np.all(z > 0.1, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * cam[..., 0] / z + K[0, 2]
+        v = K[1, 1] * cam[..., 1] / z + K[1, 2]
+    outside = (u.max(1) < 0) | (u.min(1) >= width) | (v.max(1) < 0) | (v.min(1) >= height)
+    return behind | (front & outside)
+
+
+def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
+                distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray, *,
+                fast: bool = True) -> np.ndarray:
+    """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
+    behind the object's box and its ray passes through the body (the box from 0.3 m above its bottom,
+    :data:`~.surfaces.UNDERBODY_M`, below which the road under a car shows, to the belt line, 0.6
+    of its height, or the glasshouse above it, the middle 0.6 of the length and 0.9 of the width up
+    to 0.1 of the height short of the top: the lidar sampled the object sparsely or saw through
+    its glass, and what lies behind or under it shows through), the box's face the ray enters stands for the object: its
+    distance and face normal, open to the sky, not ground; where it sees a lidar surface on the
+    object (within 0.3 m of its box), the lidar's own normal stays (a box face chosen per pixel
+    flips between roof and side from frame to frame) (``distance``, ``normal`` and ``fields`` are
+    updated in place). A car's roof takes snow, its doors and side windows do not, the air over its
+    bonnet and beside its glasshouse keeps what lies behind it, and the road under it stays hidden.
+    Returns the pixels changed.
+
+    The silhouette is the convex hull of the projections of the surface Gaussians inside the box
+    (grown by 0.1 m) above that band (not the road the box reaches down to), so the air around a car
+    inside its box keeps what lies behind it; the ray's entry into the box is found by the slab
+    method in the box frame. Beside the silhouette, a surface on the object is its Gaussians' tails
+    and takes the surface beside it (:func:`_box_shell_pixels`, :func:`_replace_tails`). A box the
+    camera is beside (a corner behind its near plane, 0.1 m) with fewer than 100 returns in front
+    of it (the lidar's blind zone and the frame's edge left a sliver of it in view, whose hull would
+    cut the object in two) is outlined by the box itself cut at the near plane
+    (:func:`_clipped_box_outline`), its body rising to ``_BONNET_SHARE`` of its height, and stands
+    for the object only where the lidar saw nothing through it or saw the object itself
+    (:func:`_on_box`), facing the camera upright. Each box's pixels are the numba kernel's
+    (``fast``, where numba imports) or the numpy reference's.
+    """
+    changed = np.zeros(distance.shape, bool)
+    up = np.asarray(surfaces.up, np.float64)
+    boxes = surfaces.boxes_at(index)
+    if not boxes or len(surfaces.at_frame(index)[0]) == 0:
+        return changed
+    h, w = distance.shape
+    w2c = np.asarray(camera.world_to_camera, np.float64)
+    K = np.asarray(camera.K, np.float64)
+    poses = np.stack([np.asarray(T, np.float64) for T, _ in boxes])
+    halves = np.stack([np.asarray(size, np.float64) / 2.0 for _, size in boxes])
+    # the camera centre in every box's frame; a camera inside its box (the ego vehicle's own
+    # track) gets no shell, nor a box none of whose points could be drawn: both judged for every
+    # box at once before the neighbour search
+    origins = np.einsum("bji,bj->bi", poses[:, :3, :3], center - poses[:, :3, 3])
+    shown = ~np.all(np.abs(origins) <= halves, axis=1) & ~_boxes_miss_view(poses, halves + 0.1, w2c, K, w, h)
+    poses, halves, origins = poses[shown], halves[shown], origins[shown]
+    not_sky = ~sky
+    tails, hulls = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    kernels = load_numba_kernels("appearance.shell_kernels") if fast else None
+    shell = _box_shell_pixels if kernels is None else kernels.box_shell_kernel
+    for T, half, o, pts in zip(poses, halves, origins, surfaces.inside_boxes(index, poses, halves + 0.1)):
+        R, t = T[:3, :3], T[:3, 3]
+        vertical = int(np.argmax(np.abs(R.T @ up)))
+        floor = -half[vertical] + UNDERBODY_M
+        # the silhouette of the object, not of the road it stands on (its box reaches the road)
+        pts = np.compress((pts - t) @ R[:, vertical] >= floor, pts, axis=0)
+        corners = (_CUBE * half) @ R.T + t
+        beside = np.any(corners @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
+        if len(pts) < 3 and not beside:
+            continue
+        cam = pts @ w2c[:3, :3].T + w2c[:3, 3]
+        cam = np.compress(cam[:, 2] > _NEAR_M, cam, axis=0)
+        blind = beside and len(cam) < _MIN_BESIDE_RETURNS
+        if blind:
+            # the camera beside the object (a corner of its box behind the near plane): the lidar's
+            # blind zone and the frame's edge may leave a sliver of its returns in view, whose hull
+            # would cut the object in two (a bare triangle of bonnet in the snow); the box clipped
+            # at the near plane outlines it instead
+            uv = _clipped_box_outline(corners, w2c, K)
+        elif len(cam) < 3:
+            continue
+        else:
+            uv = np.stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], 1)
+        if len(uv) < 3 or uv[:, 0].max() < 0 or uv[:, 0].min() >= w or uv[:, 1].max() < 0 or uv[:, 1].min() >= h:
+            continue
+        hull = cv2.convexHull(np.clip(np.round(uv - 0.5), -4 * w, 4 * w).astype(np.int32))
+        region = _spill_region(hull, h, w)
+        if region is None:
+            continue
+        x0, y0, x1, y1 = region
+        filled = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.fillConvexPoly(filled, hull - np.array([x0, y0], np.int32), 1)
+        grown = cv2.dilate(filled, np.ones((2 * _EDGE_PX + 1, 2 * _EDGE_PX + 1), np.uint8))
+        # the lidar's surfaces show through the object (it sampled it sparsely, or its glass) where
+        # the ray passes through its body: the box below the belt line, or the glasshouse above it
+        # (the middle of the length, most of the width, short of the box's top); a ray through the
+        # box's air, over the bonnet or the boot or along the top of the roof, sees what it sees
+        belt = -half[vertical] + 2.0 * _BELT_SHARE * half[vertical]
+        body_lo, body_hi = -half.copy(), half.copy()
+        body_lo[vertical], body_hi[vertical] = floor, belt  # under the body, air: the road shows
+        cabin_lo, cabin_hi = -half * _CABIN_SHARE, half * _CABIN_SHARE
+        cabin_lo[vertical], cabin_hi[vertical] = belt, half[vertical] - 2.0 * _ROOF_AIR_SHARE * half[vertical]
+        allowed, mine = not_sky, changed
+        if blind:
+            bonnet = -half[vertical] + 2.0 * _BONNET_SHARE * half[vertical]
+            body_hi[vertical], cabin_lo[vertical] = bonnet, bonnet
+            # the box outlines the car it stands for loosely (it also holds air over the bonnet and
+            # beside the cabin): where the lidar saw a surface off the object through it, nothing
+            # stood in between, and that surface stays
+            allowed = not_sky & ~np.isfinite(distance)
+            allowed[y0:y1, x0:x1] |= not_sky[y0:y1, x0:x1] & _on_box(
+                rays[y0:y1, x0:x1], distance[y0:y1, x0:x1], center, R, t, half + _BOX_SLACK_M)
+            mine = np.zeros_like(changed)
+        shell(filled, grown, x0, y0, rays, distance, normal, fields["ground"], fields["open"], fields["puddle"],
+              fields["track"], allowed, tails, hulls, mine, R, t, o, half, vertical, floor, center, body_lo,
+              body_hi, cabin_lo, cabin_hi, _BOX_SLACK_M)
+        if blind:
+            # which face of a loose box a ray enters, or the normal of one of a few returns, says
+            # little of the surface there: what the box stands for faces the camera upright, as a
+            # wall does (no snow settles on it; the rain wets it as it wets a door)
+            rr, cc = np.nonzero(mine)
+            flat = rays[rr, cc] - np.outer(rays[rr, cc] @ up, up)
+            normal[rr, cc] = -flat / np.maximum(np.linalg.norm(flat, axis=1, keepdims=True), 1e-9)
+            changed |= mine
+    _replace_tails(tails & ~hulls, ~(tails | hulls) & not_sky & np.isfinite(distance), distance, normal, fields)
+    return changed
+
+
+def _on_box(rays: np.ndarray, distance: np.ndarray, center: np.ndarray, R: np.ndarray, t: np.ndarray,
+            reach: np.ndarray) -> np.ndarray:
+    """[h, w] bool: whether the surface each pixel sees (``rays`` [h, w, 3] from ``center``,
+    ``distance`` [h, w] m, ``inf`` where none) lies inside the box of rotation ``R``, centre ``t`` and
+    half-size ``reach`` [3] (m)."""
+    finite = np.isfinite(distance)
+    local = (center - t + rays * np.where(finite, distance, 0.0)[..., None]) @ R
+    return finite & np.all(np.abs(local) <= reach, axis=-1)
+
+
+#: The 12 edges of the unit cube of :data:`_CUBE`: the pairs of corners that differ on one axis.
+_CUBE_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+                        if np.count_nonzero(_CUBE[i] != _CUBE[j]) == 1])
+
+
+def _clipped_box_outline(corners: np.ndarray, w2c: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """[V, 2] pixel positions (u, v) whose convex hull is the image of the box with ``corners`` [8, 3]
+    (world, in :data:`_CUBE`'s order) cut at the near plane (camera depth ``_NEAR_M``): its corners in
+    front of it and the points where its edges cross it. The cut box is convex, and so is its image:
+    the hull of its vertices' images. Empty [0, 2] where no corner lies in front."""
+    cam = corners @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2] - _NEAR_M
+    a, b = cam[_CUBE_EDGES[:, 0]], cam[_CUBE_EDGES[:, 1]]
+    za, zb = z[_CUBE_EDGES[:, 0]], z[_CUBE_EDGES[:, 1]]
+    cross = (za > 0) != (zb > 0)
+    share = za[cross] / (za[cross] - zb[cross])
+    points = np.concatenate([cam[z > 0], a[cross] + share[:, None] * (b[cross] - a[cross])])
+    depth = np.maximum(points[:, 2], _NEAR_M)  # on the plane: exactly _NEAR_M up to rounding
+    return np.stack([K[0, 0] * points[:, 0] / depth + K[0, 2], K[1, 1] * points[:, 1] / depth + K[1, 2]], 1)
+
+
+def _spill_region(hull: np.ndarray, h: int, w: int) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1): the bounding rectangle of ``hull`` grown by ``_SPILL_PX`` (at 270 rows),
+    clipped to the ``w`` x ``h`` frame; ``None`` where nothing of it is in the frame."""
+    reach = max(1, round(_SPILL_PX * h / 270))
+    x0, y0, bw, bh = cv2.boundingRect(hull)
+    x1, y1 = min(w, x0 + bw + reach), min(h, y0 + bh + reach)
+    x0, y0 = max(0, x0 - reach), max(0, y0 - reach)
+    return None if x1 <= x0 or y1 <= y0 else (x0, y0, x1, y1)
+
+
+def _box_shell_pixels(filled: np.ndarray, grown: np.ndarray, x0: int, y0: int, rays: np.ndarray,
+                      distance: np.ndarray, normal: np.ndarray, ground: np.ndarray, open_: np.ndarray,
+                      puddle: np.ndarray, track: np.ndarray, allowed: np.ndarray, tails: np.ndarray,
+                      hulls: np.ndarray, changed: np.ndarray, R: np.ndarray, t: np.ndarray, o: np.ndarray,
+                      half: np.ndarray, vertical: int, floor: float, center: np.ndarray, body_lo: np.ndarray,
+                      body_hi: np.ndarray, cabin_lo: np.ndarray, cabin_hi: np.ndarray, slack: float) -> None:
+    """One box of :func:`box_shells`, in place: the numpy reference of
+    :func:`~.shell_kernels.box_shell_kernel` (its arguments).
+
+    First the tails: pixels of the region (``filled``, the hull of the object's returns, and
+    ``grown``, that hull grown by ``_EDGE_PX``, both [h, w] uint8 from column ``x0``, row ``y0``)
+    outside ``grown`` whose surface lies on the object (inside its box, ``slack`` included, above
+    ``floor`` on axis ``vertical``) are its Gaussians' tails over the road or the facade beside it
+    (a car's roof's upward normals spread snow into the air above it, its sides' a dark rim on the
+    road); ``grown`` is added to ``hulls``. Then the shell of every ``filled`` pixel (see
+    :func:`box_shells`): ``behind`` where the ray enters the box, passes through its body
+    (``body_lo`` .. ``body_hi``) or its glasshouse (``cabin_lo`` .. ``cabin_hi``) and sees the
+    lidar's surface more than ``slack`` behind the entry; ``on`` where that surface lies on the
+    object.
+    """
+    rh, rw = filled.shape
+    inside, hull = grown.astype(bool), filled.astype(bool)
+    hulls[y0:y0 + rh, x0:x0 + rw] |= inside
+    seen = distance[y0:y0 + rh, x0:x0 + rw]
+    rr, cc = np.nonzero(~inside & allowed[y0:y0 + rh, x0:x0 + rw] & np.isfinite(seen))
+    if rr.size:
+        point = (center - t + rays[rr + y0, cc + x0] * seen[rr, cc, None]) @ R  # in the box frame
+        on = in_box(point, half + slack) & (point[:, vertical] >= floor)
+        tails[rr[on] + y0, cc[on] + x0] = True
+    rr, cc = np.nonzero(hull & allowed[y0:y0 + rh, x0:x0 + rw])
+    rr, cc = rr + y0, cc + x0
+    if rr.size == 0:
+        return
+    d = rays[rr, cc] @ R  # ray directions in the box frame
+    near, far = _slab_interval(o, d, -half, half)
+    enters = (far >= near) & (near > 0.0)
+    seen = distance[rr, cc]
+    through_body = _slab_hits(o, d, body_lo, body_hi) | _slab_hits(o, d, cabin_lo, cabin_hi)
+    behind = enters & (near + slack < seen) & through_body
+    on = np.zeros_like(enters)  # the lidar's surface lies on the object
+    finite = enters & np.isfinite(seen)
+    point = o + d[finite] * seen[finite, None]
+    on[finite] = in_box(point, half + slack) & (point[:, vertical] >= floor)
+    on &= ~behind
+    hit = behind | on
+    # through the body, the face the ray enters stands for the surface; on the object, the
+    # lidar's own (smoothed) normal stays: a box face chosen per pixel flips between the roof
+    # and a side from frame to frame, and the roof the camera looks down through is not the
+    # side window the lidar sampled
+    br, bc, bnear, bd = rr[behind], cc[behind], near[behind], d[behind]
+    entry = o + bd * bnear[:, None]
+    axis = np.argmax(np.abs(entry) / half, axis=1)
+    face = np.zeros((br.size, 3))
+    face[np.arange(br.size), axis] = np.sign(entry[np.arange(br.size), axis])
+    normal[br, bc] = face @ R.T
+    distance[br, bc] = bnear
+    rr, cc = rr[hit], cc[hit]
+    ground[rr, cc] = 0.0
+    open_[rr, cc] = 1.0
+    puddle[rr, cc] = 0.0
+    track[rr, cc] = 0.0
+    changed[rr, cc] = True
+
+
+def _replace_tails(tails: np.ndarray, source: np.ndarray, distance: np.ndarray, normal: np.ndarray,
+                   fields: dict[str, np.ndarray]) -> None:
+    """Give each pixel of ``tails`` [H, W] the surface (distance, normal, attributes) of its nearest
+    ``source`` pixel (in place): what lies beside the object, continued under its Gaussians' tails."""
+    if not tails.any() or not source.any():
+        return
+    _, labels = cv2.distanceTransformWithLabels((~source).astype(np.uint8), cv2.DIST_L2, 5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    flat = np.flatnonzero(source)
+    of_label = np.zeros(int(labels.max()) + 1, np.int64)
+    of_label[labels.ravel()[flat]] = flat
+    rr, cc = np.nonzero(tails)
+    src = np.unravel_index(of_label[labels[rr, cc]], tails.shape)
+    distance[rr, cc] = distance[src]
+    normal[rr, cc] = normal[src]
+    for name in fields:
+        fields[name][rr, cc] = fields[name][src]
