@@ -5,8 +5,9 @@ lidar sampled sparsely or saw through (docs/design.md §7, "Weather appearance")
 tracked object's silhouette (the hull of its returns, or for a car in the lidar's blind zone its box
 cut at the near plane), a ray that passes through the body takes the face of the box it enters; a
 surface on the object beside its silhouette is its Gaussians' tails and takes the surface beside
-it. :mod:`.shell_kernels` holds the numba kernel of one box; :func:`_box_shell_pixels` is its numpy
-reference.
+it, as does the band over its top that the frame shows as what lies behind it. :mod:`.shell_kernels`
+holds the numba kernels of one box; :func:`_box_shell_pixels` and :func:`_top_band_pixels` are
+their numpy references.
 """
 
 from __future__ import annotations
@@ -44,6 +45,14 @@ _BONNET_SHARE = 0.45
 #: with a 480-px-wide PandaSet camera's focal length (~490 px). Past the hull by more than
 #: ``_EDGE_PX``, a surface on the object is its Gaussians' tails over what lies beside it.
 _SPILL_PX, _EDGE_PX = 12, 1
+#: An object's top, snapped to the frame (:func:`_top_band_pixels`): how far (pixels of a 270-row frame)
+#: below the top of its surface in the maps the frame's edge is looked for (a parked car's roof's
+#: Gaussians reach 3-10 px over the roof line a rear camera shows from 12 m, docs/findings.md; a
+#: longer search finds a car's stronger edges inside, the roof's against its windows, and loses
+#: the weaker roof line to the share below), the colour step (RGB distance, display values in
+#: [0, 1], after a 1-px blur) that counts as an edge, and the share of the strongest step of the
+#: search it must also reach.
+_TOP_SEARCH_PX, _TOP_EDGE_STEP, _TOP_EDGE_SHARE = 10, 0.08, 0.6
 
 
 def _slab_interval(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray,
@@ -91,7 +100,7 @@ def _boxes_miss_view(poses: np.ndarray, halves: np.ndarray, w2c: np.ndarray, K: 
 
 def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, center: np.ndarray,
                 distance: np.ndarray, normal: np.ndarray, fields: dict[str, np.ndarray], sky: np.ndarray, *,
-                fast: bool = True) -> np.ndarray:
+                image: np.ndarray | None = None, fast: bool = True) -> np.ndarray:
     """Where a pixel inside a tracked object's silhouette sees the lidar surfaces more than 0.3 m
     behind the object's box and its ray passes through the body (the box from 0.3 m above its bottom,
     :data:`~.surfaces.UNDERBODY_M`, below which the road under a car shows, to the belt line, 0.6
@@ -116,7 +125,9 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     (:func:`_clipped_box_outline`), its body rising to ``_BONNET_SHARE`` of its height, and stands
     for the object only where the lidar saw nothing through it or saw the object itself
     (:func:`_on_box`), facing the camera upright. Each box's pixels are the numba kernel's
-    (``fast``, where numba imports) or the numpy reference's.
+    (``fast``, where numba imports) or the numpy reference's. With the frame (``image`` [H, W, 3],
+    display RGB), the object's top is snapped to it (:func:`_top_band_pixels`): where the frame shows what
+    lies behind over the object's top edge, the band between is its Gaussians' tails too.
     """
     changed = np.zeros(distance.shape, bool)
     up = np.asarray(surfaces.up, np.float64)
@@ -135,7 +146,10 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     shown = ~np.all(np.abs(origins) <= halves, axis=1) & ~_boxes_miss_view(poses, halves + 0.1, w2c, K, w, h)
     poses, halves, origins = poses[shown], halves[shown], origins[shown]
     not_sky = ~sky
-    tails, hulls = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    tails, hulls, bands = np.zeros((h, w), bool), np.zeros((h, w), bool), np.zeros((h, w), bool)
+    frame = None if image is None else np.ascontiguousarray(image, np.float32)
+    steps = None if frame is None else _vertical_steps(frame)
+    reach = max(2, round(_TOP_SEARCH_PX * h / 270))
     kernels = load_numba_kernels("appearance.shell_kernels") if fast else None
     shell = _box_shell_pixels if kernels is None else kernels.box_shell_kernel
     for T, half, o, pts in zip(poses, halves, origins, surfaces.inside_boxes(index, poses, halves + 0.1)):
@@ -202,8 +216,73 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
             flat = rays[rr, cc] - np.outer(rays[rr, cc] @ up, up)
             normal[rr, cc] = -flat / np.maximum(np.linalg.norm(flat, axis=1, keepdims=True), 1e-9)
             changed |= mine
-    _replace_tails(tails & ~hulls, ~(tails | hulls) & not_sky & np.isfinite(distance), distance, normal, fields)
+        if frame is not None and steps is not None and not blind:
+            top = _top_band_pixels if kernels is None else kernels.top_band_kernel
+            top(x0, y0, x1 - x0, y1 - y0, rays, distance, center, R, t, half, _BOX_SLACK_M, vertical, floor, frame,
+                steps, reach, _TOP_EDGE_STEP, _TOP_EDGE_SHARE, bands)
+    _replace_tails((tails & ~hulls) | bands, ~(tails | hulls | bands) & not_sky & np.isfinite(distance), distance,
+                   normal, fields)
     return changed
+
+
+def _vertical_steps(image: np.ndarray) -> np.ndarray:
+    """[H, W] float32: the colour step from each pixel's upper neighbour to it (RGB distance of the
+    frame blurred by 1 px; 0 on the top row)."""
+    blurred = cv2.GaussianBlur(np.asarray(image, np.float32), (3, 3), 0.8)
+    out = np.zeros(blurred.shape[:2], np.float32)
+    out[1:] = np.sqrt(np.sum(np.square(blurred[1:] - blurred[:-1]), axis=-1))
+    return out
+
+
+def _top_band_pixels(x0: int, y0: int, rw: int, rh: int, rays: np.ndarray, distance: np.ndarray, center: np.ndarray,
+                     R: np.ndarray, t: np.ndarray, half: np.ndarray, slack: float, vertical: int, floor: float,
+                     image: np.ndarray, steps: np.ndarray, reach: int, step_min: float, share: float,
+                     bands: np.ndarray) -> None:
+    """The bands over one box's top that the frame shows as what lies behind it, marked in ``bands``
+    [H, W] bool (the numpy reference of :func:`~.shell_kernels.top_band_kernel`).
+
+    Over the ``rw`` x ``rh`` region from column ``x0``, row ``y0``, the object's surface is where
+    the surface each pixel sees (``rays`` [H, W, 3] from ``center``, ``distance`` [H, W] m) lies in
+    its box (rotation ``R``, centre ``t``, half-size ``half`` grown by ``slack``) above ``floor`` on
+    axis ``vertical``. In each column the object's top is its first pixel from the top under a
+    pixel whose surface lies more than 1 m farther: its Gaussians reach past its edge by their own
+    width (a parked car's roof's returns spread snow in a band over the roof line,
+    docs/findings.md). Below it, within ``reach`` rows, the first colour step of the frame
+    (``steps`` [H, W], :func:`_vertical_steps`) of at least ``step_min`` and ``share`` of the
+    strongest there is the edge the frame shows (a strong step at the top itself: the frame shows
+    the object where the maps put it); the rows between (two at least) are a band when their mean
+    colour in the frame (``image`` [H, W, 3], display RGB) is nearer the colour over the top than
+    that of the two rows under the edge (what lies behind, textured, may step less than the edge:
+    the object's own strip does not pass). Each band's height is at most the median of its column's and
+    the four nearest columns' (0 where none; the region's edge columns repeated): one column's
+    texture does not cut a notch. Only the band's pixels on the object are marked.
+    """
+    ys, xs = slice(y0, y0 + rh), slice(x0, x0 + rw)
+    seen = distance[ys, xs]
+    finite = np.isfinite(seen)
+    point = (center - t + rays[ys, xs] * np.where(finite, seen, 0.0)[..., None]) @ R
+    on = finite & np.all(np.abs(point) <= half + slack, axis=-1) & (point[..., vertical] >= floor)
+    heights, tops = np.zeros(rw, np.int64), np.full(rw, -1, np.int64)
+    for c in range(rw):
+        for r in np.flatnonzero(on[1:, c] & ~on[:-1, c]) + 1:
+            if not (np.isfinite(seen[r - 1, c]) and seen[r - 1, c] > seen[r, c] + 1.0):
+                continue
+            window = steps[y0 + r:y0 + min(rh, r + reach + 1), x0 + c].astype(np.float64)
+            if window.size < 3:
+                break
+            edge = r + int(np.argmax(window >= max(step_min, share * float(window.max()))))
+            if edge < r + 2:
+                break
+            column = image[ys, x0 + c].astype(np.float64)
+            band = column[r:edge].mean(axis=0)
+            below = column[edge:min(rh, edge + 2)].mean(axis=0)
+            if np.sum((band - column[r - 1]) ** 2) < np.sum((band - below) ** 2):
+                heights[c], tops[c] = edge - r, r
+            break
+    for col in np.flatnonzero(tops >= 0):
+        neighbours = heights[np.clip(np.arange(col - 2, col + 3), 0, rw - 1)]
+        rows = slice(tops[col], tops[col] + min(int(np.median(neighbours)), heights[col]))
+        bands[y0 + rows.start:y0 + rows.stop, x0 + col] |= on[rows, col]
 
 
 def _on_box(rays: np.ndarray, distance: np.ndarray, center: np.ndarray, R: np.ndarray, t: np.ndarray,

@@ -250,7 +250,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     # the box shells write every attribute where they stand for an object: the unasked ones get
     # scratch planes, NaN in the maps
     shell_fields = {name: planes.get(name, np.full(distance.shape, np.nan, np.float32)) for name in FIELDS}
-    boxed = box_shells(surfaces, index, camera, rays, center, distance, normal, shell_fields, sky)
+    boxed = box_shells(surfaces, index, camera, rays, center, distance, normal, shell_fields, sky, image=image)
     covered |= boxed
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,

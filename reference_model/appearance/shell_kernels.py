@@ -1,11 +1,14 @@
-"""Numba kernel of :mod:`.box_shells`: one tracked object's shell and its Gaussians' tails, pixel by pixel.
+"""Numba kernels of :mod:`.box_shells`: one tracked object's shell and its Gaussians' tails, and the
+band over its top, pixel by pixel.
 
 :func:`box_shell_kernel` mirrors the numpy reference :func:`wcbench.reference_model.appearance.box_shells.
 _box_shell_pixels` (the same float64 arithmetic and NaN rules of the slab method; the reference's
 3 x 3 products go through BLAS, which may round them differently, so the tests compare values to
 1e-12 and the pixels changed exactly); a frame has dozens of boxes, each a few thousand pixels,
 where the reference's dozen numpy passes per box cost more in calls than in arithmetic
-(docs/design.md §7). Compiled on first use and cached on disk.
+(docs/design.md §7). :func:`top_band_kernel` mirrors :func:`wcbench.reference_model.appearance.
+box_shells._top_band_pixels` the same way (its bands compared exactly). Compiled on first use and
+cached on disk.
 """
 
 from __future__ import annotations
@@ -154,3 +157,86 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
             puddle[y, x] = 0.0
             track[y, x] = 0.0
             changed[y, x] = True
+
+
+@numba.njit(cache=True, inline="always")
+def _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Whether the surface pixel (``y``, ``x``) sees lies in the box (centre offset from the camera
+    ``a0, a1, a2``, rotation ``R``, half-size ``s0, s1, s2``) above ``floor`` on axis ``vertical``."""
+    seen = distance[y, x]
+    if not math.isfinite(seen):
+        return False
+    b0 = a0 + rays[y, x, 0] * seen
+    b1 = a1 + rays[y, x, 1] * seen
+    b2 = a2 + rays[y, x, 2] * seen
+    p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
+    p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
+    p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
+    pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
+    return abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor
+
+
+@numba.njit(cache=True, error_model="numpy")
+def top_band_kernel(x0, y0, rw, rh, rays, distance, center, R, t, half, slack, vertical, floor,  # type: ignore[no-untyped-def]  # pragma: no cover
+                    image, steps, reach, step_min, share, bands):
+    """One box's bands over its top
+    (:func:`~wcbench.reference_model.appearance.box_shells._top_band_pixels`, its numpy reference
+    and arguments), marked in ``bands`` [H, W] bool."""
+    a0, a1, a2 = center[0] - t[0], center[1] - t[1], center[2] - t[2]
+    s0, s1, s2 = half[0] + slack, half[1] + slack, half[2] + slack
+    heights = np.zeros(rw, np.int64)
+    tops = np.full(rw, -1, np.int64)
+    for c in range(rw):
+        x = x0 + c
+        prev = False
+        for r in range(rh):
+            y = y0 + r
+            seen = distance[y, x]
+            on = _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor)
+            starts = on and not prev and r > 0
+            prev = on
+            if not starts:
+                continue
+            above_d = distance[y - 1, x]
+            if not (math.isfinite(above_d) and above_d > seen + 1.0):
+                continue
+            stop = min(rh, r + reach + 1)
+            if stop - r < 3:
+                break
+            strongest = 0.0
+            for i in range(r, stop):
+                strongest = max(strongest, float(steps[y0 + i, x]))
+            level = max(step_min, share * strongest)
+            edge = -1
+            for i in range(r, stop):
+                if steps[y0 + i, x] >= level:
+                    edge = i
+                    break
+            if edge < r + 2:
+                break
+            near_above, near_below = 0.0, 0.0
+            n_below = min(rh, edge + 2) - edge
+            for k in range(3):
+                band = 0.0
+                for i in range(r, edge):
+                    band += image[y0 + i, x, k]
+                band /= edge - r
+                below = 0.0
+                for i in range(edge, edge + n_below):
+                    below += image[y0 + i, x, k]
+                below /= n_below
+                near_above += (band - image[y - 1, x, k]) ** 2
+                near_below += (band - below) ** 2
+            if near_above < near_below:
+                heights[c], tops[c] = edge - r, r
+            break
+    window = np.empty(5, np.int64)
+    for c in range(rw):
+        if tops[c] < 0:
+            continue
+        for j in range(5):
+            window[j] = heights[min(max(c + j - 2, 0), rw - 1)]
+        window.sort()
+        for i in range(tops[c], tops[c] + min(window[2], heights[c])):
+            if _on_object(rays, distance, y0 + i, x0 + c, a0, a1, a2, R, s0, s1, s2, vertical, floor):
+                bands[y0 + i, x0 + c] = True

@@ -160,6 +160,50 @@ def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_ente
     assert distance[pixel] == pytest.approx(entry + 0.2)
 
 
+def _spilled_roof(camera, top_row, frame_top_row):
+    """Maps of the wall 30 m away behind the car, the car's near face drawn from row ``top_row`` (its
+    Gaussians' reach, inside the hull of its returns) and a frame showing the wall (dark) down to
+    ``frame_top_row`` and the car (white) below; column 160, the car's middle."""
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    face = slice(top_row, _pixel(camera, [7.75, 0.0, 0.4])[0])
+    distance[face, 140:181] = 7.75 / rays[face, 140:181, 0]
+    normal[face, 140:181] = UP
+    fields["open"][face, 140:181] = 1.0
+    image = np.full((camera.height, camera.width, 3), 0.2, np.float32)
+    image[frame_top_row:] = 0.9
+    return rays, distance, normal, fields, image
+
+
+def test_the_band_a_cars_gaussians_draw_over_its_top_takes_what_the_frame_shows_behind_it():
+    # the returns' hull reaches the far edge of the roof (row 92); the frame shows the car's top at
+    # row 97 and the wall above it: rows 92-95 are the roof's Gaussians over the wall
+    camera = _camera(1.6)
+    assert _pixel(camera, [12.25, 0.0, 1.5])[0] == 92
+    rays, distance, normal, fields, image = _spilled_roof(camera, 92, 97)
+    box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool),
+               image=image)
+    assert np.all(distance[92:96, 150:171] == 30.0) and np.all(fields["open"][92:96, 150:171] == 0.0)
+    np.testing.assert_allclose(normal[92:96, 150:171], np.broadcast_to([-1.0, 0.0, 0.0], (4, 21, 3)), atol=1e-6)
+    # the car the frame shows keeps its surface
+    assert np.all(distance[98:110, 150:171] < 9.0) and np.all(fields["open"][98:110, 150:171] == 1.0)
+
+
+@pytest.mark.parametrize("frame_top_row", [92, 180])
+def test_a_cars_top_is_kept_where_the_frame_shows_it_or_shows_no_edge_below_it(frame_top_row):
+    # the frame's edge at the maps' top (the car is where they put it), or none within reach below
+    # it (a car as dark as what lies behind it): the maps stay as the shells leave them
+    camera = _camera(1.6)
+    rays, distance, normal, fields, image = _spilled_roof(camera, 92, frame_top_row)
+    without = [a.copy() for a in (distance, normal, fields["open"])]
+    box_shells(_surfaces(), 0, camera, rays, camera.center, *without[:2], {**fields, "open": without[2]},
+               np.zeros(distance.shape, bool))
+    box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool),
+               image=image)
+    np.testing.assert_array_equal(distance, without[0])
+    np.testing.assert_array_equal(fields["open"], without[2])
+
+
 def _beside_camera():
     """A camera 1.8 m up and a parked car's box beside it, its rear half behind the image plane."""
     camera = _camera(1.8)
@@ -395,18 +439,25 @@ def _random_street(rng, n_boxes):
 @pytest.mark.parametrize("seed", range(6))
 def test_the_shell_kernel_is_its_numpy_reference(seed):
     # the fast twin against the slow one on streets of several overlapping boxes (each box reads the
-    # distances the boxes before it wrote): the same pixels changed, tails and all; the same
-    # values to float64 rounding (BLAS may fuse the reference's 3 x 3 products)
+    # distances the boxes before it wrote): the same pixels changed, tails and all, and with a frame
+    # (blocks of colour) the same bands over the boxes' tops; the same values to float64 rounding
+    # (BLAS may fuse the reference's 3 x 3 products)
     pytest.importorskip("numba")
     rng = np.random.default_rng(seed)
     surfaces, camera, rays, distance, normal, fields, sky = _random_street(rng, 12)
+    image = cv2.resize(rng.random((18, 32, 3)).astype(np.float32), (camera.width, camera.height),
+                       interpolation=cv2.INTER_NEAREST) if seed % 2 else None
     out = {}
     for fast in (True, False):
         d, n, f = distance.copy(), normal.copy(), {k: v.copy() for k, v in fields.items()}
-        changed = box_shells(surfaces, 0, camera, rays, camera.center, d, n, f, sky, fast=fast)
+        changed = box_shells(surfaces, 0, camera, rays, camera.center, d, n, f, sky, image=image, fast=fast)
         out[fast] = (changed, d, n, f)
     (c1, d1, n1, f1), (c0, d0, n0, f0) = out[True], out[False]
     assert c0.sum() > 500 and (d0 != distance).sum() > 500  # shells and tails were drawn
+    if image is not None:  # and bands, which the maps without a frame keep
+        d, n, f = distance.copy(), normal.copy(), {k: v.copy() for k, v in fields.items()}
+        box_shells(surfaces, 0, camera, rays, camera.center, d, n, f, sky)
+        assert (d != d0).sum() > 20
     np.testing.assert_array_equal(c1, c0)
     np.testing.assert_array_equal(np.isfinite(d1), np.isfinite(d0))
     np.testing.assert_allclose(d1, d0, rtol=1e-12, atol=0)
