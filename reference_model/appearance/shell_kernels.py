@@ -79,6 +79,23 @@ def _hits(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no 
     return t_out >= _nan_max(t_in, 0.0) and t_out > 0.0
 
 
+@numba.njit(cache=True, inline="always")
+def _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Whether the surface pixel (``y``, ``x``) sees lies in the box (centre offset from the camera
+    ``a0, a1, a2``, rotation ``R``, half-size ``s0, s1, s2``) above ``floor`` on axis ``vertical``."""
+    seen = distance[y, x]
+    if not math.isfinite(seen):
+        return False
+    b0 = a0 + rays[y, x, 0] * seen
+    b1 = a1 + rays[y, x, 1] * seen
+    b2 = a2 + rays[y, x, 2] * seen
+    p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
+    p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
+    p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
+    pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
+    return abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor
+
+
 @numba.njit(cache=True, error_model="numpy")
 def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open_, puddle, track,  # type: ignore[no-untyped-def]  # pragma: no cover
                      allowed, tails, hulls, changed, R, t, o, half, vertical, floor, center, body_lo, body_hi,
@@ -105,17 +122,7 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
             if grown[r, c]:
                 hulls[y, x] = True
                 continue
-            seen = distance[y, x]
-            if not allowed[y, x] or not math.isfinite(seen):
-                continue
-            b0 = a0 + rays[y, x, 0] * seen
-            b1 = a1 + rays[y, x, 1] * seen
-            b2 = a2 + rays[y, x, 2] * seen
-            p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
-            p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
-            p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
-            pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
-            if abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor:
+            if allowed[y, x] and _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor):
                 tails[y, x] = True
     lo = -half
     for r in range(rh):
@@ -157,23 +164,6 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
             puddle[y, x] = 0.0
             track[y, x] = 0.0
             changed[y, x] = True
-
-
-@numba.njit(cache=True, inline="always")
-def _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Whether the surface pixel (``y``, ``x``) sees lies in the box (centre offset from the camera
-    ``a0, a1, a2``, rotation ``R``, half-size ``s0, s1, s2``) above ``floor`` on axis ``vertical``."""
-    seen = distance[y, x]
-    if not math.isfinite(seen):
-        return False
-    b0 = a0 + rays[y, x, 0] * seen
-    b1 = a1 + rays[y, x, 1] * seen
-    b2 = a2 + rays[y, x, 2] * seen
-    p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
-    p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
-    p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
-    pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
-    return abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor
 
 
 @numba.njit(cache=True, error_model="numpy")
