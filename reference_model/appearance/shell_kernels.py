@@ -7,7 +7,8 @@ _box_shell_pixels` (the same float64 arithmetic and NaN rules of the slab method
 1e-12 and the pixels changed exactly); a frame has dozens of boxes, each a few thousand pixels,
 where the reference's dozen numpy passes per box cost more in calls than in arithmetic
 (docs/design.md §7). :func:`top_band_kernel` mirrors :func:`wcbench.reference_model.appearance.
-box_shells._top_band_pixels` the same way (its bands compared exactly). Compiled on first use and
+box_shells._top_band_pixels` the same way (the maps it leaves compared as the shells'; on
+real frames the same bands, docs/findings.md). Compiled on first use and
 cached on disk.
 """
 
