@@ -2,12 +2,12 @@
 lidar sampled sparsely or saw through (docs/design.md §7, "Weather appearance").
 
 :func:`box_shells` runs inside :func:`~.maps.surface_maps`, after its rasterization: inside each
-tracked object's silhouette (the hull of its returns, or for a car in the lidar's blind zone its box
-cut at the near plane), a ray that passes through the body takes the face of the box it enters; a
-surface on the object beside its silhouette is its Gaussians' tails and takes the surface beside
-it, as does the band over its top that the frame shows as what lies behind it. :mod:`.shell_kernels`
-holds the numba kernels of one box; :func:`_box_shell_pixels` and :func:`_top_band_pixels` are
-their numpy references.
+tracked object's silhouette (the hull of its returns, a mover's from the sweep nearest the frame,
+or for a car in the lidar's blind zone its box cut at the near plane), a ray that passes through
+the body takes the face of the box it enters; a surface on the object beside its silhouette is its
+Gaussians' tails and takes the surface beside it, as does the band over its top that the frame
+shows as what lies behind it. :mod:`.shell_kernels` holds the numba kernels of one box;
+:func:`_box_shell_pixels` and :func:`_top_band_pixels` are their numpy references.
 """
 
 from __future__ import annotations
@@ -27,6 +27,10 @@ __all__ = ["box_shells"]
 #: outline with fewer (a parked car 3 m off the front-right camera of pandaset_002 has 11, one
 #: beside the rear camera 370).
 _NEAR_M, _MIN_BESIDE_RETURNS = 0.1, 100
+#: A moving object's silhouette is the hull of its frame's own returns from this many (above its
+#: floor, in its box grown by 0.1 m); with fewer (no sweep, or the lidar barely saw it), the hull of
+#: its Gaussians'.
+_MIN_OWN_RETURNS = 20
 #: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
 _BOX_SLACK_M = 0.3
 #: Share of a box's height below which the body fills it (a car's belt line, ~0.9 m of a 1.45 m
@@ -45,6 +49,8 @@ _BONNET_SHARE = 0.45
 #: with a 480-px-wide PandaSet camera's focal length (~490 px). Past the hull by more than
 #: ``_EDGE_PX``, a surface on the object is its Gaussians' tails over what lies beside it.
 _SPILL_PX, _EDGE_PX = 12, 1
+#: How far (pixels) past the tails their compositing with what lies beyond reaches.
+_BLEND_PX = 2
 #: An object's top, snapped to the frame (:func:`_top_band_pixels`): how far (pixels of a 270-row frame)
 #: below the top of its surface in the maps the frame's edge is looked for (a parked car's roof's
 #: Gaussians reach 3-10 px over the roof line a rear camera shows from 12 m, docs/findings.md; a
@@ -116,9 +122,13 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
 
     The silhouette is the convex hull of the projections of the surface Gaussians inside the box
     (grown by 0.1 m) above that band (not the road the box reaches down to), so the air around a car
-    inside its box keeps what lies behind it; the ray's entry into the box is found by the slab
-    method in the box frame. Beside the silhouette, a surface on the object is its Gaussians' tails
-    and takes the surface beside it (:func:`_box_shell_pixels`, :func:`_replace_tails`). A box the
+    inside its box keeps what lies behind it; for a mover, of its own returns in the sweep nearest
+    the frame (within two frames, carried by its box's motion), from 20 of them: its node's
+    Gaussians gather every sweep's, spread past the car by the boxes' jitter. The ray's entry into
+    the box is found by the slab method in the box frame. Beside the silhouette, a surface on the
+    object is its Gaussians' tails and takes the surface beside it (:func:`_box_shell_pixels`,
+    :func:`_replace_tails`), as do the pixels within ``_BLEND_PX`` past the tails, where the tails
+    composite with what lies beyond (their normals half up, half aside). A box the
     camera is beside (a corner behind its near plane, 0.1 m) with fewer than 100 returns in front
     of it (the lidar's blind zone and the frame's edge left a sliver of it in view, whose hull would
     cut the object in two) is outlined by the box itself cut at the near plane
@@ -145,6 +155,11 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     origins = np.einsum("bji,bj->bi", poses[:, :3, :3], center - poses[:, :3, 3])
     shown = ~np.all(np.abs(origins) <= halves, axis=1) & ~_boxes_miss_view(poses, halves + 0.1, w2c, K, w, h)
     poses, halves, origins = poses[shown], halves[shown], origins[shown]
+    own, carried = _own_returns(surfaces, index, shown)
+    # sorted along their widest axis once: each box tests the slice within its reach on it
+    axis = int(np.argmax(np.ptp(own, axis=0))) if len(own) else 0
+    own = own[np.argsort(own[:, axis], kind="stable")]
+    keys = own[:, axis]
     not_sky = ~sky
     tails, hulls, bands = np.zeros((h, w), bool), np.zeros((h, w), bool), np.zeros((h, w), bool)
     frame = None if image is None else np.ascontiguousarray(image, np.float32)
@@ -152,12 +167,26 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     reach = max(2, round(_TOP_SEARCH_PX * h / 270))
     kernels = load_numba_kernels("appearance.shell_kernels") if fast else None
     shell = _box_shell_pixels if kernels is None else kernels.box_shell_kernel
-    for T, half, o, pts in zip(poses, halves, origins, surfaces.inside_boxes(index, poses, halves + 0.1)):
+    for b, (T, half, o, pts) in enumerate(zip(poses, halves, origins,
+                                              surfaces.inside_boxes(index, poses, halves + 0.1))):
         R, t = T[:3, :3], T[:3, 3]
         vertical = int(np.argmax(np.abs(R.T @ up)))
         floor = -half[vertical] + UNDERBODY_M
-        # the silhouette of the object, not of the road it stands on (its box reaches the road)
-        pts = np.compress((pts - t) @ R[:, vertical] >= floor, pts, axis=0)
+        # a mover's silhouette from its own returns where the sweep nearest the frame sampled it: its
+        # node's Gaussians gather every sweep's returns in its box's frame, spread by the boxes'
+        # jitter past the car the frame shows (a dark ring round a moving car in the snow,
+        # docs/findings.md)
+        motion = None if carried is None else carried[b]
+        mover = own[:0]
+        if carried is None or motion is not None:
+            # the box where the sweep saw its object (the same box frame: the motion is rigid)
+            then = T if motion is None else np.linalg.inv(motion) @ T
+            radius = float(np.linalg.norm(half + 0.1))
+            lo, hi = np.searchsorted(keys, [then[axis, 3] - radius, then[axis, 3] + radius])
+            mover = _in_box_above(own[lo:hi], then[:3, :3], then[:3, 3], half + 0.1, vertical, floor)
+            if motion is not None:
+                mover = mover @ motion[:3, :3].T + motion[:3, 3]
+        pts = mover if len(mover) >= _MIN_OWN_RETURNS else _in_box_above(pts, R, t, None, vertical, floor)
         corners = (_CUBE * half) @ R.T + t
         beside = np.any(corners @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
         if len(pts) < 3 and not beside:
@@ -220,9 +249,43 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
             top = _top_band_pixels if kernels is None else kernels.top_band_kernel
             top(x0, y0, x1 - x0, y1 - y0, rays, distance, center, R, t, half, _BOX_SLACK_M, vertical, floor, frame,
                 steps, reach, _TOP_EDGE_STEP, _TOP_EDGE_SHARE, bands)
-    _replace_tails((tails & ~hulls) | bands, ~(tails | hulls | bands) & not_sky & np.isfinite(distance), distance,
+    replaced = (tails & ~hulls) | bands
+    # the pixels just past the tails composite them with what lies beyond (a normal half up, half
+    # aside): they take what lies beyond too, and give nothing
+    ring = (cv2.dilate(replaced.view(np.uint8), np.ones((2 * _BLEND_PX + 1,) * 2, np.uint8)).view(bool)
+            & ~replaced & ~hulls & not_sky & np.isfinite(distance))
+    _replace_tails(replaced | ring, ~(tails | hulls | bands | ring) & not_sky & np.isfinite(distance), distance,
                    normal, fields)
     return changed
+
+
+def _own_returns(surfaces: SurfaceScene, index: int,
+                 shown: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None] | None]:
+    """(the movers' returns [M, 3] of the sweep nearest frame ``index`` within two frames, empty
+    without one; ``None`` when that sweep is the frame's own, else for each box of
+    :meth:`~.surfaces.SurfaceScene.boxes_at` kept by ``shown`` [B] bool the rigid motion [4, 4]
+    that carries its object from the sweep's frame to ``index``, ``None`` where it has no box
+    there): a frame without a sweep (PandaSet's logs miss some) takes its neighbour's, moved with
+    each box, so its movers' silhouettes do not jump back to their Gaussians' hull for a frame."""
+    returns = None if surfaces.analysis is None else surfaces.analysis.returns
+    sweep = None if returns is None else returns.nearest_sweep(index)
+    if returns is None or sweep is None:
+        return np.zeros((0, 3)), None
+    if sweep == index:
+        return returns.own_tracked(index), None
+    motions = surfaces.box_motions(index, sweep)
+    return returns.own_tracked(sweep), [m for m, keep in zip(motions, shown) if keep]
+
+
+def _in_box_above(points: np.ndarray, R: np.ndarray, t: np.ndarray, half: np.ndarray | None, vertical: int,
+                  floor: float) -> np.ndarray:
+    """The ``points`` [N, 3] (world, m) at least ``floor`` above the centre ``t`` of the box with
+    rotation ``R`` along its axis ``vertical`` (the object, not the road its box reaches down to)
+    and, given ``half`` [3], within those half-sizes of the centre on every axis."""
+    if half is None:
+        return np.compress((points - t) @ R[:, vertical] >= floor, points, axis=0)
+    local = (points - t) @ R
+    return np.compress((local[:, vertical] >= floor) & np.all(np.abs(local) <= half, axis=1), points, axis=0)
 
 
 def _vertical_steps(image: np.ndarray) -> np.ndarray:

@@ -143,6 +143,18 @@ class LidarReturns:
             keep &= ~self.tracked[j]
         return self.points[j][keep]
 
+    def own_tracked(self, k: int) -> np.ndarray:
+        """[M, 3] the returns of frame ``k``'s own sweep inside a moving track's box, without noise
+        nor ghosts: where a tracked mover was when the frame was taken (a node's Gaussians gather
+        every sweep's in its box's frame, spread by the boxes' jitter); empty without a sweep (a
+        neighbour's would put a mover where it was a frame apart)."""
+        if k not in self.points:
+            return np.zeros((0, 3))
+        keep = self.tracked[k] & self.dynamic[k] & ~self.noise[k]
+        if k in self.ghost:
+            keep &= ~self.ghost[k]
+        return self.points[k][keep]
+
     def frame_points(self, k: int) -> np.ndarray:
         """[M, 3] what frame ``k`` shows: the static scene and its own dynamic returns."""
         return np.concatenate([self.static_points(), self.frame_dynamic(k)])

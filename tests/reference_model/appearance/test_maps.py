@@ -65,15 +65,26 @@ def _camera(height_m):
                   camera_to_world=c2w)
 
 
-def _surfaces(box=BOX, grid=(7, 5, 5)):
-    """The lidar's few returns of the car: points over its box's surface (the hull covers it)."""
+def _surfaces(box=BOX, grid=(7, 5, 5), own=None, sweep_behind_m=None):
+    """The lidar's few returns of the car: points over its box's surface (the hull covers it);
+    ``own`` [M, 3] the movers' returns of frame 0's sweep (none by default: no analysis). With
+    ``sweep_behind_m``, frame 0 has no sweep and frame 1's is the nearest, taken when the car stood
+    that far back along x (its returns there are ``own`` moved back)."""
     g = np.stack(np.meshgrid(*(np.linspace(-1, 1, n) for n in grid)), -1).reshape(-1, 3)
     shell = g[np.max(np.abs(g), axis=1) == 1.0] * SIZE / 2 + box[:3, 3]
     n = len(shell)
     cloud = GaussianCloud(means=shell.astype(np.float32), quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
                           scales=np.full((n, 3), 0.1, np.float32), opacities=np.ones(n, np.float32),
                           colors=np.zeros((n, 3), np.float32))
-    return SimpleNamespace(up=UP, boxes_at=lambda k: [(box, SIZE)], at_frame=lambda k: (cloud, None),
+    analysis, motion = None, np.eye(4)
+    if own is not None:
+        sweep = 0 if sweep_behind_m is None else 1
+        motion[0, 3] = sweep_behind_m or 0.0
+        moved = own - motion[:3, 3]
+        analysis = SimpleNamespace(returns=SimpleNamespace(
+            nearest_sweep=lambda k: sweep, own_tracked=lambda k: moved if k == sweep else own[:0]))
+    return SimpleNamespace(up=UP, boxes_at=lambda k: [(box, SIZE)], at_frame=lambda k: (cloud, None), analysis=analysis,
+                           box_motions=lambda k, j: [motion],
                            inside_boxes=lambda k, poses, halves: [shell[in_box((shell - T[:3, 3]) @ T[:3, :3], h)]
                                                                   for T, h in zip(poses, halves)])
 
@@ -125,21 +136,62 @@ def test_the_road_just_before_and_under_a_cars_sills_stays_road():
     np.testing.assert_allclose(normal[pixel], UP, atol=1e-6)
 
 
-def test_a_cars_gaussians_tails_beside_its_silhouette_take_what_lies_beside_it():
+def test_a_cars_gaussians_tails_beside_its_silhouette_and_their_blend_past_them_take_what_lies_beside_it():
     camera = _camera(1.6)
     rays, _ = _rays(camera)
     distance, normal, fields = _maps(camera)
     # the lidar's maps put the car's roof (facing up) 0.1 m beside its box's side, about 4 px from
-    # the hull of its returns: the tails of its Gaussians over the wall behind
+    # the hull of its returns: the tails of its Gaussians over the wall behind; one pixel farther
+    # out, their compositing with the wall: off the car (12 m away), its normal half up
     pixel = _pixel(camera, [7.75, 1.0, 1.0])
     distance[pixel] = float(np.linalg.norm(np.array([7.75, 1.0, 1.0 - 1.6])))
     normal[pixel], fields["open"][pixel] = UP, 1.0
+    blend = (pixel[0], pixel[1] - 1)
+    distance[blend] = 12.0
+    normal[blend] = np.array([-1.0, 0.0, 1.0]) / np.sqrt(2.0)
     box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool))
-    assert distance[pixel] == 30.0 and fields["open"][pixel] == 0.0
-    np.testing.assert_allclose(normal[pixel], [-1.0, 0.0, 0.0], atol=1e-6)
+    assert fields["open"][pixel] == 0.0
+    for p in (pixel, blend):
+        assert distance[p] == 30.0
+        np.testing.assert_allclose(normal[p], [-1.0, 0.0, 0.0], atol=1e-6)
     # a pixel of the wall beside it keeps the wall (its surface is nowhere near the car)
     far = _pixel(camera, [7.75, 3.0, 1.0])
     assert distance[far] == 30.0
+
+
+def _narrower_car(half_width):
+    """Returns over the near face and the top of a car ``half_width`` wide (m) inside BOX's box."""
+    y, z = np.meshgrid(np.linspace(-half_width, half_width, 13), np.linspace(0.35, 1.5, 12))
+    face = np.stack([np.full(y.size, 7.75), y.ravel(), z.ravel()], 1)
+    x, y = np.meshgrid(np.linspace(7.75, 12.25, 10), np.linspace(-half_width, half_width, 13))
+    top = np.stack([x.ravel(), y.ravel(), np.full(x.size, 1.5)], 1)
+    return np.concatenate([face, top])
+
+
+@pytest.mark.parametrize("own_returns, sweep_behind_m", [(300, None), (300, 2.0), (15, None)])
+def test_a_movers_silhouette_is_its_frames_own_returns_where_they_sampled_it(own_returns, sweep_behind_m):
+    # the mover's Gaussians fill its box (the boxes' jitter spread them 0.3 m past the car on each
+    # side); the frame's own sweep saw the car 1.4 m wide: a pixel of the maps on the box's side
+    # past those returns is the Gaussians' tails and takes the wall behind. A frame without a sweep
+    # takes the nearest one's, carried with the box (the car 2 m back then). With too few returns
+    # (fewer than 20), the hull of the Gaussians stands, and the pixel is the car's side.
+    camera = _camera(1.6)
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    own = _narrower_car(0.7)
+    own = own[np.random.default_rng(0).permutation(len(own))[:own_returns]]
+    pixel = _pixel(camera, [7.75, 0.85, 1.0])
+    distance[pixel] = float(np.linalg.norm(np.array([7.75, 0.85, 1.0 - 1.6])))
+    normal[pixel], fields["open"][pixel] = UP, 1.0
+    box_shells(_surfaces(own=own, sweep_behind_m=sweep_behind_m), 0, camera, rays, camera.center, distance, normal,
+               fields, np.zeros(distance.shape, bool))
+    if own_returns >= 20:
+        assert distance[pixel] == 30.0 and fields["open"][pixel] == 0.0
+        # the car the frame's returns saw keeps its face
+        inner = _pixel(camera, [7.75, 0.4, 0.8])
+        assert distance[inner] == pytest.approx(7.75 / rays[inner][0], rel=1e-6)
+    else:
+        assert distance[pixel] < 10.0 and fields["open"][pixel] == 1.0
 
 
 def test_a_lidar_surface_on_a_car_keeps_its_own_normal_not_the_roof_the_ray_enters():
@@ -424,7 +476,7 @@ def _random_street(rng, n_boxes):
     cloud = GaussianCloud(means=pts.astype(np.float32), quats=np.tile(np.float32([1, 0, 0, 0]), (len(pts), 1)),
                           scales=np.full((len(pts), 3), 0.1, np.float32), opacities=np.ones(len(pts), np.float32),
                           colors=np.zeros((len(pts), 3), np.float32))
-    surfaces = SimpleNamespace(up=UP, boxes_at=lambda k: boxes, at_frame=lambda k: (cloud, None),
+    surfaces = SimpleNamespace(up=UP, boxes_at=lambda k: boxes, at_frame=lambda k: (cloud, None), analysis=None,
                                inside_boxes=lambda k, poses, halves: [pts[in_box((pts - T[:3, 3]) @ T[:3, :3], h)]
                                                                       for T, h in zip(poses, halves)])
     h, w = camera.height, camera.width
@@ -759,3 +811,25 @@ def test_the_glossy_blur_keeps_a_uniform_reflection_and_leaves_what_no_ground_is
     # the longest blur (8 times 2 px on rows averaged 8 at a time) reaches 4 of its sigmas and a
     # coarse row above the ground's first row (100): 72 rows, so rows 0-27 never see the ground
     np.testing.assert_array_equal(out[:h // 2 + 10 - 72], image[:h // 2 + 10 - 72])
+
+
+def test_a_boxs_motion_between_frames_carries_its_pose_at_one_to_its_pose_at_the_other():
+    from wcbench.reference_model.appearance.surfaces import SurfaceScene
+
+    rng = np.random.default_rng(3)
+    poses = []
+    for yaw, x in ((0.0, 10.0), (0.2, 11.0), (0.5, 12.5)):
+        T = np.eye(4)
+        T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
+        T[:3, 3] = [x, rng.uniform(-2, 2), 0.75]
+        poses.append(T)
+    moving = (np.array([0, 1, 2]), np.stack(poses), np.tile(SIZE, (3, 1)))
+    late = (np.array([2]), np.stack(poses[2:]), SIZE[None])  # annotated at frame 2 only
+    stub = SimpleNamespace(boxes=[moving, late])
+    motions = SurfaceScene.box_motions(stub, 2, 0)
+    assert len(motions) == 2 and motions[1] is None
+    local = rng.uniform(-1, 1, (5, 3)) * SIZE / 2  # points on the object, in its box's frame
+    at0 = local @ poses[0][:3, :3].T + poses[0][:3, 3]
+    at2 = local @ poses[2][:3, :3].T + poses[2][:3, 3]
+    np.testing.assert_allclose(at0 @ motions[0][:3, :3].T + motions[0][:3, 3], at2, atol=1e-12)
+    assert len(SurfaceScene.box_motions(stub, 1, 0)) == 1  # frame 1 shows the moving box only

@@ -252,3 +252,19 @@ def test_a_bumper_the_box_lags_behind_is_trailing_not_static_and_a_return_beside
                             box_size=track.box_size)
     inside, trailing = _tracked(points, 2, [still], 0.2)
     assert inside.tolist() == [True, True, False, False, False] and not trailing.any()
+
+
+def test_a_frames_own_tracked_returns_are_its_sweeps_alone():
+    from wcbench.reference_model.scene_analysis.motion import LidarReturns
+
+    # frame 0: a tracked return, a static one, a tracked one flagged noise and one a ghost; frame 2
+    # has no sweep: its own are none (frame_dynamic lends it frame 1's, where the mover was then)
+    pts = {0: np.arange(12.0).reshape(4, 3), 1: np.ones((2, 3))}
+    dynamic = {0: np.array([True, False, True, True]), 1: np.array([True, True])}
+    tracked = {0: np.array([True, False, True, True]), 1: np.array([True, True])}
+    noise = {0: np.array([False, False, True, False]), 1: np.zeros(2, bool)}
+    ghost = {0: np.array([False, False, False, True])}
+    returns = LidarReturns(points=pts, dynamic=dynamic, tracked=tracked, noise=noise, ghost=ghost)
+    np.testing.assert_array_equal(returns.own_tracked(0), pts[0][:1])
+    np.testing.assert_array_equal(returns.own_tracked(1), pts[1])
+    assert returns.own_tracked(2).shape == (0, 3) and len(returns.frame_dynamic(2)) == 2
