@@ -273,8 +273,25 @@ def _own_returns(surfaces: SurfaceScene, index: int,
         return np.zeros((0, 3)), None
     if sweep == index:
         return returns.own_tracked(index), None
-    motions = surfaces.box_motions(index, sweep)
+    motions = _box_motions(surfaces.boxes, index, sweep)
     return returns.own_tracked(sweep), [m for m, keep in zip(motions, shown) if keep]
+
+
+def _box_motions(boxes: list[tuple[np.ndarray, np.ndarray, np.ndarray]], index: int,
+                 other: int) -> list[np.ndarray | None]:
+    """For each of ``boxes`` (:attr:`~.surfaces.SurfaceScene.boxes`: frames, poses, sizes) annotated
+    at frame ``index``, in :meth:`~.surfaces.SurfaceScene.boxes_at`'s order, the rigid motion [4, 4]
+    (world to world) that carries a point on its object at frame ``other`` to where it is at
+    ``index`` (its pose at ``index`` times the inverse of its pose at ``other``); ``None`` for a box
+    not annotated at ``other``."""
+    out: list[np.ndarray | None] = []
+    for frames, poses, _ in boxes:
+        hit = np.nonzero(frames == index)[0]
+        if not hit.size:
+            continue
+        then = np.nonzero(frames == other)[0]
+        out.append(None if not then.size else poses[int(hit[0])] @ np.linalg.inv(poses[int(then[0])]))
+    return out
 
 
 def _in_box_above(points: np.ndarray, R: np.ndarray, t: np.ndarray, half: np.ndarray | None, vertical: int,

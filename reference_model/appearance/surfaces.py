@@ -459,20 +459,6 @@ class SurfaceScene:
                 out.append((poses[int(hit[0])], sizes[int(hit[0])]))
         return out
 
-    def box_motions(self, index: int, other: int) -> list[np.ndarray | None]:
-        """For each box of :meth:`boxes_at` ``(index)``, in its order, the rigid motion [4, 4] (world
-        to world) that carries a point on its object at frame ``other`` to where it is at frame
-        ``index`` (its pose at ``index`` times the inverse of its pose at ``other``); ``None`` for a
-        box not annotated at ``other``."""
-        out: list[np.ndarray | None] = []
-        for frames, poses, _ in self.boxes:
-            hit = np.nonzero(frames == index)[0]
-            if not hit.size:
-                continue
-            then = np.nonzero(frames == other)[0]
-            out.append(None if not then.size else poses[int(hit[0])] @ np.linalg.inv(poses[int(then[0])]))
-        return out
-
     def ground_height(self, points: np.ndarray) -> np.ndarray:
         """[N] height (along ``up``) of the ground below ``points`` [N, 3] (m): the nearest 2 m cell's
         within 4 m, else the fitted plane's."""

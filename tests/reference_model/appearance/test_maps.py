@@ -16,6 +16,7 @@ pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.box_shells import (
     _CUBE,
+    _box_motions,
     _boxes_miss_view,
     _clipped_box_outline,
     _replace_tails,
@@ -76,15 +77,15 @@ def _surfaces(box=BOX, grid=(7, 5, 5), own=None, sweep_behind_m=None):
     cloud = GaussianCloud(means=shell.astype(np.float32), quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
                           scales=np.full((n, 3), 0.1, np.float32), opacities=np.ones(n, np.float32),
                           colors=np.zeros((n, 3), np.float32))
-    analysis, motion = None, np.eye(4)
+    analysis, back = None, box.copy()
+    back[0, 3] -= sweep_behind_m or 0.0
     if own is not None:
         sweep = 0 if sweep_behind_m is None else 1
-        motion[0, 3] = sweep_behind_m or 0.0
-        moved = own - motion[:3, 3]
+        moved = own - (box[:3, 3] - back[:3, 3])
         analysis = SimpleNamespace(returns=SimpleNamespace(
             nearest_sweep=lambda k: sweep, own_tracked=lambda k: moved if k == sweep else own[:0]))
     return SimpleNamespace(up=UP, boxes_at=lambda k: [(box, SIZE)], at_frame=lambda k: (cloud, None), analysis=analysis,
-                           box_motions=lambda k, j: [motion],
+                           boxes=[(np.array([0, 1]), np.stack([box, back]), np.stack([SIZE, SIZE]))],
                            inside_boxes=lambda k, poses, halves: [shell[in_box((shell - T[:3, 3]) @ T[:3, :3], h)]
                                                                   for T, h in zip(poses, halves)])
 
@@ -814,8 +815,6 @@ def test_the_glossy_blur_keeps_a_uniform_reflection_and_leaves_what_no_ground_is
 
 
 def test_a_boxs_motion_between_frames_carries_its_pose_at_one_to_its_pose_at_the_other():
-    from wcbench.reference_model.appearance.surfaces import SurfaceScene
-
     rng = np.random.default_rng(3)
     poses = []
     for yaw, x in ((0.0, 10.0), (0.2, 11.0), (0.5, 12.5)):
@@ -825,11 +824,10 @@ def test_a_boxs_motion_between_frames_carries_its_pose_at_one_to_its_pose_at_the
         poses.append(T)
     moving = (np.array([0, 1, 2]), np.stack(poses), np.tile(SIZE, (3, 1)))
     late = (np.array([2]), np.stack(poses[2:]), SIZE[None])  # annotated at frame 2 only
-    stub = SimpleNamespace(boxes=[moving, late])
-    motions = SurfaceScene.box_motions(stub, 2, 0)
+    motions = _box_motions([moving, late], 2, 0)
     assert len(motions) == 2 and motions[1] is None
     local = rng.uniform(-1, 1, (5, 3)) * SIZE / 2  # points on the object, in its box's frame
     at0 = local @ poses[0][:3, :3].T + poses[0][:3, 3]
     at2 = local @ poses[2][:3, :3].T + poses[2][:3, 3]
     np.testing.assert_allclose(at0 @ motions[0][:3, :3].T + motions[0][:3, 3], at2, atol=1e-12)
-    assert len(SurfaceScene.box_motions(stub, 1, 0)) == 1  # frame 1 shows the moving box only
+    assert len(_box_motions([moving, late], 1, 0)) == 1  # frame 1 shows the moving box only
