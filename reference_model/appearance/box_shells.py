@@ -112,8 +112,10 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     :data:`~.surfaces.UNDERBODY_M`, below which the road under a car shows, to the belt line, 0.6
     of its height, or the glasshouse above it, the middle 0.6 of the length and 0.9 of the width up
     to 0.1 of the height short of the top: the lidar sampled the object sparsely or saw through
-    its glass, and what lies behind or under it shows through), the box's face the ray enters stands for the object: its
-    distance and face normal, open to the sky, not ground; where it sees a lidar surface on the
+    its glass, and what lies behind or under it shows through), the face the ray enters stands for
+    the object, the glasshouse's where the ray meets it through a window (not its top) before the
+    body and the lidar's surface (the glass the lidar saw through), else the box's: its distance
+    and face normal, open to the sky, not ground; where it sees a lidar surface on the
     object (within 0.3 m of its box), the lidar's own normal stays (a box face chosen per pixel
     flips between roof and side from frame to frame) (``distance``, ``normal`` and ``fields`` are
     updated in place). A car's roof takes snow, its doors and side windows do not, the air over its
@@ -126,18 +128,20 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     the frame (within two frames, carried by its box's motion), from 20 of them: its node's
     Gaussians gather every sweep's, spread past the car by the boxes' jitter. The ray's entry into
     the box is found by the slab method in the box frame. Beside the silhouette, a surface on the
-    object is its Gaussians' tails and takes the surface beside it (:func:`_box_shell_pixels`,
-    :func:`_replace_tails`), as do the pixels within ``_BLEND_PX`` past the tails, where the tails
-    composite with what lies beyond (their normals half up, half aside). A box the
-    camera is beside (a corner behind its near plane, 0.1 m) with fewer than 100 returns in front
-    of it (the lidar's blind zone and the frame's edge left a sliver of it in view, whose hull would
-    cut the object in two) is outlined by the box itself cut at the near plane
-    (:func:`_clipped_box_outline`), its body rising to ``_BONNET_SHARE`` of its height, and stands
-    for the object only where the lidar saw nothing through it or saw the object itself
-    (:func:`_on_box`), facing the camera upright. Each box's pixels are the numba kernel's
-    (``fast``, where numba imports) or the numpy reference's. With the frame (``image`` [H, W, 3],
-    display RGB), the object's top is snapped to it (:func:`_top_band_pixels`): where the frame shows what
-    lies behind over the object's top edge, the band between is its Gaussians' tails too.
+    object (above that band; for a mover with its own silhouette also below it beside the box's
+    footprint: its lowest Gaussians, not its tyres or the road under it) is its Gaussians' tails and
+    takes the surface beside it (:func:`_box_shell_pixels`, :func:`_replace_tails`), as do the
+    pixels within ``_BLEND_PX`` past the tails, where the tails composite with what lies beyond
+    (their normals half up, half aside). A box the camera is beside (a corner behind its near plane,
+    0.1 m) with fewer than 100 returns in front of it (the lidar's blind zone and the frame's edge
+    left a sliver of it in view, whose hull would cut the object in two) is outlined by the box
+    itself cut at the near plane (:func:`_clipped_box_outline`), its body rising to
+    ``_BONNET_SHARE`` of its height, and stands for the object only where the lidar saw nothing
+    through it or saw the object itself (:func:`_on_box`), facing the camera upright. Each box's
+    pixels are the numba kernel's (``fast``, where numba imports) or the numpy reference's. With the
+    frame (``image`` [H, W, 3], display RGB), the object's top is snapped to it
+    (:func:`_top_band_pixels`): where the frame shows what lies behind over the object's top edge,
+    the band between is its Gaussians' tails too.
     """
     changed = np.zeros(distance.shape, bool)
     up = np.asarray(surfaces.up, np.float64)
@@ -186,7 +190,8 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
             mover = _in_box_above(own[lo:hi], then[:3, :3], then[:3, 3], half + 0.1, vertical, floor)
             if motion is not None:
                 mover = mover @ motion[:3, :3].T + motion[:3, 3]
-        pts = mover if len(mover) >= _MIN_OWN_RETURNS else _in_box_above(pts, R, t, None, vertical, floor)
+        spread = len(mover) >= _MIN_OWN_RETURNS
+        pts = mover if spread else _in_box_above(pts, R, t, None, vertical, floor)
         corners = (_CUBE * half) @ R.T + t
         beside = np.any(corners @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
         if len(pts) < 3 and not beside:
@@ -236,7 +241,7 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
             mine = np.zeros_like(changed)
         shell(filled, grown, x0, y0, rays, distance, normal, fields["ground"], fields["open"], fields["puddle"],
               fields["track"], allowed, tails, hulls, mine, R, t, o, half, vertical, floor, center, body_lo,
-              body_hi, cabin_lo, cabin_hi, _BOX_SLACK_M)
+              body_hi, cabin_lo, cabin_hi, _BOX_SLACK_M, spread)
         if blind:
             # which face of a loose box a ray enters, or the normal of one of a few returns, says
             # little of the surface there: what the box stands for faces the camera upright, as a
@@ -411,16 +416,18 @@ def _box_shell_pixels(filled: np.ndarray, grown: np.ndarray, x0: int, y0: int, r
                       puddle: np.ndarray, track: np.ndarray, allowed: np.ndarray, tails: np.ndarray,
                       hulls: np.ndarray, changed: np.ndarray, R: np.ndarray, t: np.ndarray, o: np.ndarray,
                       half: np.ndarray, vertical: int, floor: float, center: np.ndarray, body_lo: np.ndarray,
-                      body_hi: np.ndarray, cabin_lo: np.ndarray, cabin_hi: np.ndarray, slack: float) -> None:
+                      body_hi: np.ndarray, cabin_lo: np.ndarray, cabin_hi: np.ndarray, slack: float,
+                      spread: bool) -> None:
     """One box of :func:`box_shells`, in place: the numpy reference of
     :func:`~.shell_kernels.box_shell_kernel` (its arguments).
 
     First the tails: pixels of the region (``filled``, the hull of the object's returns, and
     ``grown``, that hull grown by ``_EDGE_PX``, both [h, w] uint8 from column ``x0``, row ``y0``)
     outside ``grown`` whose surface lies on the object (inside its box, ``slack`` included, above
-    ``floor`` on axis ``vertical``) are its Gaussians' tails over the road or the facade beside it
-    (a car's roof's upward normals spread snow into the air above it, its sides' a dark rim on the
-    road); ``grown`` is added to ``hulls``. Then the shell of every ``filled`` pixel (see
+    ``floor`` on axis ``vertical``, or with ``spread`` beside the box's footprint: a mover's
+    Gaussians spread past it) are its Gaussians' tails over the
+    road or the facade beside it (a car's roof's upward normals spread snow into the air above it,
+    its sides' a dark rim on the road); ``grown`` is added to ``hulls``. Then the shell of every ``filled`` pixel (see
     :func:`box_shells`): ``behind`` where the ray enters the box, passes through its body
     (``body_lo`` .. ``body_hi``) or its glasshouse (``cabin_lo`` .. ``cabin_hi``) and sees the
     lidar's surface more than ``slack`` behind the entry; ``on`` where that surface lies on the
@@ -433,7 +440,9 @@ def _box_shell_pixels(filled: np.ndarray, grown: np.ndarray, x0: int, y0: int, r
     rr, cc = np.nonzero(~inside & allowed[y0:y0 + rh, x0:x0 + rw] & np.isfinite(seen))
     if rr.size:
         point = (center - t + rays[rr + y0, cc + x0] * seen[rr, cc, None]) @ R  # in the box frame
-        on = in_box(point, half + slack) & (point[:, vertical] >= floor)
+        # a mover's Gaussians spread past it: below the underbody line, beside the box's footprint
+        beside = np.any(np.delete(np.abs(point) > half, vertical, axis=1), axis=1) & spread
+        on = in_box(point, half + slack) & ((point[:, vertical] >= floor) | beside)
         tails[rr[on] + y0, cc[on] + x0] = True
     rr, cc = np.nonzero(hull & allowed[y0:y0 + rh, x0:x0 + rw])
     rr, cc = rr + y0, cc + x0
@@ -455,19 +464,36 @@ def _box_shell_pixels(filled: np.ndarray, grown: np.ndarray, x0: int, y0: int, r
     # lidar's own (smoothed) normal stays: a box face chosen per pixel flips between the roof
     # and a side from frame to frame, and the roof the camera looks down through is not the
     # side window the lidar sampled
-    br, bc, bnear, bd = rr[behind], cc[behind], near[behind], d[behind]
-    entry = o + bd * bnear[:, None]
-    axis = np.argmax(np.abs(entry) / half, axis=1)
+    br, bc, bnear, bd, bseen = rr[behind], cc[behind], near[behind], d[behind], seen[behind]
+    # a ray that meets the glasshouse through a window (a face other than its top), before the
+    # body and what the lidar saw, takes that face: the glass the lidar saw through, not the box's
+    # top over a windscreen (its top stood over the wall behind a box taller than its car)
+    b_in, b_out = _slab_interval(o, bd, body_lo, body_hi)
+    c_in, c_out = _slab_interval(o, bd, cabin_lo, cabin_hi)
+    hit_b = (b_out >= np.maximum(b_in, 0.0)) & (b_out > 0.0)
+    hit_c = (c_out >= np.maximum(c_in, 0.0)) & (c_out > 0.0)
+    cabin_axis, cabin_sign = _entry_face(o + bd * c_in[:, None], cabin_lo, cabin_hi)
+    cabin = hit_c & (c_in < bseen) & ~(hit_b & (b_in < c_in)) & (cabin_axis != vertical)
+    box_axis, box_sign = _entry_face(o + bd * bnear[:, None], -half, half)
+    axis, sign = np.where(cabin, cabin_axis, box_axis), np.where(cabin, cabin_sign, box_sign)
     face = np.zeros((br.size, 3))
-    face[np.arange(br.size), axis] = np.sign(entry[np.arange(br.size), axis])
+    face[np.arange(br.size), axis] = sign
     normal[br, bc] = face @ R.T
-    distance[br, bc] = bnear
+    distance[br, bc] = np.where(cabin, c_in, bnear)
     rr, cc = rr[hit], cc[hit]
     ground[rr, cc] = 0.0
     open_[rr, cc] = 1.0
     puddle[rr, cc] = 0.0
     track[rr, cc] = 0.0
     changed[rr, cc] = True
+
+
+def _entry_face(entry: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """([N] axis, [N] sign) of the face of the box [lo, hi] (box frame) each point of ``entry``
+    [N, 3] lies on: the first axis of the largest |offset from its middle| / half-size."""
+    offset = entry - (lo + hi) / 2.0
+    axis = np.argmax(np.abs(offset) / ((hi - lo) / 2.0), axis=1)
+    return axis, np.sign(offset[np.arange(len(entry)), axis])
 
 
 def _replace_tails(tails: np.ndarray, source: np.ndarray, distance: np.ndarray, normal: np.ndarray,

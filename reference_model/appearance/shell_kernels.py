@@ -97,10 +97,47 @@ def _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor)
     return abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor
 
 
+@numba.njit(cache=True, inline="always")
+def _entry_face(o, d0, d1, d2, entry, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """(axis, sign) of the face of the box [lo, hi] the point ``o + entry d`` lies on: the first
+    axis of the largest |offset from its middle| / half-size (``box_shells._entry_face``)."""
+    e0 = o[0] + d0 * entry - (lo[0] + hi[0]) / 2.0
+    e1 = o[1] + d1 * entry - (lo[1] + hi[1]) / 2.0
+    e2 = o[2] + d2 * entry - (lo[2] + hi[2]) / 2.0
+    axis, sign, best = 0, np.sign(e0), abs(e0) / ((hi[0] - lo[0]) / 2.0)
+    if abs(e1) / ((hi[1] - lo[1]) / 2.0) > best:
+        axis, sign, best = 1, np.sign(e1), abs(e1) / ((hi[1] - lo[1]) / 2.0)
+    if abs(e2) / ((hi[2] - lo[2]) / 2.0) > best:
+        axis, sign = 2, np.sign(e2)
+    return axis, sign
+
+
+@numba.njit(cache=True, inline="always")
+def _tail_on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, half, vertical, floor, spread):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """:func:`_on_object` for the tails: with ``spread``, below ``floor`` too where the surface lies
+    beside the box's footprint (``half``: outside it along an axis other than ``vertical``)."""
+    seen = distance[y, x]
+    if not math.isfinite(seen):
+        return False
+    b0 = a0 + rays[y, x, 0] * seen
+    b1 = a1 + rays[y, x, 1] * seen
+    b2 = a2 + rays[y, x, 2] * seen
+    p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
+    p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
+    p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
+    if not (abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2):
+        return False
+    pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
+    if pv >= floor:
+        return True
+    return spread and ((vertical != 0 and abs(p0) > half[0]) or (vertical != 1 and abs(p1) > half[1])
+                       or (vertical != 2 and abs(p2) > half[2]))
+
+
 @numba.njit(cache=True, error_model="numpy")
 def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open_, puddle, track,  # type: ignore[no-untyped-def]  # pragma: no cover
                      allowed, tails, hulls, changed, R, t, o, half, vertical, floor, center, body_lo, body_hi,
-                     cabin_lo, cabin_hi, slack):
+                     cabin_lo, cabin_hi, slack, spread):
     """One box of :func:`~wcbench.reference_model.appearance.box_shells.box_shells`, in place.
 
     ``filled`` / ``grown`` [h, w] uint8: the hull of the object's returns and that hull grown by
@@ -111,7 +148,9 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
     rotation and centre, ``o`` the camera centre in the box's frame, ``half`` its half-size,
     ``floor`` the height on axis ``vertical`` below which the road shows, ``center`` the camera
     centre (world), ``body_lo``/``body_hi`` and ``cabin_lo``/``cabin_hi`` the body's and the
-    glasshouse's boxes, ``slack`` the box's margin (m).
+    glasshouse's boxes, ``slack`` the box's margin (m), ``spread`` whether the object's Gaussians
+    spread past it (a mover's silhouette from its own returns: below ``floor`` too, beside its
+    footprint, a surface on it is tails).
     """
     rh, rw = filled.shape
     a0, a1, a2 = center[0] - t[0], center[1] - t[1], center[2] - t[2]
@@ -123,7 +162,8 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
             if grown[r, c]:
                 hulls[y, x] = True
                 continue
-            if allowed[y, x] and _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor):
+            if allowed[y, x] and _tail_on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, half, vertical,
+                                                 floor, spread):
                 tails[y, x] = True
     lo = -half
     for r in range(rh):
@@ -143,16 +183,20 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
             through = _hits(o, d0, d1, d2, body_lo, body_hi) or _hits(o, d0, d1, d2, cabin_lo, cabin_hi)
             behind = near + slack < seen and through
             if behind:
-                e0, e1, e2 = o[0] + d0 * near, o[1] + d1 * near, o[2] + d2 * near
-                # the face entered: the first axis of the largest |entry| / half (np.argmax)
-                axis, sign, best = 0, np.sign(e0), abs(e0) / half[0]
-                if abs(e1) / half[1] > best:
-                    axis, sign, best = 1, np.sign(e1), abs(e1) / half[1]
-                if abs(e2) / half[2] > best:
-                    axis, sign = 2, np.sign(e2)
+                # the glasshouse's face where the ray meets it through a window (not its top) before
+                # the body and the lidar's surface (the glass the lidar saw through), else the box's
+                b_in, b_out = _slab(o, d0, d1, d2, body_lo, body_hi)
+                c_in, c_out = _slab(o, d0, d1, d2, cabin_lo, cabin_hi)
+                hit_b = b_out >= _nan_max(b_in, 0.0) and b_out > 0.0
+                hit_c = c_out >= _nan_max(c_in, 0.0) and c_out > 0.0
+                axis, sign = _entry_face(o, d0, d1, d2, c_in, cabin_lo, cabin_hi)
+                entry = c_in
+                if not (hit_c and c_in < seen and not (hit_b and b_in < c_in) and axis != vertical):
+                    axis, sign = _entry_face(o, d0, d1, d2, near, lo, half)
+                    entry = near
                 for i in range(3):
                     normal[y, x, i] = sign * R[i, axis]
-                distance[y, x] = near
+                distance[y, x] = entry
             elif math.isfinite(seen):
                 p0, p1, p2 = o[0] + d0 * seen, o[1] + d1 * seen, o[2] + d2 * seen
                 pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)

@@ -15,6 +15,7 @@ import pytest
 pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.box_shells import (
+    _CABIN_SHARE,
     _CUBE,
     _box_motions,
     _boxes_miss_view,
@@ -122,6 +123,25 @@ def test_a_box_stands_for_a_sparse_car_only_where_the_ray_passes_through_its_bod
     assert np.all(normal[changed] @ UP.astype(np.float32) < 0.3)
 
 
+def test_a_ray_through_the_glass_takes_the_glasshouses_face_not_the_boxs_top():
+    # a camera 2.2 m up, the car 2.75 m ahead: the ray enters its box through the top (1.5 m) just
+    # behind the front face, and the glasshouse (from the middle 0.6 of the length: 3.65 m) through
+    # its front under its roof (1.35 m); the lidar saw through the glass. The windscreen stands
+    # upright there (the box's top drew a band of snow across a windscreen)
+    camera = _camera(2.2)
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    box = BOX.copy()
+    box[0, 3] = 5.0
+    pixel = _pixel(camera, [3.65, 0.0, 1.30])
+    ray = rays[pixel]
+    assert 2.2 + ray[2] * (2.75 / ray[0]) > 1.5  # it enters through the box's top
+    changed = box_shells(_surfaces(box), 0, camera, rays, camera.center, distance, normal, fields,
+                         np.zeros(distance.shape, bool))
+    assert changed[pixel] and distance[pixel] == pytest.approx(3.65 / ray[0], rel=1e-9)
+    np.testing.assert_allclose(normal[pixel], [-1.0, 0.0, 0.0], atol=1e-6)
+
+
 def test_the_road_just_before_and_under_a_cars_sills_stays_road():
     camera = _camera(1.6)
     rays, _ = _rays(camera)
@@ -158,6 +178,33 @@ def test_a_cars_gaussians_tails_beside_its_silhouette_and_their_blend_past_them_
     # a pixel of the wall beside it keeps the wall (its surface is nowhere near the car)
     far = _pixel(camera, [7.75, 3.0, 1.0])
     assert distance[far] == 30.0
+
+
+@pytest.mark.parametrize("mover", [True, False])
+def test_below_the_underbody_line_a_surface_beside_a_movers_footprint_is_tails_one_under_it_stays(mover):
+    # a mover's node gathers every sweep's returns in its box's frame, spread past the car by the
+    # boxes' jitter: its lowest Gaussians, facing down, reach 0.15 m beside the box below the line
+    # (0.3 m) where the road under a car shows, over the road beside it (a dark wedge in the snow);
+    # a surface under the car's sill, inside its footprint, is the car's or the road under it. A
+    # parked car's Gaussians are its static returns: beside its box there, its tyres stay
+    camera = _camera(1.6)
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    pixels = {}
+    for name, point in (("beside", [7.75, 1.05, 0.2]), ("under", [7.9, 0.0, 0.12])):
+        pixel = pixels[name] = _pixel(camera, point)
+        distance[pixel] = float(np.linalg.norm(np.array(point) - camera.center))
+        normal[pixel], fields["open"][pixel] = [0.0, 0.0, -1.0], 1.0
+    surfaces = _surfaces(own=_narrower_car(0.9) if mover else None)
+    box_shells(surfaces, 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool))
+    beside, under = pixels["beside"], pixels["under"]
+    if mover:
+        assert distance[beside] == 30.0 and fields["open"][beside] == 0.0
+        np.testing.assert_allclose(normal[beside], [-1.0, 0.0, 0.0], atol=1e-6)
+    else:
+        assert distance[beside] < 10.0 and fields["open"][beside] == 1.0
+    assert distance[under] < 10.0 and fields["open"][under] == 1.0
+    np.testing.assert_allclose(normal[under], [0.0, 0.0, -1.0], atol=1e-6)
 
 
 def _narrower_car(half_width):
@@ -297,7 +344,7 @@ def test_a_car_in_the_lidars_blind_zone_is_its_box_only_where_the_lidar_saw_noth
                           np.zeros(distance.shape, bool))
     assert changed[side] and fields["ground"][side] == 0.0
     ray = rays[side]
-    entry = (-1.1 - 0.0) / ray[1]  # the box's near side face, y = -1.1 m
+    entry = (-2.0 + 0.9 * _CABIN_SHARE[1]) / ray[1]  # the glasshouse's near side, 0.9 of the box's width
     assert distance[side] == pytest.approx(entry, rel=1e-6)
     # the face stands for the car upright, facing the camera: no snow settles on it
     assert normal[side] @ UP == pytest.approx(0.0, abs=1e-6) and normal[side] @ ray < 0.0
