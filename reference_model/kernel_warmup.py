@@ -123,7 +123,7 @@ def _editor() -> None:
     flags = [np.zeros((h, w), bool) for _ in range(3)]
     kernels.box_shell_kernel(filled, filled.copy(), 0, 0, rays, np.full((h, w), 9.0), np.zeros((h, w, 3), np.float32),
                              *fields, np.ones((h, w), bool), *flags, pose[:3, :3], pose[:3, 3], -pose[:3, 3],
-                             half, 1, np.float64(-0.4), np.eye(4)[:3, 3], -half, half, -half, half, 0.3, True)
+                             half, 1, np.float64(-0.4), np.eye(4)[:3, 3], -half, half, -half, half, 0.3, 0.05)
     # and the band over its top, with the frame (float32) and its colour steps
     kernels.top_band_kernel(0, 0, w, h, rays, np.full((h, w), 9.0), np.eye(4)[:3, 3], pose[:3, :3], pose[:3, 3], half,
                             0.3, 1, np.float64(-0.4), np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),

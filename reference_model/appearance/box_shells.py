@@ -31,6 +31,11 @@ _NEAR_M, _MIN_BESIDE_RETURNS = 0.1, 100
 #: floor, in its box grown by 0.1 m); with fewer (no sweep, or the lidar barely saw it), the hull of
 #: its Gaussians'.
 _MIN_OWN_RETURNS = 20
+#: Below its underbody line, a surface on a mover more than this (m) outside its box's footprint
+#: is its Gaussians' tails: its node's lowest Gaussians spread 0.11-0.14 m past the car by the
+#: boxes' jitter (pandaset_002), while a car's own lower sides lie on its box or within a few
+#: centimetres of it (the annotation's margin).
+_SPREAD_M = 0.05
 #: A tracked object's box face stands for it where the lidar surfaces lie this far behind it (m).
 _BOX_SLACK_M = 0.3
 #: Share of a box's height below which the body fills it (a car's belt line, ~0.9 m of a 1.45 m
@@ -128,8 +133,9 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     the frame (within two frames, carried by its box's motion), from 20 of them: its node's
     Gaussians gather every sweep's, spread past the car by the boxes' jitter. The ray's entry into
     the box is found by the slab method in the box frame. Beside the silhouette, a surface on the
-    object (above that band; for a mover with its own silhouette also below it beside the box's
-    footprint: its lowest Gaussians, not its tyres or the road under it) is its Gaussians' tails and
+    object (above that band; for a mover with its own silhouette also below it, more than 0.05 m
+    beside the box's footprint: its lowest Gaussians, not its tyres or the road under it) is its
+    Gaussians' tails and
     takes the surface beside it (:func:`_box_shell_pixels`, :func:`_replace_tails`), as do the
     pixels within ``_BLEND_PX`` past the tails, where the tails composite with what lies beyond
     (their normals half up, half aside). A box the camera is beside (a corner behind its near plane,
@@ -190,8 +196,8 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
             mover = _in_box_above(own[lo:hi], then[:3, :3], then[:3, 3], half + 0.1, vertical, floor)
             if motion is not None:
                 mover = mover @ motion[:3, :3].T + motion[:3, 3]
-        spread = len(mover) >= _MIN_OWN_RETURNS
-        pts = mover if spread else _in_box_above(pts, R, t, None, vertical, floor)
+        own_hull = len(mover) >= _MIN_OWN_RETURNS
+        pts = mover if own_hull else _in_box_above(pts, R, t, None, vertical, floor)
         corners = (_CUBE * half) @ R.T + t
         beside = np.any(corners @ w2c[2, :3] + w2c[2, 3] <= _NEAR_M)
         if len(pts) < 3 and not beside:
@@ -241,7 +247,7 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
             mine = np.zeros_like(changed)
         shell(filled, grown, x0, y0, rays, distance, normal, fields["ground"], fields["open"], fields["puddle"],
               fields["track"], allowed, tails, hulls, mine, R, t, o, half, vertical, floor, center, body_lo,
-              body_hi, cabin_lo, cabin_hi, _BOX_SLACK_M, spread)
+              body_hi, cabin_lo, cabin_hi, _BOX_SLACK_M, _SPREAD_M if own_hull else np.inf)
         if blind:
             # which face of a loose box a ray enters, or the normal of one of a few returns, says
             # little of the surface there: what the box stands for faces the camera upright, as a
@@ -414,20 +420,20 @@ def _spill_region(hull: np.ndarray, h: int, w: int) -> tuple[int, int, int, int]
 def _box_shell_pixels(filled: np.ndarray, grown: np.ndarray, x0: int, y0: int, rays: np.ndarray,
                       distance: np.ndarray, normal: np.ndarray, ground: np.ndarray, open_: np.ndarray,
                       puddle: np.ndarray, track: np.ndarray, allowed: np.ndarray, tails: np.ndarray,
-                      hulls: np.ndarray, changed: np.ndarray, R: np.ndarray, t: np.ndarray, o: np.ndarray,
-                      half: np.ndarray, vertical: int, floor: float, center: np.ndarray, body_lo: np.ndarray,
-                      body_hi: np.ndarray, cabin_lo: np.ndarray, cabin_hi: np.ndarray, slack: float,
-                      spread: bool) -> None:
+                      hulls: np.ndarray, changed: np.ndarray, R: np.ndarray, t: np.ndarray,
+                      o: np.ndarray, half: np.ndarray, vertical: int, floor: float, center: np.ndarray,
+                      body_lo: np.ndarray, body_hi: np.ndarray, cabin_lo: np.ndarray, cabin_hi: np.ndarray,
+                      slack: float, beside: float) -> None:
     """One box of :func:`box_shells`, in place: the numpy reference of
     :func:`~.shell_kernels.box_shell_kernel` (its arguments).
 
     First the tails: pixels of the region (``filled``, the hull of the object's returns, and
     ``grown``, that hull grown by ``_EDGE_PX``, both [h, w] uint8 from column ``x0``, row ``y0``)
     outside ``grown`` whose surface lies on the object (inside its box, ``slack`` included, above
-    ``floor`` on axis ``vertical``, or with ``spread`` beside the box's footprint: a mover's
-    Gaussians spread past it) are its Gaussians' tails over the
-    road or the facade beside it (a car's roof's upward normals spread snow into the air above it,
-    its sides' a dark rim on the road); ``grown`` is added to ``hulls``. Then the shell of every ``filled`` pixel (see
+    ``floor`` on axis ``vertical``, or more than ``beside`` (m, ``inf``: never) outside the box's
+    footprint: a mover's Gaussians spread past it) are its Gaussians' tails over the road or the
+    facade beside it (a car's roof's upward normals spread snow into the air above it, its sides' a
+    dark rim on the road); ``grown`` is added to ``hulls``. Then the shell of every ``filled`` pixel (see
     :func:`box_shells`): ``behind`` where the ray enters the box, passes through its body
     (``body_lo`` .. ``body_hi``) or its glasshouse (``cabin_lo`` .. ``cabin_hi``) and sees the
     lidar's surface more than ``slack`` behind the entry; ``on`` where that surface lies on the
@@ -441,8 +447,8 @@ def _box_shell_pixels(filled: np.ndarray, grown: np.ndarray, x0: int, y0: int, r
     if rr.size:
         point = (center - t + rays[rr + y0, cc + x0] * seen[rr, cc, None]) @ R  # in the box frame
         # a mover's Gaussians spread past it: below the underbody line, beside the box's footprint
-        beside = np.any(np.delete(np.abs(point) > half, vertical, axis=1), axis=1) & spread
-        on = in_box(point, half + slack) & ((point[:, vertical] >= floor) | beside)
+        spread = np.any(np.delete(np.abs(point) > half + beside, vertical, axis=1), axis=1)
+        on = in_box(point, half + slack) & ((point[:, vertical] >= floor) | spread)
         tails[rr[on] + y0, cc[on] + x0] = True
     rr, cc = np.nonzero(hull & allowed[y0:y0 + rh, x0:x0 + rw])
     rr, cc = rr + y0, cc + x0

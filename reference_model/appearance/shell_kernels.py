@@ -113,9 +113,9 @@ def _entry_face(o, d0, d1, d2, entry, lo, hi):  # type: ignore[no-untyped-def]  
 
 
 @numba.njit(cache=True, inline="always")
-def _tail_on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, half, vertical, floor, spread):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """:func:`_on_object` for the tails: with ``spread``, below ``floor`` too where the surface lies
-    beside the box's footprint (``half``: outside it along an axis other than ``vertical``)."""
+def _tail_on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, half, vertical, floor, beside):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """:func:`_on_object` for the tails: below ``floor`` too where the surface lies more than
+    ``beside`` (m) outside the box's footprint (``half``) along an axis other than ``vertical``."""
     seen = distance[y, x]
     if not math.isfinite(seen):
         return False
@@ -130,27 +130,26 @@ def _tail_on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, half, verti
     pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
     if pv >= floor:
         return True
-    return spread and ((vertical != 0 and abs(p0) > half[0]) or (vertical != 1 and abs(p1) > half[1])
-                       or (vertical != 2 and abs(p2) > half[2]))
+    return ((vertical != 0 and abs(p0) > half[0] + beside) or (vertical != 1 and abs(p1) > half[1] + beside)
+            or (vertical != 2 and abs(p2) > half[2] + beside))
 
 
 @numba.njit(cache=True, error_model="numpy")
 def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open_, puddle, track,  # type: ignore[no-untyped-def]  # pragma: no cover
-                     allowed, tails, hulls, changed, R, t, o, half, vertical, floor, center, body_lo, body_hi,
-                     cabin_lo, cabin_hi, slack, spread):
+                     allowed, tails, hulls, changed, R, t, o, half, vertical, floor, center, body_lo,
+                     body_hi, cabin_lo, cabin_hi, slack, beside):
     """One box of :func:`~wcbench.reference_model.appearance.box_shells.box_shells`, in place.
 
     ``filled`` / ``grown`` [h, w] uint8: the hull of the object's returns and that hull grown by
     the edge, over the frame region from column ``x0``, row ``y0``. First the tails (pixels of the
     region outside ``grown`` whose surface lies on the object, marked in ``tails``; ``grown`` is
-    added to ``hulls``), then the shell of every ``filled`` pixel (``distance`` [H, W] float64,
-    ``normal`` [H, W, 3], the four fields [H, W], ``changed`` [H, W] bool). ``R``, ``t`` the box's
-    rotation and centre, ``o`` the camera centre in the box's frame, ``half`` its half-size,
-    ``floor`` the height on axis ``vertical`` below which the road shows, ``center`` the camera
-    centre (world), ``body_lo``/``body_hi`` and ``cabin_lo``/``cabin_hi`` the body's and the
-    glasshouse's boxes, ``slack`` the box's margin (m), ``spread`` whether the object's Gaussians
-    spread past it (a mover's silhouette from its own returns: below ``floor`` too, beside its
-    footprint, a surface on it is tails).
+    added to ``hulls``), then the shell of every ``filled`` pixel
+    (``distance`` [H, W] float64, ``normal`` [H, W, 3], the four fields [H, W], ``changed`` [H, W]
+    bool). ``R``, ``t`` the box's rotation and centre, ``o`` the camera centre in the box's frame,
+    ``half`` its half-size, ``floor`` the height on axis ``vertical`` below which the road shows,
+    ``center`` the camera centre (world), ``body_lo``/``body_hi`` and ``cabin_lo``/``cabin_hi`` the body's and the
+    glasshouse's boxes, ``slack`` the box's margin (m), ``beside`` how far (m) outside the box's
+    footprint a surface on the object below ``floor`` is tails too (``inf``: never).
     """
     rh, rw = filled.shape
     a0, a1, a2 = center[0] - t[0], center[1] - t[1], center[2] - t[2]
@@ -163,7 +162,7 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
                 hulls[y, x] = True
                 continue
             if allowed[y, x] and _tail_on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, half, vertical,
-                                                 floor, spread):
+                                                 floor, beside):
                 tails[y, x] = True
     lo = -half
     for r in range(rh):
