@@ -81,20 +81,26 @@ def _hits(o, d0, d1, d2, lo, hi):  # type: ignore[no-untyped-def]  # pragma: no 
 
 
 @numba.njit(cache=True, inline="always")
-def _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """Whether the surface pixel (``y``, ``x``) sees lies in the box (centre offset from the camera
-    ``a0, a1, a2``, rotation ``R``, half-size ``s0, s1, s2``) above ``floor`` on axis ``vertical``."""
+def _seen_point(rays, distance, y, x, a0, a1, a2, R):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """(finite, p0, p1, p2): the surface pixel (``y``, ``x``) sees in the frame of a box (centre
+    offset from the camera ``a0, a1, a2``, rotation ``R``); not finite where it sees nothing."""
     seen = distance[y, x]
     if not math.isfinite(seen):
-        return False
+        return False, 0.0, 0.0, 0.0
     b0 = a0 + rays[y, x, 0] * seen
     b1 = a1 + rays[y, x, 1] * seen
     b2 = a2 + rays[y, x, 2] * seen
-    p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
-    p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
-    p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
+    return (True, b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0], b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1],
+            b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2])
+
+
+@numba.njit(cache=True, inline="always")
+def _on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, vertical, floor):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Whether the surface pixel (``y``, ``x``) sees lies in the box (centre offset from the camera
+    ``a0, a1, a2``, rotation ``R``, half-size ``s0, s1, s2``) above ``floor`` on axis ``vertical``."""
+    finite, p0, p1, p2 = _seen_point(rays, distance, y, x, a0, a1, a2, R)
     pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
-    return abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor
+    return finite and abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2 and pv >= floor
 
 
 @numba.njit(cache=True, inline="always")
@@ -116,16 +122,8 @@ def _entry_face(o, d0, d1, d2, entry, lo, hi):  # type: ignore[no-untyped-def]  
 def _tail_on_object(rays, distance, y, x, a0, a1, a2, R, s0, s1, s2, half, vertical, floor, beside):  # type: ignore[no-untyped-def]  # pragma: no cover
     """:func:`_on_object` for the tails: below ``floor`` too where the surface lies more than
     ``beside`` (m) outside the box's footprint (``half``) along an axis other than ``vertical``."""
-    seen = distance[y, x]
-    if not math.isfinite(seen):
-        return False
-    b0 = a0 + rays[y, x, 0] * seen
-    b1 = a1 + rays[y, x, 1] * seen
-    b2 = a2 + rays[y, x, 2] * seen
-    p0 = b0 * R[0, 0] + b1 * R[1, 0] + b2 * R[2, 0]
-    p1 = b0 * R[0, 1] + b1 * R[1, 1] + b2 * R[2, 1]
-    p2 = b0 * R[0, 2] + b1 * R[1, 2] + b2 * R[2, 2]
-    if not (abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2):
+    finite, p0, p1, p2 = _seen_point(rays, distance, y, x, a0, a1, a2, R)
+    if not (finite and abs(p0) <= s0 and abs(p1) <= s1 and abs(p2) <= s2):
         return False
     pv = p0 if vertical == 0 else (p1 if vertical == 1 else p2)
     if pv >= floor:
