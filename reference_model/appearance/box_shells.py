@@ -135,19 +135,18 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     the box is found by the slab method in the box frame. Beside the silhouette, a surface on the
     object (above that band; for a mover with its own silhouette also below it, more than 0.05 m
     beside the box's footprint: its lowest Gaussians, not its tyres or the road under it) is its
-    Gaussians' tails and
-    takes the surface beside it (:func:`_box_shell_pixels`, :func:`_replace_tails`), as do the
-    pixels within ``_BLEND_PX`` past the tails, where the tails composite with what lies beyond
-    (their normals half up, half aside). A box the camera is beside (a corner behind its near plane,
-    0.1 m) with fewer than 100 returns in front of it (the lidar's blind zone and the frame's edge
-    left a sliver of it in view, whose hull would cut the object in two) is outlined by the box
-    itself cut at the near plane (:func:`_clipped_box_outline`), its body rising to
-    ``_BONNET_SHARE`` of its height, and stands for the object only where the lidar saw nothing
-    through it or saw the object itself (:func:`_on_box`), facing the camera upright. Each box's
-    pixels are the numba kernel's (``fast``, where numba imports) or the numpy reference's. With the
-    frame (``image`` [H, W, 3], display RGB), the object's top is snapped to it
-    (:func:`_top_band_pixels`): where the frame shows what lies behind over the object's top edge,
-    the band between is its Gaussians' tails too.
+    Gaussians' tails and takes the surface beside it (:func:`_box_shell_pixels`,
+    :func:`_replace_tails`), as do the pixels within ``_BLEND_PX`` past the tails, where the tails
+    composite with what lies beyond (their normals half up, half aside). A box the camera is beside
+    (a corner behind its near plane, 0.1 m) with fewer than 100 returns in front of it (the lidar's
+    blind zone and the frame's edge left a sliver of it in view, whose hull would cut the object in
+    two) is outlined by the box itself cut at the near plane (:func:`_clipped_box_outline`), its
+    body rising to ``_BONNET_SHARE`` of its height, and stands for the object only where the lidar
+    saw nothing through it or saw the object itself (:func:`_on_box`), facing the camera upright.
+    Each box's pixels are the numba kernel's (``fast``, where numba imports) or the numpy
+    reference's. With the frame (``image`` [H, W, 3], display RGB), the object's top is snapped to
+    it (:func:`_top_band_pixels`): where the frame shows what lies behind over the object's top
+    edge, the band between is its Gaussians' tails too.
     """
     changed = np.zeros(distance.shape, bool)
     up = np.asarray(surfaces.up, np.float64)
@@ -433,8 +432,8 @@ def _box_shell_pixels(filled: np.ndarray, grown: np.ndarray, x0: int, y0: int, r
     ``floor`` on axis ``vertical``, or more than ``beside`` (m, ``inf``: never) outside the box's
     footprint: a mover's Gaussians spread past it) are its Gaussians' tails over the road or the
     facade beside it (a car's roof's upward normals spread snow into the air above it, its sides' a
-    dark rim on the road); ``grown`` is added to ``hulls``. Then the shell of every ``filled`` pixel (see
-    :func:`box_shells`): ``behind`` where the ray enters the box, passes through its body
+    dark rim on the road); ``grown`` is added to ``hulls``. Then the shell of every ``filled``
+    pixel (see :func:`box_shells`): ``behind`` where the ray enters the box, passes through its body
     (``body_lo`` .. ``body_hi``) or its glasshouse (``cabin_lo`` .. ``cabin_hi``) and sees the
     lidar's surface more than ``slack`` behind the entry; ``on`` where that surface lies on the
     object.
