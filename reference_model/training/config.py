@@ -56,6 +56,9 @@ class TrainConfig:
         Default 30: on ``pandaset_002``'s full ``default`` training, with ``lidar_fill``, it left 61
         of the trusted pixels shown as sky against 201 at 10 (2,851 with neither) for 0.05 dB of
         held-out PSNR (docs/findings.md, "Lidar fill"); ``settings.opacity_lidar=0`` turns it off.
+    opacity_sky : float
+        Weight of the push toward opacity 0 of the sky's pixels (the paper's second term), relative
+        to the others' 1.
     lidar_fill : bool
         At each densification, place a Gaussian at the nearest static trusted lidar return
         (``TrainingView.anchor_depth``) of every pixel that its view's last render left below half
@@ -151,6 +154,7 @@ class TrainConfig:
     opacity_weight: float = 0.05
     opacity_solid: bool = True
     opacity_lidar: float = 30.0
+    opacity_sky: float = 1.0
     lidar_fill: bool = True
     deform_weight: float = 1.0
     weather_interval: int = 8
@@ -273,6 +277,7 @@ SETTING_RANGES: dict[str, Range] = {
     "width": Range(0), "height": Range(0), "iterations": Range(1), "feature_dim": Range(1), "hidden": Range(1),
     "ssim_weight": Range(0, 1), "content_weight": Range(0), "content_interval": Range(1),
     "content_size": Range(1), "depth_weight": Range(0), "opacity_weight": Range(0), "opacity_lidar": Range(0),
+    "opacity_sky": Range(0),
     "deform_weight": Range(0),
     "weather_interval": Range(1),
     **{f"lr.{k}": Range(0, low_open=True) for k in ("means", "log_scales", "quats", "object_quats",

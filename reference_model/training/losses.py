@@ -156,7 +156,8 @@ LIDAR_OPAQUE = 0.9
 
 
 def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool = False,
-                 lidar: torch.Tensor | None = None, lidar_weight: float = 0.0) -> torch.Tensor:
+                 lidar: torch.Tensor | None = None, lidar_weight: float = 0.0,
+                 sky_weight: float = 1.0) -> torch.Tensor:
     """-mean(O log O) - mean(M_sky log(1 - O)) of the accumulated opacity O [H, W] (the paper's),
     with ``solid`` also -mean((1 - M_sky) log O): the Gaussians cover every pixel that is not sky,
     and with ``lidar`` also -``lidar_weight`` mean(M_lidar log O): the pixels a lidar return lands
@@ -181,6 +182,8 @@ def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool =
         Pixels a lidar return lands in.
     lidar_weight : float
         Weight of their pull (relative to the other terms' 1); >= 0.
+    sky_weight : float
+        Weight of the sky pixels' push toward 0 (1: the paper's); >= 0.
 
     Returns
     -------
@@ -191,7 +194,7 @@ def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool =
     out = entropy
     if sky is not None:
         m = sky.to(o.dtype)
-        out = out - (m * torch.log(1 - o)).mean()
+        out = out - sky_weight * (m * torch.log(1 - o)).mean()
         if solid:
             out = out - ((1.0 - m) * torch.log(o)).mean()
     if lidar is not None and lidar_weight > 0:

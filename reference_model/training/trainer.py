@@ -329,7 +329,7 @@ class Trainer:
             logged["depth"] = d.detach()
         if cfg.opacity_weight > 0:
             o = opacity_loss(render.alpha, tv.sky, solid=cfg.opacity_solid, lidar=tv.solid,
-                             lidar_weight=cfg.opacity_lidar)
+                             lidar_weight=cfg.opacity_lidar, sky_weight=cfg.opacity_sky)
             terms.append((cfg.opacity_weight, o))
             logged["opacity"] = o.detach()
         if self.model.nonrigid and cfg.deform_weight > 0:

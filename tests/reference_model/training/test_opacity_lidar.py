@@ -47,6 +47,29 @@ def test_a_lidar_hit_pixel_is_pulled_toward_opacity_one_lidar_weight_times_harde
                               lidar=torch.from_numpy(lidar), lidar_weight=0.0)) == pytest.approx(float(base))
 
 
+def test_the_sky_push_scales_only_the_sky_pixels_gradient_and_one_is_the_papers_loss():
+    rng = np.random.default_rng(3)
+    alpha = rng.uniform(0.05, 0.95, (4, 5))
+    sky = np.zeros((4, 5), bool)
+    sky[:2] = True
+    lidar = np.zeros((4, 5), bool)
+    lidar[3, 2] = True
+    kwargs = dict(solid=True, lidar=torch.from_numpy(lidar), lidar_weight=30.0)
+    one = _grad(alpha, sky, **kwargs)
+    entropy = _grad(alpha, None)
+    heavy = _grad(alpha, sky, sky_weight=4.0, **kwargs)
+    # the sky term's gradient, 1 / (1 - O) / (H W) at each sky pixel, four times as large
+    np.testing.assert_allclose(heavy[sky] - entropy[sky], 4.0 * (one[sky] - entropy[sky]), rtol=1e-9)
+    np.testing.assert_allclose(heavy[~sky], one[~sky], rtol=1e-12)
+    np.testing.assert_allclose(one[sky] - entropy[sky], 1.0 / (1.0 - alpha[sky]) / alpha.size, rtol=1e-9)
+    # 1 (the default) is the loss as it was, to the bit
+    a, s = torch.from_numpy(alpha), torch.from_numpy(sky)
+    assert float(opacity_loss(a, s, sky_weight=1.0, **kwargs)) == float(opacity_loss(a, s, **kwargs))
+    assert make_config("default").opacity_sky == 1.0
+    with pytest.raises(ValueError, match="opacity_sky"):
+        make_config("default", opacity_sky=-0.5)
+
+
 def test_the_lidar_pull_is_a_bounded_setting_on_by_default():
     assert make_config("default").opacity_lidar == 30.0  # docs/findings.md, "Lidar fill"
     assert make_config("default").lidar_fill
