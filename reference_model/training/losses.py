@@ -158,10 +158,11 @@ LIDAR_OPAQUE = 0.9
 def opacity_loss(alpha: torch.Tensor, sky: torch.Tensor | None, *, solid: bool = False,
                  lidar: torch.Tensor | None = None, lidar_weight: float = 0.0,
                  sky_weight: float = 1.0) -> torch.Tensor:
-    """-mean(O log O) - mean(M_sky log(1 - O)) of the accumulated opacity O [H, W] (the paper's),
-    with ``solid`` also -mean((1 - M_sky) log O): the Gaussians cover every pixel that is not sky,
-    and with ``lidar`` also -``lidar_weight`` mean(M_lidar log O): the pixels a lidar return lands
-    in are pulled harder, up to :data:`LIDAR_OPAQUE`.
+    """-mean(O log O) - ``sky_weight`` mean(M_sky log(1 - O)) of the accumulated opacity O [H, W]
+    (the paper's, with ``sky_weight`` 1), with ``solid`` also -mean((1 - M_sky) log O): the
+    Gaussians cover every pixel that is not sky, and with ``lidar`` also -``lidar_weight``
+    mean(M_lidar log O): the pixels a lidar return lands in are pulled harder, up to
+    :data:`LIDAR_OPAQUE`.
 
     The paper's two terms leave a non-sky pixel free to be drawn by the sky map; under an edited
     weather's haze the sky is not seen (it lies at infinity), so such a pixel would show the
