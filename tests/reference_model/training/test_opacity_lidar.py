@@ -62,9 +62,13 @@ def test_the_sky_push_scales_only_the_sky_pixels_gradient_and_one_is_the_papers_
     np.testing.assert_allclose(heavy[sky] - entropy[sky], 4.0 * (one[sky] - entropy[sky]), rtol=1e-9)
     np.testing.assert_allclose(heavy[~sky], one[~sky], rtol=1e-12)
     np.testing.assert_allclose(one[sky] - entropy[sky], 1.0 / (1.0 - alpha[sky]) / alpha.size, rtol=1e-9)
-    # 1 (the default) is the loss as it was, to the bit
-    a, s = torch.from_numpy(alpha), torch.from_numpy(sky)
-    assert float(opacity_loss(a, s, sky_weight=1.0, **kwargs)) == float(opacity_loss(a, s, **kwargs))
+    # 1 (the default) is the loss as it was before the weight, to the bit: the same terms in the
+    # same order (a product with 1.0 is exact)
+    o = torch.from_numpy(alpha).clamp(1e-6, 1 - 1e-6)
+    m, lid = torch.from_numpy(sky).to(o.dtype), torch.from_numpy(lidar).to(o.dtype)
+    before = (-(o * torch.log(o)).mean() - (m * torch.log(1 - o)).mean() - ((1.0 - m) * torch.log(o)).mean()
+              - 30.0 * (lid * torch.log(o.clamp(max=LIDAR_OPAQUE))).mean())
+    assert float(opacity_loss(torch.from_numpy(alpha), torch.from_numpy(sky), **kwargs)) == float(before)
     assert make_config("default").opacity_sky == 1.0
     with pytest.raises(ValueError, match="opacity_sky"):
         make_config("default", opacity_sky=-0.5)
