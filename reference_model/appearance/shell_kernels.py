@@ -141,11 +141,11 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
     ``filled`` / ``grown`` [h, w] uint8: the hull of the object's returns and that hull grown by
     the edge, over the frame region from column ``x0``, row ``y0``. First the tails (pixels of the
     region outside ``grown`` whose surface lies on the object, marked in ``tails``; ``grown`` is
-    added to ``hulls``), then the shell of every ``filled`` pixel
-    (``distance`` [H, W] float64, ``normal`` [H, W, 3], the four fields [H, W], ``changed`` [H, W]
-    bool). ``R``, ``t`` the box's rotation and centre, ``o`` the camera centre in the box's frame,
-    ``half`` its half-size, ``floor`` the height on axis ``vertical`` below which the road shows,
-    ``center`` the camera centre (world), ``body_lo``/``body_hi`` and ``cabin_lo``/``cabin_hi`` the body's and the
+    added to ``hulls``), then the shell of every ``filled`` pixel (``distance`` [H, W] float64,
+    ``normal`` [H, W, 3], the four fields [H, W], ``changed`` [H, W] bool). ``R``, ``t`` the box's
+    rotation and centre, ``o`` the camera centre in the box's frame, ``half`` its half-size,
+    ``floor`` the height on axis ``vertical`` below which the road shows, ``center`` the camera
+    centre (world), ``body_lo``/``body_hi`` and ``cabin_lo``/``cabin_hi`` the body's and the
     glasshouse's boxes, ``slack`` the box's margin (m), ``beside`` how far (m) outside the box's
     footprint a surface on the object below ``floor`` is tails too (``inf``: never).
     """
