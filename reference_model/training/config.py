@@ -68,7 +68,13 @@ class TrainConfig:
         densification, beyond it if need be (docs/findings.md, "Lidar fill").
     weather_interval : int
         Every this many steps the edited weathers are rendered (in the same pass) and supervised;
-        the other steps fit the raw frame only.
+        the other steps fit the raw frame only. Default 4: at 8 the snow decoder kept the clear
+        sky's blue on Gaussians beside thin structure of the real side cameras (docs/findings.md,
+        "The weathers every 4th step by default").
+    weather_weight : float
+        Weight of each edited weather's RGB loss relative to the raw frame's 1 (the paper's sum:
+        1). With Adam, a decoder seen only in a weather's loss learns at about the same pace for
+        any weight, while the scene's shared geometry takes that weather's push scaled by it.
     through_haze : bool
         Compose each edited weather's physics haze (fog; rain and snow extinction) into its
         training render, so its decoder learns the appearance behind the haze, which the renderer
@@ -157,7 +163,8 @@ class TrainConfig:
     opacity_sky: float = 1.0
     lidar_fill: bool = True
     deform_weight: float = 1.0
-    weather_interval: int = 8
+    weather_interval: int = 4
+    weather_weight: float = 1.0
     through_haze: bool = True
     lr: dict[str, float] = field(default_factory=lambda: {
         "means": 1.6e-4, "log_scales": 5e-3, "quats": 1e-3, "object_quats": 1e-4, "opacity_logits": 3e-2,
@@ -279,7 +286,7 @@ SETTING_RANGES: dict[str, Range] = {
     "content_size": Range(1), "depth_weight": Range(0), "opacity_weight": Range(0), "opacity_lidar": Range(0),
     "opacity_sky": Range(0),
     "deform_weight": Range(0),
-    "weather_interval": Range(1),
+    "weather_interval": Range(1), "weather_weight": Range(0),
     **{f"lr.{k}": Range(0, low_open=True) for k in ("means", "log_scales", "quats", "object_quats",
                                                     "opacity_logits", "features", "decoders", "sky", "offsets")},
     "means_lr_final": Range(0, 1, low_open=True), "sky_map": Range(1), "voxel_m": Range(0, low_open=True),

@@ -314,7 +314,12 @@ class Trainer:
         if cfg.lidar_fill and tv.anchored is not None and tv is self._tensors.get(v.frame):
             self.holes[v.frame] = (render.alpha.detach() < 0.5) & tv.anchored
         per_weather = rgb_loss(render.images, target, ssim_weight=cfg.ssim_weight)
-        terms: list[tuple[float, torch.Tensor]] = [(1.0, per_weather.sum())]
+        if len(weathers) > 1 and cfg.weather_weight != 1.0:
+            # the raw frame is weathers[0] (the decoders' first weather, "clear")
+            rgb = per_weather[0] + cfg.weather_weight * per_weather[1:].sum()
+        else:
+            rgb = per_weather.sum()
+        terms: list[tuple[float, torch.Tensor]] = [(1.0, rgb)]
         # the logged terms stay on the device until the step's end: one host transfer per step (on a GPU
         # each float() would wait for the queue to drain)
         logged: dict[str, torch.Tensor] = {f"rgb_{w}": x for w, x in zip(weathers, per_weather.detach())}

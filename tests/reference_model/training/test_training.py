@@ -179,3 +179,21 @@ def test_a_step_times_its_phases_and_train_sizes_the_thread_pools_for_its_run(de
     assert all(v >= 0 for v in log.phase_ms.values())
     assert sum(log.phase_ms.values()) == pytest.approx(1e3 * log.seconds, rel=1e-6)
     assert {"project", "sort", "bin", "fwd_blend", "bwd_blend", "bwd_reduce", "bwd_project"} <= set(log.raster_ms)
+
+
+def test_the_weather_weight_scales_each_edited_weathers_rgb_loss_and_one_is_the_papers_sum(demo, demo_views):
+    settings = dict(iterations=2, densify_from=10**6, opacity_weight=0.0, depth_weight=0.0)
+    paper, light = _trainer(demo, demo_views, **settings), _trainer(demo, demo_views, weather_weight=0.25, **settings)
+    assert paper._weather_step(0) and not paper._weather_step(1)  # quick: every 2nd step
+    a, b = paper.step(), light.step()
+    # the same model and view: the same terms; the total takes the fog term at a quarter
+    assert a.terms == b.terms and set(a.terms) == {"rgb_clear", "rgb_fog"}
+    assert a.loss == pytest.approx(a.terms["rgb_clear"] + a.terms["rgb_fog"], rel=1e-6)
+    assert b.loss == pytest.approx(b.terms["rgb_clear"] + 0.25 * b.terms["rgb_fog"], rel=1e-6)
+    # a clear-only step has nothing to weight (the two models differ after one update, so each is
+    # checked against its own terms)
+    c = light.step()
+    assert set(c.terms) == {"rgb_clear"} and c.loss == pytest.approx(c.terms["rgb_clear"], rel=1e-6)
+    assert make_config("default").weather_weight == 1.0
+    with pytest.raises(ValueError, match="weather_weight"):
+        make_config("default", weather_weight=-1.0)
