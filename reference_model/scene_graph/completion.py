@@ -575,6 +575,11 @@ def reach_vote(candidates: np.ndarray, hits: np.ndarray, guide: np.ndarray, *, r
     return out
 
 
+#: How much nearer than the closing of the distances around it (a share) a return must be to
+#: stand before the surface rather than on it (:func:`smooth_walls`).
+OCCLUDER_SHARE = 0.05
+
+
 def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, radius: int,
                  eps: float = 1e-3, keep: np.ndarray | None = None) -> np.ndarray:
     """[H, W] ``distance`` with each wall pixel's replaced by the frame-guided mean of the log
@@ -588,7 +593,9 @@ def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, r
     (:func:`~wcbench.reference_model.guided_filter.guided_filter`; normalised convolution,
     Knutsson & Westin 1993) of the log distances of the pixels with a finite distance (returns,
     ground, walls), the frame as guide, clamped to their range in the window: the guesses are
-    averaged within what the frame shows as one region and not across its edges. Lidar returns
+    averaged within what the frame shows as one region and not across its edges. A return more
+    than :data:`OCCLUDER_SHARE` nearer than the grey-scale closing of those distances over the
+    window (a thing thinner than the window before the surface) is left out. Lidar returns
     and the ground keep their own distance (smoothing them as well lowered the editor's PSNR
     against the synthetic truth).
 
@@ -628,12 +635,18 @@ def smooth_walls(distance: np.ndarray, kind: np.ndarray, guide: np.ndarray, *, r
     if not np.any(wall & drawn):
         return distance
     log_d = np.where(drawn, np.log(np.where(drawn, np.maximum(distance, 1e-3), 1.0)), 0.0).astype(np.float32)
-    weight = drawn.astype(np.float32)
+    # a return nearer than the closing of the drawn distances over the window (a thing thinner
+    # than the window: a pole, a sign before a facade, as complete_distance's closing reads one)
+    # is not the surface the walls around it belong to, however alike their colours: it lends
+    # them nothing (a dark pole pulled a dark facade 50 m away to 21 m, docs/findings.md)
+    closed = closing_among(log_d.astype(np.float64), drawn, radius)
+    lends = drawn & ((kind == FILL_WALL) | (log_d >= closed + np.log1p(-OCCLUDER_SHARE)))
+    weight = lends.astype(np.float32)
     sums = guided_filter(guide, np.stack([log_d * weight, weight], -1), radius=radius, eps=eps)
     kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
     big = np.float32(1e30)
-    low = cv2.erode(np.where(drawn, log_d, big), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float(big))
-    high = cv2.dilate(np.where(drawn, log_d, -big), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float(-big))
+    low = cv2.erode(np.where(lends, log_d, big), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float(big))
+    high = cv2.dilate(np.where(lends, log_d, -big), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=float(-big))
     # a weight this low is a window mostly of sky, whose edge the filter's local model crosses
     ok = wall & drawn & (sums[..., 1] > 0.2)
     if keep is not None:

@@ -381,6 +381,30 @@ def test_a_wall_is_not_smoothed_across_an_edge_of_the_frame():
     assert mixed[15, 38] > 40.0 and mixed[15, 42] < 80.0
 
 
+def test_a_thin_return_before_a_facade_of_its_colour_lends_the_walls_nothing_a_wide_one_does():
+    # a facade's walls at 50 m (rows 5-24) over its returns (25-29), a pole of the facade's colour at
+    # 10 m (columns 38-41, every row below the sky), and a paler near building at 11 m (columns
+    # 0-19) whose walls continue it
+    h, w = 40, 80
+    kind = np.full((h, w), FILL_WALL, np.int8)
+    kind[:5], kind[25:30], kind[30:] = FILL_SKY, FILL_KNOWN, FILL_GROUND
+    distance = np.full((h, w), 50.0)
+    distance[:5], distance[30:] = np.inf, 20.0
+    kind[5:30, 38:42], distance[5:30, 38:42] = FILL_KNOWN, 10.0
+    distance[5:30, :20] = 11.0
+    guide = np.full((h, w, 3), 0.2, np.float32)
+    guide[:5], guide[30:] = (0.7, 0.75, 0.8), 0.35
+    guide[5:30, :20] = (0.75, 0.7, 0.55)
+    out = smooth_walls(distance, kind, guide, radius=12)
+    wall = kind == FILL_WALL
+    # beside the pole the facade keeps its 50 m (the pole, 4 px wide, is a dip the closing fills)
+    np.testing.assert_allclose(out[5:25, 30:38][wall[5:25, 30:38]], 50.0, rtol=0.01)
+    np.testing.assert_allclose(out[5:25, 42:50][wall[5:25, 42:50]], 50.0, rtol=0.01)
+    # the near building's walls keep its 11 m: wider than the window, its returns are a surface
+    np.testing.assert_allclose(out[5:25, :8], 11.0, rtol=0.01)
+    np.testing.assert_array_equal(out[~wall], distance[~wall])
+
+
 def test_complete_distance_smooths_its_walls_only_when_given_the_frame():
     rays, z_per_m = _level_camera()
     h, w = z_per_m.shape
