@@ -18,7 +18,7 @@ nothing: the sky shows through. So:
   graphs complete what a removed vehicle hid (Yan et al. 2024, "Street Gaussians"; Chen et al.
   2024, "OmniRe");
 * the ground is laid where nothing was learned: the vacated boxes' footprints
-  (:func:`~wcbench.reference_model.scene_graph.completion.fill_footprints`) and, in each view, the
+  (:func:`~wcbench.reference_model.scene_graph.footprints.fill_footprints`) and, in each view, the
   see-through pixels of a vacated box below the horizon (:func:`ground_under_holes`), with
   features filled the same way.
 
@@ -41,7 +41,7 @@ from wcbench.reference_model.model.objects import RigidObject
 from wcbench.reference_model.model.scene_model import WeatherCityModel
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.raster.rasterizer import rasterize_image
-from wcbench.reference_model.scene_graph.completion import fill_footprints
+from wcbench.reference_model.scene_graph.footprints import fill_footprints
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 

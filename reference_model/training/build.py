@@ -34,9 +34,9 @@ from wcbench.reference_model.scene_graph.completion import (
     FILL_GROUND,
     FILL_WALL,
     complete_distance,
-    fill_footprints,
     ground_height_below,
 )
+from wcbench.reference_model.scene_graph.footprints import fill_footprints
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.scene_graph.lidar_init import (
     LidarInitOptions,

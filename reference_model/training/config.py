@@ -117,7 +117,7 @@ class TrainConfig:
     footprint_fill : bool
         Add opaque flat Gaussians on the fitted ground under every node's box where no lidar
         return saw it, coloured from the road around it
-        (:func:`~wcbench.reference_model.scene_graph.completion.fill_footprints`), so that a
+        (:func:`~wcbench.reference_model.scene_graph.footprints.fill_footprints`), so that a
         removed object leaves road, not a hole (issue 39).
     budget : int
         Most Gaussians the clones and splits may reach (the render speed depends on it); the lidar

@@ -14,11 +14,11 @@ from wcbench.reference_model.scene_graph.completion import (
     bridge_rings,
     closing_among,
     complete_distance,
-    fill_footprints,
     fit_facades,
     ground_height_below,
     smooth_walls,
 )
+from wcbench.reference_model.scene_graph.footprints import fill_footprints
 
 #: The level camera's optical axis (world +x).
 FORWARD = np.array([1.0, 0.0, 0.0])
