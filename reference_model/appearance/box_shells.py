@@ -128,8 +128,9 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     Returns the pixels changed.
 
     The silhouette is the convex hull of the projections of the surface Gaussians inside the box
-    (grown by 0.1 m) above that band (not the road the box reaches down to), so the air around a car
-    inside its box keeps what lies behind it; for a mover, of its own returns in the sweep nearest
+    (grown by 0.1 m) above that band (not the road the box reaches down to, nor the static foliage
+    of a crown reaching into it: :meth:`~.surfaces.SurfaceScene.inside_boxes`), so the air around a
+    car inside its box keeps what lies behind it; for a mover, of its own returns in the sweep nearest
     the frame (within two frames, carried by its box's motion), from 20 of them: its node's
     Gaussians gather every sweep's, spread past the car by the boxes' jitter. The ray's entry into
     the box is found by the slab method in the box frame. Beside the silhouette, a surface on the

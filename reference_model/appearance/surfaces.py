@@ -580,7 +580,9 @@ class SurfaceScene:
         point is inside when it lies within the half-size of the centre on each of the box's axes.
         The candidates are :meth:`near`'s ball around the box. A box asked for again with the same
         pose and size (a parked car's, at every frame) keeps its static points: only the frame's
-        moving Gaussians are tested again.
+        moving Gaussians are tested again. Static foliage is left out (the analysis' semantics,
+        :meth:`~wcbench.reference_model.scene_analysis.motion.LidarReturns.foliage_at`): a crown
+        reaching into a parked car's box is not the car.
 
         Parameters
         ----------
@@ -612,6 +614,8 @@ class SurfaceScene:
             if static is None:
                 pts = np.take(cloud.means, near[:split], axis=0).astype(np.float64)
                 static = np.compress(in_box((pts - t) @ R, half), pts, axis=0)
+                if self.analysis is not None:
+                    static = static[~self.analysis.returns.foliage_at(static)]
                 memo[key] = static
                 while len(memo) > _BALL_MEMO:  # the oldest first (dicts keep insertion order)
                     memo.pop(next(iter(memo)))

@@ -33,7 +33,9 @@ shows (:meth:`LidarReturns.frame_points`), except the *ghosts*: the transients b
 are no surface at all (smoke, exhaust, spray, and the returns labelled as reflections, which a
 lidar places behind a mirror-like surface, often in open sky). No frame shows a surface there: on
 ``pandaset_002`` they were 28 of the 75 pixels where the trained model showed sky at a return its
-frame trusted (docs/findings.md, "Ghost returns").
+frame trusted (docs/findings.md, "Ghost returns"). Returns of a foliage class are marked too
+(:meth:`LidarReturns.foliage_at`): a street tree's crown reaching into a parked car's box is not
+the car whose silhouette the box draws.
 """
 
 from __future__ import annotations
@@ -56,6 +58,11 @@ __all__ = ["LidarReturns", "classify_returns", "transient_classes"]
 _MOVER_CLASSES = frozenset({"pedestrian", "cyclist", "animal"})
 #: Lidar semantic class names (lower case) of returns that are not surfaces at all.
 _TRANSIENT_NAMES = frozenset({"smoke", "exhaust", "spray or rain", "reflection"})
+#: Lidar semantic class names (lower case) of foliage: a crown reaching into a parked car's box is
+#: not the car (:meth:`LidarReturns.foliage_at`).
+_FOLIAGE_NAMES = frozenset({"vegetation", "tree", "trees", "foliage"})
+#: :meth:`LidarReturns.foliage_at`: the static returns (at most, within a radius in m) put to the vote.
+_FOLIAGE_K, _FOLIAGE_RADIUS_M = 8, 0.2
 #: Free-space margin: max(_MARGIN_M, _MARGIN_REL * depth) (m).
 _MARGIN_M, _MARGIN_REL = 0.5, 0.05
 #: Frames closer than this to a return's own frame give no free-space vote (they see the same);
@@ -86,6 +93,16 @@ def transient_classes(class_names: dict[int, str], *, people: bool = True) -> np
     return out
 
 
+def foliage_classes(class_names: dict[int, str]) -> np.ndarray:
+    """[256] bool lookup over semantic class ids: foliage (vegetation, trees), by the scene's class
+    names (``Scene.class_names``)."""
+    out = np.zeros(256, bool)
+    for cid, name in class_names.items():
+        if 0 <= int(cid) < 256 and str(name).strip().lower() in _FOLIAGE_NAMES:
+            out[int(cid)] = True
+    return out
+
+
 @dataclass
 class LidarReturns:
     """Every sweep's returns and what each is (see the module docstring).
@@ -105,6 +122,8 @@ class LidarReturns:
     ghost : dict of int to ndarray [N] bool
         Dynamic returns that are no surface (smoke, exhaust, spray, reflections' ghosts), left out
         of what their frame shows; a sweep missing here has none.
+    foliage : dict of int to ndarray [N] bool
+        Returns of a foliage class (the scene's semantics); a sweep missing here has none.
     """
 
     points: dict[int, np.ndarray]
@@ -113,6 +132,7 @@ class LidarReturns:
     noise: dict[int, np.ndarray]
     facts: dict[str, Any] = field(default_factory=dict)
     ghost: dict[int, np.ndarray] = field(default_factory=dict)
+    foliage: dict[int, np.ndarray] = field(default_factory=dict)
 
     def static_mask(self, k: int) -> np.ndarray:
         """[N] bool: the returns of frame ``k``'s sweep that belong to the static scene."""
@@ -154,6 +174,27 @@ class LidarReturns:
         if k in self.ghost:
             keep &= ~self.ghost[k]
         return self.points[k][keep]
+
+    def foliage_at(self, points: np.ndarray) -> np.ndarray:
+        """[N] bool: whether most of the static returns (of every sweep) within 0.2 m of each of
+        ``points`` [N, 3] (world, m), its 8 nearest at most, are foliage; ``False`` where none is
+        near, and everywhere for a scene without foliage in its semantics."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if not any(f.any() for f in self.foliage.values()) or not len(points):
+            return np.zeros(len(points), bool)
+        memo = getattr(self, "_foliage_tree", None)
+        if memo is None:
+            order = sorted(self.points)
+            keep = [self.static_mask(k) for k in order]
+            flags = np.concatenate([self.foliage.get(k, np.zeros(len(self.points[k]), bool))[m]
+                                    for k, m in zip(order, keep)])
+            memo = (cKDTree(np.concatenate([self.points[k][m] for k, m in zip(order, keep)])), flags)
+            self._foliage_tree = memo
+        tree, flags = memo
+        dist, nb = tree.query(points, k=_FOLIAGE_K, distance_upper_bound=_FOLIAGE_RADIUS_M)
+        found = np.isfinite(np.asarray(dist).reshape(len(points), -1))
+        votes = np.where(found, flags[np.minimum(np.asarray(nb).reshape(len(points), -1), len(flags) - 1)], False)
+        return votes.sum(axis=1) * 2 > found.sum(axis=1)
 
     def frame_points(self, k: int) -> np.ndarray:
         """[M, 3] what frame ``k`` shows: the static scene and its own dynamic returns."""
@@ -285,13 +326,16 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
     tracks = moving_tracks(scene, moving_threshold_m)
     class_names = dict(getattr(scene, "class_names", {}) or {})
     lookup, no_surface = transient_classes(class_names), transient_classes(class_names, people=False)
-    tracked, trailing, semantic, ghost = {}, {}, {}, {}
+    leafy = foliage_classes(class_names)
+    tracked, trailing, semantic, ghost, foliage = {}, {}, {}, {}, {}
     for k, p in points.items():
         tracked[k], trailing[k] = _tracked(p, k, tracks, box_margin_m)
         lab = labels[k]
         ids = np.clip(lab.astype(np.int64), 0, 255) if lab is not None else None
         semantic[k] = lookup[ids] if ids is not None and lookup.any() else np.zeros(len(p), bool)
         ghost[k] = no_surface[ids] if ids is not None and no_surface.any() else np.zeros(len(p), bool)
+        if ids is not None and leafy.any():
+            foliage[k] = leafy[ids]
 
     # free space: the nearest return per pixel of every frame, at half the analysis size
     depth = {k: _nearest_depth(views, p, k, 0.5) for k, p in points.items()}
@@ -358,4 +402,5 @@ def classify_returns(scene: Any, views: AnalysisViews, *, moving_threshold_m: fl
                 start += n
     counts["noise"] = int(sum(v.sum() for v in noise.values()))
     counts["ghost"] = int(sum(v.sum() for v in ghost.values()))
-    return LidarReturns(points=points, dynamic=dynamic, tracked=tracked, noise=noise, facts=counts, ghost=ghost)
+    return LidarReturns(points=points, dynamic=dynamic, tracked=tracked, noise=noise, facts=counts, ghost=ghost,
+                        foliage=foliage)
