@@ -42,6 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wcbench.reference_model.appearance.ground_cells import CELL_M, cell_heights, connected_ground
+from wcbench.reference_model.appearance.value_noise import value_noise
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis
 from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_frames
 from wcbench.reference_model.scene_graph.completion import Facades, fit_facades
@@ -57,7 +58,7 @@ from wcbench.reference_model.transforms import quat_from_matrices
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
 __all__ = ["ATTRIBUTES", "UNDERBODY_M", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths",
-           "object_sides", "open_to_sky", "value_noise"]
+           "object_sides", "open_to_sky"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -278,36 +279,6 @@ def _plane_axes(up: np.ndarray) -> np.ndarray:
     e1 = np.cross(up, a)
     e1 /= np.linalg.norm(e1)
     return np.stack([e1, np.cross(up, e1)])
-
-
-def value_noise(xy: np.ndarray, *, cell_m: float, seed: int) -> np.ndarray:
-    """Smooth value noise in [0, 1] at 2D points: hashed lattice values, smoothstep-interpolated.
-
-    Parameters
-    ----------
-    xy : ndarray [N, 2]
-        Plane coordinates (m).
-    cell_m : float
-        Lattice spacing (m): the size of the features.
-    seed : int
-
-    Returns
-    -------
-    ndarray [N] float64
-    """
-    p = np.asarray(xy, np.float64) / cell_m
-    i0 = np.floor(p).astype(np.int64)
-    f = p - i0
-    u = f * f * (3.0 - 2.0 * f)
-
-    def lattice(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
-        h = (ix * 73856093) ^ (iy * 19349663) ^ (seed * 83492791)
-        h = (h ^ (h >> 13)) * 1274126177
-        return ((h ^ (h >> 16)) & 0xFFFFFF).astype(np.float64) / float(0xFFFFFF)
-
-    a, b = lattice(i0[:, 0], i0[:, 1]), lattice(i0[:, 0] + 1, i0[:, 1])
-    c, d = lattice(i0[:, 0], i0[:, 1] + 1), lattice(i0[:, 0] + 1, i0[:, 1] + 1)
-    return (a + (b - a) * u[:, 0]) * (1 - u[:, 1]) + (c + (d - c) * u[:, 0]) * u[:, 1]
 
 
 def lane_paths(scene: Any, *, up: np.ndarray, step_m: float = 0.1) -> np.ndarray:
@@ -580,8 +551,7 @@ class SurfaceScene:
         point is inside when it lies within the half-size of the centre on each of the box's axes.
         The candidates are :meth:`near`'s ball around the box. A box asked for again with the same
         pose and size (a parked car's, at every frame) keeps its static points: only the frame's
-        moving Gaussians are tested again. Static foliage is left out (the analysis' semantics,
-        :meth:`~wcbench.reference_model.scene_analysis.motion.LidarReturns.foliage_at`): a crown
+        moving Gaussians are tested again. Static foliage is left out (:meth:`_foliage`): a crown
         reaching into a parked car's box is not the car.
 
         Parameters
@@ -613,15 +583,27 @@ class SurfaceScene:
             static = memo.get(key)
             if static is None:
                 pts = np.take(cloud.means, near[:split], axis=0).astype(np.float64)
-                static = np.compress(in_box((pts - t) @ R, half), pts, axis=0)
-                if self.analysis is not None:
-                    static = static[~self.analysis.returns.foliage_at(static)]
+                inside = np.flatnonzero(in_box((pts - t) @ R, half))
+                static = pts[inside[~self._foliage(near[:split][inside])]]
                 memo[key] = static
                 while len(memo) > _BALL_MEMO:  # the oldest first (dicts keep insertion order)
                     memo.pop(next(iter(memo)))
             pts = np.take(cloud.means, near[split:], axis=0).astype(np.float64)
             out.append(np.concatenate([static, np.compress(in_box((pts - t) @ R, half), pts, axis=0)]))
         return out
+
+    def _foliage(self, static: np.ndarray) -> np.ndarray:
+        """[K] bool: whether the static Gaussians of indices ``static`` [K] are foliage by the analysis'
+        semantics (:meth:`~wcbench.reference_model.scene_analysis.motion.LidarReturns.foliage_at`),
+        each asked once (a moving box's are met again at every frame's pose); none without one."""
+        if self.analysis is None:
+            return np.zeros(len(static), bool)
+        known = getattr(self, "_foliage_known", None)
+        if known is None:
+            known = self._foliage_known = np.full(len(self.gaussians.static), -1, np.int8)
+        todo = static[known[static] < 0]
+        known[todo] = self.analysis.returns.foliage_at(np.asarray(self.gaussians.static.means)[todo])
+        return known[static] == 1
 
     def _frame_dynamic(self, index: int) -> tuple[GaussianCloud, np.ndarray] | None:
         """The untracked dynamic returns of frame ``index`` as Gaussians (colours from the frame at
@@ -890,10 +872,8 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     surf.static_attributes, surf.node_attributes = static, node_attrs
     surf.facades = fit_facades(means, normals, height - surf.ground_height(means), up)
     surf.facts = {"voxel_m": float(voxel_m), "gaussians": len(gaussians), "static": len(means),
-                  "nodes": len(gaussians.nodes),
-                  "ground_fraction": round(float(ground.mean()), 4), "open_fraction": round(float(open_.mean()), 4),
-                  "wheel_path_points": len(lanes_pts),
-                  "ground_slope": round(float(np.hypot(plane[1], plane[2])), 4),
-                  "ground_cells": len(heights), "ground_cells_off_the_ground": dropped,
-                  "facades": len(surf.facades)}
+                  "nodes": len(gaussians.nodes), "ground_fraction": round(float(ground.mean()), 4),
+                  "open_fraction": round(float(open_.mean()), 4), "wheel_path_points": len(lanes_pts),
+                  "ground_slope": round(float(np.hypot(plane[1], plane[2])), 4), "ground_cells": len(heights),
+                  "ground_cells_off_the_ground": dropped, "facades": len(surf.facades)}
     return surf

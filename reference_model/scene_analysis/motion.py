@@ -52,7 +52,7 @@ from wcbench.reference_model.scene_analysis.views import AnalysisViews, pixel_in
 from wcbench.reference_model.scene_graph.lidar_init import moving_tracks
 from wcbench.reference_model.transforms import apply_linear
 
-__all__ = ["LidarReturns", "classify_returns", "transient_classes"]
+__all__ = ["LidarReturns", "classify_returns", "foliage_classes", "transient_classes"]
 
 #: Shared classes (:mod:`wcbench.core.classes`) whose returns are never static surfaces.
 _MOVER_CLASSES = frozenset({"pedestrian", "cyclist", "animal"})

@@ -22,7 +22,7 @@ from wcbench.reference_model.appearance.shading import (
     srgb_to_linear,
     wet_albedo,
 )
-from wcbench.reference_model.appearance.surfaces import value_noise
+from wcbench.reference_model.appearance.value_noise import value_noise
 from wcbench.reference_model.scene_analysis.analysis import analyse_scene
 from wcbench.reference_model.weather.conditions import Weather
 

@@ -20,8 +20,8 @@ from wcbench.reference_model.appearance.surfaces import (
     line_surfels,
     object_sides,
     open_to_sky,
-    value_noise,
 )
+from wcbench.reference_model.appearance.value_noise import value_noise
 from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_axes, principal_frames
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.transforms import quat_to_matrix
