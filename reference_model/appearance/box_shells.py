@@ -270,6 +270,30 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     return changed
 
 
+def moving_pixels(surfaces: SurfaceScene, index: int, rays: np.ndarray, center: np.ndarray, distance: np.ndarray,
+                  candidates: np.ndarray) -> np.ndarray:
+    """[H, W] bool: the pixels of ``candidates`` (:func:`box_shells`' changed pixels) whose surface,
+    ``distance`` [H, W] (m) along ``rays`` [H, W, 3] from ``center`` [3], lies on a moving object at
+    frame ``index``: inside a moving track's box (:meth:`~.surfaces.SurfaceScene.boxes_at`,
+    ``moving_only``; ``_BOX_SLACK_M`` of slack, as its shell's) above its underbody line
+    (:data:`~.surfaces.UNDERBODY_M`: the road under a car is no part of it)."""
+    out = np.zeros(np.shape(distance), bool)
+    boxes = surfaces.boxes_at(index, moving_only=True)
+    rr, cc = np.nonzero(np.asarray(candidates, bool) & np.isfinite(distance))
+    if not boxes or rr.size == 0:
+        return out
+    points = np.asarray(center, np.float64) + rays[rr, cc].astype(np.float64) * distance[rr, cc, None]
+    up = np.asarray(surfaces.up, np.float64)
+    on = np.zeros(rr.size, bool)
+    for T, size in boxes:
+        R, half = np.asarray(T, np.float64)[:3, :3], np.asarray(size, np.float64) / 2.0
+        vertical = int(np.argmax(np.abs(R.T @ up)))
+        local = (points - np.asarray(T, np.float64)[:3, 3]) @ R
+        on |= in_box(local, half + _BOX_SLACK_M) & (local[:, vertical] >= -half[vertical] + UNDERBODY_M)
+    out[rr[on], cc[on]] = True
+    return out
+
+
 def _own_returns(surfaces: SurfaceScene, index: int,
                  shown: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None] | None]:
     """(the movers' returns [M, 3] of the sweep nearest frame ``index`` within two frames, empty

@@ -101,6 +101,7 @@ APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
     "snow.white_balance": (Range(0, low_open=True), "per-channel linear gains under snow light (R, G, B)"),
     "snow.damp": (Range(0, 1), "water film on bare surfaces"),
     "snow.track_cover": (Range(0, 1), "snow cover in the wheel paths, as a fraction of the rest"),
+    "snow.mover_share": (Range(0, 1), "snow cover on a moving object, as a fraction of a parked one's"),
     "fog.exposure": (Range(0, low_open=True), "linear exposure of the overcast scene relative to the clear one"),
     "fog.damp": (Range(0, 1), "water film on surfaces"),
     "sky.color": (Range(0, 1), "overcast sky at the horizon (linear R, G, B)"),
@@ -424,6 +425,8 @@ class WeatherEditor:
             cover = snow_cover(facing, openness, amount=amount, facing_from=float(table["facing_from"]),
                                facing_full=float(table["facing_full"]))
             cover = cover * (1.0 - (1.0 - float(table["track_cover"])) * m.track) * ~m.sky
+            if m.moving is not None:  # a car driven through the falling snow holds a share of a parked one's
+                cover = cover * (1.0 - (1.0 - float(table["mover_share"])) * m.moving)
             # snapped to the frame's strong edges only (a car against the road), not to the texture
             # of the asphalt or a paving stone, which would print the clear frame's patches into
             # the snow and move with them from frame to frame

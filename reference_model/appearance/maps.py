@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from wcbench.reference_model._numba_backend import load_numba_kernels
-from wcbench.reference_model.appearance.box_shells import box_shells
+from wcbench.reference_model.appearance.box_shells import box_shells, moving_pixels
 from wcbench.reference_model.appearance.surfaces import SurfaceScene
 from wcbench.reference_model.guided_filter import guided_filter
 from wcbench.reference_model.model.sky import view_directions
@@ -101,6 +101,9 @@ class SurfaceMaps:
         Height of the ground plane under the camera (m along ``up``).
     fields : tuple of str
         The attributes of :data:`FIELDS` these maps hold (the others are NaN).
+    moving : ndarray bool, optional
+        Where the surface lies on a moving object (:func:`~.box_shells.moving_pixels`); default
+        unknown (none marked).
     """
 
     normal: np.ndarray
@@ -115,6 +118,7 @@ class SurfaceMaps:
     rays: np.ndarray
     ground_height: float
     fields: tuple[str, ...] = FIELDS
+    moving: np.ndarray | None = None
 
 
 @functools.lru_cache(maxsize=8)
@@ -252,6 +256,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     shell_fields = {name: planes.get(name, np.full(distance.shape, np.nan, np.float32)) for name in FIELDS}
     boxed = box_shells(surfaces, index, camera, rays, center, distance, normal, shell_fields, sky, image=image)
     covered |= boxed
+    moving = moving_pixels(surfaces, index, rays, center, distance, boxed)
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
                                           forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2],
@@ -290,7 +295,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     return SurfaceMaps(normal=normal.astype(np.float32), distance=distance.astype(np.float32),
                        ground=out["ground"], open=out["open"], puddle=out["puddle"], track=out["track"],
                        sky=sky, sky_alpha=np.asarray(matte, np.float32), covered=covered, rays=rays.astype(np.float32),
-                       ground_height=ground_h, fields=wanted)
+                       ground_height=ground_h, fields=wanted, moving=moving & ~sky)
 
 
 def _mirrored_cloud(surfaces: SurfaceScene, index: int, ground_height: float) -> GaussianCloud:

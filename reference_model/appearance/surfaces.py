@@ -397,6 +397,8 @@ class SurfaceScene:
     boxes : list of (ndarray [K] int, ndarray [K, 4, 4], ndarray [K, 3])
         Every track's annotated frames, object-to-world poses and box sizes [l, w, h] (parked and
         moving alike): the solid shell of an object the lidar samples sparsely (:meth:`boxes_at`).
+    moving : ndarray [len(boxes)] bool
+        The boxes of the tracks whose object moves (a node's); default none.
     facades : Facades, optional
         Vertical planes fitted to the static returns above a car's height
         (:func:`~wcbench.reference_model.scene_graph.completion.fit_facades`): what a wall above
@@ -420,13 +422,15 @@ class SurfaceScene:
     boxes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
     facades: Facades | None = None
     view_turned: np.ndarray | None = None
+    moving: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
-    def boxes_at(self, index: int) -> list[tuple[np.ndarray, np.ndarray]]:
-        """The (object-to-world [4, 4], size [3]) of every box annotated at frame ``index``."""
+    def boxes_at(self, index: int, *, moving_only: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The (object-to-world [4, 4], size [3]) of every box annotated at frame ``index`` (with
+        ``moving_only``, of the moving objects' only: :attr:`moving`)."""
         out = []
-        for frames, poses, sizes in self.boxes:
+        for b, (frames, poses, sizes) in enumerate(self.boxes):
             hit = np.nonzero(frames == index)[0]
-            if hit.size:
+            if hit.size and (not moving_only or (b < len(self.moving) and self.moving[b])):
                 out.append((poses[int(hit[0])], sizes[int(hit[0])]))
         return out
 
@@ -794,20 +798,21 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     plane = (np.linalg.lstsq(design, heights, rcond=None)[0] if len(centers) >= 3
              else np.array([float(np.mean(heights)), 0.0, 0.0]))
 
+    moving = {node.track_id for node in gaussians.nodes}
     lanes_pts = lane_paths(scene, up=up)
     lanes = cKDTree(lanes_pts @ axes.T) if len(lanes_pts) else None
     surf = SurfaceScene(gaussians=gaussians, static_attributes=np.zeros((0, len(ATTRIBUTES)), np.float32),
                         node_attributes=[], up=up, plane_axes=axes, ground_cells=(ground_tree, heights), lanes=lanes,
                         noise_seed=int(noise_seed), facts={}, ground_plane=plane, analysis=analysis,
                         boxes=[(np.asarray(t.frames, np.int64), np.asarray(t.object_to_world, np.float64),
-                                np.asarray(t.box_size, np.float64)) for t in scene.tracks])
+                                np.asarray(t.box_size, np.float64)) for t in scene.tracks],
+                        moving=np.array([str(t.id) in moving for t in scene.tracks], bool))
     ground = (normals @ up > _GROUND_UP) & (height - surf.ground_height(means) < _GROUND_WITHIN_M)
 
     # a parked object's returns are static (a moving one's are its node's, below); its body shelters
     # the ground under it, its box's footprint, not the ground beside it: the downward normals of
     # its sills and bumpers within 0.5 m sideways left dark holes in the snow along the parked
     # cars of the PandaSet side cameras
-    moving = {node.track_id for node in gaussians.nodes}
     parked = [(T, size) for t in scene.tracks if str(t.id) not in moving
               for T, size in _distinct_poses(t.object_to_world, t.box_size)]
     side, body, under = _box_parts(means, parked, up=up)

@@ -6,6 +6,8 @@ frames' cast shadows are gone under the overcast sky, and the water film darkens
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -179,6 +181,37 @@ def test_snow_settles_on_open_upward_surfaces_only_and_not_in_the_wheel_paths(sy
     assert np.median(gain[up_open]) > 0.2  # white where it settles
     assert np.median(np.abs(gain[walls])) < 0.02  # nothing on a wall
     assert np.median(gain[tracks]) < 0.5 * np.median(gain[up_open])  # traffic cleared the wheel paths
+
+
+def test_a_moving_object_holds_its_share_of_a_parked_ones_snow(hard_editor, synth_hard, monkeypatch):
+    # the maps of a frame with the left half of the frame marked as the surface of a mover
+    k = 12
+    cam, raw = synth_hard.frames[k].camera, _frame(synth_hard, k)
+    weather = resolve_physics(synth_hard, "auto")["snow"]
+    m = hard_editor.maps(k, cam, raw)
+    moving = np.zeros(m.sky.shape, bool)
+    moving[:, : moving.shape[1] // 2] = True
+    n_up = m.normal @ hard_editor.surfaces.up.astype(np.float32)
+    up_open = (n_up > 0.95) & (m.open > 0.9) & (m.track < 0.1) & (m.distance < 40) & ~m.sky
+    inner = cv2.erode(moving.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool) & up_open
+    assert inner.sum() > 200
+    monkeypatch.setattr(hard_editor, "maps", lambda *a, **kw: replace(m, moving=moving))
+    params = hard_editor.params
+
+    def edit(**snow):
+        monkeypatch.setattr(hard_editor, "params", AppearanceParams.load({"snow": snow}) if snow else params)
+        return _luma(hard_editor.edit(raw, k, cam, weather)[0])
+
+    parked, bare = edit(mover_share=1.0), edit(accumulation_h=0.0)
+    monkeypatch.setattr(hard_editor, "maps", lambda *a, **kw: replace(m, moving=None))
+    np.testing.assert_array_equal(edit(mover_share=1.0), parked)  # a share of one: as if parked
+    monkeypatch.setattr(hard_editor, "maps", lambda *a, **kw: replace(m, moving=moving))
+    np.testing.assert_allclose(edit(mover_share=0.0)[inner], bare[inner], atol=1e-5)  # none: bare
+    half = (edit() - bare)[inner] / np.maximum((parked - bare)[inner], 1e-6)
+    assert 0.3 < np.median(half) < 0.7  # the presets' half: between
+    # off the movers, nothing changes (the cover's edge filter reaches 2 px past them)
+    away = ~cv2.dilate(moving.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    np.testing.assert_array_equal(edit(mover_share=0.0)[away], parked[away])
 
 
 def test_puddles_stay_put_from_frame_to_frame(hard_editor, synth_hard):

@@ -24,6 +24,7 @@ from wcbench.reference_model.appearance.box_shells import (
     _slab_interval,
     _spill_region,
     box_shells,
+    moving_pixels,
 )
 from wcbench.reference_model.appearance.maps import (
     _COVERED,
@@ -89,6 +90,38 @@ def _surfaces(box=BOX, grid=(7, 5, 5), own=None, sweep_behind_m=None):
                            boxes=[(np.array([0, 1]), np.stack([box, back]), np.stack([SIZE, SIZE]))],
                            inside_boxes=lambda k, poses, halves: [shell[in_box((shell - T[:3, 3]) @ T[:3, :3], h)]
                                                                   for T, h in zip(poses, halves)])
+
+
+@pytest.mark.parametrize("moves", [True, False])
+def test_a_surface_on_a_moving_objects_box_is_moving_the_road_under_it_and_a_parked_ones_not(moves):
+    camera = _camera(1.6)
+    rays, _ = _rays(camera)
+    surfaces = SimpleNamespace(up=UP, boxes_at=lambda k, moving_only=False: [(BOX, SIZE)] if moves or not moving_only
+                               else [])
+    # one surface point at each of four pixels: the car's rear, its roof, the road under its sill
+    # (inside the box's slack, below the underbody line) and a wall past it
+    points = {"rear": [7.75, 0.0, 0.8], "roof": [9.0, 0.0, 1.5], "under": [7.9, 0.0, 0.1], "wall": [30.0, 0.0, 1.0]}
+    distance = np.full(rays.shape[:2], np.inf)
+    for p in points.values():
+        distance[_pixel(camera, p)] = np.linalg.norm(np.asarray(p) - camera.center)
+    moving = moving_pixels(surfaces, 0, rays, camera.center, distance, np.isfinite(distance))
+    for name, p in points.items():
+        assert moving[_pixel(camera, p)] == (moves and name in ("rear", "roof")), name
+    assert moving.sum() == 2 * moves
+    # only the candidates (the box shells' pixels) are asked
+    assert not moving_pixels(surfaces, 0, rays, camera.center, distance, np.zeros(distance.shape, bool)).any()
+
+
+@pytest.mark.model
+def test_the_surfaces_know_which_boxes_move(synth_hard):
+    surfaces = build_surfaces(synth_hard)
+    nodes = {node.track_id for node in surfaces.gaussians.nodes}
+    assert nodes and len(nodes) < len(synth_hard.tracks)  # some move, some are parked
+    assert surfaces.moving.tolist() == [str(t.id) in nodes for t in synth_hard.tracks]
+    for k in range(len(synth_hard)):
+        annotated = [str(t.id) for t in synth_hard.tracks if k in set(np.asarray(t.frames).tolist())]
+        assert len(surfaces.boxes_at(k)) == len(annotated)
+        assert len(surfaces.boxes_at(k, moving_only=True)) == sum(i in nodes for i in annotated)
 
 
 def _pixel(camera, point):

@@ -548,6 +548,8 @@ def build_content(spec: SynthSpec) -> Content:
     # what v1 has not draws from streams of its own, so v1's stream (and its scenes) stay as they were
     patches = _road_patches(np.random.default_rng([spec.seed, 1]), profile.road_patches)
     rain = MATERIALS_V1["rain"] if profile.sun is None else physical_materials()["rain"]
+    # a moving car holds a share of a parked one's snow: v1's frozen half, the editor's table's for the others
+    mover_snow = 0.5 if profile.sun is None else float(physical_materials()["snow"]["mover_share"])
     ground = _ground(street, cameras, rng, puddles, rain, patches)
     buildings, building_boxes, white = _buildings(street, cameras, rng, profile)
     trees, trunk_boxes, spheres = _trees(street, cameras, rng)
@@ -586,7 +588,7 @@ def build_content(spec: SynthSpec) -> Content:
             raise ValueError(f"unknown mover {kind!r}")
         poses = np.array([_street_pose(street, s0 + speed * t, d, CAR_SIZE[2] / 2, reverse) for t in times])
         spacing = _spacing(_distance(poses[:, :3, 3], cameras, 2.3), 0.12, 0.3)
-        cloud, parts = _car(_CAR_PALETTE[rng.integers(len(_CAR_PALETTE))], spacing, 0.5)
+        cloud, parts = _car(_CAR_PALETTE[rng.integers(len(_CAR_PALETTE))], spacing, mover_snow)
         velocity = np.gradient(poses[:, :3, 3], times, axis=0)
         movers.append(Mover(f"car_{kind}" if tracked else f"car_{kind}_untracked", "Vehicle", CAR_SIZE.copy(), poses,
                              velocity, (lambda c, p: lambda k: (c, p))(cloud, parts), tracked=tracked))

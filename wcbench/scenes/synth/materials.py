@@ -49,7 +49,8 @@ def physical_materials() -> dict[str, dict[str, Any]]:
         ``wetness_vertical`` (film fraction by facing), ``asphalt_wet``, ``puddle_wet`` (wet albedo
         factors), ``asphalt_sheen`` and ``puddle_sheen`` (mirror share of the Fresnel
         reflection); snow: ``facing_from``, ``facing_full`` (normal-up range where it settles),
-        ``snow_albedo`` (linear), ``damp`` (film fraction of the bare surfaces); fog: ``damp``.
+        ``snow_albedo`` (linear), ``damp`` (film fraction of the bare surfaces), ``mover_share``
+        (the cover a moving car holds, as a share of a parked one's); fog: ``damp``.
     """
     a = load_presets()["appearance"]
     rain, snow, fog = a["rain"], a["snow"], a["fog"]
@@ -60,7 +61,7 @@ def physical_materials() -> dict[str, dict[str, Any]]:
                  "puddle_sheen": rain["sheen_puddle"]},
         "snow": {"light": OVERCAST_LIGHT["snow"], "facing_from": snow["facing_from"],
                  "facing_full": snow["facing_full"], "snow_albedo": [float(snow["snow_albedo"])] * 3,
-                 "damp": snow["damp"]},
+                 "damp": snow["damp"], "mover_share": snow["mover_share"]},
         "fog": {"light": OVERCAST_LIGHT["fog"], "damp": fog["damp"]},
     }
 
