@@ -39,7 +39,8 @@ __all__ = ["KERNEL_MODULES", "compile_kernels", "kernels_compiled", "kernels_sta
 
 #: The kernel modules (inside ``wcbench.reference_model``).
 KERNEL_MODULES = ("raster.kernels", "weather.particle_kernels", "weather.fog_kernels", "training.ssim_kernels",
-                  "model.sky_kernels", "appearance.shell_kernels", "appearance.reflection_kernels")
+                  "model.sky_kernels", "appearance.shell_kernels", "appearance.reflection_kernels",
+                  "appearance.shading_kernels")
 
 
 @dataclass(frozen=True)
@@ -138,6 +139,12 @@ def _editor() -> None:
         np.array([0.0, -1.0, 0.0]), 0.0, np.ascontiguousarray(np.eye(4)[:3]), np.array([[20.0, 0, 8], [0, 20.0, 6],
                                                                                              [0, 0, 1]]),
         0.1, 0.5, 1e5, np.empty((h, w), np.float32), np.empty((h, w), np.float32), np.empty((h, w), np.uint8))
+    # the sRGB transfer functions on a flat float32 array, as shading passes them
+    shading = load_numba_kernels("appearance.shading_kernels")
+    assert shading is not None
+    values = np.linspace(0.0, 1.0, 16, dtype=np.float32)
+    shading.srgb_to_linear_kernel(values, np.empty_like(values))
+    shading.linear_to_srgb_kernel(values, np.empty_like(values))
 
 
 def _training() -> None:

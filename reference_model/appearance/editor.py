@@ -532,7 +532,7 @@ def over_sky(surface: np.ndarray, sky: np.ndarray, alpha: np.ndarray) -> np.ndar
     a = np.clip(np.asarray(alpha, np.float32), 0.0, 1.0)
     sky = np.broadcast_to(np.asarray(sky, np.float32), np.shape(surface))
     out = np.array(surface, np.float32)
-    out[a >= 1.0] = sky[a >= 1.0]
+    np.copyto(out, sky, where=(a >= 1.0)[..., None])
     mixed = (a > 0.0) & (a < 1.0)  # only the edge needs the round trip through linear light
     share = a[mixed][:, None]
     out[mixed] = linear_to_srgb(share * srgb_to_linear(sky[mixed]) + (1.0 - share) * srgb_to_linear(out[mixed]))

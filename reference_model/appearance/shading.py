@@ -1,4 +1,4 @@
-"""Physically based appearance models of weather on a surface (numpy only, no torch).
+"""Physically based appearance models of weather on a surface (numpy, numba where it loads; no torch).
 
 The built-in weather editor (:mod:`.editor`) turns a clear, sunlit frame into rain, snow or fog
 with these models, pixel by pixel, from the surface geometry the scene's lidar gives
@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from wcbench.reference_model._numba_backend import load_numba_kernels
+
 __all__ = [
     "LightModel",
     "apply_haze",
@@ -42,15 +44,47 @@ __all__ = [
 ]
 
 
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """Decode sRGB values in [0, 1] to linear light (IEC 61966-2-1), float32, same shape."""
-    c = np.clip(np.asarray(c, np.float32), 0.0, 1.0)
+#: Values below which the sRGB conversions stay in numpy: a parallel kernel's launch costs more.
+_KERNEL_MIN_VALUES = 4096
+
+
+def _transfer_kernel(c: np.ndarray, name: str, fast: bool) -> Any:
+    """The numba kernel ``name`` of :mod:`.shading_kernels` for ``c`` (float32), or None: not
+    ``fast``, a small array, or numba unavailable."""
+    if not fast or c.size < _KERNEL_MIN_VALUES:
+        return None
+    kernels = load_numba_kernels("appearance.shading_kernels")
+    return None if kernels is None else getattr(kernels, name)
+
+
+def srgb_to_linear(c: np.ndarray, *, fast: bool = True) -> np.ndarray:
+    """Decode sRGB values in [0, 1] to linear light (IEC 61966-2-1), float32, same shape.
+
+    ``fast``: in one pass with the numba kernel (:func:`.shading_kernels.srgb_to_linear_kernel`,
+    the same bits) where it loads and the array is not small, else with numpy.
+    """
+    c = np.asarray(c, np.float32)
+    kernel = _transfer_kernel(c, "srgb_to_linear_kernel", fast)
+    if kernel is not None:
+        out = np.empty(c.shape, np.float32)
+        kernel(np.ascontiguousarray(c).reshape(-1), out.reshape(-1))
+        return out
+    c = np.clip(c, 0.0, 1.0)
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-def linear_to_srgb(c: np.ndarray) -> np.ndarray:
-    """Encode linear light to sRGB in [0, 1] (inputs clipped to [0, 1]), float32, same shape."""
-    c = np.clip(np.asarray(c, np.float32), 0.0, 1.0)
+def linear_to_srgb(c: np.ndarray, *, fast: bool = True) -> np.ndarray:
+    """Encode linear light to sRGB in [0, 1] (inputs clipped to [0, 1]), float32, same shape.
+
+    ``fast``: as :func:`srgb_to_linear`'s (:func:`.shading_kernels.linear_to_srgb_kernel`).
+    """
+    c = np.asarray(c, np.float32)
+    kernel = _transfer_kernel(c, "linear_to_srgb_kernel", fast)
+    if kernel is not None:
+        out = np.empty(c.shape, np.float32)
+        kernel(np.ascontiguousarray(c).reshape(-1), out.reshape(-1))
+        return out
+    c = np.clip(c, 0.0, 1.0)
     return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1.0 / 2.4) - 0.055).astype(np.float32)
 
 

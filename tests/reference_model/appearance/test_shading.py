@@ -31,6 +31,29 @@ def test_srgb_transfer_round_trips_and_hits_the_standards_values():
     assert float(linear_to_srgb(np.float32(0.0031308))) == pytest.approx(0.04045, abs=1e-5)
 
 
+@pytest.mark.parametrize("convert", [srgb_to_linear, linear_to_srgb], ids=lambda f: f.__name__)
+def test_srgb_transfer_kernels_give_the_numpy_references_bits(convert):
+    # the numba kernels mirror the reference's float32 operations: the same bits on every 61st float32
+    # of [0, 1] (every one of them was checked once, docs/findings.md), on the knees, out of range
+    # and NaN, on float64 and non-contiguous input, and on an array below the kernels' size
+    from wcbench.reference_model._numba_backend import load_numba_kernels
+
+    if load_numba_kernels("appearance.shading_kernels") is None:
+        pytest.skip("numba shading kernels unavailable")
+    bits = np.arange(0, int(np.float32(1.0).view(np.uint32)) + 1, 61, dtype=np.uint32)
+    edges = np.array([-1.0, -0.0, 0.0, np.nan, np.inf, -np.inf, 2.0, 1.0, 1e-45, 0.04045, 0.0031308,
+                      np.nextafter(np.float32(0.04045), np.float32(1.0)),
+                      np.nextafter(np.float32(0.0031308), np.float32(1.0))], np.float32)
+    values = np.concatenate([bits.view(np.float32), np.tile(edges, 400)])
+    fast, slow = convert(values), convert(values, fast=False)
+    assert fast.dtype == np.float32 and fast.shape == values.shape
+    np.testing.assert_array_equal(fast.view(np.uint32), slow.view(np.uint32))
+    frame = np.random.default_rng(0).uniform(-0.1, 1.1, (64, 96, 3))  # float64
+    for x in (frame, frame[:, ::2], frame[..., 1], frame[:3, :3]):
+        np.testing.assert_array_equal(convert(x).view(np.uint32), convert(x, fast=False).view(np.uint32))
+        assert convert(x).shape == x.shape
+
+
 def test_cie_overcast_sky_lights_a_vertical_plane_with_0_396_of_the_horizontal():
     # Moon & Spencer's overcast sky: E_v / E_h = 0.396 (no ground light)
     model = LightModel(ground_albedo=0.0)
