@@ -128,7 +128,7 @@ def _editor() -> None:
     # and the band over its top, with the frame (float32) and its colour steps
     kernels.top_band_kernel(0, 0, w, h, rays, np.full((h, w), 9.0), np.eye(4)[:3, 3], pose[:3, :3], pose[:3, 3], half,
                             0.3, 1, np.float64(-0.4), np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
-                            4, 0.08, 0.6, np.zeros((h, w), bool))
+                            4, 0.08, 0.6, 1, np.zeros((h, w), bool))
     # the rain's reflection lookup with the types maps._reflection_lookup_fast passes
     reflection = load_numba_kernels("appearance.reflection_kernels")
     assert reflection is not None

@@ -5,8 +5,8 @@ lidar sampled sparsely or saw through (docs/design.md §7, "Weather appearance")
 tracked object's silhouette (the hull of its returns, a mover's from the sweep nearest the frame,
 or for a car in the lidar's blind zone its box cut at the near plane), a ray that passes through
 the body takes the face of the box it enters; a surface on the object beside its silhouette is its
-Gaussians' tails and takes the surface beside it, as does the band over its top that the frame
-shows as what lies behind it. :mod:`.shell_kernels` holds the numba kernels of one box;
+Gaussians' tails and takes the surface beside it, as do the bands over its top and beside its sides
+that the frame shows as what lies behind or beside it. :mod:`.shell_kernels` holds the numba kernels of one box;
 :func:`_box_shell_pixels` and :func:`_top_band_pixels` are their numpy references.
 """
 
@@ -64,6 +64,15 @@ _BLEND_PX = 2
 #: [0, 1], after a 1-px blur) that counts as an edge, and the share of the strongest step of the
 #: search it must also reach.
 _TOP_SEARCH_PX, _TOP_EDGE_STEP, _TOP_EDGE_SHARE = 10, 0.08, 0.6
+#: An object's sides, snapped to the frame the same way (:func:`_side_bands`): how far inside the side
+#: of its surface in the maps the frame's edge is looked for, the reach of its surfels past it (m,
+#: three of their widths, as ``_SPILL_PX``) seen at the box's nearest depth, at most
+#: ``_SIDE_SEARCH_PX`` (pixels of a 270-row frame; none under 2 px: a far car's search would cross
+#: it), and over how many pixels before that side its surface may blend into what lies beyond (a
+#: parked car's rear 3 m off the right camera of pandaset_002, its surfels 0.067 m wide: its surface
+#: in the maps reached 13 px past the frame's edge onto the pavement, through a 4-5 px blend;
+#: docs/findings.md).
+_SIDE_REACH_M, _SIDE_SEARCH_PX, _SIDE_LOOKBACK_PX = 0.24, 20, 6
 
 
 def _slab_interval(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray,
@@ -147,7 +156,9 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     Each box's pixels are the numba kernel's (``fast``, where numba imports) or the numpy
     reference's. With the frame (``image`` [H, W, 3], display RGB), the object's top is snapped to
     it (:func:`_top_band_pixels`): where the frame shows what lies behind over the object's top
-    edge, the band between is its Gaussians' tails too.
+    edge, the band between is its Gaussians' tails too; so are its sides, once every box's shell is
+    drawn (:func:`_side_bands`: a near car's surfels reach past its sides by their width, and the
+    hull of its returns fills the hollow of a sloping tailgate).
     """
     changed = np.zeros(distance.shape, bool)
     up = np.asarray(surfaces.up, np.float64)
@@ -177,6 +188,7 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
     reach = max(2, round(_TOP_SEARCH_PX * h / 270))
     kernels = load_numba_kernels("appearance.shell_kernels") if fast else None
     shell = _box_shell_pixels if kernels is None else kernels.box_shell_kernel
+    sides: list[tuple[Any, ...]] = []
     for b, (T, half, o, pts) in enumerate(zip(poses, halves, origins,
                                               surfaces.inside_boxes(index, poses, halves + 0.1))):
         R, t = T[:3, :3], T[:3, 3]
@@ -259,7 +271,12 @@ def box_shells(surfaces: SurfaceScene, index: int, camera: Any, rays: np.ndarray
         if frame is not None and steps is not None and not blind:
             top = _top_band_pixels if kernels is None else kernels.top_band_kernel
             top(x0, y0, x1 - x0, y1 - y0, rays, distance, center, R, t, half, _BOX_SLACK_M, vertical, floor, frame,
-                steps, reach, _TOP_EDGE_STEP, _TOP_EDGE_SHARE, bands)
+                steps, reach, _TOP_EDGE_STEP, _TOP_EDGE_SHARE, 1, bands)
+            # the surfels reach past a side by their own width: at the box's nearest depth, in pixels
+            nearest = max(float(np.min(corners @ w2c[2, :3] + w2c[2, 3])), _NEAR_M)
+            sides.append((region, R, t, half, vertical, floor, round(_SIDE_REACH_M * K[0, 0] / nearest)))
+    if frame is not None and sides:
+        _side_bands(sides, rays, distance, center, frame, bands, kernels)
     replaced = (tails & ~hulls) | bands
     # the pixels just past the tails composite them with what lies beyond (a normal half up, half
     # aside): they take what lies beyond too, and give nothing
@@ -368,10 +385,37 @@ def _vertical_steps(image: np.ndarray) -> np.ndarray:
     return out
 
 
+def _side_bands(boxes: list[tuple[Any, ...]], rays: np.ndarray, distance: np.ndarray, center: np.ndarray,
+                frame: np.ndarray, bands: np.ndarray, kernels: Any) -> None:
+    """The bands beside each box's left and right edges that the frame shows as what lies beside it,
+    marked in ``bands`` [H, W] bool: :func:`_top_band_pixels` run on the frame turned so that a side
+    is its top (transposed for the left edge, mirrored and transposed for the right), on the maps as
+    every box's shell left them. ``boxes``: per box its region (x0, y0, x1, y1), rotation, centre,
+    half-size, vertical axis, floor and its surfels' reach (pixels)."""
+    h, w = distance.shape
+    cap, lookback = max(2, round(_SIDE_SEARCH_PX * h / 270)), max(1, round(_SIDE_LOOKBACK_PX * h / 270))
+    top = _top_band_pixels if kernels is None else kernels.top_band_kernel
+    for mirrored in (False, True):
+        cols = slice(None, None, -1) if mirrored else slice(None)
+        turned_rays = np.ascontiguousarray(rays[:, cols].transpose(1, 0, 2))
+        turned_distance = np.ascontiguousarray(distance[:, cols].T)
+        turned_frame = np.ascontiguousarray(frame[:, cols].transpose(1, 0, 2))
+        turned_steps = _vertical_steps(turned_frame)
+        turned_bands = np.zeros((w, h), bool)
+        for (x0, y0, x1, y1), R, t, half, vertical, floor, reach in boxes:
+            if reach < 2:  # a far object's surfels reach past it by less than a pixel
+                continue
+            start = w - x1 if mirrored else x0
+            top(y0, start, y1 - y0, x1 - x0, turned_rays, turned_distance, center, R, t, half, _BOX_SLACK_M,
+                vertical, floor, turned_frame, turned_steps, min(reach, cap), _TOP_EDGE_STEP, _TOP_EDGE_SHARE, lookback,
+                turned_bands)
+        bands |= turned_bands.T[:, cols]
+
+
 def _top_band_pixels(x0: int, y0: int, rw: int, rh: int, rays: np.ndarray, distance: np.ndarray, center: np.ndarray,
                      R: np.ndarray, t: np.ndarray, half: np.ndarray, slack: float, vertical: int, floor: float,
                      image: np.ndarray, steps: np.ndarray, reach: int, step_min: float, share: float,
-                     bands: np.ndarray) -> None:
+                     lookback: int, bands: np.ndarray) -> None:
     """The bands over one box's top that the frame shows as what lies behind it, marked in ``bands``
     [H, W] bool (the numpy reference of :func:`~.shell_kernels.top_band_kernel`).
 
@@ -379,8 +423,9 @@ def _top_band_pixels(x0: int, y0: int, rw: int, rh: int, rays: np.ndarray, dista
     the surface each pixel sees (``rays`` [H, W, 3] from ``center``, ``distance`` [H, W] m) lies in
     its box (rotation ``R``, centre ``t``, half-size ``half`` grown by ``slack``) above ``floor`` on
     axis ``vertical``. In each column the object's top is its first pixel from the top under a
-    pixel whose surface lies more than 1 m farther: its Gaussians reach past its edge by their own
-    width (a parked car's roof's returns spread snow in a band over the roof line,
+    pixel whose surface lies more than 1 m farther (one of the ``lookback`` pixels above it: a
+    side's blend into what lies beyond takes a few, :func:`_side_bands`): its Gaussians reach past
+    its edge by their own width (a parked car's roof's returns spread snow in a band over the roof line,
     docs/findings.md). Below it, within ``reach`` rows, the first colour step of the frame
     (``steps`` [H, W], :func:`_vertical_steps`) of at least ``step_min`` and ``share`` of the
     strongest there is the edge the frame shows (a strong step at the top itself: the frame shows
@@ -399,7 +444,8 @@ def _top_band_pixels(x0: int, y0: int, rw: int, rh: int, rays: np.ndarray, dista
     heights, tops = np.zeros(rw, np.int64), np.full(rw, -1, np.int64)
     for c in range(rw):
         for r in np.flatnonzero(on[1:, c] & ~on[:-1, c]) + 1:
-            if not (np.isfinite(seen[r - 1, c]) and seen[r - 1, c] > seen[r, c] + 1.0):
+            before = seen[max(0, r - lookback):r, c]
+            if not np.any(np.isfinite(before) & (before > seen[r, c] + 1.0)):
                 continue
             window = steps[y0 + r:y0 + min(rh, r + reach + 1), x0 + c].astype(np.float64)
             if window.size < 3:

@@ -210,7 +210,7 @@ def box_shell_kernel(filled, grown, x0, y0, rays, distance, normal, ground, open
 
 @numba.njit(cache=True, error_model="numpy")
 def top_band_kernel(x0, y0, rw, rh, rays, distance, center, R, t, half, slack, vertical, floor,  # type: ignore[no-untyped-def]  # pragma: no cover
-                    image, steps, reach, step_min, share, bands):
+                    image, steps, reach, step_min, share, lookback, bands):
     """One box's bands over its top
     (:func:`~wcbench.reference_model.appearance.box_shells._top_band_pixels`, its numpy reference
     and arguments), marked in ``bands`` [H, W] bool."""
@@ -229,8 +229,11 @@ def top_band_kernel(x0, y0, rw, rh, rays, distance, center, R, t, half, slack, v
             prev = on
             if not starts:
                 continue
-            above_d = distance[y - 1, x]
-            if not (math.isfinite(above_d) and above_d > seen + 1.0):
+            far = False
+            for i in range(max(0, r - lookback), r):
+                above_d = distance[y0 + i, x]
+                far = far or (math.isfinite(above_d) and above_d > seen + 1.0)
+            if not far:
                 continue
             stop = min(rh, r + reach + 1)
             if stop - r < 3:

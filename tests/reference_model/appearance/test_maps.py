@@ -367,6 +367,48 @@ def test_a_cars_top_is_kept_where_the_frame_shows_it_or_shows_no_edge_below_it(f
     np.testing.assert_array_equal(fields["open"], without[2])
 
 
+def _spilled_sides(camera, frame_columns):
+    """Maps of the wall 30 m away behind the car, the car's near face drawn over the columns of the
+    hull of its returns (125-195), and a frame showing the car (white) over ``frame_columns`` and the
+    wall (dark) beside it."""
+    rays, _ = _rays(camera)
+    distance, normal, fields = _maps(camera)
+    rows = slice(_pixel(camera, [7.75, 0.0, 1.5])[0] + 1, _pixel(camera, [7.75, 0.0, 0.4])[0])
+    distance[rows, 126:195] = 7.75 / rays[rows, 126:195, 0]
+    normal[rows, 126:195] = UP
+    fields["open"][rows, 126:195] = 1.0
+    image = np.full((camera.height, camera.width, 3), 0.2, np.float32)
+    image[:, frame_columns] = 0.9
+    return rays, distance, normal, fields, image, rows
+
+
+def test_the_bands_a_cars_gaussians_draw_beside_its_sides_take_what_the_frame_shows_there():
+    # the maps put the car's face over columns 126-194 (its surfels' reach, inside the hull of its
+    # returns); the frame shows the car over 131-189 and the wall beside it: the bands on either
+    # side are the wall's, the car the frame shows keeps its face
+    camera = _camera(1.6)
+    assert _pixel(camera, [7.75, 0.9, 1.0])[1] <= 126 and _pixel(camera, [7.75, -0.9, 1.0])[1] >= 194
+    rays, distance, normal, fields, image, rows = _spilled_sides(camera, slice(131, 190))
+    box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool),
+               image=image)
+    middle = slice(rows.start + 3, rows.stop - 3)
+    for band in (slice(126, 131), slice(190, 195)):
+        assert np.all(distance[middle, band] == 30.0) and np.all(fields["open"][middle, band] == 0.0)
+    assert np.all(distance[middle, 133:188] < 9.0) and np.all(fields["open"][middle, 133:188] == 1.0)
+
+
+def test_a_cars_sides_are_kept_where_the_frame_shows_them_there():
+    camera = _camera(1.6)
+    rays, distance, normal, fields, image, rows = _spilled_sides(camera, slice(126, 195))
+    without = [a.copy() for a in (distance, normal, fields["open"])]
+    box_shells(_surfaces(), 0, camera, rays, camera.center, *without[:2], {**fields, "open": without[2]},
+               np.zeros(distance.shape, bool))
+    box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool),
+               image=image)
+    np.testing.assert_array_equal(distance[rows], without[0][rows])
+    np.testing.assert_array_equal(fields["open"][rows], without[2][rows])
+
+
 def _beside_camera():
     """A camera 1.8 m up and a parked car's box beside it, its rear half behind the image plane."""
     camera = _camera(1.8)
