@@ -9,6 +9,19 @@ import numpy as np
 import pytest
 from paths import PANDASET
 
+#: Fixtures that take minutes to build on two cores, with the pytest-xdist group of the tests using
+#: them: the tests run in two processes (``-n 2 --dist loadgroup``, tox.ini), and a fixture is built
+#: once per process, so the tests of one fixture go to one process.
+COSTLY_FIXTURES = {"synth_hard": "synth_hard", "synth_cache": "synth_1", "bench_all_quick": "bench_all_quick"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own hook reads the groups
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        groups = sorted({COSTLY_FIXTURES[f] for f in getattr(item, "fixturenames", ()) if f in COSTLY_FIXTURES})
+        if groups:
+            item.add_marker(pytest.mark.xdist_group("+".join(groups)))
+
 
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_environment(tmp_path_factory: pytest.TempPathFactory) -> None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -10,11 +12,10 @@ pytest.importorskip("torch")
 
 
 @pytest.mark.slow
-def test_bench_model_quick_runs_and_reports_every_case() -> None:
-    from wcbench.bench.model import run
+def test_bench_model_quick_runs_and_reports_every_case(bench_all_quick: Path) -> None:
     from wcbench.bench.schema import validate_benchmark
 
-    obj = run(data_root=None, quick=True).to_json()
+    obj = json.loads((bench_all_quick / "model.json").read_text())  # `bench all --quick` (tests/bench/conftest.py)
     validate_benchmark(obj)
     cases = {c["name"]: c for c in obj["cases"]}
     assert {"plain", "weathercity", "weathercity_half", "one_pass_vs_per_weather", "skip_frustum_cull",

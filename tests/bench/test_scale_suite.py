@@ -8,16 +8,13 @@ from pathlib import Path
 import pytest
 
 from wcbench.bench.schema import validate_benchmark
-from wcbench.cli import main
 
 pytest.importorskip("distributed")
 
 
 @pytest.mark.slow
-def test_bench_scale_quick_reports_every_case_with_zero_difference(tmp_path: Path) -> None:
-    out = tmp_path / "scale.json"
-    assert main(["bench", "scale", "--quick", "--json", str(out)]) == 0
-    doc = json.loads(out.read_text())
+def test_bench_scale_quick_reports_every_case_with_zero_difference(bench_all_quick: Path) -> None:
+    doc = json.loads((bench_all_quick / "scale.json").read_text())  # `bench all --quick` (tests/bench/conftest.py)
     validate_benchmark(doc)
     cases = {c["name"]: c for c in doc["cases"]}
     assert set(cases) == {"local", "dask_1", "dask_2", "empty_units_1", "empty_units_2"}

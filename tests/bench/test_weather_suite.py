@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,12 +15,10 @@ UP = np.array([0.0, -1.0, 0.0])  # camera at the origin with OpenCV axes: world 
 
 
 @pytest.mark.slow
-def test_bench_weather_quick_runs_and_reports_every_case() -> None:
+def test_bench_weather_quick_runs_and_reports_every_case(bench_all_quick: Path) -> None:
     from wcbench.bench.schema import validate_benchmark
-    from wcbench.bench.weather import run
 
-    report = run(data_root=None, quick=True)
-    obj = report.to_json()
+    obj = json.loads((bench_all_quick / "weather.json").read_text())  # `bench all --quick` (tests/bench/conftest.py)
     validate_benchmark(obj)
     names = {c["name"] for c in obj["cases"]}
     assert {"clear", "rain_paper", "snow_paper", "fog_exact", "fog_postprocess"} <= names

@@ -14,6 +14,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -99,10 +100,12 @@ def test_readme_commands_work_verbatim_in_a_fresh_venv(tmp_path: Path) -> None:
         else:
             steps = [(cmd, cwd)]
         for step, where in steps:
+            start = time.perf_counter()
             proc = subprocess.run(shlex.split(step), cwd=where, env=env, capture_output=True, text=True)
             assert proc.returncode == 0, f"{step!r} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n" \
                                          f"{proc.stderr[-3000:]}"
-            ran.append(step)
-    assert any(r.startswith("wcbench run --method filter2d --scenes demo") for r in ran)
+            ran.append((step, time.perf_counter() - start))
+    assert any(r.startswith("wcbench run --method filter2d --scenes demo") for r, _ in ran)
     assert (work / "runs" / "demo" / "results.json").is_file()
-    print(f"{len(ran)} README commands ran", file=sys.stderr)
+    # what each command took (shown with -s): the test's time is CI's largest single cost
+    print(f"{len(ran)} README commands ran:", *(f"{t:7.1f} s  {r}" for r, t in ran), sep="\n", file=sys.stderr)

@@ -76,6 +76,13 @@ def _commit(root: Path) -> str | None:
     return head + ("+dirty" if dirty else "")
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Refuse to write the counts from several processes: each pytest-xdist worker would hold a part."""
+    # a worker's config has `workerinput`; the environment variable would also reach a pytest it starts
+    if os.environ.get(JSON_ENV) and (config.getoption("numprocesses", default=None) or hasattr(config, "workerinput")):
+        raise pytest.UsageError(f"{JSON_ENV} writes one process's counts: run the stress suites without -n")
+
+
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     """Fail a run that counted a non-finite output (each is also asserted where it is checked), then
     write the counts to ``$WCBENCH_STRESS_JSON`` when it is set."""
