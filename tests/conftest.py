@@ -9,19 +9,6 @@ import numpy as np
 import pytest
 from paths import PANDASET
 
-#: Fixtures that take minutes to build on two cores, with the pytest-xdist group of the tests using
-#: them: the tests run in two processes (``-n 2 --dist loadgroup``, tox.ini), and a fixture is built
-#: once per process, so the tests of one fixture go to one process.
-COSTLY_FIXTURES = {"synth_hard": "synth_hard", "synth_cache": "synth_1", "bench_all_quick": "bench_all_quick"}
-
-
-@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own hook reads the groups
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    for item in items:
-        groups = sorted({COSTLY_FIXTURES[f] for f in getattr(item, "fixturenames", ()) if f in COSTLY_FIXTURES})
-        if groups:
-            item.add_marker(pytest.mark.xdist_group("+".join(groups)))
-
 
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_environment(tmp_path_factory: pytest.TempPathFactory) -> None:
@@ -70,13 +57,21 @@ def demo_scene():
 
 
 @pytest.fixture(scope="session")
-def synth_hard():
+def synth_hard(tmp_path_factory: pytest.TempPathFactory):
     """The harder synthetic street (synth_hard_1: sun shadows, buildings above the lidar, no sky
-    masks, untracked movers), generated once into the session's cache."""
+    masks, untracked movers), generated once for the session: under pytest-xdist (tox.ini) once for
+    all the processes, into a folder they share, the others waiting on its lock (it takes minutes)."""
     pytest.importorskip("torch", reason="the synth scenes are rendered by the reference model")
+    from wcbench.core.locking import EntryLock
     from wcbench.scenes.sets import resolve_scenes
 
-    return resolve_scenes("synth_hard_1")[0].load()
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "synth_hard_cache"
+    lock = EntryLock(shared.with_name("synth_hard_cache.lock"), what="generating the tests' synth_hard_1",
+                     timeout_s=None)
+    with lock, pytest.MonkeyPatch.context() as mp:
+        mp.setenv("WCBENCH_CACHE", str(shared))
+        return resolve_scenes("synth_hard_1")[0].load()
 
 
 @pytest.fixture

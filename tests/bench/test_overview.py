@@ -89,15 +89,6 @@ def test_summary_only_from_the_cli(tmp_path: Path, capsys) -> None:
     assert "1 charts" in out and "off its Pareto front" not in out
 
 
-@pytest.mark.slow
-def test_bench_all_quick_runs_every_suite(bench_all_quick: Path) -> None:
-    from wcbench.bench import SUITES
-
-    # the run of tests/bench/conftest.py, whose JSON files the suites' own tests check
-    assert {p.stem for p in bench_all_quick.glob("*.json")} == set(SUITES)
-    assert (bench_all_quick / "summary.md").is_file() and list((bench_all_quick / "charts").glob("*.png"))
-
-
 def test_options_of_bench_all_are_refused_elsewhere(tmp_path: Path, capsys) -> None:
     assert main(["bench", "all", "--json", str(tmp_path / "x.json")]) == 2
     assert "writes every suite's JSON into --out" in capsys.readouterr().err

@@ -75,15 +75,6 @@ def test_the_groups_variable_runs_the_profiles_alone_and_names_unknown_groups(mo
 
 
 @pytest.mark.slow
-def test_start_cases_time_a_cold_and_a_warm_process(bench_all_quick) -> None:
-    cases = {c["name"]: c for c in json.loads((bench_all_quick / "raster.json").read_text())["cases"]}
-    cold, warm = cases["start_cold"], cases["start_warm"]  # `bench all --quick` (tests/bench/conftest.py)
-    assert (cold["name"], warm["name"]) == ("start_cold", "start_warm")
-    assert cold["time_ms"] > 0 and warm["time_ms"] > 0 and warm["default"] is True
-    assert warm["cold_over_warm"] == round(cold["time_ms"] / warm["time_ms"], 2)
-
-
-@pytest.mark.slow
 def test_bench_raster_quick_runs_from_the_repository_root(tmp_path) -> None:
     """Its cold-start case runs `python -c "from wcbench.reference_model.kernel_warmup import ..."` in
     a subprocess: from the repository root `./wcbench` shadows the installed package, and the
