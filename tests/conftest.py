@@ -9,6 +9,18 @@ import numpy as np
 import pytest
 from paths import PANDASET
 
+#: The modules of the longest slow tests (tens of minutes on 2 cores), run first: with
+#: ``--dist loadfile --no-loadscope-reorder`` (tox.ini) the two processes start on them together and
+#: the other modules fill in around them (longest first); last, the README's commands would start
+#: after everything else and run alone at the end.
+LONGEST_FIRST = ("tests/cli/test_readme_commands.py", "tests/bench/test_all_quick.py",
+                 "tests/bench/test_streets_suite.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank = {module: i for i, module in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))  # stable: the rest keep their order
+
 
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_environment(tmp_path_factory: pytest.TempPathFactory) -> None:

@@ -102,12 +102,3 @@ def test_bench_scale_quick_reports_every_case_with_zero_difference(bench_all_qui
     for name in ("dask_1", "dask_2"):
         assert cases[name]["error"] == 0.0 and cases[name]["time_ms"] > 0 and cases[name]["start_ms"] > 0
     assert all(cases[f"empty_units_{w}"]["time_ms"] > 0 for w in (1, 2))
-
-
-@pytest.mark.slow
-def test_start_cases_time_a_cold_and_a_warm_process(bench_all_quick: Path) -> None:
-    cases = {c["name"]: c for c in json.loads((bench_all_quick / "raster.json").read_text())["cases"]}
-    cold, warm = cases["start_cold"], cases["start_warm"]
-    assert (cold["name"], warm["name"]) == ("start_cold", "start_warm")
-    assert cold["time_ms"] > 0 and warm["time_ms"] > 0 and warm["default"] is True
-    assert warm["cold_over_warm"] == round(cold["time_ms"] / warm["time_ms"], 2)

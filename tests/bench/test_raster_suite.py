@@ -75,10 +75,11 @@ def test_the_groups_variable_runs_the_profiles_alone_and_names_unknown_groups(mo
 
 
 @pytest.mark.slow
-def test_bench_raster_quick_runs_from_the_repository_root(tmp_path) -> None:
-    """Its cold-start case runs `python -c "from wcbench.reference_model.kernel_warmup import ..."` in
-    a subprocess: from the repository root `./wcbench` shadows the installed package, and the
-    checkout's finder must still reach the sibling folders."""
+def test_start_cases_time_a_cold_and_a_warm_process_from_the_repository_root(tmp_path) -> None:
+    """The start cases (`--quick` skips them) alone, run as `python -m wcbench` from the repository root:
+    their process runs `python -c "from wcbench.reference_model.kernel_warmup import ..."`, where
+    `./wcbench` shadows the installed package and the checkout's finder must still reach the sibling
+    folders. The suite's other cases run in `bench all --quick` (tests/bench/test_all_quick.py)."""
     import os
     import subprocess
     import sys
@@ -86,13 +87,17 @@ def test_bench_raster_quick_runs_from_the_repository_root(tmp_path) -> None:
     from paths import REPO
 
     out = tmp_path / "raster.json"
-    # the start cases alone: the other groups run in `bench all --quick` (tests/bench/conftest.py)
     env = {**os.environ, "WCBENCH_BENCH_RASTER_GROUPS": "start"}
-    done = subprocess.run([sys.executable, "-m", "wcbench", "bench", "raster", "--quick", "--json", str(out)],
+    done = subprocess.run([sys.executable, "-m", "wcbench", "bench", "raster", "--json", str(out)],
                           cwd=REPO, env=env, capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     doc = json.loads(out.read_text())
-    assert doc["suite"] == "raster" and {c["name"] for c in doc["cases"]} == {"start_cold", "start_warm"}
+    validate_benchmark(doc)
+    cases = {c["name"]: c for c in doc["cases"]}
+    assert doc["suite"] == "raster" and set(cases) == {"start_cold", "start_warm"}
+    cold, warm = cases["start_cold"], cases["start_warm"]
+    assert cold["time_ms"] > 0 and warm["time_ms"] > 0 and warm["default"] is True
+    assert warm["cold_over_warm"] == round(cold["time_ms"] / warm["time_ms"], 2)
 
 
 def test_amdahl_serial_fraction_and_projection_invert_each_other() -> None:

@@ -12,7 +12,8 @@ Examples::
     wcbench bench --all --data-root ../shared/data --out bench/     # every suite, summary.md, charts/
     wcbench bench --all --summary-only --out bench/                # table and charts from the JSON files
 
-``--all`` runs every suite (the model suite alone takes over an hour; ``--quick`` a few minutes),
+``--all`` runs every suite (the model suite alone takes over an hour; ``--quick`` is a smoke run of every
+case, under half an hour on 2 cores),
 writes ``OUT/<suite>.json``, then ``OUT/summary.md`` (one table, defaults and their place on the
 Pareto front) and ``OUT/charts/<suite>-<knob>.png`` (time against error per knob).
 
