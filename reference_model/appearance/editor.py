@@ -403,9 +403,11 @@ class WeatherEditor:
             refl, _ = screen_reflection(seen, camera, m, refl_dist, up=up, sky=sky_mirrored)
             blur = float(table["rough_blur_px"]) * h / 270.0
             rough = glossy_blur(refl, ground, m.rays, up=up, sigma_px=blur)
-            # the three products summed in np.sum's order, without its reduction over a last axis of 3
-            r, n = m.rays, m.normal
-            cos = np.abs(r[..., 0] * n[..., 0] + r[..., 1] * n[..., 1] + r[..., 2] * n[..., 2])
+            # the water's surface is level (a puddle stands flat, a film fills the asphalt's grain) and
+            # the reflection mirrors about the ground plane: Fresnel takes the ray's angle to the plane,
+            # not to the lidar's normal, whose tilt from ring to ring (a degree or two) moved F by a
+            # tenth at a grazing view and striped a puddle across (docs/findings.md)
+            cos = np.abs(m.rays @ up.astype(np.float32))
             fresnel = fresnel_schlick(cos, float(table["fresnel_f0"]))
             road = ground * (1.0 - puddle) * float(table["sheen_road"]) * wet
             still = puddle * float(table["sheen_puddle"])

@@ -339,7 +339,8 @@ def mirror_distance(surfaces: SurfaceScene, index: int, camera: Any, ground_heig
     plane, what the reflected ray meets (mirroring the centres and the surfels' normals is exact);
     only its depth is needed, since the colour of what is met is taken from the frame itself
     (:func:`screen_reflection`), so one dummy channel is composited. It is rendered at half the
-    camera's size and resized up (a wet surface blurs its reflection).
+    camera's size (a wet surface blurs its reflection) and resized up by
+    :func:`_upsampled_distance`.
 
     Parameters
     ----------
@@ -365,9 +366,23 @@ def mirror_distance(surfaces: SurfaceScene, index: int, camera: Any, ground_heig
     # the compositing's weights and depth do not depend on the channels: one channel of zeros
     _, alpha, depth = _rasterize(sub, np.zeros((len(sub), 1), np.float32), half)
     _, z_per_m = _rays(half)
-    distance = np.where(alpha > _COVERED, depth / np.maximum(z_per_m, 1e-9), 1e6).astype(np.float32)
-    distance = cv2.resize(distance, (w, h), interpolation=cv2.INTER_LINEAR)
-    return np.where(distance >= 1e6, np.inf, distance).astype(np.float32)
+    return _upsampled_distance(alpha > _COVERED, depth / np.maximum(z_per_m, 1e-9), (w, h))
+
+
+def _upsampled_distance(covered: np.ndarray, distance: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """[H, W] float32 the ``distance`` [h, w] (m) of the ``covered`` [h, w] bool pixels resized up
+    to ``size`` (W, H), ``inf`` elsewhere: a normalised convolution (Knutsson & Westin 1993) by the
+    bilinear kernel.
+
+    A pixel takes the covered pixels' distances weighted by their bilinear weights, and is covered
+    where they hold at least half its weight: the silhouette runs between the half-size pixels'
+    centres, not in their 2 px steps (a puddle's sharp reflection of a car showed the steps), and
+    no stand-in for "nothing" mixes into a real distance (a far sentinel interpolated beside a
+    surface gave rows of a distance nothing lies at, seen as holes in the reflection).
+    """
+    up_weight = cv2.resize(np.asarray(covered, np.float32), size, interpolation=cv2.INTER_LINEAR)
+    up_known = cv2.resize(np.where(covered, distance, 0.0).astype(np.float32), size, interpolation=cv2.INTER_LINEAR)
+    return np.where(up_weight >= 0.5, up_known / np.maximum(up_weight, 1e-6), np.inf).astype(np.float32)
 
 
 def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror_distance: np.ndarray, *,
