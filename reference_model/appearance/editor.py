@@ -368,6 +368,15 @@ class WeatherEditor:
             clear = clear_irradiance(n_up, model=p.light)[..., None]
         albedo = lin / np.maximum(clear, 1e-3)
         light = exposure * overcast_irradiance(n_up, model=p.light)[..., None]
+        # a pixel brighter than white under the light its normal gets (an albedo over 1: a wall lamp's
+        # downward normals spread over the bright wall round it, a sunlit facade the shadow map calls
+        # shaded) was lit by more than the model says: the excess is the light's, moved out of the
+        # albedo into the overcast light, which keeps the pixel's hue and texture (clipped to 1 per
+        # channel by the water film and the snow, it left a grey, flat halo, docs/findings.md), up to
+        # the overcast light of a surface facing the zenith, which no surface exceeds
+        excess = np.maximum(np.max(albedo, axis=-1, keepdims=True), 1.0)
+        albedo /= excess
+        light = np.minimum(light * excess, exposure * float(overcast_irradiance(np.float32(1.0), model=p.light)))
         beta, haze_color, offset = weather.haze()
         # the sky: at infinity, the haze's airlight; without haze, the overcast sky
         sky = np.broadcast_to(np.asarray(haze_color, np.float32), raw.shape) if beta > 0 else self.overcast_sky(m.rays)

@@ -242,6 +242,34 @@ def test_the_waters_fresnel_term_reads_the_level_water_not_the_lidars_normals(ha
     np.testing.assert_array_equal(seen[0], seen[1])
 
 
+def test_a_pixel_brighter_than_its_normals_light_keeps_its_hue_and_brightness(hard_editor, synth_hard, monkeypatch):
+    # a wall lamp's downward normals spread over the bright wall round it: the clear frame's pixel is
+    # brighter than white under the light those normals get (an albedo over 1). The excess is the
+    # light's: the patch keeps about the wall's relit brightness and its hue, where the albedo's clip
+    # to 1 per channel left a dark grey halo (pandaset_002_right, docs/findings.md)
+    k = 10
+    cam, raw = synth_hard.frames[k].camera, _frame(synth_hard, k)
+    weather = resolve_physics(synth_hard, "auto")["rain"]
+    m = hard_editor.maps(k, cam, raw)
+    up = hard_editor.surfaces.up.astype(np.float32)
+    n_up = m.normal @ up
+    wall = (np.abs(n_up) < 0.2) & ~m.sky & (m.sky_alpha == 0) & (m.ground < 0.1) & (m.distance < 30)
+    patch = cv2.erode(wall.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    assert patch.sum() > 300
+    painted = raw.copy()
+    painted[patch] = (0.62, 0.55, 0.45)  # a warm, bright wall: an albedo under 1 for a wall's normal
+    down = m.normal.copy()
+    down[patch] = -up  # over 1 for the lamp's
+    out = {}
+    for name, normal in (("wall", m.normal), ("down", down)):
+        monkeypatch.setattr(hard_editor, "maps", lambda *a, normal=normal, **kw: replace(m, normal=normal))
+        out[name] = srgb_to_linear(hard_editor.edit(painted, k, cam, weather)[0])[patch]
+    ratio = np.median(out["down"] / np.maximum(out["wall"], 1e-4), axis=0)
+    assert np.all(ratio > 0.85), ratio  # about the wall's brightness in every channel
+    hue = lambda rgb: rgb / np.maximum(rgb.sum(axis=1, keepdims=True), 1e-6)
+    assert np.abs(np.median(hue(out["down"]) - hue(out["wall"]), axis=0)).max() < 0.02  # the clip: 0.08 greyer
+
+
 def test_puddles_stay_put_from_frame_to_frame(hard_editor, synth_hard):
     k, j = 8, 13
     ma = hard_editor.maps(k, synth_hard.frames[k].camera, _frame(synth_hard, k))
