@@ -267,9 +267,10 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
         hit = center + rays[fill_ground] * np.where(np.isfinite(distance[fill_ground]), distance[fill_ground],
                                                      1e4)[:, None]
         normal[fill_ground] = up
-        for name in ("ground", "open"):
-            if name in planes:
-                planes[name][fill_ground] = 1.0
+        if "ground" in planes:
+            planes["ground"][fill_ground] = 1.0
+        if "open" in planes:
+            planes["open"][fill_ground] = surfaces.open_field(hit)
         if "puddle" in planes:
             planes["puddle"][fill_ground] = surfaces.puddle_field(hit)
         if "track" in planes:

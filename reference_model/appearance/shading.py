@@ -61,7 +61,7 @@ def srgb_to_linear(c: np.ndarray, *, fast: bool = True) -> np.ndarray:
     """Decode sRGB values in [0, 1] to linear light (IEC 61966-2-1), float32, same shape.
 
     ``fast``: in one pass with the numba kernel (:func:`.shading_kernels.srgb_to_linear_kernel`,
-    the same bits) where it loads and the array is not small, else with numpy.
+    within 5e-7 of numpy's) where it loads and the array is not small, else with numpy.
     """
     c = np.asarray(c, np.float32)
     kernel = _transfer_kernel(c, "srgb_to_linear_kernel", fast)

@@ -12,17 +12,20 @@ plus one rigid node per moving track) each Gaussian gets, anchored in the world
   ground height);
 * **open** (1 where no return that overhangs it, facing up or down, lies half a metre higher within
   half a metre sideways, nor any return within 0.15 m: open to the sky, so snow settles and rain
-  falls; 0 under a car or a roof, half under a tree's crown, which holds part of the fall and
+  falls; 0 under a car or a roof, half under a tree's crown (foliage by the spread of its returns
+  or, where the scene ships lidar semantics, by their label), which holds part of the fall and
   lets the rest through, while a wall shelters none of the ground beside it, and a parked track's
   body only the ground inside its box's footprint),
   averaged with the normals over the 8 nearest Gaussians (real lidar is noisy at a voxel's scale);
+  the ground's spread over the ground plane instead (:class:`~.open_ground.OpenGround`), which the
+  ground the lidar missed reads too;
 * **puddle**: a smooth noise field over the ground plane (two octaves of value noise, 4 m and
   1.5 m), thresholded by the editor at the rain's puddle fraction;
 * **track**: closeness to the wheel paths of the traffic (the ego vehicle's path and every moving
   vehicle's, extended along the lane; people and cyclists leave none), where snow is compacted and water splashed away.
 
 The static Gaussians are drawn as surfels, flat on their surface; one whose returns lie on a line
-in the air (a wire) is as wide across that line as its returns spread (:func:`line_surfels`).
+in the air (a wire) is as wide across that line as its returns spread (:func:`~.line_surfels.line_surfels`).
 
 Only the static scene becomes surfaces: returns of things that move without a box, people and
 noise (:mod:`wcbench.reference_model.scene_analysis.motion`) are left out of the static cloud, and
@@ -42,6 +45,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wcbench.reference_model.appearance.ground_cells import CELL_M, cell_heights, connected_ground
+from wcbench.reference_model.appearance.line_surfels import line_surfels
+from wcbench.reference_model.appearance.open_ground import OpenGround
 from wcbench.reference_model.appearance.value_noise import value_noise
 from wcbench.reference_model.scene_analysis.analysis import SceneAnalysis
 from wcbench.reference_model.scene_analysis.normals import pca_normals, principal_frames
@@ -54,7 +59,6 @@ from wcbench.reference_model.scene_graph.lidar_init import (
     voxel_downsample,
 )
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
-from wcbench.reference_model.transforms import quat_from_matrices
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
 __all__ = ["ATTRIBUTES", "UNDERBODY_M", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths",
@@ -90,14 +94,6 @@ _TURN_NEIGHBOURS, _TURN_MAX_FOLIAGE = 16, 0.1
 #: A static surfel's thickness (standard deviation along its normal) over its width: a few cm at
 #: the 0.1 m voxel, the noise of a lidar return's range.
 _SURFEL_THICKNESS = 0.25
-#: A static Gaussian is a wire's (or a thin bar's) when its neighbourhood's second principal spread
-#: is under this share of its first (a street's surfaces: over half); its surfel is then as wide
-#: across the line as the returns spread across it, ``_LINE_WIDTH_SIGMAS`` of their standard
-#: deviation, and never wider than it was.
-_LINE_SHARE, _LINE_WIDTH_SIGMAS = 0.2, 1.0
-#: ... and when no return within ``_LINE_CLEAR_M`` of it lies more than ``_LINE_OFF_M`` off that
-#: line (m): a wire in the air, not one ring of the lidar across a wall, whose next ring lies beside it.
-_LINE_CLEAR_M, _LINE_OFF_M = 0.6, 0.15
 #: Voxel (m) of a frame's own dynamic returns.
 _DYNAMIC_VOXEL_M = 0.1
 #: A frame's dynamic return is drawn only if it stands this far above the ground (m; lower it is
@@ -406,6 +402,9 @@ class SurfaceScene:
     view_turned : ndarray [N] bool, optional
         The static surfels whose normal each view turns toward itself
         (:func:`~.maps.facing_view`): surfaces off the ground, not foliage. Default none.
+    open_ground : OpenGround, optional
+        The ground's openness to the fall as a smooth field over the ground plane
+        (:meth:`open_field`); default open everywhere.
     """
 
     gaussians: SceneGaussians
@@ -423,6 +422,7 @@ class SurfaceScene:
     facades: Facades | None = None
     view_turned: np.ndarray | None = None
     moving: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    open_ground: OpenGround | None = None
 
     def boxes_at(self, index: int, *, moving_only: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
         """The (object-to-world [4, 4], size [3]) of every box annotated at frame ``index`` (with
@@ -456,6 +456,14 @@ class SurfaceScene:
             return np.zeros(len(points))
         d, _ = self.lanes.query(np.asarray(points, np.float64) @ self.plane_axes.T, workers=_workers(len(points)))
         return np.exp(-0.5 * (np.asarray(d) / _WHEEL_PATH_SIGMA_M) ** 2)
+
+    def open_field(self, points: np.ndarray) -> np.ndarray:
+        """[N] how open to the falling snow and rain the ground is at ``points`` [N, 3] (world), in
+        [0, 1] (:class:`~.open_ground.OpenGround`; 1 everywhere without one): what the ground the
+        lidar missed reads, as the ground Gaussians do."""
+        if self.open_ground is None:
+            return np.ones(len(np.asarray(points).reshape(-1, 3)))
+        return self.open_ground.at(np.asarray(points, np.float64).reshape(-1, 3) @ self.plane_axes.T)
 
     def at_frame(self, index: int) -> tuple[GaussianCloud, np.ndarray]:
         """The Gaussians of frame ``index`` (world) and their attributes [N, 7] (world normals); the
@@ -664,76 +672,6 @@ def _road_under(local: np.ndarray, box_size: np.ndarray) -> np.ndarray:
     return road
 
 
-def _alone_across(means: np.ndarray, rows: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """[len(rows)] bool: no other point within ``_LINE_CLEAR_M`` of ``means[rows]`` lies more than
-    ``_LINE_OFF_M`` off the line through it along ``direction`` (a wire in the air, not one ring of a
-    spinning lidar across a wall or the road, whose neighbouring rings lie beside it)."""
-    tree = cKDTree(means)
-    near = tree.query_ball_point(means[rows], r=_LINE_CLEAR_M, workers=-1)
-    out = np.ones(len(rows), bool)
-    for i, (p, nb) in enumerate(zip(means[rows], near)):
-        off = means[nb] - p
-        across = off - np.outer(off @ direction[i], direction[i])
-        out[i] = not np.any(np.einsum("ij,ij->i", across, across) > _LINE_OFF_M ** 2)
-    return out
-
-
-def line_surfels(normals: np.ndarray, spread: np.ndarray, direction: np.ndarray,
-                 width: np.ndarray, means: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Surfel orientations and widths across a line, for returns that sample a wire or a thin bar.
-
-    A surfel is a disc of ``width`` in its plane. An overhead power line's returns, a few
-    centimetres across, were discs as wide as the returns' spacing along it (tens of centimetres):
-    dark blobs in the sky and over the facades behind, in every weather, where the wire is a thin
-    line in the frame. A Gaussian whose neighbourhood is a line (the second principal spread under
-    :data:`_LINE_SHARE` of the first) gets its disc's first axis along the line and its second as
-    wide as the returns spread across it (:data:`_LINE_WIDTH_SIGMAS` standard deviations), never
-    wider than ``width``: the elongated splat of the anisotropic Gaussians of 3D Gaussian
-    splatting (Kerbl et al. 2023) drawn from the returns' own covariance.
-
-    Parameters
-    ----------
-    normals : ndarray [N, 3]
-        Unit surfel normals (its third axis).
-    spread : ndarray [N, 3]
-        The neighbourhood's principal variances (m^2), ascending
-        (:func:`~wcbench.reference_model.scene_analysis.normals.principal_frames`).
-    direction : ndarray [N, 3]
-        The principal axis of the largest variance (the line's direction where it is one).
-    width : ndarray [N]
-        The surfel's width (standard deviation in its plane, m).
-
-    Returns
-    -------
-    quats : ndarray [N, 4] float32
-        (w, x, y, z): local z along the normal, local x along the line projected into the
-        surfel's plane (where it is no line, the orientation :func:`quat_from_axis_to` gives).
-    across : ndarray [N] float32
-        Width along local y (m): ``width``, narrowed on a line.
-    """
-    normals = np.asarray(normals, np.float64)
-    width = np.asarray(width, np.float32)
-    quats = quat_from_axis_to(normals).astype(np.float32)
-    across = width.copy()
-    line = spread[:, 1] < _LINE_SHARE ** 2 * spread[:, 2]
-    if means is not None and np.any(line):
-        line[line] = _alone_across(np.asarray(means, np.float64), np.flatnonzero(line), direction[line])
-    if not np.any(line):
-        return quats, across
-    n = normals[line]
-    x = direction[line] - np.einsum("ij,ij->i", direction[line], n)[:, None] * n
-    length = np.linalg.norm(x, axis=1)
-    # a line along the normal (seen end-on in its own plane) has no direction in the plane to keep
-    ok = length > 1e-6
-    x = x[ok] / length[ok, None]
-    n = n[ok]
-    rot = np.stack([x, np.cross(n, x), n], axis=-1)  # columns: the surfel's local axes in the world
-    rows = np.flatnonzero(line)[ok]
-    quats[rows] = quat_from_matrices(rot).astype(np.float32)
-    across[rows] = np.minimum(width[rows], _LINE_WIDTH_SIGMAS * np.sqrt(spread[rows, 1])).astype(np.float32)
-    return quats, across
-
-
 def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                    analysis: SceneAnalysis | None = None) -> SurfaceScene:
     """The scene's lidar Gaussians and their surface attributes (see the module docstring).
@@ -818,7 +756,12 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     parked = [(T, size) for t in scene.tracks if str(t.id) not in moving
               for T, size in _distinct_poses(t.object_to_world, t.box_size)]
     side, body, under = _box_parts(means, parked, up=up)
-    open_ = open_to_sky(means, normals, up=up, shelters=~body, porous=variation > _FOLIAGE_VARIATION) * ~under
+    # foliage by its shape (returns spread in every direction) or, where the scene ships lidar
+    # semantics, by its label: a crown's underside is smooth enough to pass for a roof, and sheltered
+    # the pavement under a street tree from all the snow (dark patches, docs/findings.md)
+    porous = (variation > _FOLIAGE_VARIATION) | surf._foliage(np.arange(len(means)))
+    open_sky = open_to_sky(means, normals, up=up, shelters=~body, porous=porous)
+    open_ = open_sky * ~under
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
     # Gaussians (about half a metre), so that what is drawn from them is not speckled; a neighbour
     # counts by how much its normal agrees (cos^4), so a car's roof and side, or a kerb's top and
@@ -855,6 +798,11 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     foliage_near = (variation > _FOLIAGE_VARIATION)[np.asarray(near16).reshape(len(means), -1)].mean(axis=1)
     surf.view_turned = ~ground & (foliage_near < _TURN_MAX_FOLIAGE)
     static[:, 4] = open_[near].mean(axis=1)
+    # the ground reads the field its Gaussians spread over the plane (soft shelters, no stripes
+    # along the rings under a crown), the lidar's gaps too (maps.surface_maps); a parked box's
+    # footprint stays dry to its edge
+    surf.open_ground = OpenGround.from_ground(xy[ground], open_sky[ground])
+    static[ground, 4] = surf.open_field(means[ground]) * ~under[ground]
     static[:, 5] = surf.puddle_field(means)
     static[:, 6] = np.where(ground, surf.track_field(means), 0.0)
     node_attrs = []

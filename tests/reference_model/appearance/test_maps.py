@@ -47,6 +47,7 @@ from wcbench.reference_model.appearance.maps import (
     screen_reflection,
     surface_maps,
 )
+from wcbench.reference_model.appearance.open_ground import OpenGround
 from wcbench.reference_model.appearance.surfaces import UNDERBODY_M, build_surfaces, in_box
 from wcbench.reference_model.model.sky import view_directions
 from wcbench.reference_model.scene_graph.gaussians import GaussianCloud
@@ -699,10 +700,12 @@ def _bilinear_slow(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     out = np.zeros((size[1], size[0]), np.float64)
     for y in range(size[1]):
         sy = min(max((y + 0.5) * h / size[1] - 0.5, 0.0), h - 1.0)
-        y0 = int(np.floor(sy)); y1 = min(y0 + 1, h - 1); fy = sy - y0
+        y0 = int(np.floor(sy))
+        y1, fy = min(y0 + 1, h - 1), sy - y0
         for x in range(size[0]):
             sx = min(max((x + 0.5) * w / size[0] - 0.5, 0.0), w - 1.0)
-            x0 = int(np.floor(sx)); x1 = min(x0 + 1, w - 1); fx = sx - x0
+            x0 = int(np.floor(sx))
+            x1, fx = min(x0 + 1, w - 1), sx - x0
             out[y, x] = ((1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x1])
                          + fy * ((1 - fx) * image[y1, x0] + fx * image[y1, x1]))
     return out
@@ -838,6 +841,25 @@ def test_the_maps_are_the_same_whichever_way_the_turnable_surfels_were_turned(de
     turned = surface_maps(surfaces, 4, cam, sky)
     np.testing.assert_array_equal(turned.normal, maps.normal)
     assert not np.array_equal(reversed_normals(4)[1], at_frame(4)[1])
+
+
+def test_the_ground_the_lidar_missed_reads_the_grounds_openness_field(demo_scene, monkeypatch):
+    # the road below the lidar's lowest beam and a trunk's shadow on the pavement are filled with
+    # the ground plane: their openness is the field the ground Gaussians spread (under a crown, its
+    # half), not the open sky that striped the snow under a street tree (docs/findings.md)
+    surfaces = build_surfaces(demo_scene)
+    assert surfaces.open_ground is not None
+    cam = demo_scene.frames[4].camera
+    sky = np.zeros((int(cam.height), int(cam.width)), bool)
+    sky[:10] = True
+    plain = surface_maps(surfaces, 4, cam, sky)
+    filled = ~plain.covered & ~plain.sky & (plain.ground == 1.0)
+    assert filled.sum() > 100, filled.sum()
+    sheltered = OpenGround(origin=np.array([-2e4, -2e4]), cell_m=1e4, field=np.full((4, 4), 0.3, np.float32))
+    monkeypatch.setattr(surfaces, "open_ground", sheltered)
+    under = surface_maps(surfaces, 4, cam, sky)
+    np.testing.assert_allclose(under.open[filled], 0.3, atol=1e-6)
+    np.testing.assert_array_equal(under.open[~filled], plain.open[~filled])  # the lidar's own ground as it was
 
 
 def test_maps_refuse_a_field_they_do_not_know(demo_scene):

@@ -32,10 +32,15 @@ def test_srgb_transfer_round_trips_and_hits_the_standards_values():
 
 
 @pytest.mark.parametrize("convert", [srgb_to_linear, linear_to_srgb], ids=lambda f: f.__name__)
-def test_srgb_transfer_kernels_give_the_numpy_references_bits(convert):
-    # the numba kernels mirror the reference's float32 operations: the same bits on every 61st float32
-    # of [0, 1] (every one of them was checked once, docs/findings.md), on the knees, out of range
-    # and NaN, on float64 and non-contiguous input, and on an array below the kernels' size
+def test_srgb_transfer_kernels_are_the_numpy_references_to_half_a_millionth(convert):
+    # the numba kernels mirror the reference's float32 operations; the power is the C library's
+    # powf in the kernel and numpy's own float32 power in the reference, whose last bit varies with
+    # numpy's version and the CPU it dispatches for (numpy 2.4.6 on an AMD EPYC with AVX-512: a float32
+    # step or two of the power on 0.8 % of the values decoded and 1.2 % encoded, up to 3.9e-7 of the
+    # result once the encoding's offset is taken off; the same bits on the earlier machines,
+    # docs/findings.md).
+    # Every 61st float32 of [0, 1], the knees, out of range and NaN, float64 and non-contiguous
+    # input, and an array below the kernels' size
     from wcbench.reference_model._numba_backend import load_numba_kernels
 
     if load_numba_kernels("appearance.shading_kernels") is None:
@@ -47,10 +52,13 @@ def test_srgb_transfer_kernels_give_the_numpy_references_bits(convert):
     values = np.concatenate([bits.view(np.float32), np.tile(edges, 400)])
     fast, slow = convert(values), convert(values, fast=False)
     assert fast.dtype == np.float32 and fast.shape == values.shape
-    np.testing.assert_array_equal(fast.view(np.uint32), slow.view(np.uint32))
+    np.testing.assert_allclose(fast, slow, rtol=5e-7, atol=0.0)  # NaN where NaN
+    # the linear segments and the clip are exact: no power there
+    linear = np.where(convert is srgb_to_linear, values <= 0.04045, values <= 0.0031308) | (values >= 1.0)
+    np.testing.assert_array_equal(fast[linear].view(np.uint32), slow[linear].view(np.uint32))
     frame = np.random.default_rng(0).uniform(-0.1, 1.1, (64, 96, 3))  # float64
     for x in (frame, frame[:, ::2], frame[..., 1], frame[:3, :3]):
-        np.testing.assert_array_equal(convert(x).view(np.uint32), convert(x, fast=False).view(np.uint32))
+        np.testing.assert_allclose(convert(x), convert(x, fast=False), rtol=5e-7, atol=0.0)
         assert convert(x).shape == x.shape
 
 
