@@ -113,6 +113,9 @@ APPEARANCE_KEYS: dict[str, tuple[Range, str]] = {
 _SNOW_EDGE_EPS = 1e-2
 #: Up-component of a pixel's normal above which its surface faces up and takes the ground's shadows.
 _FACING_UP = 0.7
+#: A pixel brighter than white under its normal's light gives the excess to the light only where the
+#: sky's matte is at most this (not a sky edge's mixed pixel).
+_EXCESS_MAX_SKY_ALPHA = 0.05
 #: Window radius (px at 270 rows) of the guided filter that lays the shadow map's visibility onto
 #: the frame's shadows: the map (0.25 m cells, occluders only where the lidar reached) misplaces a
 #: far occluder's shadow edge by many pixels (docs/findings.md, thirty-second session).
@@ -374,7 +377,11 @@ class WeatherEditor:
         # albedo into the overcast light, which keeps the pixel's hue and texture (clipped to 1 per
         # channel by the water film and the snow, it left a grey, flat halo, docs/findings.md), up to
         # the overcast light of a surface facing the zenith, which no surface exceeds
-        excess = np.maximum(np.max(albedo, axis=-1, keepdims=True), 1.0)
+        # but not where the matte says the pixel is partly sky: there the excess is the sky's own
+        # radiance the matte (low at a pole's or a roof's edge) left in it, blue that the clip greys
+        # and the light would keep (clear-sky blue beside a pole in every weather, docs/findings.md)
+        excess = np.where(m.sky_alpha[..., None] > _EXCESS_MAX_SKY_ALPHA, 1.0,
+                          np.maximum(np.max(albedo, axis=-1, keepdims=True), 1.0))
         albedo /= excess
         light = np.minimum(light * excess, exposure * float(overcast_irradiance(np.float32(1.0), model=p.light)))
         beta, haze_color, offset = weather.haze()

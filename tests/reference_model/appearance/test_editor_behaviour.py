@@ -270,6 +270,38 @@ def test_a_pixel_brighter_than_its_normals_light_keeps_its_hue_and_brightness(ha
     assert np.abs(np.median(hue["down"] - hue["wall"], axis=0)).max() < 0.02  # the clip: 0.08 greyer
 
 
+@pytest.mark.parametrize("kind", ["rain", "snow", "fog"])
+def test_the_sky_left_in_a_sky_edges_mixed_pixel_is_greyed_not_kept(hard_editor, synth_hard, monkeypatch, kind):
+    # beside a pole the matte errs low (0.1-0.6 where the frame shows sky): what the decontamination
+    # leaves is the clear sky's blue, brighter than white under the pole's light. The excess goes
+    # to the light only off the matte; here the albedo's clip greys it, as before the lamp's fix
+    # (clear-sky blue beside the poles of the PandaSet side cameras in every weather, docs/findings.md)
+    from wcbench.bench.streets import clear_sky_blue
+
+    k = 10
+    cam, raw = synth_hard.frames[k].camera, _frame(synth_hard, k)
+    weather = resolve_physics(synth_hard, "auto")[kind]
+    m = hard_editor.maps(k, cam, raw)
+    up = hard_editor.surfaces.up.astype(np.float32)
+    wall = (np.abs(m.normal @ up) < 0.2) & ~m.sky & (m.sky_alpha == 0) & (m.ground < 0.1) & (m.distance < 30)
+    patch = cv2.erode(wall.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    assert patch.sum() > 300
+    painted = raw.copy()
+    painted[patch] = (0.45, 0.65, 0.95)  # the clear sky's blue
+    assert clear_sky_blue(painted)[patch].all()
+    alpha = m.sky_alpha.copy()
+    alpha[patch] = 0.3
+    down = m.normal.copy()
+    down[patch] = -up  # a pole's edge: a normal the sky's radiance lights far beyond
+    monkeypatch.setattr(hard_editor, "maps", lambda *a, **kw: replace(m, sky_alpha=alpha, normal=down))
+    edited = hard_editor.edit(painted, k, cam, weather)[0]
+    assert clear_sky_blue(edited)[patch].mean() < 0.02
+    # the same pixels with the excess given to the light (the lamp's rule, everywhere) keep the blue:
+    # the case tells the two apart
+    monkeypatch.setattr(editor_module, "_EXCESS_MAX_SKY_ALPHA", 1.0)
+    assert clear_sky_blue(hard_editor.edit(painted, k, cam, weather)[0])[patch].mean() > 0.5
+
+
 def test_puddles_stay_put_from_frame_to_frame(hard_editor, synth_hard):
     k, j = 8, 13
     ma = hard_editor.maps(k, synth_hard.frames[k].camera, _frame(synth_hard, k))
