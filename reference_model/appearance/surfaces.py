@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from wcbench.reference_model.appearance.ground_cells import CELL_M, cell_heights, connected_ground
 from wcbench.reference_model.appearance.line_surfels import line_surfels
@@ -125,6 +125,9 @@ _SIDE_SHARE, _SIDE_TOP_SHARE, _SIDE_BAND_M, _SIDE_MARGIN_M = 0.5, 0.85, 0.25, 0.
 #: (a moving car's node carried a patch of road, its normal turned outward, facing down, frame after
 #: frame), and a ray through that band alone passes under the body.
 UNDERBODY_M = 0.3
+#: The fewest returns above :data:`UNDERBODY_M` in a parked box that outline the ground its body
+#: shelters (fewer, and its whole footprint does: a car the lidar barely saw).
+_OUTLINE_RETURNS = 20
 #: Up-component (box frame) above which a return counts as facing up for :data:`UNDERBODY_M`.
 _FACING_UP = 0.8
 #: A static Gaussian is ground when it lies within ``_GROUND_WITHIN_M`` of the local ground height
@@ -217,7 +220,12 @@ def _box_parts(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], *
                up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """[N] bool masks of ``points`` [N, 3]: on a box's side (:func:`object_sides`), on its body
     (inside it grown by 0.1 m sideways, more than 0.1 m above its bottom) and under it (inside its
-    footprint, not grown, up to 0.1 m above its bottom: the road under a car)."""
+    footprint, not grown, up to 0.1 m above its bottom: the road under a car) and, where at least
+    ``_OUTLINE_RETURNS`` of the points stand in the box above :data:`UNDERBODY_M` (the body, not
+    the road or a kerb), inside their outline on the ground (the convex hull of their positions
+    across the box): an annotated box is a rectangle round a car's rounded corners and mirrors,
+    and the ground in its corners beside a bumper is open to the fall (a dark, bare lobe at a
+    parked car's corner in the snow, docs/findings.md)."""
     points = np.asarray(points, np.float64)
     out = np.zeros(len(points), bool)
     body, under = out.copy(), out.copy()
@@ -242,8 +250,21 @@ def _box_parts(points: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], *
         out[near[across & (rise > _SIDE_MARGIN_M) & (low | flank)]] = True
         body[near[across & (rise > _SIDE_MARGIN_M) & (rise <= height + _SIDE_MARGIN_M)]] = True
         footprint = np.all(np.abs(local[:, flat]) <= half[flat], axis=1)
+        held = across & (rise > UNDERBODY_M) & (rise <= height + _SIDE_MARGIN_M)
+        if held.sum() >= _OUTLINE_RETURNS:
+            footprint &= _inside_outline(local[:, flat], local[held][:, flat])
         under[near[footprint & (rise <= _SIDE_MARGIN_M) & (rise > -_SIDE_MARGIN_M - 0.3)]] = True
     return out, body, under
+
+
+def _inside_outline(points: np.ndarray, outline: np.ndarray) -> np.ndarray:
+    """[N] bool: which ``points`` [N, 2] lie in the convex hull of ``outline`` [M, 2] (all, when the
+    hull is degenerate: the returns on one line or one spot outline nothing)."""
+    try:
+        hull = ConvexHull(outline)
+    except QhullError:
+        return np.ones(len(points), bool)
+    return np.all(points @ hull.equations[:, :2].T + hull.equations[:, 2] <= 1e-9, axis=1)
 
 
 def _level(normals: np.ndarray, where: np.ndarray, up: np.ndarray) -> np.ndarray:
