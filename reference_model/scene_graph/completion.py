@@ -64,6 +64,11 @@ __all__ = [
     "smooth_walls",
 ]
 
+#: The elevation step (degrees) between a spinning lidar's beams at the top of its field (1 degree
+#: on the Hesai Pandar64 that recorded PandaSet): a facade the lidar looked over ends within it
+#: above its highest return (:meth:`Facades.first_behind`).
+BEAM_DEG = 1.0
+
 #: What each pixel of a completed map is.
 FILL_KNOWN, FILL_GROUND, FILL_WALL, FILL_SKY = 0, 1, 2, 3
 
@@ -138,7 +143,8 @@ class Facades:
 
     def first_behind(self, center: np.ndarray, rays: np.ndarray, reach_m: np.ndarray, *,
                      slack: tuple[float, float] = (0.5, 0.05), on_m: tuple[float, float] = (0.3, 0.01),
-                     reach_beyond_m: float = 8.0, near_share: float = 0.7, grazing: float = 0.1) -> np.ndarray:
+                     reach_beyond_m: float = 8.0, near_share: float = 0.7, grazing: float = 0.1,
+                     ceiling_deg: float | None = None, beam_deg: float = BEAM_DEG) -> np.ndarray:
         """[N] index of the facade a surface seen along unit ``rays`` [N, 3] from ``center`` at
         horizontal distance ``reach_m`` [N] (m) stands on, -1 where none: the nearest facade the
         ray meets, at more than ``grazing`` (cosine) from its plane, within its extent and either
@@ -149,7 +155,16 @@ class Facades:
         above its highest return there (a return seen through a facade below its top came
         through a window, or from another sweep; one seen over its top is what stands behind
         it); or, up to ``reach_beyond_m`` past its extent (its returns there may stay under the
-        fit's height), one the surface lies on (within ``on_m``)."""
+        fit's height), one the surface lies on (within ``on_m``).
+
+        A facade's highest return is its top only where the lidar looked over it: given the
+        field's top ``ceiling_deg`` (degrees above the horizontal from ``center``), a facade whose
+        highest return there lies more than ``beam_deg`` under it (the lidar's next beam up passed
+        over it) ends at most a beam's step above that return, and a ray passes over it once it
+        passes ``slack`` metres plus that step over the return; elsewhere (the field cut the
+        facade, or no ceiling given) the share of ``slack`` stands for its unseen floors. A far
+        return seen a metre over a sign 30 m away, taken through the sign, put the wall above it
+        on the sign: haze in blocks over a warehouse (pandaset_002_back, docs/findings.md)."""
         c = np.asarray(center, np.float64)
         r = np.asarray(rays, np.float64)
         reach = np.asarray(reach_m, np.float64)[:, None]
@@ -168,7 +183,12 @@ class Facades:
         b = np.clip(np.nan_to_num((along - self.extent[:, 0]) / self.bin_m), 0, self.top.shape[1] - 1)
         top = self.top[np.arange(len(self))[None, :], b.astype(np.int64)]  # in the margins: the end's
         on = np.abs(t - reach) <= on_m[0] + on_m[1] * np.where(np.isfinite(reach), reach, 0.0)
-        over = height > top + slack[0] + slack[1] * t  # the ray passes over the facade (an angular slack)
+        over_by = slack[1] * t  # the facade's unseen floors: an angular slack
+        if ceiling_deg is not None:
+            rise = top - c @ self.up
+            seen_over = np.arctan2(rise, np.where(np.isfinite(t), t, 1.0)) < np.radians(ceiling_deg - beam_deg)
+            over_by = np.where(seen_over, t * np.tan(np.radians(beam_deg)), over_by)
+        over = height > top + slack[0] + over_by  # the ray passes over the facade
         through = ~over & (reach > t)  # the surface lies behind the facade, below its top
         # past its extent a facade is not looked through: rays past a short facade's end toward the
         # far end of a street would take it
@@ -358,7 +378,8 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         smoothed.
     reach : (float, (float, float)), optional
         The lidar's reach (m) and elevation band (degrees above the horizontal), as
-        :class:`~wcbench.reference_model.scene_analysis.reach.LidarReach` reads them.
+        :class:`~wcbench.reference_model.scene_analysis.reach.LidarReach` reads them. The band's top
+        also says which facades the lidar looked over (:meth:`Facades.first_behind`'s ceiling).
 
     Returns
     -------
@@ -429,7 +450,7 @@ def complete_distance(distance: np.ndarray, known: np.ndarray, sky: np.ndarray, 
         bridged = np.isfinite(between)
         if facades is not None and len(facades) and np.any(measured & ~bridged):
             value = _on_facades(value, facades, np.asarray(center, np.float64), unit, out, rr, cc, src,
-                                measured & ~bridged, facade_slack)
+                                measured & ~bridged, facade_slack, None if reach is None else float(reach[1][1]))
         value = np.where(bridged, between / np.maximum(cos_dst, 1e-6), value)
         fixed[rr[bridged], cc[bridged]] = True
         out[rr, cc] = value
@@ -696,7 +717,7 @@ def bridge_rings(depth: np.ndarray, sky: np.ndarray, rr: np.ndarray, cc: np.ndar
 
 def _on_facades(value: np.ndarray, facades: Facades, center: np.ndarray, unit: np.ndarray, out: np.ndarray,
                 rr: np.ndarray, cc: np.ndarray, src: np.ndarray, has: np.ndarray,
-                slack: tuple[float, float]) -> np.ndarray:
+                slack: tuple[float, float], ceiling_deg: float | None = None) -> np.ndarray:
     """``value`` [N] (the wall pixels' distances by the closing) where the wall pixel (``rr``,
     ``cc``) meets a facade behind its source pixel (row ``src`` of its column): the ray's distance
     to it. The facade is chosen once per source pixel (its ray's horizontal direction)."""
@@ -708,7 +729,7 @@ def _on_facades(value: np.ndarray, facades: Facades, center: np.ndarray, unit: n
     horizontal = np.linalg.norm(src_ray - np.outer(src_ray @ facades.up, facades.up), axis=1)
     with np.errstate(invalid="ignore"):
         reach = out[pairs[:, 0], pairs[:, 1]] * horizontal  # the source's horizontal distance
-    chosen = facades.first_behind(center, src_ray, reach, slack=slack)[back]
+    chosen = facades.first_behind(center, src_ray, reach, slack=slack, ceiling_deg=ceiling_deg)[back]
     on = np.flatnonzero(has)[chosen >= 0]
     result = value.copy()
     hit = facades.distance(chosen[chosen >= 0], center, unit[rr[on], cc[on]])

@@ -242,6 +242,30 @@ def test_an_oblique_facade_above_the_lidar_is_completed_on_its_plane_behind_a_wi
     np.testing.assert_allclose(tall[above], 5.0 / (rays[above] @ [1.0, 0, 0]), rtol=1e-9)
 
 
+def test_a_far_return_seen_over_a_sign_the_lidar_looked_over_is_not_taken_through_it():
+    # a sign 30 m ahead (the plane x = 30), 4 m tall by its returns; the camera at the origin
+    up = np.array([0.0, 0.0, 1.0])
+    sign = Facades(normal=np.array([[1.0, 0, 0]]), offset=np.array([30.0]), tangent=np.array([[0.0, 1, 0]]),
+                   extent=np.array([[-5.0, 5.0]]), top=np.full((1, 11), 4.0), up=up)
+
+    def through(over_m: float, **kw: float) -> int:
+        """The facade a return 73 m away stands on, seen along a ray ``over_m`` over the sign's top."""
+        ray = np.array([[30.0, 0.0, 4.0 + over_m]])
+        ray /= np.linalg.norm(ray)
+        reach = 73.0 * np.hypot(ray[0, 0], ray[0, 1])
+        return int(sign.first_behind(np.zeros(3), ray, np.array([reach]), **kw)[0])
+
+    # without the field's top, 0.5 m + 5 % of 30 m over the top is still "through a window"
+    assert through(1.3) == 0 and through(2.1) == -1
+    # the lidar's field reaches 9.8 degrees: the sign's top (7.6 degrees) lies more than a beam's
+    # step (1 degree) under it, so the lidar looked over the sign and it ends there; past 0.5 m and
+    # a beam's step at 30 m (0.52 m) the return is seen over it, not through it
+    assert through(1.3, ceiling_deg=9.8) == -1
+    assert through(0.9, ceiling_deg=9.8) == 0
+    # a field cut at 8 degrees leaves the sign's top unknown: its unseen part keeps the share
+    assert through(1.3, ceiling_deg=8.0) == 0
+
+
 def test_a_ray_that_does_not_meet_a_rising_street_is_a_wall_as_far_as_the_level_plane_not_sky():
     rays, z_per_m = _level_camera()
     h, w = z_per_m.shape
