@@ -380,8 +380,9 @@ class WeatherEditor:
         # but not where the matte says the pixel is partly sky: there the excess is the sky's own
         # radiance the matte (low at a pole's or a roof's edge) left in it, blue that the clip greys
         # and the light would keep (clear-sky blue beside a pole in every weather, docs/findings.md)
-        excess = np.where(m.sky_alpha[..., None] > _EXCESS_MAX_SKY_ALPHA, 1.0,
-                          np.maximum(np.max(albedo, axis=-1, keepdims=True), 1.0))
+        # (the channels' maximum pairwise: a reduction over the last axis of three takes 20 times as long)
+        brightest = np.maximum(np.maximum(albedo[..., 0], albedo[..., 1]), albedo[..., 2])
+        excess = np.where(m.sky_alpha[..., None] > _EXCESS_MAX_SKY_ALPHA, 1.0, np.maximum(brightest, 1.0)[..., None])
         albedo /= excess
         light = np.minimum(light * excess, exposure * float(overcast_irradiance(np.float32(1.0), model=p.light)))
         beta, haze_color, offset = weather.haze()

@@ -462,12 +462,15 @@ def screen_reflection(source: np.ndarray, camera: Any, maps: SurfaceMaps, mirror
         filled = image.copy()
         todo = missing.copy()
         stacked = np.dstack([image * weight[..., None], weight])  # blurred per channel, as one image
+        # only the rows holding a pixel to fill are blurred (below the horizon: the plane's)
+        held = np.flatnonzero(missing.any(axis=1))
+        band = slice(int(held[0]), int(held[-1]) + 1)
         for s in (sigma, 4.0 * sigma):
-            blurred = _gaussian_blur(stacked, s)
+            blurred = _gaussian_blur(stacked, s, rows=band)
             num, den = blurred[..., :3], blurred[..., 3]
-            ok = todo & (den > 1e-3)
-            filled[ok] = num[ok] / den[ok, None]
-            todo &= ~ok
+            ok = todo[band] & (den > 1e-3)
+            filled[band][ok] = num[ok] / den[ok, None]
+            todo[band] &= ~ok
             if not todo.any():
                 break  # the wider blur is needed only for what the narrower one left unfilled
         # no seen reflection within reach: what the frame shows where the ray points
@@ -537,9 +540,15 @@ def _reflection_lookup_fast(kernels: Any, camera: Any, maps: SurfaceMaps, mirror
 _WIDE_BLUR_PX = 12.0
 
 
-def _gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
+def _gaussian_blur(image: np.ndarray, sigma_px: float, *, rows: slice | None = None) -> np.ndarray:
     """A Gaussian blur of ``image`` [H, W, C] float32 by ``sigma_px``; a wide one (over 12 px) on a
-    quarter-size image, resized back.
+    quarter-size image, resized back. With ``rows`` (a slice of rows, step 1), only those rows of it.
+
+    A narrow blur of a band of rows is OpenCV's blur of those rows and the kernel's reach (its
+    radius, ``round(8 sigma + 1) | 1`` taps for float images, halved) on either side: each output
+    pixel sums the same inputs in the same order, so the rows equal the whole image's blur to the bit
+    (tests/reference_model/appearance/test_maps.py). A wide one is taken whole (its quarter-size
+    grid is the whole image's).
 
     A 24 px blur is a 193-tap kernel over every pixel; area-averaged to a quarter of the size, the
     same blur is 4 times narrower on 16 times fewer pixels. The averaging adds the variance of a
@@ -548,13 +557,16 @@ def _gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
     edges (tests/reference_model/appearance/test_maps.py).
     """
     img = np.asarray(image, np.float32)
-    if sigma_px <= _WIDE_BLUR_PX:
-        return cv2.GaussianBlur(img, (0, 0), sigma_px)
     h, w = img.shape[:2]
+    r0, r1, _ = (rows if rows is not None else slice(None)).indices(h)
+    if sigma_px <= _WIDE_BLUR_PX:
+        reach = (round(8.0 * sigma_px + 1.0) | 1) // 2 + 1  # a row more than the kernel's: a tie rounded either way
+        lo, hi = max(0, r0 - reach), min(h, r1 + reach)
+        return cv2.GaussianBlur(img[lo:hi], (0, 0), sigma_px)[r0 - lo:r1 - lo]
     small = cv2.resize(img, (max(1, round(w / 4)), max(1, round(h / 4))), interpolation=cv2.INTER_AREA)
     small = cv2.GaussianBlur(small, (0, 0), sigma_px * small.shape[1] / w)
     out = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
-    return out.reshape(img.shape)
+    return out.reshape(img.shape)[r0:r1]
 
 
 #: Longest vertical stretch of a glossy reflection over its width (a view 7 degrees below the horizon).
@@ -615,9 +627,10 @@ def glossy_blur(image: np.ndarray, weight: np.ndarray, rays: np.ndarray, *, up: 
         nd = cv2.resize(nd, (num.shape[1], num.shape[0]), interpolation=cv2.INTER_LINEAR)
         nd *= share[..., None]
         acc += nd
-    out, den_out = acc[..., :3], acc[..., 3]
-    # divided in place, and the sharp reflection kept where no ground is near (a copy of it only)
-    np.divide(out, np.maximum(den_out, 1e-6)[..., None], out=out)
+    den_out = acc[..., 3]
+    # divided into a new array (in place, into the strided channels, took twice as long), and the
+    # sharp reflection kept where no ground is near (a copy of it only)
+    out = acc[..., :3] / np.maximum(acc[..., 3:], 1e-6)
     blurred = np.array(image, np.float32)
     np.copyto(blurred, out, where=den_out[..., None] > 1e-4)
     return blurred

@@ -24,6 +24,7 @@ from wcbench.reference_model.appearance.box_shells import (
     _replace_tails,
     _slab_interval,
     _spill_region,
+    _vertical_steps,
     box_shells,
     moving_pixels,
 )
@@ -672,6 +673,27 @@ def test_the_shell_kernel_is_its_numpy_reference(seed):
         np.testing.assert_array_equal(f1[k], f0[k])
 
 
+def test_the_frames_steps_and_the_mirrored_sides_from_one_transpose_are_the_direct_ones_to_the_bit():
+    # the slow twins: each step the root of np.sum over the colour axis of the blurred frame's squared
+    # differences, and the mirrored side's steps those of the frame mirrored, then transposed
+    # (_side_bands reverses the transposed frame's rows and steps instead); frames of random noise,
+    # of blocks and with an odd size
+    rng = np.random.default_rng(11)
+    for h, w in ((270, 480), (37, 61)):
+        for frame in (rng.random((h, w, 3), np.float32),
+                      cv2.resize(rng.random((5, 9, 3)).astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)):
+            blurred = cv2.GaussianBlur(frame, (3, 3), 0.8)
+            slow = np.zeros((h, w), np.float32)
+            slow[1:] = np.sqrt(np.sum(np.square(blurred[1:] - blurred[:-1]), axis=-1))
+            np.testing.assert_array_equal(_vertical_steps(frame), slow)
+            turned = np.ascontiguousarray(frame.transpose(1, 0, 2))
+            steps = _vertical_steps(turned)
+            mirrored = _vertical_steps(np.ascontiguousarray(frame[:, ::-1].transpose(1, 0, 2)))
+            np.testing.assert_array_equal(np.concatenate([steps[:1], steps[:0:-1]]), mirrored)
+            np.testing.assert_array_equal(np.ascontiguousarray(turned[::-1]),
+                                          np.ascontiguousarray(frame[:, ::-1].transpose(1, 0, 2)))
+
+
 def test_the_slab_interval_and_the_box_test_by_columns_are_the_row_reductions():
     # the slow twins: np.nanmax / np.nanmin over each row's three slabs, np.all over its three
     # axes; rays parallel to a slab (a zero component: inf or NaN parameters) and origins on a
@@ -738,6 +760,17 @@ def test_the_mirrors_distance_from_one_dummy_channel_is_the_coloured_render_resi
     # no distance between two covered ones' that none of them has: the sentinel's mixing is gone
     near, far = float(distance[covered].min()), float(distance[covered].max())
     assert np.all((fast[np.isfinite(fast)] >= near * (1 - 1e-5)) & (fast[np.isfinite(fast)] <= far * (1 + 1e-5)))
+
+
+@pytest.mark.parametrize("sigma", [0.7, 1.5, 6.0, 6.1875, 12.0, 24.0])
+def test_a_band_of_rows_of_a_blur_is_those_rows_of_the_whole_images_blur_to_the_bit(sigma):
+    # the slow twin: _gaussian_blur of the whole image, sliced; bands at the top and bottom edges, in
+    # the middle, of one row and of every row, on a random image of four channels
+    rng = np.random.default_rng(3)
+    image = rng.uniform(size=(270, 480, 4)).astype(np.float32)
+    whole = _gaussian_blur(image, sigma)
+    for band in (slice(0, 40), slice(130, 270), slice(100, 180), slice(150, 151), slice(0, 270)):
+        np.testing.assert_array_equal(_gaussian_blur(image, sigma, rows=band), whole[band])
 
 
 @pytest.mark.parametrize("sigma", [4.0, 12.0, 18.0, 24.0, 40.0])
