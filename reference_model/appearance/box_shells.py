@@ -402,16 +402,16 @@ def _side_bands(boxes: list[tuple[Any, ...]], rays: np.ndarray, distance: np.nda
     # again), and its steps the transposed frame's reversed: the 3 x 3 blur of a flipped image is the
     # flipped blur to the bit and a step's square does not change sign (only a transpose rounds
     # the separable blur's sums differently)
-    turned = (np.ascontiguousarray(rays.transpose(1, 0, 2)), np.ascontiguousarray(distance.T),
-              np.ascontiguousarray(frame.transpose(1, 0, 2)))
-    steps = _vertical_steps(turned[2])
+    turned_rays = np.ascontiguousarray(rays.transpose(1, 0, 2))
+    turned_distance = np.ascontiguousarray(distance.T)
+    turned_frame = np.ascontiguousarray(frame.transpose(1, 0, 2))
+    turned_steps = _vertical_steps(turned_frame)
     for mirrored in (False, True):
         cols = slice(None, None, -1) if mirrored else slice(None)
         if mirrored:
-            turned = tuple(np.ascontiguousarray(a[::-1]) for a in turned)
-            steps = np.concatenate([steps[:1], steps[:0:-1]])
-        turned_rays, turned_distance, turned_frame = turned
-        turned_steps = steps
+            turned_rays, turned_distance, turned_frame = (np.ascontiguousarray(a[::-1]) for a in
+                                                          (turned_rays, turned_distance, turned_frame))
+            turned_steps = np.concatenate([turned_steps[:1], turned_steps[:0:-1]])
         turned_bands = np.zeros((w, h), bool)
         for (x0, y0, x1, y1), R, t, half, vertical, floor, reach in boxes:
             if reach < 2:  # a far object's surfels reach past it by less than a pixel
