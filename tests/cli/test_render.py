@@ -154,3 +154,37 @@ def test_a_render_of_some_frames_is_evaluated_as_is(tmp_path: Path, capsys) -> N
     assert main(["run", "--method", "identity", "--scenes", "demo", "--frames", "0,2", "--out",
                  str(tmp_path / "bad")]) == 2
     assert "one contiguous run of frames" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("offline", [False, True])
+def test_render_fetches_the_weights_its_method_trains_with_before_the_first_unit(tmp_path, monkeypatch, offline):
+    # `render --method weathercity` trains the scene's model as `run` does: without the content loss's
+    # VGG16 fetched first, a fresh machine's render would train (and cache) another model than run's
+    if not (PANDASET / "images").is_dir():
+        pytest.skip(f"real scene not present at {PANDASET}")
+    import wcbench.core.models.fetch as fetch
+    import wcbench.units as units
+    from wcbench.cli import render
+
+    monkeypatch.delenv(fetch.OFFLINE_ENV, raising=False)  # --offline alone decides
+    events: list[tuple[str, object]] = []
+    monkeypatch.setattr(fetch, "fetch_missing",
+                        lambda names, *, offline: events.append(("fetch", (sorted(names), offline))) or {})
+
+    class Unit:  # stands in for the unit of work: no training, only the order of things
+        def __init__(self, method, scene, weather, root):
+            self.root, self.weather = root, weather
+
+        def render(self, settings):
+            events.append(("unit", self.weather))
+            return {"status": "rendered", "frames": [0], "timings": {"median_frame_ms": 1.0}}
+
+    monkeypatch.setattr(units, "WorkUnit", Unit)
+    args = _args(tmp_path, weathers="rain", method="weathercity", **({"offline": True} if offline else {}))
+    args.weathers = ["rain", "snow"]
+    assert render.run(args) == 0
+    assert events == [("fetch", (["vgg16"], offline)), ("unit", "rain"), ("unit", "snow")]
+    # a method that reads no weights fetches nothing
+    events.clear()
+    assert render.run(_args(tmp_path / "plain", weathers="rain")) == 0
+    assert events == [("unit", "rain")]

@@ -46,6 +46,7 @@ from wcbench.cli.common import (
     add_deprecated_alias,
     add_frame_and_size_arguments,
     add_method_options,
+    add_offline_argument,
     add_output_argument,
     add_progress_argument,
     add_scene_arguments,
@@ -113,6 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--overwrite", action="store_true", help="replace a folder rendered with other settings"
     )
+    add_offline_argument(parser)
     add_progress_argument(parser)
     add_method_options(parser)
 
@@ -214,6 +216,7 @@ def _method_options(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Render every selected scene through the units of work ``run`` uses; return 0."""
+    from wcbench.core.models.fetch import fetch_missing, is_offline
     from wcbench.core.storage import check_writable_folder
     from wcbench.methods import get_method, method_options, renamed_method_options, validate_method_options
     from wcbench.methods.weather_spec import OPTION
@@ -245,11 +248,18 @@ def run(args: argparse.Namespace) -> int:
     size = size_request_from(args)
     settings_base = {"seed": args.seed, "overwrite": args.overwrite, "video": not args.no_video,
                      "show_progress": not args.no_progress}
+    tried: set[str] = set()
     for ref in resolve_scenes(args.scenes, data_root=data_root_from(args.data_root)):
         scene = ref.load()
         options = _method_options(args, len(scene))
         method = get_method(args.method, **options, **given)
         method.request_size(size)  # type: ignore[attr-defined]  # runnable: the unit renders it
+        # the weights the method reads, fetched before it trains as `run` and `train` fetch them: a model
+        # trained without its content loss here would be another model than the one `run` trains
+        needed = set(getattr(method, "required_models", tuple)()) - tried
+        if needed:
+            fetch_missing(sorted(needed), offline=is_offline(args.offline))
+            tried |= needed
         settings = RenderSettings(frames=tuple(parse_frames(args.frames, len(scene))), **settings_base)
         for kind in kinds:
             unit = WorkUnit(method, scene, kind, Path(args.out) / method.info.name / scene.id)
