@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -94,3 +95,38 @@ def test_options_of_bench_all_are_refused_elsewhere(tmp_path: Path, capsys) -> N
     assert "writes every suite's JSON into --out" in capsys.readouterr().err
     assert main(["bench", "metrics", "--summary-only"]) == 2
     assert "--summary-only goes with `bench --all`" in capsys.readouterr().err
+
+
+def test_a_suite_that_trains_weathercity_fetches_its_weights_before_it_runs(tmp_path: Path, monkeypatch) -> None:
+    # bench model and bench streets train the `default` model `wcbench run` trains: with the content
+    # loss's VGG16, fetched first as run fetches it, or a fresh machine would measure another model
+    import sys
+    import types
+
+    import wcbench.cli.bench as bench_cli
+    import wcbench.core.models.fetch as fetch
+
+    events: list[tuple] = []
+    monkeypatch.delenv(fetch.OFFLINE_ENV, raising=False)  # --offline alone decides
+    monkeypatch.setattr(fetch, "fetch_missing",
+                        lambda names, *, offline: events.append(("fetch", list(names), offline)) or {})
+    fake = types.ModuleType("fake_bench_suites")
+
+    def run(*, data_root, quick):
+        events.append(("run", quick))
+        return BenchReport(suite="streets")
+
+    fake.run = run  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "fake_bench_suites", fake)
+    monkeypatch.setitem(bench_cli.SUITES, "streets", "fake_bench_suites:run")
+    assert main(["bench", "streets", "--quick"]) == 0
+    assert events == [("fetch", ["vgg16"], False), ("run", True)]
+    events.clear()
+    out = tmp_path / "streets.json"
+    assert main(["bench", "streets", "--quick", "--offline", "--out", str(out)]) == 0
+    assert events == [("fetch", ["vgg16"], True), ("run", True)]
+    assert "--offline" in json.loads(out.read_text())["command"]  # the command that reproduces it says so
+    # a suite that reads no weights fetches none
+    events.clear()
+    bench_cli._fetch_weights(["raster", "metrics"], argparse.Namespace(offline=False))
+    assert events == []

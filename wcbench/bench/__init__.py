@@ -17,6 +17,12 @@ SUITES = {
     "streets": "wcbench.bench.streets:run",
 }
 
+#: suite -> the model-store entries it reads, fetched before it runs as ``wcbench run`` fetches them
+#: (``wcbench bench`` unless ``--offline``): the suites that train WeatherCity train it with the
+#: content loss's VGG16, or a fresh machine's run would measure another model than ``run`` trains
+#: (what stays missing is skipped with the reason, as in a run).
+WEIGHTS: dict[str, tuple[str, ...]] = {"model": ("vgg16",), "streets": ("vgg16",)}
+
 #: suite -> the modules and packages whose code its numbers measure: the suite's own modules and
 #: what it times or scores, not every import (the CLI, the core helpers, the JSON schema). A JSON
 #: records their digests (:mod:`.code_version`); the docs test calls it stale when one changes

@@ -27,10 +27,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from wcbench.bench import SUITES
+from wcbench.bench import SUITES, WEIGHTS
 from wcbench.cli.common import (
     add_data_root_argument,
     add_deprecated_alias,
+    add_offline_argument,
     add_output_argument,
     used_deprecated,
     warn_deprecated,
@@ -62,6 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", default=None, metavar="N,N,...",
                         help="raster and model: thread counts of the per-phase profile, the first the baseline "
                              "(default 1,2; e.g. 1,2,4,8,16)")
+    add_offline_argument(parser)
 
 
 def _json_path(out: Path, suite: str) -> Path:
@@ -74,7 +76,18 @@ def _suite_args(args: argparse.Namespace, suite: str, path: Path | None, *, thre
     out = [] if path is None else ["--out", str(path)]
     data_root = [] if args.data_root is None else ["--data-root", str(args.data_root)]
     threads_arg = [] if threads is None else ["--threads", threads]
-    return ["bench", suite, *data_root, *(["--quick"] if args.quick else []), *threads_arg, *out]
+    offline = ["--offline"] if args.offline else []
+    return ["bench", suite, *data_root, *(["--quick"] if args.quick else []), *threads_arg, *offline, *out]
+
+
+def _fetch_weights(names: list[str], args: argparse.Namespace) -> None:
+    """The model-store entries the suites ``names`` read (:data:`~wcbench.bench.WEIGHTS`), fetched
+    where missing before the first one runs, unless ``--offline``."""
+    from wcbench.core.models.fetch import fetch_missing, is_offline
+
+    needed = sorted({w for n in names for w in WEIGHTS.get(n, ())})
+    if needed:
+        fetch_missing(needed, offline=is_offline(args.offline))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -122,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
     from wcbench.bench.code_version import measured_code
     from wcbench.bench.schema import bench_command
 
+    _fetch_weights([args.suite], args)
     code = measured_code(args.suite)  # the code as the suite starts, not as it may be an hour later
     report = suites.get(args.suite)(data_root=data_root_from(args.data_root), quick=args.quick, **options)
     report.code, report.command = code, bench_command(_suite_args(args, args.suite, path, threads=args.threads))
@@ -149,6 +163,7 @@ def _run_all(args: argparse.Namespace, suites: LazyRegistry) -> int:
             done = summarize(out)
         else:
             order = [n for n in ALL_SUITES if n in suites] + [n for n in suites.names() if n not in ALL_SUITES]
+            _fetch_weights(order, args)
             done = run_all({n: suites.get(n) for n in order}, out=out,
                            data_root=data_root_from(args.data_root), quick=args.quick,
                            echo=lambda line: print(line, file=sys.stderr, flush=True),
