@@ -61,8 +61,8 @@ from wcbench.reference_model.scene_graph.lidar_init import (
 from wcbench.reference_model.scene_graph.nodes import SceneGaussians
 from wcbench.reference_model.weather.particle_geometry import quat_from_axis_to
 
-__all__ = ["ATTRIBUTES", "UNDERBODY_M", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "lane_paths",
-           "object_sides", "open_to_sky"]
+__all__ = ["ATTRIBUTES", "UNDERBODY_M", "MirroredStatic", "SurfaceScene", "build_surfaces", "in_box", "kerb_faces",
+           "lane_paths", "object_sides", "open_to_sky"]
 
 #: Attribute channels, in order.
 ATTRIBUTES = ("nx", "ny", "nz", "ground", "open", "puddle", "track")
@@ -136,6 +136,13 @@ _FACING_UP = 0.8
 #: snowed surfaces (the PandaSet right camera, docs/findings.md); a wheel or a wall's foot faces
 #: sideways.
 _GROUND_UP, _GROUND_WITHIN_M = 0.3, 0.3
+#: A return facing sideways within ``_GROUND_WITHIN_M`` of the ground is a kerb's face, ground too,
+#: when no return between that height and ``_KERB_TALL_M`` over the ground lies within
+#: ``_KERB_REACH_M`` of it along the ground: near the camera the lidar resolves a kerb's face as
+#: vertical (normals' up-component 0.1-0.25, under ``_GROUND_UP``), and it stayed a bare dark band
+#: beside a parked car where the rest of the kerb, blended into a slope, took snow (PandaSet right
+#: camera, docs/findings.md); a wall's foot, a pole's or a wheel has its structure rising above it.
+_KERB_REACH_M, _KERB_TALL_M = 0.3, 2.0
 
 
 def open_to_sky(points: np.ndarray, normals: np.ndarray, *, up: np.ndarray,
@@ -265,6 +272,25 @@ def _inside_outline(points: np.ndarray, outline: np.ndarray) -> np.ndarray:
     except QhullError:
         return np.ones(len(points), bool)
     return np.all(points @ hull.equations[:, :2].T + hull.equations[:, 2] <= 1e-9, axis=1)
+
+
+def kerb_faces(xy: np.ndarray, above: np.ndarray, up_component: np.ndarray, solid: np.ndarray) -> np.ndarray:
+    """[N] bool: the returns that face sideways (``up_component`` [N] of their normals within
+    ``_GROUND_UP`` of 0) within ``_GROUND_WITHIN_M`` of the ground (``above`` [N], m over the local
+    ground height) with no ``solid`` [N] bool return (not foliage: a street tree's lowest branches
+    hang over the kerb) of a taller structure (from ``_GROUND_WITHIN_M`` to ``_KERB_TALL_M`` over
+    the ground) within ``_KERB_REACH_M`` of them along the ground (``xy`` [N, 2], m): the face of a
+    kerb, not the foot of a wall, a pole or a wheel."""
+    xy, above, up_component = np.asarray(xy, np.float64), np.asarray(above), np.asarray(up_component)
+    low = (above < _GROUND_WITHIN_M) & (np.abs(up_component) <= _GROUND_UP)
+    tall = (above >= _GROUND_WITHIN_M) & (above < _KERB_TALL_M) & np.asarray(solid, bool)
+    if not low.any() or not tall.any():
+        return low
+    distance, _ = cKDTree(xy[tall]).query(xy[low], k=1, distance_upper_bound=_KERB_REACH_M,
+                                          workers=_workers(int(low.sum())))
+    out = np.zeros(len(xy), bool)
+    out[np.flatnonzero(low)[~np.isfinite(distance)]] = True
+    return out
 
 
 def _level(normals: np.ndarray, where: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -768,7 +794,8 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
                         boxes=[(np.asarray(t.frames, np.int64), np.asarray(t.object_to_world, np.float64),
                                 np.asarray(t.box_size, np.float64)) for t in scene.tracks],
                         moving=np.array([str(t.id) in moving for t in scene.tracks], bool))
-    ground = (normals @ up > _GROUND_UP) & (height - surf.ground_height(means) < _GROUND_WITHIN_M)
+    above = height - surf.ground_height(means)
+    ground = (normals @ up > _GROUND_UP) & (above < _GROUND_WITHIN_M)
 
     # a parked object's returns are static (a moving one's are its node's, below); its body shelters
     # the ground under it, its box's footprint, not the ground beside it: the downward normals of
@@ -781,6 +808,7 @@ def build_surfaces(scene: Any, *, voxel_m: float = 0.2, noise_seed: int = 0,
     # semantics, by its label: a crown's underside is smooth enough to pass for a roof, and sheltered
     # the pavement under a street tree from all the snow (dark patches, docs/findings.md)
     porous = (variation > _FOLIAGE_VARIATION) | surf._foliage(np.arange(len(means)))
+    ground |= kerb_faces(xy, above, normals @ up, ~porous)
     open_sky = open_to_sky(means, normals, up=up, shelters=~body, porous=porous)
     open_ = open_sky * ~under
     # real lidar is noisy at a voxel's scale: normals and openness are averaged over the 8 nearest
