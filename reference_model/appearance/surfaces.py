@@ -137,8 +137,8 @@ _FACING_UP = 0.8
 #: sideways.
 _GROUND_UP, _GROUND_WITHIN_M = 0.3, 0.3
 #: A return facing sideways within ``_GROUND_WITHIN_M`` of the ground is a kerb's face, ground too,
-#: when no return between that height and ``_KERB_TALL_M`` over the ground lies within
-#: ``_KERB_REACH_M`` of it along the ground: near the camera the lidar resolves a kerb's face as
+#: when no solid return (foliage left out) between that height and ``_KERB_TALL_M`` over the ground
+#: lies within ``_KERB_REACH_M`` of it along the ground: near the camera the lidar resolves a kerb's face as
 #: vertical (normals' up-component 0.1-0.25, under ``_GROUND_UP``), and it stayed a bare dark band
 #: beside a parked car where the rest of the kerb, blended into a slope, took snow (PandaSet right
 #: camera, docs/findings.md); a wall's foot, a pole's or a wheel has its structure rising above it.
