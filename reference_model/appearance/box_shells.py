@@ -73,6 +73,12 @@ _TOP_SEARCH_PX, _TOP_EDGE_STEP, _TOP_EDGE_SHARE = 10, 0.08, 0.6
 #: in the maps reached 13 px past the frame's edge onto the pavement, through a 4-5 px blend;
 #: docs/findings.md).
 _SIDE_REACH_M, _SIDE_SEARCH_PX, _SIDE_LOOKBACK_PX = 0.24, 20, 6
+#: An object's side runs on along its edge: a run of at most ``2 _SIDE_GAP_PX`` rows (of a 270-row
+#: frame) whose search stopped short of the band on both sides of it (a taillight's or an indicator's
+#: stronger step inside the car took the share, and the pavement beside it stayed the car's: a dark
+#: notch in the snow, docs/findings.md) takes the band its neighbours' close over it; a longer run (a
+#: mirror, a wheel arch the frame shows) keeps its own.
+_SIDE_GAP_PX = 3
 
 
 def _slab_interval(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray,
@@ -393,10 +399,14 @@ def _side_bands(boxes: list[tuple[Any, ...]], rays: np.ndarray, distance: np.nda
     """The bands beside each box's left and right edges that the frame shows as what lies beside it,
     marked in ``bands`` [H, W] bool: :func:`_top_band_pixels` run on the frame turned so that a side
     is its top (transposed for the left edge, mirrored and transposed for the right), on the maps as
-    every box's shell left them. ``boxes``: per box its region (x0, y0, x1, y1), rotation, centre,
+    every box's shell left them, each side's bands closed along it over gaps of up to
+    ``2 _SIDE_GAP_PX`` rows. ``boxes``: per box its region (x0, y0, x1, y1), rotation, centre,
     half-size, vertical axis, floor and its surfels' reach (pixels)."""
     h, w = distance.shape
     cap, lookback = max(2, round(_SIDE_SEARCH_PX * h / 270)), max(1, round(_SIDE_LOOKBACK_PX * h / 270))
+    # closed along the side (the turned frame's rows are the frame's columns): a gap of rows between
+    # two rows of band is filled to the shorter of their reaches
+    along = np.ones((1, 2 * max(1, round(_SIDE_GAP_PX * h / 270)) + 1), np.uint8)
     top = _top_band_pixels if kernels is None else kernels.top_band_kernel
     # transposed once; the mirrored side's arrays are their rows reversed (a copy, not a transpose
     # again), and its steps the transposed frame's reversed: the 3 x 3 blur of a flipped image is the
@@ -420,6 +430,7 @@ def _side_bands(boxes: list[tuple[Any, ...]], rays: np.ndarray, distance: np.nda
             top(y0, start, y1 - y0, x1 - x0, turned_rays, turned_distance, center, R, t, half, _BOX_SLACK_M,
                 vertical, floor, turned_frame, turned_steps, min(reach, cap), _TOP_EDGE_STEP, _TOP_EDGE_SHARE, lookback,
                 turned_bands)
+        turned_bands = cv2.morphologyEx(turned_bands.view(np.uint8), cv2.MORPH_CLOSE, along).view(bool)
         bands |= turned_bands.T[:, cols]
 
 

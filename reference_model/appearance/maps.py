@@ -236,8 +236,10 @@ def surface_maps(surfaces: SurfaceScene, index: int, camera: Any, sky: np.ndarra
     turnable = np.zeros(len(attrs), bool)
     if surfaces.view_turned is not None:  # the static surfels come first
         turnable[:len(surfaces.view_turned)] = surfaces.view_turned
-    # the normals and the wanted attributes gathered in one copy, the normals turned in it
-    attrs = attrs[:, [0, 1, 2] + [3 + FIELDS.index(f) for f in wanted]]
+    # the normals and the wanted attributes gathered in one copy, the normals turned in it (np.take
+    # gives it in C order: an index list on the second axis gives the transposed layout, which the
+    # rasterizer copied again)
+    attrs = np.take(attrs, [0, 1, 2] + [3 + FIELDS.index(f) for f in wanted], axis=1)
     attrs[:, :3] = facing_view(cloud.means, attrs[:, :3], turnable, center)
     values, alpha, depth = _rasterize(cloud, attrs, camera)
     rays, z_per_m = _rays(camera)

@@ -399,6 +399,26 @@ def test_the_bands_a_cars_gaussians_draw_beside_its_sides_take_what_the_frame_sh
     assert np.all(distance[middle, 133:188] < 9.0) and np.all(fields["open"][middle, 133:188] == 1.0)
 
 
+@pytest.mark.parametrize("run", [3, 10])
+def test_a_short_run_of_rows_without_a_band_between_two_with_one_takes_theirs_a_longer_run_keeps_its_own(run):
+    # the frame shows the car out to the hull's left edge (column 126) on ``run`` rows and over
+    # 131-189 elsewhere: on 3 rows (under the 2 x 2 rows the closing spans at 180 rows) the row's own
+    # search stopped short, and the band of the rows on either side runs on over it (a taillight's
+    # step inside the car); 10 rows are the frame's own outline (a mirror), and keep the car's face
+    camera = _camera(1.6)
+    rays, distance, normal, fields, image, rows = _spilled_sides(camera, slice(131, 190))
+    assert rows.start < 100 and rows.stop > 130  # every row read below lies on the car's face
+    image[110:110 + run, 126:131] = 0.9
+    box_shells(_surfaces(), 0, camera, rays, camera.center, distance, normal, fields, np.zeros(distance.shape, bool),
+               image=image)
+    assert np.all(distance[100:106, 126:131] == 30.0) and np.all(distance[124:130, 126:131] == 30.0)
+    if run == 3:
+        assert np.all(distance[110:113, 126:131] == 30.0) and np.all(fields["open"][110:113, 126:131] == 0.0)
+    else:
+        inner = slice(111, 110 + run - 1)
+        assert np.all(distance[inner, 126:131] < 9.0) and np.all(fields["open"][inner, 126:131] == 1.0)
+
+
 def test_a_cars_sides_are_kept_where_the_frame_shows_them_there():
     camera = _camera(1.6)
     rays, distance, normal, fields, image, rows = _spilled_sides(camera, slice(126, 195))
